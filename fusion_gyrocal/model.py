@@ -1,0 +1,221 @@
+"""Result types and conventions shared by every module.
+
+Conventions (see ``ARCHITECTURE.md``):
+
+* units: rad/s, seconds, float64;
+* ``R_1_2`` maps vectors in gyro 2's frame into gyro 1's frame, ``omega_1 = R_1_2 @ omega_2``
+  (the paper's C);
+* measurement model ``omega_i_meas = S_i @ omega_i + b_i + n_i`` with ``S_i = diag(scale_i)``,
+  ``A = S_1 R_1_2 S_2^-1`` (Eq. 4) and combined bias ``bias = b_1 - A b_2`` (Eq. 5);
+* scale factors are determined only up to one global factor (Theorem 2); ``gauge`` names the
+  choice that fixes it;
+* ``time_offset_s`` is ADDED to gyro 2's timestamps to put them on gyro 1's clock.
+
+The parameter vector used by :attr:`PairCalibration.covariance` is (in this order)::
+
+    [dtheta (3, rad), scale_1 (3), scale_2 (3), bias (3, rad/s)]
+
+where ``dtheta`` is the rotation error in gyro 1's frame, ``R_true = Exp(dtheta) @ R_1_2``
+(the paper's Appendix B/C perturbation, up to sign). Undetermined scale factors have an
+infinite variance and zero correlations.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+FORMAT_VERSION = "1.0"
+CONFIGURATIONS = ("general", "one_axis_pair_parallel", "all_axes_parallel")
+PARAMETER_NAMES = (
+    "dtheta_x", "dtheta_y", "dtheta_z",
+    "scale_1_x", "scale_1_y", "scale_1_z",
+    "scale_2_x", "scale_2_y", "scale_2_z",
+    "bias_x", "bias_y", "bias_z",
+)
+ROT, S1, S2, BIAS = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)
+
+_ARRAY_SHAPES = {
+    "R_1_2": (3, 3), "scale_1": (3,), "scale_2": (3,), "bias": (3,), "scale_observable": (2, 3),
+    "covariance": (12, 12), "snr": (3,), "noise_std": (2,), "skew_rotation_covariance": (3, 3),
+}
+
+
+def _frozen(a, shape, dtype=np.float64):
+    arr = np.array(a, dtype=dtype)
+    if arr.shape != shape:
+        raise ValueError(f"expected shape {shape}, got {arr.shape}")
+    arr.flags.writeable = False
+    return arr
+
+
+@dataclass(frozen=True)
+class PairCalibration:
+    """Calibration of a rigidly mounted gyroscope pair.
+
+    Attributes
+    ----------
+    R_1_2 : ndarray (3, 3)
+        Rotation from gyro 2's frame to gyro 1's frame (``omega_1 = R_1_2 @ omega_2``).
+    scale_1, scale_2 : ndarray (3,)
+        Scale factors (diagonals of S_1, S_2) in the gauge named by ``gauge``.
+    bias : ndarray (3,)
+        Combined bias ``b_1 - A b_2`` in rad/s (Eq. 5); the mean over the data where the
+        bias was modelled piecewise.
+    configuration : str
+        ``"general"``, ``"one_axis_pair_parallel"`` or ``"all_axes_parallel"`` (Lemmas 2-4).
+    scale_observable : ndarray (2, 3) of bool
+        Which scale factors the data determine up to the global scale (Theorem 2).
+    covariance : ndarray (12, 12)
+        Covariance of ``[dtheta, scale_1, scale_2, bias]`` (see module docstring), in the gauge.
+    gauge : str
+        How the global scale was fixed.
+    snr : ndarray (3,)
+        Per-axis SNR, ``sqrt(sum_k omega_1,i(k)^2) / sigma`` over the centred signal of gyro 1 with
+        ``sigma^2 = sigma_1^2 + sigma_2^2`` (Eq. 33 split per axis).
+    n_samples : int
+        Samples used.
+    noise_std : ndarray (2,)
+        White-noise standard deviation per sample of gyro 1 and gyro 2 (rad/s) used for the
+        weights and the covariance.
+    noise_source : str
+        Where ``noise_std`` came from (``"user"``, ``"residual"``, ...).
+    residual_rms : float
+        RMS of the residual ``omega_1 - A omega_2 - bias`` per axis (rad/s).
+    method : str
+        Estimator that produced the result (``"direct"``, ``"ml"``, ...).
+    iterations : int
+        Iterations of the refinement (0 for the direct solution).
+    time_offset_s, time_offset_std_s : float
+        Offset added to gyro 2's timestamps, and its standard deviation (0 when given aligned).
+    skew_rotation_covariance : ndarray (3, 3)
+        Rotation error covariance implied by the stated skew uncertainty (Appendix D, Eq. 37);
+        already included in ``covariance``'s rotation block.
+    bias_segments : int
+        Number of independent bias segments (1 for a constant bias).
+    rigid : bool or None
+        Rigidity verdict from the residual-versus-rate test (None when not tested).
+    rejected_fraction : float
+        Fraction of samples rejected by flex/outlier gating.
+    notes : tuple of str
+        Human-readable warnings (weak axes, prior-dominated directions, ...).
+    """
+
+    R_1_2: np.ndarray
+    scale_1: np.ndarray
+    scale_2: np.ndarray
+    bias: np.ndarray
+    configuration: str
+    scale_observable: np.ndarray
+    covariance: np.ndarray
+    gauge: str
+    snr: np.ndarray
+    n_samples: int
+    noise_std: np.ndarray
+    noise_source: str = "user"
+    residual_rms: float = float("nan")
+    method: str = "ml"
+    iterations: int = 0
+    time_offset_s: float = 0.0
+    time_offset_std_s: float = 0.0
+    skew_rotation_covariance: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    bias_segments: int = 1
+    rigid: bool | None = None
+    rejected_fraction: float = 0.0
+    notes: tuple = ()
+
+    def __post_init__(self):
+        for name, shape in _ARRAY_SHAPES.items():
+            dtype = bool if name == "scale_observable" else np.float64
+            object.__setattr__(self, name, _frozen(getattr(self, name), shape, dtype))
+        if self.configuration not in CONFIGURATIONS:
+            raise ValueError(f"configuration: expected one of {CONFIGURATIONS}, got {self.configuration!r}")
+        object.__setattr__(self, "notes", tuple(self.notes))
+
+    # ------------------------------------------------------------------ derived
+    @property
+    def A(self) -> np.ndarray:
+        """``S_1 R_1_2 S_2^-1`` (Eq. 4)."""
+        return (self.scale_1[:, None] * self.R_1_2) / self.scale_2[None, :]
+
+    @property
+    def rotation_std_rad(self) -> np.ndarray:
+        """1-sigma rotation uncertainty per axis of gyro 1's frame (rad)."""
+        return np.sqrt(np.diag(self.covariance)[ROT])
+
+    @property
+    def scale_std(self) -> np.ndarray:
+        """(2, 3) 1-sigma scale-factor uncertainty in the gauge (inf where undetermined)."""
+        d = np.diag(self.covariance)
+        return np.sqrt(np.stack([d[S1], d[S2]]))
+
+    @property
+    def bias_std(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.covariance)[BIAS])
+
+    @property
+    def rotvec(self) -> np.ndarray:
+        """Rotation vector (axis * angle, rad) of ``R_1_2``."""
+        return Rotation.from_matrix(self.R_1_2).as_rotvec()
+
+    def compensate(self, omega_2) -> np.ndarray:
+        """Predict gyro 1's measurement from gyro 2's: ``A @ omega_2 + bias`` for (N, 3) input."""
+        return np.asarray(omega_2) @ self.A.T + self.bias
+
+    # ------------------------------------------------------------------ serialisation
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dictionary with ``format_version``; non-finite numbers become ``None``."""
+        out: dict[str, Any] = {"format_version": FORMAT_VERSION, "units": {"rate": "rad/s", "time": "s"},
+                               "convention": "omega_1 = R_1_2 @ omega_2; omega_i_meas = diag(scale_i) omega_i + b_i",
+                               "covariance_order": list(PARAMETER_NAMES)}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, np.ndarray):
+                v = _to_json_list(v)
+            elif isinstance(v, float) and not np.isfinite(v):
+                v = None
+            elif isinstance(v, tuple):
+                v = list(v)
+            out[f.name] = v
+        return out
+
+    def to_json(self, **kwargs) -> str:
+        return json.dumps(self.to_dict(), **kwargs)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "PairCalibration":
+        version = d.get("format_version")
+        if version != FORMAT_VERSION:
+            from .errors import FormatError
+            raise FormatError(f"calibration: expected format_version {FORMAT_VERSION!r}, got {version!r}")
+        kwargs = {}
+        for f in fields(cls):
+            if f.name not in d:
+                continue
+            v = d[f.name]
+            if f.name in _ARRAY_SHAPES:
+                v = _from_json_list(v, bool if f.name == "scale_observable" else np.float64)
+            elif v is None and f.name not in ("rigid",):
+                v = float("nan")
+            kwargs[f.name] = v
+        return cls(**kwargs)
+
+
+def _to_json_list(a: np.ndarray):
+    if a.dtype == bool:
+        return a.tolist()
+    obj = a.astype(object)
+    obj[~np.isfinite(a)] = None
+    return obj.tolist()
+
+
+def _from_json_list(v, dtype):
+    if dtype is bool:
+        return np.array(v, dtype=bool)
+    arr = np.array(v, dtype=object)
+    arr = np.where(arr == None, np.inf, arr)  # noqa: E711  (undetermined entries were written as null)
+    return arr.astype(np.float64)

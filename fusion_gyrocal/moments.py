@@ -1,0 +1,290 @@
+"""Sufficient statistics of a gyroscope pair: the one O(N) pass over the samples.
+
+Everything downstream (direct solve, maximum-likelihood refinement, covariance, the
+EKF seed, the GTSAM window factors, the streaming and distributed reductions) reads
+only these few numbers, so the pass over raw samples is written once, here.
+
+For the stacked sample ``x_k = [omega_1_meas(k); omega_2_meas(k)]`` (6,) the moments are
+the sample count, the mean and the *centred* scatter ``sum_k (x_k - mean)(x_k - mean)^T``.
+Centring happens per chunk and chunks are combined with Chan's pairwise update, so long
+logs with large biases lose no precision (no raw sums of squares are ever formed).
+
+Two ways to combine moments:
+
+* :meth:`Moments.merge` (also ``a + b``): the samples share one constant bias; the
+  between-chunk spread enters the scatter (Eq. 12-14 of the paper are then exact).
+* :meth:`Moments.pool`: each part has its own bias (piecewise-constant bias); only the
+  within-part scatters add and ``segments`` counts the bias segments.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Iterable
+
+import numpy as np
+
+from .errors import InputError
+
+CHUNK_SIZE = 65536
+
+
+def as_rates(name: str, omega, *, length: int | None = None) -> np.ndarray:
+    """Return ``omega`` as a read-only ``(N, 3)`` float array (no copy when already fine).
+
+    Parameters
+    ----------
+    name : str
+        Name used in error messages.
+    omega : array_like, shape (N, 3)
+        Angular rates in rad/s.
+    length : int, optional
+        Required number of rows.
+
+    Raises
+    ------
+    InputError
+        If the shape is not ``(N, 3)`` or the length differs from ``length``.
+    """
+    arr = np.asarray(omega)
+    if arr.dtype.kind not in "fiu":
+        raise InputError(f"{name}: expected a numeric (N, 3) array of rad/s, got dtype {arr.dtype}")
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise InputError(f"{name}: expected shape (N, 3), got {arr.shape}")
+    if length is not None and arr.shape[0] != length:
+        raise InputError(
+            f"{name}: expected {length} samples (the length of omega_1), got {arr.shape[0]}; "
+            "sample-aligned input needs equal lengths (pass t_1/t_2 to align streams)"
+        )
+    if arr.dtype.kind in "iu":
+        arr = arr.astype(np.float64)
+    return arr
+
+
+def _default_threads() -> int:
+    return max(1, min(2, os.cpu_count() or 1))
+
+
+def _accumulate(w1, w2, mask, lo, hi, chunk_size):
+    """Count, mean and centred scatter of rows ``lo:hi``: shifted-data sums per chunk, Chan merge."""
+    buf = np.empty((chunk_size, 6))
+    ones = np.ones(chunk_size)
+    n_tot, mean, scat = 0, np.zeros(6), np.zeros((6, 6))
+    for start in range(lo, hi, chunk_size):
+        stop = min(start + chunk_size, hi)
+        x = buf[: stop - start]
+        np.concatenate((w1[start:stop], w2[start:stop]), axis=1, out=x)
+        if mask is not None:
+            keep = mask[start:stop]
+            if not keep.all():
+                x = x[keep]
+        m = x.shape[0]
+        if m == 0:
+            continue
+        shift = x[0].copy()
+        x -= shift  # shifted data: sums below are O(spread), not O(bias)
+        s = ones[:m] @ x
+        if not np.isfinite(s).all():
+            name, arr = ("omega_1", w1) if not np.isfinite(s[:3]).all() else ("omega_2", w2)
+            raise _first_bad_row(name, np.asarray(arr[start:stop]), start)
+        c_mean = shift + s / m
+        c_scat = x.T @ x - np.outer(s, s) / m
+        n_new = n_tot + m
+        delta = c_mean - mean
+        scat += c_scat + np.outer(delta, delta) * (n_tot * m / n_new)
+        mean += delta * (m / n_new)
+        n_tot = n_new
+    return n_tot, mean, scat
+
+
+def _first_bad_row(name: str, arr: np.ndarray, offset: int) -> InputError:
+    bad = np.flatnonzero(~np.isfinite(arr).all(axis=1))
+    idx = offset + int(bad[0]) if bad.size else offset
+    count = int(bad.size)
+    return InputError(
+        f"{name}: expected finite rates, got a non-finite value (NaN or inf) at sample {idx} "
+        f"({count} non-finite row(s) in that block); mask or drop those samples first"
+    )
+
+
+@dataclass(frozen=True)
+class Moments:
+    """Count, mean and centred scatter of the stacked samples ``[omega_1; omega_2]``.
+
+    Attributes
+    ----------
+    count : float
+        Number of samples (a float so that forgetting factors can down-weight it).
+    mean : ndarray, shape (6,)
+        Mean of ``[omega_1_meas, omega_2_meas]`` in rad/s.
+    scatter : ndarray, shape (6, 6)
+        Sum of outer products of the centred samples, within each bias segment.
+    segments : int
+        Number of independent bias segments pooled into ``scatter`` (1 for a constant bias).
+    """
+
+    count: float
+    mean: np.ndarray
+    scatter: np.ndarray
+    segments: int = 1
+
+    def __post_init__(self):
+        mean = np.array(self.mean, dtype=np.float64).reshape(6)
+        scatter = np.array(self.scatter, dtype=np.float64).reshape(6, 6)
+        mean.flags.writeable = False
+        scatter.flags.writeable = False
+        object.__setattr__(self, "mean", mean)
+        object.__setattr__(self, "scatter", scatter)
+        object.__setattr__(self, "count", float(self.count))
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def empty(cls) -> "Moments":
+        """Moments of no samples (the identity of :meth:`merge` and :meth:`pool`)."""
+        return cls(0.0, np.zeros(6), np.zeros((6, 6)), 0)
+
+    @classmethod
+    def from_samples(cls, omega_1, omega_2, *, mask=None, chunk_size: int = CHUNK_SIZE,
+                     threads: int | None = None) -> "Moments":
+        """Accumulate the moments of two sample-aligned rate streams in bounded memory.
+
+        Parameters
+        ----------
+        omega_1, omega_2 : array_like, shape (N, 3)
+            Measured rates of gyro 1 and gyro 2 (rad/s) at the same instants; float32
+            or float64 (accumulation is always float64).
+        mask : array_like of bool, shape (N,), optional
+            Samples to use (True = keep).
+        chunk_size : int
+            Rows per chunk; memory beyond the inputs is ``O(chunk_size * threads)``.
+        threads : int, optional
+            Worker threads for long inputs (default: up to 2, bounded by the CPU count).
+
+        Raises
+        ------
+        InputError
+            On a wrong shape, unequal lengths or a non-finite sample.
+        """
+        w1 = as_rates("omega_1", omega_1)
+        w2 = as_rates("omega_2", omega_2, length=w1.shape[0])
+        n = w1.shape[0]
+        if mask is not None:
+            mask = np.asarray(mask, dtype=bool)
+            if mask.shape != (n,):
+                raise InputError(f"mask: expected shape ({n},), got {mask.shape}")
+        n_chunks = -(-n // chunk_size)
+        workers = max(1, min(threads or _default_threads(), n_chunks // 4))
+        bounds = np.linspace(0, n_chunks, workers + 1).astype(int) * chunk_size
+        if workers == 1:
+            parts = [_accumulate(w1, w2, mask, 0, n, chunk_size)]
+        else:
+            with ThreadPoolExecutor(workers) as pool:  # numpy releases the GIL in BLAS and copies
+                parts = list(pool.map(lambda i: _accumulate(w1, w2, mask, bounds[i], min(bounds[i + 1], n),
+                                                            chunk_size), range(workers)))
+        return cls.merge_all(cls(c, mu, sc, 1 if c else 0) for c, mu, sc in parts)
+
+    # ------------------------------------------------------------------ algebra
+    def merge(self, other: "Moments") -> "Moments":
+        """Combine with moments of more samples that share the same bias (Chan et al.)."""
+        if other.count == 0:
+            return self
+        if self.count == 0:
+            return other
+        n = self.count + other.count
+        delta = other.mean - self.mean
+        mean = self.mean + delta * (other.count / n)
+        scatter = self.scatter + other.scatter + np.outer(delta, delta) * (self.count * other.count / n)
+        return Moments(n, mean, scatter, max(self.segments, other.segments))
+
+    __add__ = merge
+
+    def pool(self, other: "Moments") -> "Moments":
+        """Combine with moments of samples that have their own (different) bias.
+
+        Only the within-part scatters add; the between-part spread, which a changed bias
+        would corrupt, is dropped. The pooled mean is the overall sample mean.
+        """
+        if other.count == 0:
+            return self
+        if self.count == 0:
+            return other
+        n = self.count + other.count
+        mean = (self.count * self.mean + other.count * other.mean) / n
+        return Moments(n, mean, self.scatter + other.scatter, self.segments + other.segments)
+
+    @staticmethod
+    def pool_all(parts: Iterable["Moments"]) -> "Moments":
+        """Pool a sequence of per-segment moments (piecewise-constant bias)."""
+        out = Moments.empty()
+        for p in parts:
+            out = out.pool(p)
+        return out
+
+    @staticmethod
+    def merge_all(parts: Iterable["Moments"]) -> "Moments":
+        """Merge a sequence of moments that share one bias (tree-free left fold)."""
+        out = Moments.empty()
+        for p in parts:
+            out = out.merge(p)
+        return out
+
+    def decayed(self, factor: float) -> "Moments":
+        """Down-weight all samples by ``factor`` in (0, 1] (exponential forgetting)."""
+        return Moments(self.count * factor, self.mean, self.scatter * factor, self.segments)
+
+    # ------------------------------------------------------------------ views
+    @property
+    def dof(self) -> float:
+        """Degrees of freedom of the scatter: samples minus bias segments."""
+        return self.count - self.segments
+
+    @property
+    def mean_1(self) -> np.ndarray:
+        return self.mean[:3]
+
+    @property
+    def mean_2(self) -> np.ndarray:
+        return self.mean[3:]
+
+    @property
+    def S11(self) -> np.ndarray:
+        return self.scatter[:3, :3]
+
+    @property
+    def S12(self) -> np.ndarray:
+        return self.scatter[:3, 3:]
+
+    @property
+    def S22(self) -> np.ndarray:
+        return self.scatter[3:, 3:]
+
+    def to_dict(self) -> dict:
+        return {"count": self.count, "mean": self.mean.tolist(), "scatter": self.scatter.tolist(),
+                "segments": self.segments}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Moments":
+        return cls(d["count"], np.asarray(d["mean"]), np.asarray(d["scatter"]), int(d.get("segments", 1)))
+
+
+def window_moments(omega_1, omega_2, window: int, *, mask=None) -> list[Moments]:
+    """Moments of consecutive windows of ``window`` samples (one bias segment each).
+
+    ``Moments.pool_all(window_moments(...))`` gives the statistics of a piecewise-constant
+    bias; ``Moments.merge_all`` of the same list equals :meth:`Moments.from_samples`.
+    """
+    w1 = as_rates("omega_1", omega_1)
+    w2 = as_rates("omega_2", omega_2, length=w1.shape[0])
+    if window < 2:
+        raise InputError(f"window: expected at least 2 samples per window, got {window}")
+    n = w1.shape[0]
+    out = []
+    for start in range(0, n, window):
+        stop = min(start + window, n)
+        sub_mask = None if mask is None else np.asarray(mask)[start:stop]
+        m = Moments.from_samples(w1[start:stop], w2[start:stop], mask=sub_mask, chunk_size=window)
+        if m.count > 1:
+            out.append(m)
+    return out
