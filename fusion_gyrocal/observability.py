@@ -1,0 +1,187 @@
+"""Observability: configuration classes (Lemmas 2-4), excitation (Lemma 1), information and SNR.
+
+The Fisher information generalises the paper's Appendix B to the full model. With the
+gyro-2 signal ``xi_k`` (true rate in gyro 2's measurement units) as nuisance, the
+measurements are ``y_2 = xi + n_2`` and ``y_1 = A xi + b + n_1``; eliminating ``xi_k``
+gives, per sample, the residual ``y_1 - A y_2 - b`` with covariance
+``Sigma_r = sigma_1^2 I + sigma_2^2 A A^T`` and the information (bias profiled out)
+
+    I_pq = tr(D_p^T W D_q Xi_c),   W = Sigma_r^-1,   D_p = dA/dp,
+
+where ``Xi_c`` is the centred scatter of the gyro-2 signal (Eq. 17-18 of Appendix B with
+the scale factors added). The parameters ``p`` are ``[dtheta (3), log scale_1 (3), log scale_2 (3)]``
+with ``A = diag(s_1) Exp(dtheta) R diag(1/s_2)``. The global scale (all six log-scales together)
+is always a null direction (Theorem 2).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import ExcitationError, InputError
+from .moments import Moments
+
+AXES = "xyz"
+CONFIG_GENERAL, CONFIG_ONE_PAIR, CONFIG_ALL = "general", "one_axis_pair_parallel", "all_axes_parallel"
+
+
+def skew(v) -> np.ndarray:
+    """``[v x]``: the matrix of the cross product with ``v``."""
+    x, y, z = v
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def nearest_rotation(M) -> np.ndarray:
+    """Nearest rotation matrix to ``M`` in the Frobenius norm (Horn et al., used after Eq. 30)."""
+    U, _, Vt = np.linalg.svd(M)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
+
+
+def A_of(R, s1, s2) -> np.ndarray:
+    """``A = S_1 R S_2^-1`` (Eq. 4)."""
+    return (np.asarray(s1)[:, None] * R) / np.asarray(s2)[None, :]
+
+
+def dA_dp(R, s1, s2) -> np.ndarray:
+    """Derivatives (9, 3, 3) of A w.r.t. ``[dtheta, log s_1, log s_2]`` at ``(R, s1, s2)``."""
+    A = A_of(R, s1, s2)
+    D = np.empty((9, 3, 3))
+    for m in range(3):
+        e = np.zeros(3)
+        e[m] = 1.0
+        D[m] = (s1[:, None] * (skew(e) @ R)) / s2[None, :]
+    for i in range(3):
+        D[3 + i] = 0.0
+        D[3 + i][i, :] = A[i, :]
+        D[6 + i] = 0.0
+        D[6 + i][:, i] = -A[:, i]
+    return D
+
+
+def residual_weight(A, noise_std) -> np.ndarray:
+    """``W = (sigma_1^2 I + sigma_2^2 A A^T)^-1``: the per-sample residual information."""
+    s1, s2 = noise_std
+    return np.linalg.inv(s1**2 * np.eye(3) + s2**2 * A @ A.T)
+
+
+def signal_scatter(moments: Moments, noise_std) -> tuple[np.ndarray, np.ndarray]:
+    """Noise-corrected centred scatters of the two gyros' signals (clipped to be PSD)."""
+    out = []
+    for block, sig in ((moments.S11, noise_std[0]), (moments.S22, noise_std[1])):
+        X = block - moments.dof * sig**2 * np.eye(3)
+        w, V = np.linalg.eigh(0.5 * (X + X.T))
+        out.append((V * np.clip(w, 0.0, None)) @ V.T)
+    return out[0], out[1]
+
+
+def fisher_information(R, s1, s2, noise_std, Xi_c) -> np.ndarray:
+    """Fisher information (9, 9) of ``[dtheta, log s_1, log s_2]`` with the bias profiled out.
+
+    Parameters
+    ----------
+    R, s1, s2 : the calibration at which to evaluate.
+    noise_std : (sigma_1, sigma_2) per-sample noise (rad/s).
+    Xi_c : (3, 3) centred scatter of gyro 2's signal (see :func:`signal_scatter`).
+    """
+    D = dA_dp(R, s1, s2)
+    W = residual_weight(A_of(R, s1, s2), noise_std)
+    WD = np.einsum("ij,pjk->pik", W, D)
+    DX = np.einsum("pij,jk->pik", D, Xi_c)
+    return np.einsum("pij,qik->pq", WD, DX)  # tr(D_p^T W D_q Xi_c)
+
+
+@dataclass(frozen=True)
+class Configuration:
+    """Structure of the pair: class, parallel axis pairs and the groups of linked scale factors.
+
+    ``groups`` are tuples of ``(gyro, axis)`` (gyro 0 = gyro 1) whose ratios the data determine;
+    scale factors in a group of fewer than four are determined only as a ratio.
+    """
+
+    name: str
+    parallel_pairs: tuple  # ((axis of gyro 1, axis of gyro 2, angle_deg), ...)
+    groups: tuple
+
+    @property
+    def scale_observable(self) -> np.ndarray:
+        obs = np.zeros((2, 3), dtype=bool)
+        for g in self.groups:
+            if len(g) >= 4:
+                for gyro, axis in g:
+                    obs[gyro, axis] = True
+        return obs
+
+
+def classify(R, parallel_tol_deg: float = 5.0) -> Configuration:
+    """Classify the configuration of a pair from its rotation (Lemmas 2-4).
+
+    An axis of gyro 1 and an axis of gyro 2 within ``parallel_tol_deg`` of (anti)parallel are
+    treated as parallel: there the decomposition of A into scale factors is ill-conditioned
+    (a model error ``e`` such as skew becomes a scale error ``~ e / sin(angle)``), so the
+    scale factors of that pair are reported as a ratio only.
+    """
+    C = np.abs(np.asarray(R))
+    cos_tol = np.cos(np.deg2rad(parallel_tol_deg))
+    pairs = []
+    for i in range(3):
+        j = int(np.argmax(C[i]))
+        if C[i, j] >= cos_tol:
+            pairs.append((i, j, float(np.rad2deg(np.arccos(min(1.0, C[i, j]))))))
+    everyone = tuple((g, a) for g in (0, 1) for a in range(3))
+    if len(pairs) == 0:
+        return Configuration(CONFIG_GENERAL, (), (everyone,))
+    if len(pairs) == 1:
+        i, j, _ = pairs[0]
+        pair = ((0, i), (1, j))
+        rest = tuple(m for m in everyone if m not in pair)
+        return Configuration(CONFIG_ONE_PAIR, tuple(pairs), (rest, pair))
+    # two near-parallel pairs force the third (R is orthogonal); use the full signed permutation
+    perm = np.argmax(C, axis=1)
+    if len(set(perm.tolist())) != 3:
+        raise InputError(f"R_1_2 is not close to a signed permutation although two axes are parallel: {R}")
+    pairs = tuple((i, int(perm[i]), float(np.rad2deg(np.arccos(min(1.0, C[i, perm[i]]))))) for i in range(3))
+    return Configuration(CONFIG_ALL, pairs, tuple(((0, i), (1, int(perm[i]))) for i in range(3)))
+
+
+def per_axis_snr(moments: Moments, noise_std) -> np.ndarray:
+    """Per-axis SNR of gyro 1's centred signal: ``sqrt(sum omega_i^2) / sigma`` (Eq. 33 per axis)."""
+    X1, _ = signal_scatter(moments, noise_std)
+    sigma = float(np.hypot(*noise_std))
+    return np.sqrt(np.clip(np.diag(X1), 0.0, None)) / sigma
+
+
+def check_excitation(moments: Moments, noise_std, min_snr: float = 10.0) -> None:
+    """Raise :class:`ExcitationError` unless the motion spans all three axes (Lemma 1).
+
+    The centred signal scatter of gyro 1 is decomposed into principal directions; any
+    direction whose SNR (``sqrt(eigenvalue) / sigma``) is below ``min_snr`` makes A (and the
+    rotation about the other axes' cross products) undetermined.
+    """
+    if moments.count < 4:
+        raise InputError(f"expected at least 4 samples (Lemma 1), got {int(moments.count)}")
+    for name, block in (("omega_1", moments.S11), ("omega_2", moments.S22)):
+        if np.trace(block) == 0.0:
+            raise InputError(f"{name}: constant input (every sample identical); the calibration needs rotation "
+                             "about all three axes")
+    X1, _ = signal_scatter(moments, noise_std)
+    w, V = np.linalg.eigh(X1)
+    sigma = float(np.hypot(*noise_std))
+    snr_dir = np.sqrt(np.clip(w, 0.0, None)) / sigma
+    weak = [k for k in range(3) if snr_dir[k] < min_snr]
+    if weak:
+        snr_axes = per_axis_snr(moments, noise_std)
+        parts = []
+        for k in weak:
+            v = V[:, k] * np.sign(V[np.argmax(np.abs(V[:, k])), k])
+            axis = AXES[int(np.argmax(np.abs(v)))]
+            parts.append(f"direction {np.round(v, 2).tolist()} (mostly {axis}) has SNR {snr_dir[k]:.3g}")
+        msg = "; ".join(parts)
+        axes = sorted({AXES[int(np.argmax(np.abs(V[:, k])))] for k in weak})
+        raise ExcitationError(
+            f"too little motion to calibrate: {msg} (need >= {min_snr:g}; per-axis SNR of gyro 1: "
+            f"x={snr_axes[0]:.3g}, y={snr_axes[1]:.3g}, z={snr_axes[2]:.3g}). Rotate the device about its "
+            f"{' and '.join(axes)} axis/axes as well, or record longer."
+        )

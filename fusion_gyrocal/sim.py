@@ -1,0 +1,192 @@
+"""The paper's simulation protocol and its error metrics (Section V).
+
+* :class:`HumanMotion`: smooth, band-limited, human-like angular velocity that can be
+  evaluated at any instant (so streams at different rates and clocks can be drawn from it).
+* :func:`simulate_pair`: gyro 1 and gyro 2 measurements from a true rate history following
+  Eq. (1): ``omega_i_meas = S_i omega_i + b_i + n_i`` with white noise (0.1 deg/s), a bias
+  random walk (57.3 micro-deg/s per step, Eq. 32) and optional skew (upper-triangular
+  ``S_i`` with off-diagonals drawn from N(0, 2.357e-4^2)).
+* :func:`load_broad_rates`: real hand-held gyro motion from the BROAD dataset to drive the
+  simulation with recorded motion (as the paper did with its own human motion).
+* :func:`rotation_error` and :func:`scale_error`: the paper's two error metrics (Eq. 34-35).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+DEG = np.pi / 180.0
+PAPER_RATE_HZ = 100.0
+PAPER_NOISE_STD = 0.1 * DEG            # rad/s per sample
+PAPER_BIAS_WALK_STD = 57.3e-6 * DEG    # rad/s per step
+PAPER_SKEW_STD = 2.357e-4
+
+
+class HumanMotion:
+    """Band-limited human-like angular velocity, a random sum of sinusoids per axis.
+
+    Parameters
+    ----------
+    rms : float or array_like (3,)
+        Target RMS rate per axis (rad/s).
+    max_freq_hz : float
+        Highest frequency component (hand-held motion stays below ~3 Hz).
+    n_components : int
+        Sinusoids per axis.
+    rng : numpy.random.Generator or int, optional
+    """
+
+    def __init__(self, rms=1.0, *, max_freq_hz: float = 2.5, n_components: int = 24, rng=None):
+        rng = np.random.default_rng(rng)
+        self.freq = rng.uniform(0.05, max_freq_hz, size=(3, n_components))
+        self.phase = rng.uniform(0, 2 * np.pi, size=(3, n_components))
+        amp = 1.0 / np.sqrt(self.freq)
+        amp /= np.sqrt(0.5 * (amp**2).sum(axis=1, keepdims=True))  # unit RMS per axis
+        self.amp = amp * np.broadcast_to(np.asarray(rms, dtype=float), (3,))[:, None]
+
+    def __call__(self, t) -> np.ndarray:
+        """Angular velocity (N, 3) in rad/s at times ``t`` (s), in gyro 1's frame."""
+        t = np.asarray(t, dtype=float)
+        out = np.empty((t.size, 3))
+        for i in range(3):
+            out[:, i] = np.sin(np.outer(t, 2 * np.pi * self.freq[i]) + self.phase[i]) @ self.amp[i]
+        return out
+
+
+@dataclass(frozen=True)
+class SimulatedPair:
+    """Simulated measurements with their ground truth.
+
+    ``omega_1``/``omega_2`` are the measurements; ``R_1_2``, ``scale_1``, ``scale_2`` the truth;
+    ``S_1``/``S_2`` the full (possibly skewed, upper-triangular) intrinsic matrices;
+    ``bias_1``/``bias_2`` the (N, 3) bias histories; ``omega_true_1`` gyro 1's true rate.
+    """
+
+    t: np.ndarray
+    omega_1: np.ndarray
+    omega_2: np.ndarray
+    omega_true_1: np.ndarray
+    R_1_2: np.ndarray
+    scale_1: np.ndarray
+    scale_2: np.ndarray
+    S_1: np.ndarray
+    S_2: np.ndarray
+    bias_1: np.ndarray
+    bias_2: np.ndarray
+    noise_std: tuple
+
+    @property
+    def A(self) -> np.ndarray:
+        return self.S_1 @ self.R_1_2 @ np.linalg.inv(self.S_2)
+
+    @property
+    def bias(self) -> np.ndarray:
+        """Mean combined bias ``b_1 - A b_2`` over the run (Eq. 5)."""
+        return self.bias_1.mean(axis=0) - self.A @ self.bias_2.mean(axis=0)
+
+
+def random_rotation(rng=None, *, angle_deg: float | None = None) -> np.ndarray:
+    """A random rotation matrix (uniform, or with the given angle about a random axis)."""
+    rng = np.random.default_rng(rng)
+    if angle_deg is None:
+        return Rotation.random(random_state=rng).as_matrix()
+    axis = rng.standard_normal(3)
+    return Rotation.from_rotvec(axis / np.linalg.norm(axis) * angle_deg * DEG).as_matrix()
+
+
+def simulate_pair(omega_true_1=None, *, n: int = 6000, rate_hz: float = PAPER_RATE_HZ, R_1_2=None,
+                  scale_1=(1.0, 1.0, 1.0), scale_2=(1.0, 1.0, 1.0), noise_std=PAPER_NOISE_STD,
+                  bias_walk_std: float = PAPER_BIAS_WALK_STD, bias_1=None, bias_2=None,
+                  skew_std: float = 0.0, rms=1.0, rng=None) -> SimulatedPair:
+    """Simulate a rigid gyro pair following the paper's protocol (Section V).
+
+    Parameters
+    ----------
+    omega_true_1 : array_like (N, 3), optional
+        True angular velocity in gyro 1's frame (rad/s). Default: :class:`HumanMotion` with
+        ``rms`` sampled at ``rate_hz`` for ``n`` samples.
+    R_1_2 : array_like (3, 3), optional
+        True rotation (the paper's C, Eq. 2). Default: a random rotation.
+    scale_1, scale_2 : array_like (3,)
+        True scale factors (diagonals of S_i, Eq. 10).
+    noise_std : float or (float, float)
+        White noise standard deviation per sample (rad/s) for gyro 1 and 2.
+    bias_walk_std : float
+        Bias random-walk step standard deviation (rad/s per step, Eq. 32).
+    bias_1, bias_2 : array_like (3,), optional
+        Initial biases (rad/s). Default: drawn from N(0, (0.5 deg/s)^2).
+    skew_std : float
+        Standard deviation of the upper off-diagonal skew terms of S_i (the paper: 2.357e-4).
+    rng : numpy.random.Generator or int, optional
+    """
+    rng = np.random.default_rng(rng)
+    if omega_true_1 is None:
+        t = np.arange(n) / rate_hz
+        omega_true_1 = HumanMotion(rms, rng=rng)(t)
+    else:
+        omega_true_1 = np.asarray(omega_true_1, dtype=float)
+        n = omega_true_1.shape[0]
+        t = np.arange(n) / rate_hz
+    R = random_rotation(rng) if R_1_2 is None else np.asarray(R_1_2, dtype=float)
+    s1, s2 = np.asarray(scale_1, float), np.asarray(scale_2, float)
+    S = []
+    for s in (s1, s2):
+        Si = np.diag(s)
+        if skew_std > 0:
+            iu = np.triu_indices(3, 1)
+            Si[iu] = rng.normal(0.0, skew_std, size=3)
+        S.append(Si)
+    sig = np.broadcast_to(np.asarray(noise_std, float), (2,))
+    biases = []
+    for b0 in (bias_1, bias_2):
+        b0 = rng.normal(0, 0.5 * DEG, 3) if b0 is None else np.asarray(b0, float)
+        walk = np.cumsum(rng.normal(0, bias_walk_std, (n, 3)), axis=0) if bias_walk_std > 0 else 0.0
+        biases.append(b0 + walk)
+    omega_true_2 = omega_true_1 @ R  # R^T omega_1, row-wise
+    w1 = omega_true_1 @ S[0].T + biases[0] + rng.normal(0, sig[0], (n, 3))
+    w2 = omega_true_2 @ S[1].T + biases[1] + rng.normal(0, sig[1], (n, 3))
+    return SimulatedPair(t, w1, w2, omega_true_1, R, s1, s2, S[0], S[1],
+                         np.broadcast_to(biases[0], (n, 3)), np.broadcast_to(biases[1], (n, 3)),
+                         (float(sig[0]), float(sig[1])))
+
+
+def rotation_error(R_hat, R_true) -> float:
+    """``||Log(R_hat R_true^T)||`` in rad (Eq. 34)."""
+    return float(np.linalg.norm(Rotation.from_matrix(np.asarray(R_hat) @ np.asarray(R_true).T).as_rotvec()))
+
+
+def scale_error(scale_1_hat, scale_2_hat, scale_1, scale_2) -> float:
+    """The paper's scale error (Eq. 35): both gyros' scales normalised by gyro 1's x scale,
+    difference norm divided by sqrt(5)."""
+    est = np.concatenate([scale_1_hat, scale_2_hat]) / scale_1_hat[0]
+    tru = np.concatenate([scale_1, scale_2]) / scale_1[0]
+    return float(np.linalg.norm(est - tru) / np.sqrt(5.0))
+
+
+def shared_data_dir() -> Path:
+    """``../shared/data`` next to the repository (may not exist in a user's clone)."""
+    return Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+def load_broad_rates(trial: str = "06_undisturbed_fast_rotation_A", *, data_dir=None,
+                     movement_only: bool = True) -> tuple[np.ndarray, float]:
+    """Recorded hand-held gyro rates (rad/s) and the sample rate (Hz) from BROAD (CC BY 4.0).
+
+    Laidig et al., "BROAD - A Benchmark for Robust Inertial Orientation Estimation", Data 6(7):72, 2021.
+    """
+    from scipy.io import loadmat
+
+    root = Path(data_dir) if data_dir is not None else shared_data_dir()
+    path = root / "broad_handheld" / "data_mat" / f"{trial}.mat"
+    if not path.exists():
+        from .errors import FormatError
+        raise FormatError(f"BROAD trial not found: expected {path}")
+    d = loadmat(path, squeeze_me=True)
+    gyr = np.asarray(d["imu_gyr"], dtype=float)
+    if movement_only:
+        gyr = gyr[np.asarray(d["movement"], dtype=bool)]
+    return gyr, float(d["sampling_rate"])
