@@ -88,9 +88,8 @@ def fisher_information(R, s1, s2, noise_std, Xi_c) -> np.ndarray:
     """
     D = dA_dp(R, s1, s2)
     W = residual_weight(A_of(R, s1, s2), noise_std)
-    WD = np.einsum("ij,pjk->pik", W, D)
-    DX = np.einsum("pij,jk->pik", D, Xi_c)
-    return np.einsum("pij,qik->pq", WD, DX)  # tr(D_p^T W D_q Xi_c)
+    WDX = np.einsum("ij,qjk,kl->qil", W, D, Xi_c)
+    return np.einsum("pab,qab->pq", D, WDX)  # tr(D_p^T W D_q Xi_c)
 
 
 @dataclass(frozen=True)

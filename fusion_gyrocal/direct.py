@@ -1,0 +1,177 @@
+"""The paper's direct solution: least squares for A and b, decomposition, global scale.
+
+* :func:`solve_A`: Eq. (11)-(16), from the sufficient statistics (the centred scatter).
+* :func:`decompose`: A into R_1_2, scale_1, scale_2 for every configuration class:
+  general (Lemma 4, smallest eigenvector of A_0^T A_0, Eq. 27-30), one pair of axes parallel
+  (Lemma 3, any pair and any signs, Eq. 22-26) and all axes parallel (Lemma 2, any signed
+  permutation).
+* :class:`Gauge`: how the global scale (Theorem 2) is fixed: a fixed scale factor, the paper's
+  unit-scale prior on one axis of both gyros (Eq. 31-32), or a user-supplied known scale.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import ConfigurationError, ExcitationError
+from .moments import Moments
+from .observability import CONFIG_ALL, CONFIG_GENERAL, CONFIG_ONE_PAIR, Configuration, nearest_rotation
+
+GYRO_NAMES = ("scale_1", "scale_2")
+
+
+def solve_A(moments: Moments) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares ``A`` and combined bias ``b`` from the moments (Eq. 12-16).
+
+    ``A = S_12 S_22^-1`` from the centred scatters (the normal equations of Eq. 16 written
+    with A on the left), and ``b = mean_1 - A mean_2`` (Eq. 12).
+    """
+    S22 = moments.S22
+    cond = np.linalg.cond(S22)
+    if not np.isfinite(cond) or cond > 1e12:
+        raise ExcitationError(
+            f"omega_2 does not span three dimensions (condition number of its scatter {cond:.3g}): "
+            "rotate about all three axes (Lemma 1)")
+    A = np.linalg.solve(S22, moments.S12.T).T
+    return A, moments.mean_1 - A @ moments.mean_2
+
+
+def _A_I(A):
+    return A**2  # Eq. (20)
+
+
+def _A_0(A):
+    return np.stack([A[0] * A[1], A[1] * A[2], A[2] * A[0]])  # Eq. (21)
+
+
+def _positive(v, what):
+    v = v * np.sign(v[np.argmax(np.abs(v))])
+    if np.any(v <= 0):
+        raise ConfigurationError(
+            f"the direct decomposition found a non-positive squared scale factor for {what} ({v}); "
+            "the data are too noisy or the pair is not rigid")
+    return v
+
+
+def decompose(A, config: Configuration) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Decompose ``A = S_1 C S_2^-1`` into ``(R_1_2, scale_1, scale_2)`` (Lemmas 2-4).
+
+    Scale factors that the configuration leaves undetermined (the common factor of each
+    parallel axis pair) are set by the unit convention of :meth:`Gauge.apply`; only their
+    ratio comes from the data. The caller applies the gauge afterwards.
+    """
+    A = np.asarray(A, dtype=float)
+    s1, s2 = np.ones(3), np.ones(3)
+    if config.name == CONFIG_GENERAL:
+        A0 = _A_0(A)
+        w, V = np.linalg.eigh(A0.T @ A0)  # Lemma 4: s2 = null(A_0), smallest eigenvector (footnote 3)
+        sq2 = _positive(V[:, 0], "gyro 2")
+        sq1 = _positive(_A_I(A) @ sq2, "gyro 1")  # s1 = A_I s2 (Eq. 29)
+        s1, s2 = np.sqrt(sq1), np.sqrt(sq2)
+    elif config.name == CONFIG_ONE_PAIR:
+        i, j, _ = config.parallel_pairs[0]
+        r = [k for k in range(3) if k != i]
+        c = [k for k in range(3) if k != j]
+        B = A[np.ix_(r, c)]
+        # Lemma 3 (Eq. 24-25) for any pair (i, j) and any signs: the 2x2 block B of the other axes
+        # gives B_I s2 = s1 and (B[0] * B[1]) . s2 = 0.
+        sq2 = _positive(np.array([B[0, 1] * B[1, 1], -B[0, 0] * B[1, 0]]), "gyro 2")
+        sq1 = _positive((B**2) @ sq2, "gyro 1")
+        s2[c], s1[r] = np.sqrt(sq2), np.sqrt(sq1)
+        s1[i], s2[j] = abs(A[i, j]), 1.0  # Eq. (23): only s1_i / s2_j = |a_ij| is determined
+    elif config.name == CONFIG_ALL:
+        for i, j, _ in config.parallel_pairs:  # Lemma 2: A_I s2 = s1 on the signed permutation
+            s1[i], s2[j] = abs(A[i, j]), 1.0
+    R = nearest_rotation((A * s2[None, :]) / s1[:, None])  # Eq. (30) and its projection onto SO(3)
+    return R, s1, s2
+
+
+@dataclass(frozen=True)
+class Gauge:
+    """How the unobservable global scale is fixed (Theorem 2).
+
+    Parameters
+    ----------
+    members : tuple of (gyro, axis)
+        Scale factors the gauge acts on; gyro 0 is gyro 1 (``scale_1``), gyro 1 is gyro 2.
+    value : float or None
+        ``None``: the paper's unit-scale prior, the members' scale factors are as close to 1 as
+        their determined ratios allow (Eq. 31-32). A float: the single member's scale factor is
+        known and equal to ``value``.
+    """
+
+    members: tuple = ((0, 0), (1, 0))
+    value: float | None = None
+
+    @classmethod
+    def unit_prior(cls, axis: int = 0) -> "Gauge":
+        """The paper's prior that the ``axis`` scale factors of both gyros are close to 1 (Eq. 31)."""
+        return cls(((0, axis), (1, axis)), None)
+
+    @classmethod
+    def known_scale(cls, gyro: int, axis: int, value: float) -> "Gauge":
+        """A known scale factor: ``scale_<gyro>[axis] == value`` (gyro is 1 or 2)."""
+        if gyro not in (1, 2) or axis not in (0, 1, 2) or not value > 0:
+            raise ConfigurationError(f"known scale: expected gyro in (1, 2), axis in (0, 1, 2), value > 0; "
+                                     f"got gyro={gyro}, axis={axis}, value={value}")
+        return cls(((gyro - 1, axis),), float(value))
+
+    @classmethod
+    def fixed(cls) -> "Gauge":
+        """``scale_1[0] == 1``."""
+        return cls.known_scale(1, 0, 1.0)
+
+    @classmethod
+    def parse(cls, gauge) -> "Gauge":
+        """Accept a :class:`Gauge`, ``"unit_prior"`` or ``"fixed"``."""
+        if isinstance(gauge, Gauge):
+            return gauge
+        if gauge == "unit_prior":
+            return cls.unit_prior()
+        if gauge == "fixed":
+            return cls.fixed()
+        raise ConfigurationError(f"gauge: expected 'unit_prior', 'fixed' or a Gauge, got {gauge!r}")
+
+    def describe(self) -> str:
+        names = ", ".join(f"{GYRO_NAMES[g]}[{a}]" for g, a in self.members)
+        if self.value is None:
+            return f"unit prior on {names} (Eq. 31-32)"
+        return f"{names} == {self.value:g}"
+
+    def _members_in(self, group):
+        return [m for m in self.members if m in group]
+
+    def apply(self, groups, s1, s2) -> tuple[np.ndarray, np.ndarray]:
+        """Rescale each group of linked scale factors so that the gauge holds.
+
+        The group holding the gauge's members follows the gauge; any other group (the
+        parallel axis pairs of a degenerate configuration, whose common factor the data
+        cannot fix) follows the unit convention over all its members.
+        """
+        s = np.stack([np.asarray(s1, float), np.asarray(s2, float)])
+        for group in groups:
+            members = self._members_in(group) or list(group)
+            r = np.array([s[g, a] for g, a in members])
+            if self.value is not None and self._members_in(group):
+                c = self.value / r[0]
+            else:
+                c = r.sum() / (r**2).sum()  # argmin_c sum (c r - 1)^2 (Eq. 31-32 for two members)
+            for g, a in group:
+                s[g, a] *= c
+        return s[0], s[1]
+
+    def constraints(self, groups, s1, s2) -> np.ndarray:
+        """Linearised gauge conditions (one row per group) on ``[dtheta, log s_1, log s_2]``."""
+        s = np.stack([s1, s2])
+        rows = []
+        for group in groups:
+            members = self._members_in(group) or list(group)
+            row = np.zeros(9)
+            for g, a in members:
+                # fixed: d log s = 0; unit prior: d/dlog s of sum (s - 1) s = (2 s - 1) s
+                row[3 + 3 * g + a] = 1.0 if (self.value is not None and self._members_in(group)) \
+                    else s[g, a] * (2 * s[g, a] - 1)
+            rows.append(row)
+        return np.array(rows)

@@ -1,0 +1,127 @@
+"""Maximum-likelihood refinement of the direct solution (the paper's Appendix C, generalised).
+
+The paper's iterative solver linearises the residual ``omega_1 - C omega_2`` (Eq. 38-47) with
+the noise of gyro 2 ignored in the regressor. Here the cost is the exact negative log-likelihood
+of the errors-in-variables model with the true rates profiled out,
+
+    L(theta) = tr(W(A) [I, -A] S_c [I, -A]^T),   W(A) = (sigma_1^2 I + sigma_2^2 A A^T)^-1,
+
+(``S_c`` the centred, or per-segment pooled, scatter of ``[omega_1; omega_2]``), optionally plus a
+Gaussian prior on the scale factors. The dependence of ``W`` on ``A`` is what removes the
+attenuation of the scale factors that plain least squares suffers when gyro 2 is noisy relative
+to the motion (slow motion). Steps are Fisher-scoring (Gauss-Newton on the expected Hessian,
+Appendix B) with analytic gradients, in the gauge's tangent space, with a backtracking line search.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import null_space
+from scipy.spatial.transform import Rotation
+
+from .moments import Moments
+from .observability import A_of, dA_dp, fisher_information, residual_weight, signal_scatter
+
+_E = np.eye(3)
+
+
+def _residual_scatter(A, Sc):
+    K = np.hstack([_E, -A])
+    return K @ Sc @ K.T
+
+
+def ml_cost(R, s1, s2, moments: Moments, noise_std, scale_prior_std=None) -> float:
+    """Negative log-likelihood (times 2, up to a constant) of the calibration given the moments."""
+    A = A_of(R, s1, s2)
+    c = float(np.trace(residual_weight(A, noise_std) @ _residual_scatter(A, moments.scatter)))
+    if scale_prior_std is not None:
+        c += float((((np.concatenate([s1, s2]) - 1.0) / scale_prior_std) ** 2).sum())
+    return c
+
+
+def ml_gradient(R, s1, s2, moments: Moments, noise_std, scale_prior_std=None) -> np.ndarray:
+    """Gradient of :func:`ml_cost` w.r.t. ``[dtheta, log s_1, log s_2]``."""
+    A = A_of(R, s1, s2)
+    D = dA_dp(R, s1, s2)
+    W = residual_weight(A, noise_std)
+    Sc = moments.scatter
+    M = _residual_scatter(A, Sc)
+    S12, S22 = Sc[:3, 3:], Sc[3:, 3:]
+    left = S22 @ A.T - S12.T          # dM = D (S22 A^T - S21) + (A S22 - S12) D^T
+    WMW = W @ M @ W
+    g = np.empty(9)
+    for p in range(9):
+        dM = D[p] @ left
+        dM = dM + dM.T
+        dAAt = D[p] @ A.T
+        dAAt = dAAt + dAAt.T
+        g[p] = np.trace(W @ dM) - noise_std[1] ** 2 * np.trace(WMW @ dAAt)
+    if scale_prior_std is not None:
+        s = np.concatenate([s1, s2])
+        g[3:] += 2.0 * (s - 1.0) * s / scale_prior_std**2
+    return g
+
+
+def retract(R, s1, s2, delta):
+    """Apply a step ``[dtheta, dlog s_1, dlog s_2]``: ``R <- Exp(dtheta) R``, ``s <- s exp(dlog s)``."""
+    return (Rotation.from_rotvec(delta[:3]).as_matrix() @ R, s1 * np.exp(delta[3:6]), s2 * np.exp(delta[6:9]))
+
+
+@dataclass(frozen=True)
+class Refined:
+    R: np.ndarray
+    s1: np.ndarray
+    s2: np.ndarray
+    iterations: int
+    information: np.ndarray  # (9, 9) Fisher information of the data (no prior) at the solution
+    converged: bool
+
+
+def refine_ml(moments: Moments, R, s1, s2, noise_std, *, constraints=None, regauge=None,
+              scale_prior_std=None, max_iter: int = 30, tol: float = 1e-11) -> Refined:
+    """Fisher-scoring refinement of ``(R, s1, s2)`` from the moments.
+
+    Parameters
+    ----------
+    constraints : callable ``(s1, s2) -> (k, 9)`` or None
+        Linearised gauge conditions; steps are restricted to their null space.
+    regauge : callable ``(s1, s2) -> (s1, s2)`` or None
+        Re-imposes the (nonlinear) gauge after each step (moves along null directions only).
+    scale_prior_std : float or None
+        Gaussian prior N(1, std^2) on every scale factor (then no gauge is needed).
+    """
+    noise_std = tuple(float(x) for x in noise_std)
+    _, Xi_c = signal_scatter(moments, noise_std)
+    R, s1, s2 = np.array(R, float), np.array(s1, float), np.array(s2, float)
+    cost = ml_cost(R, s1, s2, moments, noise_std, scale_prior_std)
+    converged = False
+    it = 0
+    for it in range(1, max_iter + 1):
+        F = fisher_information(R, s1, s2, noise_std, Xi_c)
+        H = 2.0 * F
+        if scale_prior_std is not None:
+            s = np.concatenate([s1, s2])
+            H[3:, 3:] += np.diag(2.0 * s**2 / scale_prior_std**2)
+        g = ml_gradient(R, s1, s2, moments, noise_std, scale_prior_std)
+        Z = np.eye(9) if constraints is None else null_space(constraints(s1, s2))
+        Hz = Z.T @ H @ Z
+        step = -Z @ np.linalg.lstsq(Hz, Z.T @ g, rcond=1e-12)[0]
+        t = 1.0
+        while True:
+            Rn, s1n, s2n = retract(R, s1, s2, t * step)
+            if regauge is not None:
+                s1n, s2n = regauge(s1n, s2n)
+            new = ml_cost(Rn, s1n, s2n, moments, noise_std, scale_prior_std)
+            if new <= cost + 1e-12 * abs(cost) or t < 1e-4:
+                break
+            t *= 0.5
+        R, s1, s2 = Rn, s1n, s2n
+        decrease = cost - new
+        cost = new
+        if np.max(np.abs(t * step)) < tol or (0 <= decrease <= 1e-14 * max(abs(cost), 1.0)):
+            converged = True
+            break
+    F = fisher_information(R, s1, s2, noise_std, Xi_c)
+    return Refined(R, s1, s2, it, F, converged)
