@@ -1,0 +1,801 @@
+"""From two raw recordings to one sample-aligned pair: stream checks, time alignment, resampling, selection.
+
+The paper assumes time-stamped, re-sampled data and notes (footnote in Section III) that an
+unknown time offset "is typically computed by correlating [the gyroscopes'] measurements'
+norms" and that resampling "can be done via cubic-spline interpolation". This module does
+exactly that, on plain arrays, with masks for the samples that must not be used:
+
+* :func:`check_timestamps`, :func:`to_rad_per_s`, :func:`saturation_mask`, :func:`valid_mask`:
+  stream checks and unit conversion at the edge.
+* :func:`estimate_time_offset`: coarse offset from the FFT cross-correlation of the rate
+  norms (rotation invariant), refined below one sample by minimising the misfit of the
+  rigid-pair model ``omega_1(t) = A omega_2(t - offset) + b`` (Eq. 3-5) over the offset, with
+  ``A`` and ``b`` profiled out by least squares (the direct solution, Eq. 14-16) at every trial
+  offset, and gyro 2 evaluated with cubic splines.
+* :func:`resample`: cubic splines per contiguous run of valid samples, never across a gap.
+* :func:`align_streams`: both of the above, giving an :class:`AlignedPair` on gyro 1's clock.
+* :func:`informative_mask` and :func:`excitation_report`: sample selection (Section III,
+  remark after Eq. 11) and per-axis SNR accumulation (Eq. 33 per axis; Section VI
+  accumulates to an SNR of 4e3 per axis).
+
+Time convention (ARCHITECTURE.md): ``offset_s`` is what must be ADDED to gyro 2's timestamps
+to put them on gyro 1's clock, so gyro 2's sample taken at its own time ``t2`` happened at
+``t2 + offset_s`` on gyro 1's clock, and gyro 2's rate at gyro-1 time ``t`` is ``omega_2(t - offset_s)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+from scipy.optimize import minimize_scalar
+
+from .errors import InputError, TimeAlignmentError
+from .moments import Moments, as_rates
+
+DEG = np.pi / 180.0
+UNITS = ("rad/s", "deg/s", "counts")
+DEFAULT_GAP_PERIODS = 2.5      # default max_gap_s in nominal sample periods
+PAPER_TARGET_SNR = 4e3         # Section VI: accumulate until this SNR per axis
+_AMBIGUITY_RATIO = 1.5         # a second lobe with misfit (1 - r) below this times the peak's is ambiguous
+_MIN_OVERLAP_FRACTION = 0.5    # lags overlapping fewer valid grid points than this fraction are ignored
+
+
+# ---------------------------------------------------------------------------------------------- stream checks
+def check_timestamps(name: str, t, *, length: int | None = None) -> np.ndarray:
+    """Return timestamps as a 1-D float64 array of seconds, checking that they can be used.
+
+    Parameters
+    ----------
+    name : str
+        Name used in error messages (e.g. ``"t_2"``).
+    t : array_like, shape (N,)
+        Timestamps in seconds, strictly increasing.
+    length : int, optional
+        Number of rate samples they belong to.
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        ``t`` as float64 (the caller's array is never modified; no copy when already float64).
+
+    Raises
+    ------
+    InputError
+        If ``t`` is not 1-D and numeric, its length differs from ``length``, it has fewer than
+        two samples, a non-finite value, a duplicate timestamp or a step backwards (the message
+        names the sample index and the step).
+    """
+    arr = np.asarray(t)
+    if arr.dtype.kind not in "fiu":
+        raise InputError(f"{name}: expected numeric timestamps in seconds, got dtype {arr.dtype}")
+    if arr.ndim != 1:
+        raise InputError(f"{name}: expected a 1-D array of timestamps, got shape {arr.shape}")
+    if length is not None and arr.shape[0] != length:
+        raise InputError(f"{name}: expected {length} timestamps (one per rate sample), got {arr.shape[0]}")
+    if arr.shape[0] < 2:
+        raise InputError(f"{name}: expected at least 2 timestamps, got {arr.shape[0]}")
+    arr = arr.astype(np.float64, copy=False)
+    bad = np.flatnonzero(~np.isfinite(arr))
+    if bad.size:
+        raise InputError(f"{name}: expected finite timestamps, got {arr[bad[0]]} at sample {bad[0]} "
+                         f"({bad.size} non-finite)")
+    step = np.diff(arr)
+    nonpos = np.flatnonzero(step <= 0)
+    if nonpos.size:
+        k = int(nonpos[0])
+        if step[k] == 0:
+            raise InputError(f"{name}: expected strictly increasing timestamps, got a duplicate timestamp "
+                             f"{arr[k]!r} s at samples {k} and {k + 1} ({nonpos.size} non-increasing step(s))")
+        raise InputError(f"{name}: expected strictly increasing timestamps, got a step of {step[k]:.6g} s at "
+                         f"sample {k + 1} ({nonpos.size} non-increasing step(s))")
+    return arr
+
+
+def to_rad_per_s(x, unit: str, sensitivity: float | None = None) -> np.ndarray:
+    """Convert angular rates to rad/s (a new float64 array).
+
+    Parameters
+    ----------
+    x : array_like
+        Rates in ``unit``.
+    unit : {"rad/s", "deg/s", "counts"}
+        Unit of ``x``. Raw ``"counts"`` need ``sensitivity``.
+    sensitivity : float, optional
+        Sensor sensitivity in LSB per deg/s (e.g. 16.4 for a +-2000 deg/s MEMS gyro); only
+        with ``unit="counts"``.
+
+    Raises
+    ------
+    InputError
+        On an unknown unit, counts without a positive finite sensitivity, a sensitivity with
+        another unit, or non-numeric input.
+    """
+    arr = np.asarray(x)
+    if arr.dtype.kind not in "fiu":
+        raise InputError(f"x: expected numeric angular rates, got dtype {arr.dtype}")
+    if unit not in UNITS:
+        raise InputError(f"unit: expected one of {UNITS}, got {unit!r}")
+    if unit == "counts":
+        if sensitivity is None or not np.isfinite(sensitivity) or not sensitivity > 0:
+            raise InputError("sensitivity: expected a positive LSB per deg/s (e.g. 16.4) to convert counts, "
+                             f"got {sensitivity!r}")
+        return arr.astype(np.float64) * (DEG / float(sensitivity))
+    if sensitivity is not None:
+        raise InputError(f"sensitivity: only used with unit='counts', got {sensitivity!r} with unit={unit!r}")
+    if unit == "deg/s":
+        return arr.astype(np.float64) * DEG
+    return np.array(arr, dtype=np.float64)
+
+
+def saturation_mask(omega, limit: float | None = None) -> np.ndarray:
+    """Samples at which at least one axis is saturated (clipped at the sensor range).
+
+    Parameters
+    ----------
+    omega : array_like, shape (N, 3)
+        Rates in any unit (``limit`` in the same unit).
+    limit : float, optional
+        Sensor range: a sample is saturated where ``|value| >= limit`` on any axis. Without it a
+        heuristic is used: on each axis, the largest and the smallest value are taken as clip
+        levels when that exact value occurs in at least two samples and its magnitude is at
+        least half the largest magnitude of the whole record (clipped data sit flat at the
+        range; smooth unclipped motion almost never repeats its extreme exactly). Pass
+        ``limit`` when the range is known, especially for quantised (integer count) data.
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+        True where saturated. Non-finite samples are ignored here (see :func:`valid_mask`).
+    """
+    w = as_rates("omega", omega)
+    finite = np.isfinite(w)
+    if limit is not None:
+        if not np.isfinite(limit) or not limit > 0:
+            raise InputError(f"limit: expected a positive sensor range, got {limit!r}")
+        with np.errstate(invalid="ignore"):
+            return np.any(finite & (np.abs(w) >= limit), axis=1)
+    out = np.zeros(w.shape[0], dtype=bool)
+    if not finite.any():
+        return out
+    biggest = float(np.max(np.abs(w[finite])))
+    for a in range(3):
+        col = w[finite[:, a], a]
+        if col.size < 2:
+            continue
+        for level in (col.max(), col.min()):
+            if level == 0 or abs(level) < 0.5 * biggest:
+                continue
+            hit = w[:, a] == level
+            if np.count_nonzero(hit) >= 2:
+                out |= hit
+    return out
+
+
+def valid_mask(omega, *, limit: float | None = None, saturation: bool = True) -> np.ndarray:
+    """Samples that may be used: finite on every axis and (by default) not saturated.
+
+    Parameters
+    ----------
+    omega : array_like, shape (N, 3)
+    limit : float, optional
+        Sensor range for :func:`saturation_mask`.
+    saturation : bool
+        Also mask saturated samples (default True).
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+    """
+    w = as_rates("omega", omega)
+    ok = np.isfinite(w).all(axis=1)
+    if saturation:
+        ok &= ~saturation_mask(w, limit)
+    return ok
+
+
+def _stream(name_t, t, name_w, omega, valid) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Checked (t, omega, valid) of one stream; ``valid`` also excludes non-finite samples."""
+    w = as_rates(name_w, omega)
+    tt = check_timestamps(name_t, t, length=w.shape[0])
+    ok = np.isfinite(w).all(axis=1)
+    if valid is not None:
+        v = np.asarray(valid)
+        if v.dtype != bool or v.shape != ok.shape:
+            raise InputError(f"valid mask for {name_w}: expected a bool array of shape {ok.shape}, got "
+                             f"{v.dtype} {v.shape}")
+        ok &= v
+    return tt, w, ok
+
+
+def _nominal_period(t: np.ndarray) -> float:
+    return float(np.median(np.diff(t)))
+
+
+# ---------------------------------------------------------------------------------------------- resampling
+class _RunSplines:
+    """Cubic splines of ``y(t)`` over each contiguous run of valid samples (no gap, no masked sample)."""
+
+    def __init__(self, t: np.ndarray, y: np.ndarray, valid: np.ndarray, max_gap_s: float):
+        idx = np.flatnonzero(valid)
+        self.starts, self.ends, self.splines = np.empty(0), np.empty(0), []
+        self.width = y.shape[1:]
+        if idx.size < 2:
+            return
+        brk = (np.diff(idx) > 1) | (np.diff(t[idx]) > max_gap_s)
+        cut = np.flatnonzero(brk) + 1
+        lo = np.r_[0, cut]
+        hi = np.r_[cut, idx.size]
+        starts, ends = [], []
+        for a, b in zip(lo, hi):
+            if b - a < 2:
+                continue
+            sel = idx[a:b]
+            self.splines.append(CubicSpline(t[sel], y[sel], axis=0))
+            starts.append(t[sel[0]])
+            ends.append(t[sel[-1]])
+        self.starts, self.ends = np.asarray(starts), np.asarray(ends)
+
+    def run_of(self, x: np.ndarray) -> np.ndarray:
+        """Index of the run containing each query time, -1 outside every run."""
+        if not self.splines:
+            return np.full(x.shape, -1)
+        r = np.searchsorted(self.starts, x, side="right") - 1
+        inside = (r >= 0) & (x <= self.ends[np.clip(r, 0, None)])
+        return np.where(inside, r, -1)
+
+    def __call__(self, x: np.ndarray, nu: int = 0, runs: np.ndarray | None = None):
+        """Values (or ``nu``-th derivatives) at ``x``; NaN outside the runs; returns (values, inside)."""
+        r = self.run_of(x) if runs is None else runs
+        out = np.full(x.shape + self.width, np.nan)
+        inside = r >= 0
+        if inside.any():
+            order = np.flatnonzero(inside)
+            rr = r[order]
+            bounds = np.flatnonzero(np.diff(rr)) + 1
+            for part in np.split(np.arange(order.size), bounds):
+                k = rr[part[0]]
+                q = order[part]
+                out[q] = self.splines[k](x[q], nu)
+        return out, inside
+
+
+def resample(t_src, omega_src, t_grid, *, valid=None, max_gap_s: float | None = None):
+    """Resample rates onto new instants with cubic splines, never bridging gaps or masked samples.
+
+    A cubic spline (scipy ``CubicSpline``, not-a-knot ends) is fitted to each contiguous run of
+    valid samples; a run ends at a masked or non-finite sample or at a step longer than
+    ``max_gap_s``. Grid points outside every run are invalid.
+
+    Parameters
+    ----------
+    t_src : array_like, shape (N,)
+        Source timestamps (s), strictly increasing.
+    omega_src : array_like, shape (N, 3)
+        Source rates (rad/s).
+    t_grid : array_like, shape (M,)
+        Instants to evaluate at, on the same clock as ``t_src`` (any order).
+    valid : array_like of bool, shape (N,), optional
+        Source samples that may be used (non-finite samples are always excluded).
+    max_gap_s : float, optional
+        Longest step bridged (default: 2.5 nominal sample periods, the median step).
+
+    Returns
+    -------
+    omega : ndarray, shape (M, 3)
+        Rates at ``t_grid``; NaN where invalid.
+    valid : ndarray of bool, shape (M,)
+        True where ``t_grid`` lies inside a run of valid source samples.
+    """
+    t, w, ok = _stream("t_src", t_src, "omega_src", omega_src, valid)
+    grid = np.asarray(t_grid, dtype=np.float64)
+    if grid.ndim != 1:
+        raise InputError(f"t_grid: expected a 1-D array of instants, got shape {grid.shape}")
+    gap = DEFAULT_GAP_PERIODS * _nominal_period(t) if max_gap_s is None else float(max_gap_s)
+    if not gap > 0:
+        raise InputError(f"max_gap_s: expected a positive duration, got {max_gap_s!r}")
+    t_ref = t[0]  # splines in relative time: absolute (epoch) seconds lose precision in the cubic terms
+    spl = _RunSplines(t - t_ref, w, ok, gap)
+    finite_grid = np.isfinite(grid)
+    out, inside = spl(np.where(finite_grid, grid - t_ref, -np.inf))
+    inside &= finite_grid
+    return out, inside
+
+
+# ---------------------------------------------------------------------------------------------- time offset
+@dataclass(frozen=True)
+class TimeOffset:
+    """Estimated time offset between two gyroscope streams.
+
+    Attributes
+    ----------
+    offset_s : float
+        What must be ADDED to gyro 2's timestamps to put them on gyro 1's clock (s).
+    std_s : float
+        Standard deviation of ``offset_s`` (s), from the curvature of the misfit and the
+        residual noise.
+    lags_s : ndarray, shape (L,)
+        Trial offsets of the coarse search (s), spaced by one grid step.
+    correlation : ndarray, shape (L,)
+        Normalised cross-correlation of the two rate norms at ``lags_s`` (NaN where the overlap
+        was too short).
+    peak_correlation : float
+        Largest value of ``correlation``.
+    n_samples : int
+        Gyro-1 samples used in the sub-sample refinement.
+    """
+
+    offset_s: float
+    std_s: float
+    lags_s: np.ndarray = field(repr=False)
+    correlation: np.ndarray = field(repr=False)
+    peak_correlation: float
+    n_samples: int
+
+    def __post_init__(self):
+        for name in ("lags_s", "correlation"):
+            arr = np.array(getattr(self, name), dtype=np.float64)
+            arr.flags.writeable = False
+            object.__setattr__(self, name, arr)
+
+
+def _masked_correlation(f, mf, g, mg, d_lo, d_hi, min_overlap):
+    """Pearson correlation of ``f[k]`` with ``g[k - d]`` over jointly valid k, for d in [d_lo, d_hi], by FFT.
+
+    Each lag uses only the samples valid in both (masked normalised cross-correlation): six FFT
+    cross-correlations give, per lag, the overlap count, both sums and sums of squares, and the
+    cross sum.
+    """
+    n = f.size + g.size - 1
+    nfft = 1 << int(np.ceil(np.log2(max(n, 2))))
+    F = [np.fft.rfft(x, nfft) for x in (mf, f, f * f)]
+    G = [np.conj(np.fft.rfft(x, nfft)) for x in (mg, g, g * g)]
+
+    def xc(a, b):
+        return np.fft.irfft(a * b, nfft)
+
+    d = np.arange(d_lo, d_hi + 1)
+    sel = np.mod(d, nfft)
+    cnt = np.rint(xc(F[0], G[0])[sel])
+    s1 = xc(F[1], G[0])[sel]
+    s2 = xc(F[0], G[1])[sel]
+    q1 = xc(F[2], G[0])[sel]
+    q2 = xc(F[0], G[2])[sel]
+    p = xc(F[1], G[1])[sel]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cov = p - s1 * s2 / cnt
+        v1 = q1 - s1 * s1 / cnt
+        v2 = q2 - s2 * s2 / cnt
+        r = cov / np.sqrt(v1 * v2)
+    r[(cnt < min_overlap) | ~(v1 > 0) | ~(v2 > 0)] = np.nan
+    return np.clip(r, -1.0, 1.0)
+
+
+def _norm_on_grid(t, w, ok, grid, gap):
+    spl = _RunSplines(t, np.linalg.norm(np.where(ok[:, None], w, 0.0), axis=1)[:, None], ok, gap)
+    val, inside = spl(grid)
+    x = np.where(inside, val[:, 0], 0.0)
+    if inside.sum() < 2:
+        return x, inside
+    mu, sd = x[inside].mean(), x[inside].std()
+    x = np.where(inside, (x - mu) / (sd if sd > 0 else 1.0), 0.0)
+    return x, inside
+
+
+def _profile_cost(w1, w2):
+    """Residual sum of squares of ``w1 = A w2 + b`` with A and b at their least-squares values (Eq. 14-16).
+
+    Returns (cost, A). Uses the centred scatter: cost = tr(S11 - S12 S22^+ S12^T).
+    """
+    m = Moments.from_samples(w1, w2)
+    S22p = np.linalg.pinv(m.S22, rcond=1e-12, hermitian=True)
+    A = m.S12 @ S22p
+    return float(np.trace(m.S11) - np.trace(A @ m.S12.T)), A
+
+
+def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.0, valid_1=None, valid_2=None,
+                         min_correlation: float = 0.5) -> TimeOffset:
+    """Estimate the time offset between two rigidly mounted gyroscopes from their rates alone.
+
+    1. Coarse: the rate norms ``|omega_i|`` (invariant to the unknown rotation, as in the paper's
+       footnote on time alignment) are spline-resampled onto one uniform grid (step = the
+       shorter nominal sample period of the two streams, so different rates are handled) and
+       cross-correlated by FFT, each lag normalised over the samples valid in both streams
+       (gaps and masks allowed). The peak in ``[-max_offset_s, max_offset_s]`` is located to a
+       fraction of a step by parabolic interpolation.
+    2. Fine: the offset minimises the residual sum of squares of the rigid-pair model
+       ``omega_1(t_k) = A omega_2(t_k - offset) + b`` (Eq. 3-5 with ``A = S_1 C S_2^-1``) over the
+       valid gyro-1 samples, gyro 2 evaluated with cubic splines; ``A`` and ``b`` are profiled out
+       by least squares (Eq. 14-16) at every trial offset, so the unknown rotation, scale factors
+       and biases cannot bias the offset (matching norms alone would be biased by unequal
+       scale factors and biases). The 1-D minimisation is Brent's method on the bracket around
+       the coarse peak.
+    3. Uncertainty: ``std_s = sigma_r / sqrt(sum_k |P A d/dt omega_2(t_k - offset)|^2)``, the
+       Gauss-Newton (curvature) standard deviation, where ``P`` projects out the directions of
+       the profiled ``A`` and ``b`` and ``sigma_r^2`` is the residual variance per component.
+
+    Parameters
+    ----------
+    t_1, t_2 : array_like, shape (N_1,), (N_2,)
+        Timestamps (s) of gyro 1 and gyro 2, each on its own clock.
+    omega_1, omega_2 : array_like, shape (N_1, 3), (N_2, 3)
+        Measured rates (rad/s); gyro 2 may be rotated, scaled and biased w.r.t. gyro 1.
+    max_offset_s : float
+        Largest offset magnitude searched.
+    valid_1, valid_2 : array_like of bool, optional
+        Samples that may be used (e.g. ``~saturation_mask(omega)``); non-finite samples are
+        always excluded.
+    min_correlation : float
+        Smallest accepted peak of the normalised norm correlation.
+
+    Returns
+    -------
+    TimeOffset
+        ``offset_s`` is what must be ADDED to gyro 2's timestamps to put them on gyro 1's clock.
+
+    Raises
+    ------
+    InputError
+        Bad shapes, timestamps or ``max_offset_s``.
+    TimeAlignmentError
+        The streams do not overlap within ``max_offset_s``, the correlation peak is weak (little
+        motion), lies on the search boundary, or a second lobe is nearly as good (periodic motion).
+    """
+    t1, w1, ok1 = _stream("t_1", t_1, "omega_1", omega_1, valid_1)
+    t2, w2, ok2 = _stream("t_2", t_2, "omega_2", omega_2, valid_2)
+    if not (np.isfinite(max_offset_s) and max_offset_s > 0):
+        raise InputError(f"max_offset_s: expected a positive duration in seconds, got {max_offset_s!r}")
+    for name, ok in (("omega_1", ok1), ("omega_2", ok2)):
+        if ok.sum() < 8:
+            raise TimeAlignmentError(f"{name}: expected at least 8 valid samples to align, got {int(ok.sum())}")
+    t_ref = t1[ok1][0]
+    t1, t2 = t1 - t_ref, t2 - t_ref  # relative times: keeps spline and grid arithmetic exact
+    p1, p2 = _nominal_period(t1), _nominal_period(t2)
+    gap1, gap2 = DEFAULT_GAP_PERIODS * p1, DEFAULT_GAP_PERIODS * p2
+    h = min(p1, p2)
+
+    # ---- coarse: masked normalised FFT cross-correlation of the norms on a common grid
+    k1_lo, k1_hi = int(np.ceil(t1[0] / h)), int(np.floor(t1[-1] / h))
+    k2_lo = int(np.ceil(max(t2[0], t1[0] - max_offset_s) / h))
+    k2_hi = int(np.floor(min(t2[-1], t1[-1] + max_offset_s) / h))
+    if k2_hi - k2_lo < 8:
+        raise TimeAlignmentError(
+            f"the streams do not overlap within max_offset_s={max_offset_s:g} s: gyro 1 covers "
+            f"[{t1[0]:.6g}, {t1[-1]:.6g}] s and gyro 2 [{t2[0]:.6g}, {t2[-1]:.6g}] s relative to gyro 1's first "
+            "valid sample (pass a larger max_offset_s or shift t_2 first)")
+    g1 = np.arange(k1_lo, k1_hi + 1) * h
+    g2 = np.arange(k2_lo, k2_hi + 1) * h
+    f, mf = _norm_on_grid(t1, w1, ok1, g1, gap1)
+    g, mg = _norm_on_grid(t2, w2, ok2, g2, gap2)
+    L = int(np.ceil(max_offset_s / h))
+    # gyro 2 at own time t - tau matches gyro 1 at t: index j = k - lag  ->  d = lag + (k2_lo - k1_lo)
+    shift = k2_lo - k1_lo
+    min_overlap = max(8.0, _MIN_OVERLAP_FRACTION * min(mf.sum(), mg.sum()))
+    r = _masked_correlation(f, mf.astype(float), g, mg.astype(float), -L + shift, L + shift, min_overlap)
+    lags = np.arange(-L, L + 1) * h
+    if not np.isfinite(r).any():
+        raise TimeAlignmentError("no trial offset within max_offset_s overlaps enough valid samples of both "
+                                 f"streams (need {int(min_overlap)} common grid points)")
+    rr = np.where(np.isfinite(r), r, -np.inf)
+    i = int(np.argmax(rr))
+    peak = float(r[i])
+    if peak < min_correlation:
+        raise TimeAlignmentError(
+            f"weak correlation of the rate norms: peak {peak:.3f} at {lags[i]:+.4f} s (need >= "
+            f"{min_correlation:g}); the recording has too little motion, or the streams are not from one rigid body")
+    if i == 0 or i == lags.size - 1 or not np.isfinite(r[i - 1]) or not np.isfinite(r[i + 1]):
+        raise TimeAlignmentError(
+            f"the correlation peak ({peak:.3f}) lies on the search boundary at {lags[i]:+.4f} s; the offset may "
+            f"exceed max_offset_s={max_offset_s:g} s: pass a larger max_offset_s")
+    thr = 1.0 - _AMBIGUITY_RATIO * (1.0 - peak)
+    lobe_lo, lobe_hi = i, i
+    while lobe_lo > 0 and rr[lobe_lo - 1] >= thr:
+        lobe_lo -= 1
+    while lobe_hi < rr.size - 1 and rr[lobe_hi + 1] >= thr:
+        lobe_hi += 1
+    others = np.r_[rr[:lobe_lo], rr[lobe_hi + 1:]]
+    if others.size and others.max() >= thr:
+        j = int(np.flatnonzero(rr >= thr)[np.argmax(np.abs(np.flatnonzero(rr >= thr) - i))])
+        raise TimeAlignmentError(
+            f"ambiguous time offset: the norm correlation peaks at {lags[i]:+.4f} s ({peak:.4f}) and again at "
+            f"{lags[j]:+.4f} s ({r[j]:.4f}); periodic motion? record less repetitive motion or pass a smaller "
+            "max_offset_s around the expected offset")
+    den = rr[i - 1] - 2.0 * rr[i] + rr[i + 1]
+    frac = 0.5 * (rr[i - 1] - rr[i + 1]) / den if den < 0 else 0.0
+    tau0 = lags[i] + float(np.clip(frac, -0.5, 0.5)) * h
+
+    # ---- fine: profiled rigid-model misfit, Brent on the bracket around the coarse peak
+    spl2 = _RunSplines(t2, w2, ok2, gap2)
+    x1, y1 = t1[ok1], w1[ok1]
+    tau, half = tau0, 1.5 * h
+    for _ in range(6):
+        lo, hi = tau - half, tau + half
+        # gyro-1 samples whose whole bracket maps inside one run of gyro 2 (fixed set: a smooth cost)
+        ra, rb = spl2.run_of(x1 - hi), spl2.run_of(x1 - lo)
+        use = (ra >= 0) & (ra == rb)
+        if use.sum() < 16:
+            raise TimeAlignmentError(f"only {int(use.sum())} gyro-1 samples overlap valid gyro-2 data near the "
+                                     f"offset {tau0:+.4f} s; need at least 16")
+        xe, ye, runs = x1[use], y1[use], ra[use]
+
+        def cost(tt):
+            return _profile_cost(ye, spl2(xe - tt, runs=runs)[0])[0]
+
+        res = minimize_scalar(cost, bounds=(lo, hi), method="bounded",
+                              options={"xatol": 1e-9 * max(1.0, abs(tau)) + 1e-4 * h})
+        tau_new = float(res.x)
+        at_edge = min(tau_new - lo, hi - tau_new) < 0.05 * half
+        tau = tau_new
+        if not at_edge:
+            break
+    else:
+        raise TimeAlignmentError(f"the sub-sample refinement did not settle near the correlation peak "
+                                 f"{tau0:+.4f} s (last {tau:+.6f} s)")
+
+    # ---- uncertainty: Gauss-Newton curvature of the profiled misfit
+    w2e = spl2(xe - tau, runs=runs)[0]
+    rss, A = _profile_cost(ye, w2e)
+    dw2 = spl2(xe - tau, nu=1, runs=runs)[0]
+    m = Moments.from_samples(dw2, w2e)  # centred: projects out the bias direction
+    P = m.S11 - m.S12 @ np.linalg.pinv(m.S22, rcond=1e-12, hermitian=True) @ m.S12.T  # project out A
+    info = float(np.trace(A @ P @ A.T))
+    n = xe.size
+    sigma2 = rss / max(3 * n - 13, 1)
+    std = float(np.sqrt(sigma2 / info)) if info > 0 else float("inf")
+    return TimeOffset(float(tau), std, lags, r, peak, int(n))
+
+
+# ---------------------------------------------------------------------------------------------- alignment
+@dataclass(frozen=True)
+class AlignedPair:
+    """Two gyroscope streams on one time grid on gyro 1's clock.
+
+    Attributes
+    ----------
+    t : ndarray, shape (M,)
+        Grid instants on gyro 1's clock (s).
+    omega_1, omega_2 : ndarray, shape (M, 3)
+        Rates (rad/s) of gyro 1 and gyro 2 at ``t`` (NaN where a stream has no value there).
+    valid : ndarray of bool, shape (M,)
+        True where both streams are valid.
+    time_offset : TimeOffset or None
+        The estimated offset (None when it was given).
+    time_offset_s : float
+        The offset applied: gyro 2's own time ``t - time_offset_s`` was sampled for grid time ``t``.
+    """
+
+    t: np.ndarray = field(repr=False)
+    omega_1: np.ndarray = field(repr=False)
+    omega_2: np.ndarray = field(repr=False)
+    valid: np.ndarray = field(repr=False)
+    time_offset: TimeOffset | None
+    time_offset_s: float
+
+    def __post_init__(self):
+        for name in ("t", "omega_1", "omega_2", "valid"):
+            arr = np.array(getattr(self, name))
+            arr.flags.writeable = False
+            object.__setattr__(self, name, arr)
+
+    @property
+    def n_valid(self) -> int:
+        """Number of grid points valid in both streams."""
+        return int(np.count_nonzero(self.valid))
+
+    def moments(self, mask=None) -> Moments:
+        """:class:`Moments` of the valid samples (and of ``mask``, e.g. :func:`informative_mask`)."""
+        keep = self.valid if mask is None else self.valid & np.asarray(mask, dtype=bool)
+        return Moments.from_samples(self.omega_1, self.omega_2, mask=keep)
+
+
+def align_streams(t_1, omega_1, t_2, omega_2, *, time_offset_s: float | None = None, max_offset_s: float = 1.0,
+                  rate_hz: float | None = None, valid_1=None, valid_2=None) -> AlignedPair:
+    """Put two gyroscope streams on one time grid on gyro 1's clock.
+
+    The offset is estimated with :func:`estimate_time_offset` unless ``time_offset_s`` is given.
+    Gyro 2's sample taken at its own time ``t2`` happened at ``t2 + offset`` on gyro 1's clock,
+    so gyro 2 is resampled (:func:`resample`) at ``t - offset`` for every grid time ``t``.
+
+    Parameters
+    ----------
+    t_1, omega_1, t_2, omega_2 : array_like
+        Timestamps (s, each on its own clock) and rates (rad/s) of both gyros.
+    time_offset_s : float, optional
+        Known offset (added to gyro 2's timestamps to put them on gyro 1's clock).
+    max_offset_s : float
+        Search range of the estimate.
+    rate_hz : float, optional
+        Uniform grid rate; both streams are then resampled. Default: gyro 1's own timestamps
+        (gyro 1 is not interpolated).
+    valid_1, valid_2 : array_like of bool, optional
+        Usable samples of each stream (non-finite samples are always excluded).
+
+    Returns
+    -------
+    AlignedPair
+        Restricted to the time span where both streams have data.
+
+    Raises
+    ------
+    InputError, TimeAlignmentError
+        See :func:`estimate_time_offset`; also when the streams do not overlap after alignment.
+    """
+    t1, w1, ok1 = _stream("t_1", t_1, "omega_1", omega_1, valid_1)
+    t2, w2, ok2 = _stream("t_2", t_2, "omega_2", omega_2, valid_2)
+    est = None
+    if time_offset_s is None:
+        est = estimate_time_offset(t1, w1, t2, w2, max_offset_s=max_offset_s, valid_1=ok1, valid_2=ok2)
+        tau = est.offset_s
+    else:
+        tau = float(time_offset_s)
+        if not np.isfinite(tau):
+            raise InputError(f"time_offset_s: expected a finite offset in seconds, got {time_offset_s!r}")
+    lo, hi = max(t1[0], t2[0] + tau), min(t1[-1], t2[-1] + tau)
+    if not hi > lo:
+        raise TimeAlignmentError(f"the streams do not overlap after applying the offset {tau:+.6g} s: gyro 1 covers "
+                                 f"[{t1[0]:.6g}, {t1[-1]:.6g}] s, gyro 2 [{t2[0] + tau:.6g}, {t2[-1] + tau:.6g}] s")
+    if rate_hz is None:
+        keep = (t1 >= lo) & (t1 <= hi)
+        grid = t1[keep]
+        o1 = np.array(w1[keep], dtype=np.float64)
+        v1 = ok1[keep]
+    else:
+        if not (np.isfinite(rate_hz) and rate_hz > 0):
+            raise InputError(f"rate_hz: expected a positive rate, got {rate_hz!r}")
+        grid = lo + np.arange(int(np.floor((hi - lo) * rate_hz + 1e-9)) + 1) / float(rate_hz)
+        o1, v1 = resample(t1, w1, grid, valid=ok1)
+    o2, v2 = resample(t2, w2, grid - tau, valid=ok2)
+    return AlignedPair(grid, o1, o2, v1 & v2, est, tau)
+
+
+# ---------------------------------------------------------------------------------------------- selection
+def _noise_pair(noise_std) -> tuple[float, float]:
+    arr = np.broadcast_to(np.asarray(noise_std, dtype=float), (2,))
+    if not np.all(np.isfinite(arr)) or np.any(arr <= 0):
+        raise InputError(f"noise_std: expected positive rad/s per sample (one value or one per gyro), got {noise_std}")
+    return float(arr[0]), float(arr[1])
+
+
+def informative_mask(omega_1, omega_2, valid, noise_std, *, min_rate: float | None = None,
+                     max_rate: float | None = None) -> np.ndarray:
+    """Samples whose rate is well above the noise and below a flex / saturation limit.
+
+    The paper (remark after Eq. 11) recommends samples with a large rate norm (high SNR) but
+    not the fastest motion, where the device may flex (Section VI.C). A sample is kept when it
+    is valid and the rate norm of BOTH gyros is in ``[min_rate, max_rate]``.
+
+    Parameters
+    ----------
+    omega_1, omega_2 : array_like, shape (N, 3)
+        Sample-aligned rates (rad/s), e.g. from :func:`align_streams`.
+    valid : array_like of bool, shape (N,) or None
+        Usable samples (None: all finite samples).
+    noise_std : float or (float, float)
+        White-noise std per sample and axis of each gyro (rad/s).
+    min_rate : float, optional
+        Smallest rate norm kept (default ``10 * max(noise_std)``). The measured norm contains the
+        bias; raise ``min_rate`` above the bias norm when biases are large.
+    max_rate : float, optional
+        Largest rate norm kept (default: no limit), e.g. below the sensor range or where
+        the device starts to flex.
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+    """
+    w1 = as_rates("omega_1", omega_1)
+    w2 = as_rates("omega_2", omega_2, length=w1.shape[0])
+    s1, s2 = _noise_pair(noise_std)
+    lo = 10.0 * max(s1, s2) if min_rate is None else float(min_rate)
+    hi = np.inf if max_rate is None else float(max_rate)
+    if not (lo >= 0 and hi > lo):
+        raise InputError(f"min_rate/max_rate: expected 0 <= min_rate < max_rate, got {lo!r} and {hi!r}")
+    keep = np.isfinite(w1).all(axis=1) & np.isfinite(w2).all(axis=1)
+    if valid is not None:
+        v = np.asarray(valid)
+        if v.dtype != bool or v.shape != keep.shape:
+            raise InputError(f"valid: expected a bool array of shape {keep.shape}, got {v.dtype} {v.shape}")
+        keep &= v
+    with np.errstate(invalid="ignore"):
+        n1, n2 = np.linalg.norm(w1, axis=1), np.linalg.norm(w2, axis=1)
+        keep &= (n1 >= lo) & (n2 >= lo) & (n1 <= hi) & (n2 <= hi)
+    return keep
+
+
+@dataclass(frozen=True)
+class ExcitationReport:
+    """Per-axis accumulation of the signal-to-noise ratio (Eq. 33 per axis).
+
+    Attributes
+    ----------
+    snr : ndarray, shape (3,)
+        Final per-axis SNR ``sqrt(sum_k (omega_k - mean)^2 - (n - 1) sigma^2) / sigma`` over all used samples.
+    cumulative_snr : ndarray, shape (N, 3)
+        The same after each sample (running mean; constant across unused samples).
+    target_snr : float
+        The target per axis (the paper: 4e3).
+    reached : ndarray of bool, shape (3,)
+        Whether each axis reached the target.
+    reached_at : ndarray of int, shape (3,)
+        Sample index at which each axis first reached the target (-1: never).
+    n_used : int
+        Samples used (valid ones).
+    """
+
+    snr: np.ndarray
+    cumulative_snr: np.ndarray = field(repr=False)
+    target_snr: float
+    reached: np.ndarray
+    reached_at: np.ndarray
+    n_used: int
+
+    def __post_init__(self):
+        for name in ("snr", "cumulative_snr", "reached", "reached_at"):
+            arr = np.array(getattr(self, name))
+            arr.flags.writeable = False
+            object.__setattr__(self, name, arr)
+
+    @property
+    def all_reached(self) -> bool:
+        return bool(self.reached.all())
+
+    @property
+    def samples_needed(self) -> int | None:
+        """Index of the sample at which every axis had reached the target (None if some never did)."""
+        return int(self.reached_at.max()) if self.all_reached else None
+
+
+def excitation_report(omega, noise_std: float, *, valid=None, target_snr: float = PAPER_TARGET_SNR) -> ExcitationReport:
+    """Accumulate the per-axis SNR of one gyro's rates and find when it reaches a target.
+
+    The paper's SNR (Eq. 33) is ``sqrt(sum_k |omega_k|^2) / sigma`` of the true rate; here it is
+    taken per axis over the *centred* signal (the bias is unknown, and only the motion about
+    the mean informs A, Eq. 14), with the expected noise contribution removed:
+    ``SNR_i(k) = sqrt(max(C_ii(k) - (n(k) - 1) sigma^2, 0)) / sigma`` where ``C(k)`` is the centred
+    scatter of the first ``k + 1`` samples (running mean) and ``n(k)`` their count. Section VI
+    accumulates samples until every axis reaches 4e3.
+
+    Parameters
+    ----------
+    omega : array_like, shape (N, 3)
+        Rates (rad/s) of one gyro.
+    noise_std : float
+        White-noise std per sample and axis (rad/s).
+    valid : array_like of bool, shape (N,), optional
+        Samples to use (non-finite samples are always skipped).
+    target_snr : float
+        Target per axis.
+
+    Returns
+    -------
+    ExcitationReport
+    """
+    w = as_rates("omega", omega)
+    sig = float(noise_std)
+    if not (np.isfinite(sig) and sig > 0):
+        raise InputError(f"noise_std: expected a positive rad/s per sample, got {noise_std!r}")
+    if not (np.isfinite(target_snr) and target_snr > 0):
+        raise InputError(f"target_snr: expected a positive value, got {target_snr!r}")
+    keep = np.isfinite(w).all(axis=1)
+    if valid is not None:
+        v = np.asarray(valid)
+        if v.dtype != bool or v.shape != keep.shape:
+            raise InputError(f"valid: expected a bool array of shape {keep.shape}, got {v.dtype} {v.shape}")
+        keep &= v
+    n = w.shape[0]
+    cum = np.zeros((n, 3))
+    if keep.any():
+        x = np.where(keep[:, None], w, 0.0)
+        shift = w[keep].mean(axis=0)  # shifted data: the running sums stay O(spread), not O(bias)
+        x = np.where(keep[:, None], x - shift, 0.0)
+        cnt = np.cumsum(keep).astype(float)[:, None]
+        s = np.cumsum(x, axis=0)
+        q = np.cumsum(x * x, axis=0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            scat = np.where(cnt > 0, q - s * s / np.maximum(cnt, 1.0), 0.0)
+        cum = np.sqrt(np.clip(scat - np.maximum(cnt - 1.0, 0.0) * sig**2, 0.0, None)) / sig
+    snr = cum[-1].copy() if n else np.zeros(3)
+    reached = snr >= target_snr
+    at = np.array([int(np.argmax(cum[:, a] >= target_snr)) if reached[a] else -1 for a in range(3)])
+    return ExcitationReport(snr, cum, float(target_snr), reached, at, int(keep.sum()))
