@@ -1,0 +1,24 @@
+"""Readers and writers at the library's edge (units are converted here and nowhere else).
+
+Readers return :class:`ImuStream` (``t`` in s, ``omega`` in rad/s, float64):
+:func:`read_imu` (any format, picked from suffix and content), :func:`read_csv` (generic and
+EuRoC / ASL ``imu0/data.csv``), :func:`read_xsens` (MT Manager export), :func:`read_npz` (generic and
+the MIMU array layout), :func:`read_bag` / :func:`list_imu_topics` (ROS1 and ROS2, via ``rosbags``).
+
+Writers are atomic (temp file, fsync, ``os.replace``): :func:`write_json` / :func:`read_json` for
+:class:`~fusion_gyrocal.model.PairCalibration`, :func:`write_kalibr_imu_yaml`,
+:func:`write_openvins_imu_chain`, and for streams :func:`write_csv`, :func:`write_npz`,
+:func:`write_imu_bag`.
+"""
+
+from .bags import list_imu_topics, read_bag, write_imu_bag
+from .readers import ImuStream, detect_format, read_csv, read_imu, read_npz, read_xsens
+from .writers import (ImuNoise, read_json, write_csv, write_json, write_kalibr_imu_yaml, write_npz,
+                      write_openvins_imu_chain)
+
+__all__ = [
+    "ImuStream", "ImuNoise",
+    "read_imu", "detect_format", "read_csv", "read_xsens", "read_npz", "read_bag", "list_imu_topics",
+    "write_json", "read_json", "write_kalibr_imu_yaml", "write_openvins_imu_chain",
+    "write_csv", "write_npz", "write_imu_bag",
+]
