@@ -68,14 +68,21 @@ def _default_threads() -> int:
 
 
 def _accumulate(w1, w2, mask, lo, hi, chunk_size):
-    """Count, mean and centred scatter of rows ``lo:hi``: shifted-data sums per chunk, Chan merge."""
-    buf = np.empty((chunk_size, 6))
-    ones = np.ones(chunk_size)
+    """Count, mean and centred scatter of rows ``lo:hi``, chunk by chunk, combined with Chan's update.
+
+    Each chunk is copied into a float64 buffer ``[omega_1, omega_2, 1]`` whose Gram matrix gives
+    the sums and products in one BLAS call. Where a chunk's mean is large against its spread
+    (cancellation would cost more than ~6 of 16 digits), the chunk is shifted by its first sample
+    and recomputed (shifted-data algorithm), so large biases never lose precision.
+    """
+    buf = np.empty((chunk_size, 7))
+    buf[:, 6] = 1.0
     n_tot, mean, scat = 0, np.zeros(6), np.zeros((6, 6))
     for start in range(lo, hi, chunk_size):
         stop = min(start + chunk_size, hi)
         x = buf[: stop - start]
-        np.concatenate((w1[start:stop], w2[start:stop]), axis=1, out=x)
+        x[:, :3] = w1[start:stop]
+        x[:, 3:6] = w2[start:stop]
         if mask is not None:
             keep = mask[start:stop]
             if not keep.all():
@@ -83,14 +90,20 @@ def _accumulate(w1, w2, mask, lo, hi, chunk_size):
         m = x.shape[0]
         if m == 0:
             continue
-        shift = x[0].copy()
-        x -= shift  # shifted data: sums below are O(spread), not O(bias)
-        s = ones[:m] @ x
+        G = x.T @ x
+        s = G[6, :6]
         if not np.isfinite(s).all():
             name, arr = ("omega_1", w1) if not np.isfinite(s[:3]).all() else ("omega_2", w2)
             raise _first_bad_row(name, np.asarray(arr[start:stop]), start)
-        c_mean = shift + s / m
-        c_scat = x.T @ x - np.outer(s, s) / m
+        c_mean = s / m
+        c_scat = G[:6, :6] - np.outer(s, c_mean)
+        spread = np.diag(c_scat) / m
+        if np.any(c_mean**2 > 1e6 * np.maximum(spread, 1e-300)):
+            shift = x[0, :6].copy()
+            x[:, :6] -= shift  # shifted data: sums are O(spread), not O(bias)
+            G = x.T @ x
+            c_mean = shift + G[6, :6] / m
+            c_scat = G[:6, :6] - np.outer(G[6, :6], G[6, :6]) / m
         n_new = n_tot + m
         delta = c_mean - mean
         scat += c_scat + np.outer(delta, delta) * (n_tot * m / n_new)

@@ -184,3 +184,59 @@ def check_excitation(moments: Moments, noise_std, min_snr: float = 10.0) -> None
             f"x={snr_axes[0]:.3g}, y={snr_axes[1]:.3g}, z={snr_axes[2]:.3g}). Rotate the device about its "
             f"{' and '.join(axes)} axis/axes as well, or record longer."
         )
+
+
+@dataclass(frozen=True)
+class Bound:
+    """Cramer-Rao bound of a calibration problem in the paper's error metrics (Eq. 34-35).
+
+    Attributes
+    ----------
+    rotation_rmse : float
+        ``sqrt(trace(P_rot))``: the bound on the RMSE of ``||Log(R_hat R^T)||`` (rad).
+    scale_rmse : float
+        Bound on the RMSE of the paper's scale error (Eq. 35), gauge invariant.
+    covariance : ndarray (9, 9)
+        Bound on the covariance of ``[dtheta, log s_1, log s_2]`` in the gauge ``log s_1[0] = 0``
+        (or with the prior, when one is given).
+    """
+
+    rotation_rmse: float
+    scale_rmse: float
+    covariance: np.ndarray
+
+
+def cramer_rao_bound(R, s1, s2, noise_std, signal_2, *, scale_prior_std=None) -> Bound:
+    """Cramer-Rao bound for the pair model (Appendix B generalised to scales and biases).
+
+    Parameters
+    ----------
+    R, s1, s2 : true rotation and scale factors.
+    noise_std : (sigma_1, sigma_2) white noise per sample (rad/s).
+    signal_2 : (N, 3) array or (3, 3) matrix
+        The true gyro-2 signal ``S_2 omega_2`` (noise-free, rad/s) as samples, or its centred
+        scatter; the bias is profiled out, so only its variation matters.
+    scale_prior_std : float, optional
+        Gaussian prior N(1, std^2) on every scale factor (then the bound is the Bayesian one).
+    """
+    sig = np.asarray(signal_2, dtype=float)
+    if sig.shape != (3, 3):
+        c = sig - sig.mean(axis=0)
+        sig = c.T @ c
+    s1, s2 = np.asarray(s1, float), np.asarray(s2, float)
+    F = fisher_information(np.asarray(R, float), s1, s2, tuple(noise_std), sig)
+    if scale_prior_std is not None:
+        s = np.concatenate([s1, s2])
+        F = F.copy()
+        F[3:, 3:] += np.diag(s**2 / scale_prior_std**2)
+        P = np.linalg.inv(F)
+    else:
+        keep = [0, 1, 2, 4, 5, 6, 7, 8]  # gauge log s_1[0] = 0 (the paper's normalisation)
+        P = np.zeros((9, 9))
+        P[np.ix_(keep, keep)] = np.linalg.inv(F[np.ix_(keep, keep)])
+    s = np.concatenate([s1, s2])
+    J = np.zeros((6, 9))  # e_k = (s_k / s_1x)(dlog s_k - dlog s_1x), Eq. (35) linearised
+    for k in range(6):
+        J[k, 3 + k] += s[k] / s[0]
+        J[k, 3] -= s[k] / s[0]
+    return Bound(float(np.sqrt(np.trace(P[:3, :3]))), float(np.sqrt(np.trace(J @ P @ J.T) / 5.0)), P)
