@@ -27,6 +27,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import FormatError, InputError
+from ..preprocess import check_timestamps, to_rad_per_s
 
 DEG = np.pi / 180.0
 
@@ -50,7 +51,8 @@ _GYRO_TRIPLES = (
 )
 _TIME_NAMES = ("t", "time", "timestamp", "stamp", "time_s", "t_s", "timestamp_s", "time_ns", "t_ns",
                "timestamp_ns", "time_us", "t_us", "timestamp_us", "time_ms", "t_ms", "timestamp_ms",
-               "field.header.stamp", "header.stamp", "%time", "sampletimefine")
+               "field.header.stamp", "%time")
+_NS_TIME_NAMES = ("field.header.stamp", "%time")  # `rostopic echo -p` CSV: integer nanoseconds
 
 
 # ----------------------------------------------------------------------------- the stream type
@@ -94,26 +96,11 @@ class ImuStream:
 
     def __post_init__(self):
         name = self.name
-        t = np.array(self.t, dtype=np.float64)
-        if t.ndim != 1:
-            raise InputError(f"{name}: expected timestamps of shape (N,), got {t.shape}")
         omega = np.array(self.omega, dtype=np.float64)
         if omega.ndim != 2 or omega.shape[1] != 3:
             raise InputError(f"{name}: expected angular rates of shape (N, 3), got {omega.shape}")
-        if omega.shape[0] != t.shape[0]:
-            raise InputError(f"{name}: expected one timestamp per rate sample, got {t.shape[0]} "
-                             f"timestamps and {omega.shape[0]} samples")
-        if t.shape[0] < 2:
-            raise InputError(f"{name}: expected at least 2 samples, got {t.shape[0]}")
-        bad = ~np.isfinite(t)
-        if bad.any():
-            k = int(np.argmax(bad))
-            raise InputError(f"{name}: expected finite timestamps, got {t[k]} at sample {k}")
+        t = np.array(check_timestamps(f"{name}.t", self.t, length=omega.shape[0]), dtype=np.float64)
         dt = np.diff(t)
-        if not (dt > 0).all():
-            k = int(np.argmax(~(dt > 0)))
-            raise InputError(f"{name}: expected strictly increasing timestamps, got a step of "
-                             f"{dt[k]:.6g} s at sample {k + 1}")
         valid = np.isfinite(omega).all(axis=1)
         if self.valid is not None:
             given = np.asarray(self.valid)
@@ -150,20 +137,12 @@ def _path(path, what: str = "file") -> Path:
 
 
 def _rate_factor(unit: str, sensitivity, where: str) -> float:
-    """Factor turning ``unit`` into rad/s; ``sensitivity`` is LSB per deg/s for raw counts."""
-    if unit not in RATE_UNITS:
-        raise InputError(f"{where}: expected unit in {tuple(RATE_UNITS)}, got {unit!r}")
-    if unit == "counts":
-        if sensitivity is None:
-            raise InputError(f"{where}: unit='counts' needs sensitivity= (LSB per deg/s, e.g. 16.4 "
-                             "for a +-2000 deg/s MEMS gyro), got None")
-        s = float(sensitivity)
-        if not (np.isfinite(s) and s != 0):
-            raise InputError(f"{where}: expected a finite non-zero sensitivity (LSB per deg/s), got {sensitivity!r}")
-        return DEG / s
-    if sensitivity is not None:
-        raise InputError(f"{where}: sensitivity= applies to unit='counts' only, got unit={unit!r}")
-    return RATE_UNITS[unit]
+    """Factor turning ``unit`` into rad/s (:func:`fusion_gyrocal.preprocess.to_rad_per_s`);
+    ``sensitivity`` is LSB per deg/s for raw counts."""
+    try:
+        return float(to_rad_per_s(np.ones(1), unit, sensitivity)[0])
+    except InputError as exc:
+        raise InputError(f"{where}: {exc}") from None
 
 
 def _int_time_to_seconds(ticks: np.ndarray, decimals: int) -> np.ndarray:
@@ -198,6 +177,8 @@ def _time_unit_from_header(name: str) -> str | None:
     if unit in ("µs", "usec"):
         return "us"
     n = _norm(name)
+    if n in _NS_TIME_NAMES:
+        return "ns"
     for u in ("ns", "us", "ms", "s"):
         if n.endswith("_" + u):
             return u
@@ -384,10 +365,10 @@ def read_csv(path, *, time_column=None, columns=None, unit: str | None = None, s
     if time_column is None:
         k_t = 0
         if norm_header is not None:
-            for cand in _TIME_NAMES:
-                if cand in norm_header:
-                    k_t = norm_header.index(cand)
-                    break
+            k_t = next((norm_header.index(c) for c in _TIME_NAMES if c in norm_header), None)
+            if k_t is None:
+                raise FormatError(f"{fname}: expected a time column named like 't', 'time' or 'timestamp' or "
+                                  f"one given by time_column=, got header {header}")
     else:
         k_t = _resolve_column(time_column, header, ncols, "the time column", fname)
 
