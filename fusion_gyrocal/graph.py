@@ -1,0 +1,964 @@
+"""GTSAM factor-graph variant: gyro-pair window factors, bias random walk, optional global scale.
+
+Visual-inertial pipelines built on GTSAM can put the pair calibration inside their own graph.
+This module provides the factors and a ready graph builder (:class:`GyroPairGraph`), solved in
+batch (Levenberg-Marquardt) or incrementally (iSAM2), with covariances from ``gtsam.Marginals``
+and the result returned as a :class:`~fusion_gyrocal.model.PairCalibration`.
+
+Variables (keys in :class:`GraphKeys`)
+--------------------------------------
+* ``R_1_2`` as a ``gtsam.Rot3`` (right-perturbed by GTSAM: ``R.retract(d) = R Exp(d)``);
+* the six log scale factors ``[log scale_1, log scale_2]`` as one 6-vector;
+* one combined bias ``b = b_1 - A b_2`` (Eq. 5) per window, 3-vectors, tied by random-walk
+  ``BetweenFactorVector`` factors (or one bias shared by all windows: the paper's constant bias);
+* optionally one global log-scale ``g`` (1-vector), absolute scales ``= exp(g) * exp(log scale)``,
+  and gyro 1's own bias ``b_1`` (3-vectors, one per call of
+  :meth:`GyroPairGraph.add_rotation_increments`) for the rotation-increment factors.
+
+Gyro-pair window factor
+-----------------------
+For window ``w`` with moments ``(n_w, m_w = [m_1; m_2], Sc_w)`` (:mod:`fusion_gyrocal.moments`),
+``A = S_1 R_1_2 S_2^-1`` (Eq. 4) and the errors-in-variables weight
+``W(A) = (sigma_1^2 I + sigma_2^2 A A^T)^-1``, the per-sample cost of Eq. (8),
+``sum_k r_k^T W(A) r_k`` with ``r_k = omega_1(k) - A omega_2(k) - b_w``, equals exactly (the
+centring of Eq. 12-15, with the bias kept as a variable)::
+
+    ||V [I, -A] L_w||_F^2  +  n_w ||V (m_1 - A m_2 - b_w)||^2,   Sc_w = L_w L_w^T,  V^T V = W(A)
+
+so each window is one fixed-size factor with a 21-dimensional residual (18 + 3), whatever
+``n_w``: a million samples cost no more than a few hundred factors. ``W`` is evaluated at the
+current ``A`` (``V`` the inverse Cholesky factor of ``W^-1``) and differentiated analytically, so
+the graph minimises the same profiled likelihood as the batch maximum-likelihood refinement
+(:mod:`fusion_gyrocal.refine`) and agrees with it on the same data.
+
+Rotation-increment (camera) factor
+----------------------------------
+The pair alone cannot fix the global scale (Theorem 2). An external orientation increment
+``dR_cam`` between two keyframes (e.g. a camera, expressed in gyro 1's frame through a known
+``R_cam_1``) compared with gyro 1's integrated true rate ``S_1^-1 (omega_1 - b_1)`` fixes the
+absolute ``scale_1`` (and through the pair factors ``scale_2``). The integration is preintegrated
+once (rate increments by a 4th-order quadrature, products of exponentials, first-order Jacobians
+with respect to ``log scale_1`` and ``b_1``, as in IMU preintegration); the factor residual is
+``Log(dR_cam^T dR_hat Exp(J_s dlog_s + J_b db_1))``. The pair factor constrains only ``b``; the
+camera factor needs ``b_1``, which is therefore a separate variable.
+
+Covariance order and conventions follow :mod:`fusion_gyrocal.model`: ``[dtheta, scale_1,
+scale_2, bias]`` with ``R_true = Exp(dtheta) R_1_2``; GTSAM's right perturbation ``d`` maps to
+``dtheta = R_1_2 d``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import partial
+
+import gtsam
+import numpy as np
+
+from .direct import Gauge
+from .errors import ConfigurationError, InputError
+from .model import BIAS, ROT, S1, S2, PairCalibration
+from .moments import Moments, as_rates
+from .observability import classify, per_axis_snr
+
+__all__ = [
+    "GraphKeys", "WindowStatistics", "RotationIncrements", "PreintegratedRotations", "GraphEstimate",
+    "GyroPairGraph", "gyro_pair_factor", "rotation_increment_factor", "preintegrate_rotations",
+    "calibrate_pair_graph",
+]
+
+GAUGE_PRIOR_STD = 1e-8          # log-scale std of the numerical gauge priors (removed again in the covariance)
+GLOBAL_SCALE_GAUGE = "global scale estimated from rotation increments"
+
+
+# ---------------------------------------------------------------------------------------------- keys
+@dataclass(frozen=True)
+class GraphKeys:
+    """GTSAM keys of the calibration variables (change them to embed in a larger graph).
+
+    Attributes
+    ----------
+    rotation : int
+        ``gtsam.Rot3`` ``R_1_2``.
+    log_scale : int
+        6-vector ``[log scale_1, log scale_2]``.
+    global_scale : int
+        1-vector ``g`` (only with ``global_scale=True``).
+    bias_symbol, bias_1_symbol : str
+        Symbol characters of the per-window combined bias and of gyro 1's bias.
+    """
+
+    rotation: int = gtsam.symbol("r", 0)
+    log_scale: int = gtsam.symbol("s", 0)
+    global_scale: int = gtsam.symbol("g", 0)
+    bias_symbol: str = "b"
+    bias_1_symbol: str = "c"
+
+    def bias(self, index: int) -> int:
+        """Key of the combined bias of bias segment ``index``."""
+        return gtsam.symbol(self.bias_symbol, index)
+
+    def bias_1(self, index: int) -> int:
+        """Key of gyro 1's bias of rotation-increment segment ``index``."""
+        return gtsam.symbol(self.bias_1_symbol, index)
+
+
+# ---------------------------------------------------------------------------------------------- SO(3)
+def _skew(v) -> np.ndarray:
+    """``[v x]`` for ``v`` of shape (..., 3) -> (..., 3, 3)."""
+    v = np.asarray(v, dtype=float)
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
+    return out
+
+
+def _so3_coefficients(theta):
+    """``sin(t)/t``, ``(1-cos t)/t^2``, ``(t-sin t)/t^3`` for the rows of ``theta`` (..., 3)."""
+    t2 = np.einsum("...i,...i->...", theta, theta)
+    t = np.sqrt(t2)
+    small = t < 1e-4
+    ts = np.where(small, 1.0, t)
+    a = np.where(small, 1.0 - t2 / 6.0, np.sin(ts) / ts)
+    b = np.where(small, 0.5 - t2 / 24.0, (1.0 - np.cos(ts)) / ts**2)
+    c = np.where(small, 1.0 / 6.0 - t2 / 120.0, (ts - np.sin(ts)) / ts**3)
+    return a, b, c
+
+
+def _so3_exp_and_right_jacobian(theta):
+    """``Exp(theta)`` and the right Jacobian ``J_r(theta)`` (``Exp(t + d) ~ Exp(t) Exp(J_r d)``)."""
+    a, b, c = _so3_coefficients(theta)
+    K = _skew(theta)
+    K2 = K @ K
+    eye = np.eye(3)
+    R = eye + a[..., None, None] * K + b[..., None, None] * K2
+    Jr = eye - b[..., None, None] * K + c[..., None, None] * K2
+    return R, Jr
+
+
+# ---------------------------------------------------------------------------------------------- pair factor
+@dataclass(frozen=True)
+class WindowStatistics:
+    """One window's moments in factor form: ``sqrt(n)``, the means and a square root of the scatter.
+
+    ``L = [L_1; L_2]`` (6, 6) satisfies ``L L^T = Sc`` (centred scatter of ``[omega_1; omega_2]``);
+    any square root gives the same cost (an eigen-decomposition is used, so a merely
+    semi-definite scatter is fine).
+    """
+
+    count: float
+    mean_1: np.ndarray
+    mean_2: np.ndarray
+    L_1: np.ndarray
+    L_2: np.ndarray
+
+    @classmethod
+    def from_moments(cls, moments: Moments) -> "WindowStatistics":
+        if moments.count < 2:
+            raise InputError(f"window moments: expected at least 2 samples, got {moments.count:g}")
+        w, V = np.linalg.eigh(0.5 * (moments.scatter + moments.scatter.T))
+        L = V * np.sqrt(np.clip(w, 0.0, None))[None, :]
+        return cls(float(moments.count), moments.mean_1.copy(), moments.mean_2.copy(), L[:3].copy(), L[3:].copy())
+
+    def cost(self, A, bias) -> float:
+        """Unweighted sum of squared residuals ``sum_k ||omega_1 - A omega_2 - b||^2`` of the window."""
+        E = self.L_1 - A @ self.L_2
+        r = self.mean_1 - A @ self.mean_2 - bias
+        return float(np.sum(E * E) + self.count * (r @ r))
+
+
+def _pair_residual(R, log_scale, bias, stats: WindowStatistics, noise_std, jacobians: bool):
+    """Whitened 21-residual of one window and (optionally) its Jacobians w.r.t. (R, log-scale, bias).
+
+    ``Sigma(A) = sigma_1^2 I + sigma_2^2 A A^T = C C^T`` (Cholesky), ``V = C^-1``; residual
+    ``[vec(V [I, -A] L), sqrt(n) V (m_1 - A m_2 - b)]``, so ``||e||^2 = tr(W(A) M(A)) + n r^T W(A) r``
+    with ``W(A) = Sigma(A)^-1``: the profiled errors-in-variables likelihood (the same cost as
+    :func:`fusion_gyrocal.refine.ml_cost`, plus the window's mean term).
+
+    Perturbations: ``R Exp(d)`` (GTSAM's Rot3 retraction), ``log_scale + e``, ``bias + beta``;
+    ``dA = S_1 R [d x] S_2^-1``, ``diag(e_1) A`` and ``-A diag(e_2)``. The weight's derivative uses
+    the Cholesky differential ``dV = -Phi(V dSigma V^T) V`` (``Phi``: lower triangle, halved diagonal).
+    """
+    s1, s2 = np.exp(log_scale[:3]), np.exp(log_scale[3:])
+    sig1, sig2 = noise_std
+    A = (s1[:, None] * R) / s2[None, :]
+    Sigma = sig1**2 * np.eye(3) + sig2**2 * (A @ A.T)
+    V = np.linalg.inv(np.linalg.cholesky(Sigma))
+    E = V @ (stats.L_1 - A @ stats.L_2)                         # (3, 6)
+    sqn = np.sqrt(stats.count)
+    em = sqn * (V @ (stats.mean_1 - A @ stats.mean_2 - bias))
+    e = np.concatenate([E.T.reshape(-1), em])
+    if not jacobians:
+        return e, None
+    dA = np.empty((9, 3, 3))
+    dA[:3] = (s1[None, :, None] * (R[None] @ _skew(np.eye(3)))) / s2[None, None, :]
+    dA[3:6] = np.eye(3)[:, :, None] * A[None, :, :]              # row i of A
+    dA[6:] = -np.eye(3)[:, None, :] * A[None, :, :]              # column i of A
+    dAAt = dA @ A.T
+    X = V @ (sig2**2 * (dAAt + np.swapaxes(dAAt, 1, 2))) @ V.T
+    Phi = np.tril(X)
+    Phi[:, [0, 1, 2], [0, 1, 2]] *= 0.5
+    VdA = V @ dA
+    dE = -Phi @ E - VdA @ stats.L_2                              # (9, 3, 6)
+    dem = -Phi @ em - sqn * (VdA @ stats.mean_2)                 # (9, 3)
+    H = np.empty((21, 9))
+    H[:18] = np.swapaxes(dE, 1, 2).reshape(9, 18).T
+    H[18:] = dem.T
+    H_b = np.zeros((21, 3))
+    H_b[18:] = -sqn * V
+    return e, [H[:, :3].copy(), H[:, 3:].copy(), H_b]
+
+
+def _pair_error(stats, noise_std, this, values, H):
+    keys = this.keys()
+    e, J = _pair_residual(values.atRot3(keys[0]).matrix(), values.atVector(keys[1]), values.atVector(keys[2]),
+                          stats, noise_std, H is not None)
+    if H is not None:
+        H[0], H[1], H[2] = J
+    return e
+
+
+def gyro_pair_factor(moments: Moments | WindowStatistics, noise_std, *, rotation_key: int, log_scale_key: int,
+                     bias_key: int) -> gtsam.CustomFactor:
+    """One window of gyro-pair samples as a single 21-dimensional GTSAM factor.
+
+    Parameters
+    ----------
+    moments : Moments or WindowStatistics
+        The window's sufficient statistics (one bias segment).
+    noise_std : (float, float)
+        White-noise standard deviation per sample of gyro 1 and gyro 2 (rad/s).
+    rotation_key, log_scale_key, bias_key : int
+        Keys of ``R_1_2`` (Rot3), ``[log scale_1, log scale_2]`` (6-vector) and the window's combined
+        bias (3-vector).
+
+    Returns
+    -------
+    gtsam.CustomFactor
+        Unit noise model (the weight is inside the residual). ``0.5 * ||residual||^2`` equals
+        ``0.5 * sum_k (omega_1 - A omega_2 - b)^T W(A) (omega_1 - A omega_2 - b)`` over the window
+        (Eq. 8 with the errors-in-variables weight ``W(A) = (sigma_1^2 I + sigma_2^2 A A^T)^-1``),
+        computed from the moments alone. Jacobians are analytic, including the weight's dependence on A.
+    """
+    stats = moments if isinstance(moments, WindowStatistics) else WindowStatistics.from_moments(moments)
+    sig = np.broadcast_to(np.asarray(noise_std, dtype=float), (2,))
+    if not np.all(np.isfinite(sig)) or np.any(sig <= 0):
+        raise InputError(f"noise_std: expected two positive finite standard deviations (rad/s), got {noise_std}")
+    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(21), [rotation_key, log_scale_key, bias_key],
+                              partial(_pair_error, stats, (float(sig[0]), float(sig[1]))))
+
+
+def _component_prior_error(index, value, this, values, H):
+    x = values.atVector(this.keys()[0])
+    if H is not None:
+        J = np.zeros((1, x.size))
+        J[0, index] = 1.0
+        H[0] = J
+    return np.array([x[index] - value])
+
+
+def _component_prior(key, index, value, sigma) -> gtsam.CustomFactor:
+    return gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, sigma), [key],
+                              partial(_component_prior_error, int(index), float(value)))
+
+
+# ---------------------------------------------------------------------------------------------- camera factor
+@dataclass(frozen=True)
+class RotationIncrements:
+    """Orientation increments of an external sensor (e.g. a camera) between keyframes.
+
+    Keyframes must lie on gyro 1's sample grid (interpolate the external orientations to gyro
+    sample instants first).
+
+    Attributes
+    ----------
+    start, stop : ndarray (K,) of int
+        Sample indices into ``omega_1`` of the two keyframes of each increment (``start < stop``).
+    delta_R : ndarray (K, 3, 3)
+        ``R_ca_cb``: the sensor orientation at ``stop`` expressed in the sensor frame at ``start``
+        (``R_w_c(start)^T R_w_c(stop)``).
+    sigma_rad : float
+        Standard deviation per axis of each increment (rad).
+    R_cam_1 : ndarray (3, 3)
+        Rotation from gyro 1's frame to the sensor frame (identity when the sensor is gyro 1's frame).
+    """
+
+    start: np.ndarray
+    stop: np.ndarray
+    delta_R: np.ndarray
+    sigma_rad: float
+    R_cam_1: np.ndarray = field(default_factory=lambda: np.eye(3))
+
+    def __post_init__(self):
+        start = np.array(self.start, dtype=np.int64).reshape(-1)
+        stop = np.array(self.stop, dtype=np.int64).reshape(-1)
+        dR = np.array(self.delta_R, dtype=float)
+        if dR.shape != (start.size, 3, 3) or stop.shape != start.shape:
+            raise InputError(f"rotation increments: expected start (K,), stop (K,) and delta_R (K, 3, 3), got "
+                             f"{start.shape}, {stop.shape} and {dR.shape}")
+        if np.any(stop <= start):
+            k = int(np.flatnonzero(stop <= start)[0])
+            raise InputError(f"rotation increments: expected stop > start, got start={start[k]}, stop={stop[k]} "
+                             f"at increment {k}")
+        if not (self.sigma_rad > 0 and np.isfinite(self.sigma_rad)):
+            raise InputError(f"rotation increments: expected sigma_rad > 0, got {self.sigma_rad}")
+        R_c1 = np.array(self.R_cam_1, dtype=float)
+        if R_c1.shape != (3, 3):
+            raise InputError(f"R_cam_1: expected shape (3, 3), got {R_c1.shape}")
+        for a in (start, stop, dR, R_c1):
+            a.flags.writeable = False
+        object.__setattr__(self, "start", start)
+        object.__setattr__(self, "stop", stop)
+        object.__setattr__(self, "delta_R", dR)
+        object.__setattr__(self, "R_cam_1", R_c1)
+        object.__setattr__(self, "sigma_rad", float(self.sigma_rad))
+
+    @classmethod
+    def from_orientations(cls, keyframe_index, R_w_c, sigma_rad: float, R_cam_1=None) -> "RotationIncrements":
+        """Consecutive increments from keyframe orientations ``R_w_c`` (K+1, 3, 3) at ``keyframe_index``."""
+        idx = np.asarray(keyframe_index, dtype=np.int64).reshape(-1)
+        R = np.asarray(R_w_c, dtype=float)
+        if R.shape != (idx.size, 3, 3):
+            raise InputError(f"R_w_c: expected shape ({idx.size}, 3, 3) (one per keyframe), got {R.shape}")
+        dR = np.einsum("kji,kjl->kil", R[:-1], R[1:])
+        return cls(idx[:-1], idx[1:], dR, sigma_rad, np.eye(3) if R_cam_1 is None else R_cam_1)
+
+    def __len__(self) -> int:
+        return int(self.start.size)
+
+    def subset(self, select) -> "RotationIncrements":
+        """The increments selected by a boolean mask or index array."""
+        return RotationIncrements(self.start[select], self.stop[select], self.delta_R[select], self.sigma_rad,
+                                  self.R_cam_1)
+
+    def in_gyro_frame(self) -> np.ndarray:
+        """``R_1a_1b = R_cam_1^T R_ca_cb R_cam_1`` (K, 3, 3)."""
+        return np.einsum("ji,kjl,lm->kim", self.R_cam_1, self.delta_R, self.R_cam_1)
+
+
+def _rate_increments(omega_1: np.ndarray, dt: float) -> np.ndarray:
+    """Integral of the measured rate over each sample step ``[t_k, t_k+1]`` (N-1, 3).
+
+    Fourth-order quadrature of the cubic through four neighbours,
+    ``dt (-w_{k-1} + 13 w_k + 13 w_{k+1} - w_{k+2}) / 24``, trapezoid on the first and last step.
+    A trapezoid everywhere would shrink a sinusoid's integral by ``(2 pi f dt)^2 / 12`` -- 0.2 % at
+    2.5 Hz and 100 Hz -- which a camera factor would read as a scale error.
+    """
+    w = omega_1
+    phi = 0.5 * dt * (w[:-1] + w[1:])
+    if w.shape[0] >= 4:
+        phi[1:-1] = dt * (-w[:-3] + 13.0 * w[1:-2] + 13.0 * w[2:-1] - w[3:]) / 24.0
+    return phi
+
+
+@dataclass(frozen=True)
+class PreintegratedRotations:
+    """Gyro-1 rotation increments preintegrated at a linearization point (batched over K intervals).
+
+    ``delta_R[k] = prod Exp(theta_j)`` with ``theta_j = S_1^-1 (phi_j - b_1 dt)`` at
+    ``(log_scale_1, bias_1)``; to first order
+    ``dR(log s, b_1) = delta_R Exp(J_scale (log s - log_scale_1) + J_bias (b_1 - bias_1))``.
+    ``duration`` (K,) is the interval length in seconds; ``phi`` (K, n_max, 3) the per-step measured
+    rate integrals (zero-padded) kept to re-preintegrate at another point.
+    """
+
+    delta_R: np.ndarray
+    J_scale: np.ndarray
+    J_bias: np.ndarray
+    log_scale_1: np.ndarray
+    bias_1: np.ndarray
+    duration: np.ndarray
+    phi: np.ndarray
+    steps: np.ndarray
+    dt: float
+
+    def relinearized(self, log_scale_1, bias_1) -> "PreintegratedRotations":
+        """The same increments preintegrated at another ``(log scale_1, b_1)``."""
+        return _preintegrate(self.phi, self.steps, self.dt, np.asarray(log_scale_1, float),
+                             np.asarray(bias_1, float))
+
+
+def _preintegrate(phi, steps, dt, log_scale_1, bias_1) -> PreintegratedRotations:
+    K, n_max, _ = phi.shape
+    s1 = np.exp(log_scale_1)
+    valid = (np.arange(n_max)[None, :] < steps[:, None]).astype(float)        # (K, n_max)
+    theta = (phi - bias_1 * dt) / s1 * valid[..., None]
+    Rs, Jrs = _so3_exp_and_right_jacobian(theta)                              # (K, n_max, 3, 3)
+    dR = np.broadcast_to(np.eye(3), (K, 3, 3)).copy()
+    J_s = np.zeros((K, 3, 3))
+    J_b = np.zeros((K, 3, 3))
+    dtheta_db = -(dt / s1)                                                    # diag of d theta / d b_1
+    for j in range(n_max):                                                    # vectorised over intervals
+        Rj, Jj = Rs[:, j], Jrs[:, j]
+        RjT = np.swapaxes(Rj, 1, 2)
+        J_s = RjT @ J_s - Jj * theta[:, j, None, :]                           # d theta/d log s = -diag(theta)
+        J_b = RjT @ J_b + Jj * (dtheta_db[None, None, :] * valid[:, j, None, None])
+        dR = dR @ Rj
+    return PreintegratedRotations(dR, J_s, J_b, np.array(log_scale_1, float), np.array(bias_1, float),
+                                  steps * dt, phi, steps, float(dt))
+
+
+def preintegrate_rotations(omega_1, rate_hz: float, increments: RotationIncrements, *, scale_1=(1.0, 1.0, 1.0),
+                           bias_1=(0.0, 0.0, 0.0)) -> PreintegratedRotations:
+    """Preintegrate gyro 1's rate over the keyframe intervals of ``increments``.
+
+    Parameters
+    ----------
+    omega_1 : array_like (N, 3)
+        Gyro 1's measured rate (rad/s) on a uniform grid of ``rate_hz``.
+    rate_hz : float
+        Sample rate of ``omega_1``.
+    increments : RotationIncrements
+        Keyframe intervals (sample indices into ``omega_1``).
+    scale_1, bias_1 : array_like (3,)
+        Linearization point (absolute scale factors and bias of gyro 1, Eq. 1).
+
+    Notes
+    -----
+    Python work is one vectorised step per sample *within* the longest interval (10 for 10 Hz
+    keyframes on a 100 Hz gyro), not per sample of the log.
+    """
+    w = as_rates("omega_1", omega_1)
+    if not (rate_hz > 0):
+        raise InputError(f"rate_hz: expected a positive sample rate, got {rate_hz}")
+    n = w.shape[0]
+    if increments.stop.max(initial=0) >= n or increments.start.min(initial=0) < 0:
+        raise InputError(f"rotation increments: expected keyframe indices in [0, {n - 1}] (samples of omega_1), "
+                         f"got [{increments.start.min()}, {increments.stop.max()}]")
+    dt = 1.0 / float(rate_hz)
+    rate_phi = _rate_increments(np.asarray(w, dtype=float), dt)
+    steps = (increments.stop - increments.start).astype(np.int64)
+    n_max = int(steps.max(initial=1))
+    idx = increments.start[:, None] + np.arange(n_max)[None, :]
+    valid = np.arange(n_max)[None, :] < steps[:, None]
+    phi = np.where(valid[..., None], rate_phi[np.minimum(idx, n - 2)], 0.0)
+    return _preintegrate(phi, steps, dt, np.log(np.asarray(scale_1, float)), np.asarray(bias_1, float))
+
+
+def _increment_residual(g, log_scale, bias_1, delta_R_meas, delta_R, J_s, J_b, ls_lin, b_lin, jacobians: bool):
+    """``Log(dR_meas^T dR_hat Exp(xi))`` with ``xi = J_s (g + l_1 - ls_lin) + J_b (b_1 - b_lin)``."""
+    xi = J_s @ (g + log_scale[:3] - ls_lin) + J_b @ (bias_1 - b_lin)
+    E = gtsam.Rot3(delta_R_meas.T @ delta_R) * gtsam.Rot3.Expmap(xi)
+    e = gtsam.Rot3.Logmap(E)
+    if not jacobians:
+        return e, None
+    Jx = gtsam.Rot3.LogmapDerivative(e) @ gtsam.Rot3.ExpmapDerivative(xi)
+    JxS = Jx @ J_s
+    H_l = np.zeros((3, 6))
+    H_l[:, :3] = JxS
+    return e, [JxS.sum(axis=1, keepdims=True), H_l, Jx @ J_b]
+
+
+def _increment_error(delta_R_meas, delta_R, J_s, J_b, ls_lin, b_lin, this, values, H):
+    keys = this.keys()
+    e, J = _increment_residual(values.atVector(keys[0])[0], values.atVector(keys[1]), values.atVector(keys[2]),
+                               delta_R_meas, delta_R, J_s, J_b, ls_lin, b_lin, H is not None)
+    if H is not None:
+        H[0], H[1], H[2] = J
+    return e
+
+
+def rotation_increment_factor(preintegrated: PreintegratedRotations, k: int, delta_R_meas, sigma_rad: float, *,
+                              global_scale_key: int, log_scale_key: int, bias_1_key: int) -> gtsam.CustomFactor:
+    """Factor tying gyro 1's integrated, scaled rate over interval ``k`` to a measured increment.
+
+    Parameters
+    ----------
+    preintegrated : PreintegratedRotations
+        Output of :func:`preintegrate_rotations`.
+    k : int
+        Which interval.
+    delta_R_meas : array_like (3, 3)
+        The measured increment in gyro 1's frame (``RotationIncrements.in_gyro_frame()[k]``).
+    sigma_rad : float
+        Standard deviation per axis of the residual (measurement and integrated gyro noise).
+    global_scale_key, log_scale_key, bias_1_key : int
+        Keys of ``g`` (1-vector), ``[log scale_1, log scale_2]`` (6-vector) and ``b_1`` (3-vector);
+        the absolute log-scale of gyro 1 is ``g + log scale_1``.
+    """
+    p = preintegrated
+    return gtsam.CustomFactor(
+        gtsam.noiseModel.Isotropic.Sigma(3, float(sigma_rad)), [global_scale_key, log_scale_key, bias_1_key],
+        partial(_increment_error, np.array(delta_R_meas, float), p.delta_R[k].copy(), p.J_scale[k].copy(),
+                p.J_bias[k].copy(), p.log_scale_1.copy(), p.bias_1.copy()))
+
+
+# ---------------------------------------------------------------------------------------------- graph
+@dataclass(frozen=True)
+class GraphEstimate:
+    """Current point estimate (no covariance), cheap to read after each iSAM2 update.
+
+    ``scale_1``/``scale_2`` are in the graph's working gauge (one member of each linked group held
+    at its seed value), or absolute with the global-scale variable; ``bias`` is the latest window's.
+    """
+
+    R_1_2: np.ndarray
+    scale_1: np.ndarray
+    scale_2: np.ndarray
+    bias: np.ndarray
+
+
+@dataclass
+class _CameraSegment:
+    increments: RotationIncrements
+    preintegrated: PreintegratedRotations
+    measured: np.ndarray          # (K, 3, 3) in gyro 1's frame
+    sigma: np.ndarray             # (K,) residual std
+    key: int
+
+
+class GyroPairGraph:
+    """Factor graph of one gyro pair, fully set up from a seed calibration.
+
+    Parameters
+    ----------
+    seed : PairCalibration
+        Initial values (typically the direct solution, ``solve(moments, method="direct")``); its
+        ``A`` also fixes the residual weight ``W`` of the window factors, and its ``noise_std`` is
+        used unless ``noise_std`` is given.
+    noise_std : (float, float), optional
+        White-noise standard deviation per sample of gyro 1 and gyro 2 (rad/s).
+    bias_walk_std : float, optional
+        ``None`` (default): one combined bias shared by all windows (the paper's constant bias).
+        A float > 0: one bias per window with a random-walk factor between consecutive windows;
+        the value is the per-sample random-walk step of the *combined* bias ``b_1 - A b_2`` (rad/s;
+        ``sqrt(2) q`` for two gyros whose biases each walk by ``q``). ``numpy.inf``: independent
+        window biases (no between factors).
+    gauge : str or Gauge
+        How the result states the global scale (``"unit_prior"``, ``"fixed"`` or a
+        :class:`~fusion_gyrocal.direct.Gauge`); ignored with ``global_scale=True``.
+    global_scale : bool
+        Add the global log-scale variable ``g`` (absolute scales ``= exp(g) * relative``), to be fixed
+        by :meth:`add_rotation_increments`.
+    bias_1_walk_std : float, optional
+        Per-sample random-walk step of gyro 1's bias ``b_1`` between consecutive
+        :meth:`add_rotation_increments` segments (``None``: one ``b_1`` for all of them).
+    keys : GraphKeys, optional
+    isam2_params : gtsam.ISAM2Params, optional
+
+    Notes
+    -----
+    Numerically the graph holds one member of each linked group of scale factors (Theorem 2;
+    all six in the general configuration) at its seed value with a tight prior; results are
+    re-expressed in ``gauge`` and the covariance projected onto it afterwards.
+    """
+
+    def __init__(self, seed: PairCalibration, *, noise_std=None, bias_walk_std: float | None = None,
+                 gauge="unit_prior", global_scale: bool = False, bias_1_walk_std: float | None = None,
+                 keys: GraphKeys | None = None, isam2_params: gtsam.ISAM2Params | None = None):
+        if not isinstance(seed, PairCalibration):
+            raise InputError(f"seed: expected a PairCalibration, got {type(seed).__name__}")
+        self.seed = seed
+        sig = np.broadcast_to(np.asarray(seed.noise_std if noise_std is None else noise_std, float), (2,))
+        if not np.all(np.isfinite(sig)) or np.any(sig <= 0):
+            raise InputError(f"noise_std: expected two positive finite standard deviations (rad/s), got {sig}")
+        self.noise_std = sig.copy()
+        for name, v in (("bias_walk_std", bias_walk_std), ("bias_1_walk_std", bias_1_walk_std)):
+            if v is not None and not v > 0:
+                raise InputError(f"{name}: expected None, a positive float or inf, got {v}")
+        self.bias_walk_std = bias_walk_std
+        self.bias_1_walk_std = bias_1_walk_std
+        self.gauge = Gauge.parse(gauge)
+        self.global_scale = bool(global_scale)
+        self.keys = keys or GraphKeys()
+        self.configuration = classify(seed.R_1_2)
+        self._isam_params = isam2_params
+        self._isam: gtsam.ISAM2 | None = None
+
+        self._fixed_factors: list = []       # priors and between factors (never rebuilt)
+        self._pair: list = []                # (WindowStatistics, bias key, factor)
+        self._camera: list[_CameraSegment] = []
+        self._camera_factors: list = []
+        self._bias_keys: list[int] = []
+        self._bias_counts: list[float] = []
+        self._window_steps: list[float] = []
+        self._moments = Moments.empty()
+        self._pending = gtsam.NonlinearFactorGraph()
+        self._pending_values = gtsam.Values()
+        self._initial = gtsam.Values()
+
+        k = self.keys
+        self._insert(k.rotation, gtsam.Rot3(seed.R_1_2))
+        self._insert(k.log_scale, np.log(np.concatenate([seed.scale_1, seed.scale_2])))
+        if self.global_scale:
+            self._insert(k.global_scale, np.zeros(1))
+        l0 = np.log(np.concatenate([seed.scale_1, seed.scale_2]))
+        for group in self._prior_groups():
+            member = self._held_member(group)
+            idx = 3 * member[0] + member[1]
+            self._add_fixed(_component_prior(k.log_scale, idx, l0[idx], GAUGE_PRIOR_STD))
+
+    # ------------------------------------------------------------------ construction helpers
+    def _prior_groups(self):
+        groups = self.configuration.groups
+        if not self.global_scale:
+            return groups
+        # with g, hold only the group of scale_1[0]; the rotation increments fix every scale_1 (and the rest)
+        return tuple(g for g in groups if (0, 0) in g)
+
+    def _held_member(self, group):
+        inside = [m for m in self.gauge.members if m in group]
+        return inside[0] if inside and not self.global_scale else (0, 0) if (0, 0) in group else group[0]
+
+    def _insert(self, key, value):
+        self._initial.insert(key, value)
+        self._pending_values.insert(key, value)
+
+    def _add_fixed(self, factor):
+        self._fixed_factors.append(factor)
+        self._pending.add(factor)
+
+    # ------------------------------------------------------------------ public building
+    @property
+    def n_windows(self) -> int:
+        return len(self._pair)
+
+    def add_window(self, moments: Moments, *, steps: int | None = None) -> int:
+        """Add one window's moments as a gyro-pair factor; returns the window's bias-segment index.
+
+        Parameters
+        ----------
+        moments : Moments
+            Statistics of the window (one bias segment, ``segments == 1``).
+        steps : int, optional
+            Sample steps the window spans, for the random-walk sigma (default: ``moments.count``).
+        """
+        if not isinstance(moments, Moments):
+            raise InputError(f"moments: expected a Moments, got {type(moments).__name__}")
+        if moments.segments > 1:
+            raise InputError(f"moments: expected one bias segment per window, got {moments.segments}; "
+                             "add the windows one by one")
+        stats = WindowStatistics.from_moments(moments)
+        k = self.keys
+        new_segment = self.bias_walk_std is not None or not self._bias_keys
+        if new_segment:
+            seg = len(self._bias_keys)
+            key = k.bias(seg)
+            self._insert(key, stats.mean_1 - self.seed.A @ stats.mean_2)   # Eq. (12) at the seed's A
+            if seg > 0 and self.bias_walk_std is not None and np.isfinite(self.bias_walk_std):
+                n_a = self._window_steps[-1]
+                n_b = float(moments.count if steps is None else steps)
+                sigma = self.bias_walk_std * np.sqrt(_mean_walk_variance(n_a, n_b))
+                self._add_fixed(gtsam.BetweenFactorVector(self._bias_keys[-1], key, np.zeros(3),
+                                                          gtsam.noiseModel.Isotropic.Sigma(3, sigma)))
+            self._bias_keys.append(key)
+            self._bias_counts.append(0.0)
+            self._window_steps.append(float(moments.count if steps is None else steps))
+        key = self._bias_keys[-1]
+        self._bias_counts[-1] += moments.count
+        factor = gyro_pair_factor(stats, self.noise_std, rotation_key=k.rotation, log_scale_key=k.log_scale, bias_key=key)
+        self._pair.append((stats, key, factor))
+        self._pending.add(factor)
+        self._moments = self._moments.pool(moments) if self.bias_walk_std is not None else self._moments.merge(moments)
+        return len(self._bias_keys) - 1
+
+    def add_rotation_increments(self, omega_1, rate_hz: float, increments: RotationIncrements) -> int:
+        """Add external rotation increments (e.g. camera keyframes) that fix the global scale.
+
+        With ``bias_1_walk_std`` set, each call adds one gyro-1 bias variable ``b_1`` shared by its
+        increments, tied to the previous call's by a random walk; otherwise every call shares one
+        ``b_1``. Returns the index of the ``b_1`` segment used.
+
+        Parameters
+        ----------
+        omega_1 : array_like (N, 3)
+            Gyro 1's measured rates (rad/s) that ``increments`` index into, uniform at ``rate_hz``.
+        rate_hz : float
+        increments : RotationIncrements
+
+        Raises
+        ------
+        ConfigurationError
+            If the graph was built without ``global_scale=True``.
+        """
+        if not self.global_scale:
+            raise ConfigurationError("rotation increments fix the global scale: build the graph with "
+                                     "global_scale=True (got global_scale=False)")
+        if len(increments) == 0:
+            raise InputError("rotation increments: expected at least one increment, got 0")
+        if not self._camera or self.bias_1_walk_std is not None:
+            seg = len({c.key for c in self._camera})
+            key = self.keys.bias_1(seg)
+            self._insert(key, np.zeros(3))
+            if self._camera and np.isfinite(self.bias_1_walk_std):
+                n_a = float(self._camera[-1].preintegrated.steps.sum())
+                n_b = float((increments.stop - increments.start).sum())
+                sigma = self.bias_1_walk_std * np.sqrt(_mean_walk_variance(n_a, n_b))
+                self._add_fixed(gtsam.BetweenFactorVector(self._camera[-1].key, key, np.zeros(3),
+                                                          gtsam.noiseModel.Isotropic.Sigma(3, sigma)))
+        else:
+            seg, key = 0, self._camera[0].key
+        ls1 = np.log(self.seed.scale_1)
+        pre = preintegrate_rotations(omega_1, rate_hz, increments, scale_1=np.exp(ls1), bias_1=np.zeros(3))
+        # residual std: the increment's own plus gyro 1's white noise integrated over the interval
+        sigma = np.sqrt(increments.sigma_rad**2 + (self.noise_std[0] / self.seed.scale_1.min())**2
+                        * pre.dt * pre.duration)
+        cam = _CameraSegment(increments, pre, increments.in_gyro_frame(), sigma, key)
+        self._camera.append(cam)
+        for f in self._camera_segment_factors(cam):
+            self._camera_factors.append(f)
+            self._pending.add(f)
+        return seg
+
+    def _camera_segment_factors(self, cam: _CameraSegment):
+        k = self.keys
+        return [rotation_increment_factor(cam.preintegrated, i, cam.measured[i], cam.sigma[i],
+                                          global_scale_key=k.global_scale, log_scale_key=k.log_scale,
+                                          bias_1_key=cam.key)
+                for i in range(len(cam.increments))]
+
+    # ------------------------------------------------------------------ graphs
+    @property
+    def graph(self) -> gtsam.NonlinearFactorGraph:
+        """All factors added so far (a new graph; the factors are shared)."""
+        g = gtsam.NonlinearFactorGraph()
+        for f in self._fixed_factors:
+            g.add(f)
+        for _, _, f in self._pair:
+            g.add(f)
+        for f in self._camera_factors:
+            g.add(f)
+        return g
+
+    @property
+    def initial_values(self) -> gtsam.Values:
+        """Initial values of every variable added so far (a copy)."""
+        return gtsam.Values(self._initial)
+
+    # ------------------------------------------------------------------ solving
+    def _check_ready(self):
+        if not self._pair:
+            raise InputError("graph: expected at least one window (add_window) before solving, got none")
+        if self.global_scale and not self._camera:
+            raise ConfigurationError("global_scale=True needs rotation increments (add_rotation_increments) to "
+                                     "fix the global scale; none were added")
+
+    def _repreintegrate(self, values):
+        g = values.atVector(self.keys.global_scale)[0]
+        ls1 = g + values.atVector(self.keys.log_scale)[:3]
+        moved = 0.0
+        self._camera_factors = []
+        for i, cam in enumerate(self._camera):
+            b1 = values.atVector(cam.key)
+            pre = cam.preintegrated
+            moved = max(moved, float(np.max(np.abs(ls1 - pre.log_scale_1))),
+                        float(np.max(np.abs(b1 - pre.bias_1)) * pre.duration.max()))
+            cam = _CameraSegment(cam.increments, pre.relinearized(ls1, b1), cam.measured, cam.sigma, cam.key)
+            self._camera[i] = cam
+            self._camera_factors.extend(self._camera_segment_factors(cam))
+        return moved
+
+    def solve(self, *, max_iterations: int = 100, relative_tol: float = 1e-10, passes: int = 3) -> PairCalibration:
+        """Batch Levenberg-Marquardt over every factor added so far; covariance from ``gtsam.Marginals``.
+
+        With rotation increments, these are re-preintegrated at the solution and, if the
+        linearization point moved, the graph is solved again from there (up to ``passes`` solves).
+        """
+        self._check_ready()
+        values = self.initial_values
+        iterations = 0
+        for _ in range(passes):
+            params = gtsam.LevenbergMarquardtParams()
+            params.setMaxIterations(max_iterations)
+            params.setRelativeErrorTol(relative_tol)
+            params.setAbsoluteErrorTol(0.0)
+            opt = gtsam.LevenbergMarquardtOptimizer(self.graph, values, params)
+            values = opt.optimize()
+            iterations += opt.iterations()
+            if not self._camera or self._repreintegrate(values) < 1e-7:
+                break
+        graph = self.graph
+        return self._result(values, gtsam.Marginals(graph, values), graph, "graph_lm", iterations)
+
+    def update(self) -> GraphEstimate:
+        """Push the factors and variables added since the last call into iSAM2; return the estimate.
+
+        Rotation increments keep their first preintegration point (first-order corrections in
+        ``log scale_1`` and ``b_1``, as in IMU preintegration); :meth:`result` gives the covariance.
+        """
+        self._check_ready()
+        if self._isam is None:
+            params = self._isam_params
+            if params is None:
+                params = gtsam.ISAM2Params()
+                params.setRelinearizeThreshold(1e-3)
+                params.relinearizeSkip = 1
+            self._isam = gtsam.ISAM2(params)
+        self._isam.update(self._pending, self._pending_values)
+        self._pending = gtsam.NonlinearFactorGraph()
+        self._pending_values = gtsam.Values()
+        k = self.keys
+        R = self._isam.calculateEstimateRot3(k.rotation).matrix()
+        l = self._isam.calculateEstimateVector(k.log_scale)
+        if self.global_scale:
+            l = l + self._isam.calculateEstimateVector(k.global_scale)[0]
+        b = self._isam.calculateEstimateVector(self._bias_keys[-1])
+        return GraphEstimate(R, np.exp(l[:3]), np.exp(l[3:]), b)
+
+    def result(self) -> PairCalibration:
+        """The iSAM2 estimate of everything pushed by :meth:`update`, with its joint marginal covariance."""
+        if self._isam is None:
+            raise InputError("graph: call update() before result() (no iSAM2 estimate yet)")
+        if self._pending.size() or self._pending_values.size():
+            self.update()
+        values = self._isam.calculateEstimate()
+        return self._result(values, self._isam, self._isam.getFactorsUnsafe(), "graph_isam2", 0)
+
+    # ------------------------------------------------------------------ result
+    def _result(self, values, marginals, graph, method: str, iterations: int) -> PairCalibration:
+        k = self.keys
+        R = values.atRot3(k.rotation).matrix()
+        l = values.atVector(k.log_scale).copy()
+        n_b = len(self._bias_keys)
+        cov_keys = [k.rotation, k.log_scale] + ([k.global_scale] if self.global_scale else []) + self._bias_keys
+        P = np.asarray(marginals.jointMarginalCovariance(cov_keys).fullMatrix())
+        d = 10 if self.global_scale else 9
+        # linear map from [d_right (3), dl (6), (dg), db_0..] to [dtheta, dlog s1, dlog s2, d mean bias]
+        weights = np.asarray(self._bias_counts) / np.sum(self._bias_counts)
+        T = np.zeros((12, d + 3 * n_b))
+        T[ROT, :3] = R                                         # dtheta = R d (left vs right perturbation)
+        T[3:9, 3:9] = np.eye(6)
+        if self.global_scale:
+            T[3:9, 9] = 1.0                                    # absolute log-scale = g + l
+            l = l + values.atVector(k.global_scale)[0]
+        for i, w in enumerate(weights):
+            T[BIAS, d + 3 * i: d + 3 * i + 3] = w * np.eye(3)
+        C = T @ P @ T.T
+        C = 0.5 * (C + C.T)
+        s1, s2 = np.exp(l[:3]), np.exp(l[3:])
+        scale_observable = np.ones((2, 3), bool)
+        if self.global_scale:
+            gauge = GLOBAL_SCALE_GAUGE
+        else:
+            groups = self.configuration.groups
+            s1, s2 = self.gauge.apply(groups, s1, s2)
+            C = _project_gauge(C, self.gauge, groups, s1, s2)
+            gauge = self.gauge.describe()
+            scale_observable = self.configuration.scale_observable
+        J = np.eye(12)                                         # log-scale -> scale
+        J[3:9, 3:9] = np.diag(np.concatenate([s1, s2]))
+        C = J @ C @ J.T
+        for gyro in range(2):
+            for axis in range(3):
+                if not scale_observable[gyro, axis]:
+                    i = 3 + 3 * gyro + axis
+                    C[i, :] = 0.0
+                    C[:, i] = 0.0
+                    C[i, i] = np.inf
+        bias_values = np.array([values.atVector(b) for b in self._bias_keys])
+        bias = weights @ bias_values
+        A = (s1[:, None] * R) / s2[None, :]
+        ssr = sum(stats.cost(A, values.atVector(b)) for stats, b, _ in self._pair)
+        n = self._moments.count
+        notes = []
+        if self.global_scale:
+            notes.append(f"gyro 1 bias b_1 estimated per rotation-increment segment ({len(self._camera)} segment(s))")
+        if self.bias_walk_std is not None:
+            notes.append(f"combined bias modelled per window ({n_b} windows); 'bias' is their count-weighted mean")
+        return PairCalibration(
+            R_1_2=R, scale_1=s1, scale_2=s2, bias=bias, configuration=self.configuration.name,
+            scale_observable=scale_observable, covariance=C, gauge=gauge,
+            snr=per_axis_snr(self._moments, self.noise_std), n_samples=int(round(n)), noise_std=self.noise_std,
+            noise_source=self.seed.noise_source, residual_rms=float(np.sqrt(ssr / (3.0 * n))), method=method,
+            iterations=int(iterations), time_offset_s=self.seed.time_offset_s,
+            time_offset_std_s=self.seed.time_offset_std_s, bias_segments=n_b, notes=tuple(notes))
+
+
+def _mean_walk_variance(n_a: float, n_b: float) -> float:
+    """Variance (in random-walk steps) of the difference of a walk's means over two adjacent windows.
+
+    For windows of ``n_a`` and ``n_b`` steps: ``(n_a-1)(2n_a-1)/(6 n_a) + (n_b+1)(2n_b+1)/(6 n_b)``,
+    i.e. ``(2n^2 + 1)/(3n)`` for equal windows (about 2/3 of the point-to-point ``n``).
+    """
+    n_a, n_b = max(float(n_a), 1.0), max(float(n_b), 1.0)
+    return (n_a - 1.0) * (2.0 * n_a - 1.0) / (6.0 * n_a) + (n_b + 1.0) * (2.0 * n_b + 1.0) / (6.0 * n_b)
+
+
+def _project_gauge(C, gauge: Gauge, groups, s1, s2) -> np.ndarray:
+    """Move a covariance of ``[dtheta, dlog s1, dlog s2, db]`` onto the gauge's constraint surface.
+
+    Shifting the log-scales of a linked group by a common amount leaves ``A`` (hence every factor)
+    unchanged, so the oblique projection ``T = I - U (G U)^-1 G`` along those null directions ``U``
+    onto the linearised gauge conditions ``G`` (one per group) re-expresses the covariance in the
+    gauge without changing anything the data determine.
+    """
+    G = np.zeros((len(groups), 12))
+    G[:, :9] = gauge.constraints(groups, s1, s2)
+    Un = np.zeros((12, len(groups)))
+    for j, group in enumerate(groups):
+        for gyro, axis in group:
+            Un[3 + 3 * gyro + axis, j] = 1.0
+    T = np.eye(12) - Un @ np.linalg.solve(G @ Un, G)
+    out = T @ C @ T.T
+    return 0.5 * (out + out.T)
+
+
+def calibrate_pair_graph(omega_1, omega_2, *, noise_std=None, window: int = 1000, bias_walk_std: float | None = None,
+                         gauge="unit_prior", rotation_increments: RotationIncrements | None = None,
+                         rate_hz: float | None = None, solver: str = "lm", seed: PairCalibration | None = None,
+                         mask=None) -> PairCalibration:
+    """Calibrate a sample-aligned gyro pair with the factor graph (windows of ``window`` samples).
+
+    Parameters
+    ----------
+    omega_1, omega_2 : array_like (N, 3)
+        Measured rates (rad/s) at the same instants.
+    noise_std : float or (float, float), optional
+        Per-sample white noise of gyro 1 and 2 (rad/s); default: the seed's.
+    window : int
+        Samples per window factor (and per bias segment when ``bias_walk_std`` is set).
+    bias_walk_std : float, optional
+        See :class:`GyroPairGraph` (``None``: one constant bias).
+    gauge : str or Gauge
+        Gauge of the relative scale factors (ignored when ``rotation_increments`` fix the global scale).
+    rotation_increments : RotationIncrements, optional
+        External orientation increments on gyro 1's sample grid; adds the global-scale variable.
+    rate_hz : float, optional
+        Sample rate, required with ``rotation_increments``.
+    solver : {"lm", "isam2"}
+        Batch Levenberg-Marquardt, or iSAM2 updated window by window.
+    seed : PairCalibration, optional
+        Initial values; default the direct solution ``solve(moments, method="direct")``.
+    mask : array_like of bool (N,), optional
+        Samples to use.
+    """
+    from . import calibrate as _cal  # the batch solver (seed)
+
+    if solver not in ("lm", "isam2"):
+        raise ConfigurationError(f"solver: expected 'lm' or 'isam2', got {solver!r}")
+    if rotation_increments is not None and rate_hz is None:
+        raise ConfigurationError("rotation_increments need rate_hz (the sample rate of omega_1), got None")
+    w1 = as_rates("omega_1", omega_1)
+    w2 = as_rates("omega_2", omega_2, length=w1.shape[0])
+    if window < 2:
+        raise InputError(f"window: expected at least 2 samples per window, got {window}")
+    if mask is not None:
+        mask = np.asarray(mask, dtype=bool)
+        if mask.shape != (w1.shape[0],):
+            raise InputError(f"mask: expected shape ({w1.shape[0]},), got {mask.shape}")
+    windows = []
+    for start in range(0, w1.shape[0], window):
+        sl = slice(start, start + window)
+        m = Moments.from_samples(w1[sl], w2[sl], mask=None if mask is None else mask[sl], chunk_size=window)
+        if m.count > 1:
+            windows.append((start, m))
+    if not windows:
+        raise InputError(f"expected at least one window of >= 2 samples, got {w1.shape[0]} samples")
+    if seed is None:
+        parts = [m for _, m in windows]
+        total = Moments.pool_all(parts) if bias_walk_std is not None else Moments.merge_all(parts)
+        sig = None if noise_std is None else np.broadcast_to(np.asarray(noise_std, float), (2,))
+        seed = _cal.solve(total, noise_std=sig, method="direct", gauge=gauge)
+    glob = rotation_increments is not None
+    g = GyroPairGraph(seed, noise_std=noise_std, bias_walk_std=bias_walk_std, gauge=gauge, global_scale=glob,
+                      bias_1_walk_std=(bias_walk_std / np.sqrt(2.0) if bias_walk_std is not None else None))
+    for start, m in windows:
+        g.add_window(m)
+        if glob:
+            sel = (rotation_increments.start >= start) & (rotation_increments.start < start + window)
+            if sel.any():
+                g.add_rotation_increments(w1, rate_hz, rotation_increments.subset(sel))
+        if solver == "isam2" and (not glob or g._camera):
+            g.update()
+    return g.result() if solver == "isam2" else g.solve()
