@@ -28,7 +28,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.interpolate import CubicSpline
+from scipy.interpolate import PPoly
+from scipy.linalg import solve_banded
 from scipy.optimize import minimize_scalar
 
 from .errors import InputError, TimeAlignmentError
@@ -214,57 +215,123 @@ def _nominal_period(t: np.ndarray) -> float:
 
 
 # ---------------------------------------------------------------------------------------------- resampling
+def _runs(t: np.ndarray, valid: np.ndarray, max_gap_s: float) -> list[np.ndarray]:
+    """Sample indices of each contiguous run (>= 2 samples) of valid samples without a gap."""
+    idx = np.flatnonzero(valid)
+    if idx.size < 2:
+        return []
+    brk = (np.diff(idx) > 1) | (np.diff(t[idx]) > max_gap_s)
+    cut = np.flatnonzero(brk) + 1
+    return [idx[a:b] for a, b in zip(np.r_[0, cut], np.r_[cut, idx.size]) if b - a >= 2]
+
+
+def _spline_slopes(x: np.ndarray, Y: np.ndarray, first: np.ndarray, last: np.ndarray) -> np.ndarray:
+    """Knot slopes of the not-a-knot cubic spline of each run ``first[k]..last[k]`` of ``(x, Y)``.
+
+    The same equations as scipy's ``CubicSpline`` (tridiagonal continuity of the second
+    derivative, not-a-knot end rows in their tridiagonal form), with no coupling between runs.
+    """
+    m = x.size
+    dx = np.diff(x)
+    slope = np.diff(Y, axis=0) / dx[:, None]
+    ab = np.zeros((3, m))  # banded storage: ab[1 + i - j, j] = a[i, j]
+    rhs = np.zeros_like(Y)
+    ab[1, 1:-1] = 2.0 * (dx[:-1] + dx[1:])
+    ab[0, 2:] = dx[:-1]
+    ab[2, :-2] = dx[1:]
+    rhs[1:-1] = 3.0 * (dx[1:, None] * slope[:-1] + dx[:-1, None] * slope[1:])
+    n = last - first + 1
+    # cut the coupling between consecutive runs
+    ab[2, first[first > 0] - 1] = 0.0
+    ab[0, last[last < m - 1] + 1] = 0.0
+    big = n >= 4
+    i0, i1 = first[big], last[big]
+    d0 = x[i0 + 2] - x[i0]
+    ab[1, i0] = dx[i0 + 1]
+    ab[0, i0 + 1] = d0
+    rhs[i0] = (((dx[i0] + 2.0 * d0) * dx[i0 + 1])[:, None] * slope[i0] + (dx[i0] ** 2)[:, None] * slope[i0 + 1]) / d0[:, None]
+    d1 = x[i1] - x[i1 - 2]
+    ab[1, i1] = dx[i1 - 2]
+    ab[2, i1 - 1] = d1
+    rhs[i1] = ((dx[i1 - 1] ** 2)[:, None] * slope[i1 - 2]
+               + ((2.0 * d1 + dx[i1 - 1]) * dx[i1 - 2])[:, None] * slope[i1 - 1]) / d1[:, None]
+    # short runs: explicit slopes (two samples: the line; three: the parabola through them)
+    fixed, values = [], []
+    for k in np.flatnonzero(~big):
+        j = first[k]
+        if n[k] == 2:
+            fixed += [j, j + 1]
+            values += [slope[j], slope[j]]
+        else:
+            c = (slope[j + 1] - slope[j]) / (dx[j] + dx[j + 1])
+            fixed += [j, j + 1, j + 2]
+            values += [slope[j] - dx[j] * c, slope[j] + dx[j] * c, slope[j + 1] + dx[j + 1] * c]
+    if fixed:
+        fixed = np.asarray(fixed)
+        ab[1, fixed] = 1.0
+        ab[0, fixed[fixed < m - 1] + 1] = 0.0
+        ab[2, fixed[fixed > 0] - 1] = 0.0
+        rhs[fixed] = np.asarray(values)
+    return solve_banded((1, 1), ab, rhs, check_finite=False)
+
+
+def _hermite_ppoly(x: np.ndarray, Y: np.ndarray, S: np.ndarray, width: tuple) -> PPoly:
+    """Piecewise cubic through ``(x, Y)`` with knot slopes ``S`` (as scipy's ``CubicHermiteSpline``)."""
+    dx = np.diff(x)[:, None]
+    slope = np.diff(Y, axis=0) / dx
+    t = (S[:-1] + S[1:] - 2.0 * slope) / dx
+    c = np.stack((t / dx, (slope - S[:-1]) / dx - t, S[:-1], Y[:-1]))
+    return PPoly(c.reshape((4, x.size - 1) + width), x, extrapolate=False)
+
+
 class _RunSplines:
-    """Cubic splines of ``y(t)`` over each contiguous run of valid samples (no gap, no masked sample)."""
+    """Cubic splines of ``y(t)`` over each contiguous run of valid samples (no gap, no masked sample).
+
+    Every run gets the not-a-knot cubic spline that scipy's ``CubicSpline`` would fit (a run of
+    two samples: a line, of three: a parabola). All runs are solved together as one block-
+    tridiagonal system for the knot slopes (one banded solve, however many runs a masked
+    record has) and packed into one piecewise polynomial; the interval between two runs holds
+    a Hermite bridge that is masked on evaluation (values and first derivatives at the run
+    ends are exact).
+    """
 
     def __init__(self, t: np.ndarray, y: np.ndarray, valid: np.ndarray, max_gap_s: float):
-        idx = np.flatnonzero(valid)
-        self.starts, self.ends, self.splines = np.empty(0), np.empty(0), []
         self.width = y.shape[1:]
-        if idx.size < 2:
+        self.starts, self.ends, self.poly = np.empty(0), np.empty(0), None
+        runs = _runs(t, valid, max_gap_s)
+        if not runs:
             return
-        brk = (np.diff(idx) > 1) | (np.diff(t[idx]) > max_gap_s)
-        cut = np.flatnonzero(brk) + 1
-        lo = np.r_[0, cut]
-        hi = np.r_[cut, idx.size]
-        starts, ends = [], []
-        for a, b in zip(lo, hi):
-            if b - a < 2:
-                continue
-            sel = idx[a:b]
-            self.splines.append(CubicSpline(t[sel], y[sel], axis=0))
-            starts.append(t[sel[0]])
-            ends.append(t[sel[-1]])
-        self.starts, self.ends = np.asarray(starts), np.asarray(ends)
+        sel = np.concatenate(runs)
+        x = t[sel]
+        Y = y[sel].reshape(sel.size, -1)
+        lens = np.array([r.size for r in runs])
+        first = np.r_[0, np.cumsum(lens)[:-1]]
+        last = first + lens - 1
+        self.starts, self.ends = x[first], x[last]
+        self.poly = _hermite_ppoly(x, Y, _spline_slopes(x, Y, first, last), self.width)
 
     def run_of(self, x: np.ndarray) -> np.ndarray:
         """Index of the run containing each query time, -1 outside every run."""
-        if not self.splines:
+        if self.poly is None:
             return np.full(x.shape, -1)
         r = np.searchsorted(self.starts, x, side="right") - 1
         inside = (r >= 0) & (x <= self.ends[np.clip(r, 0, None)])
         return np.where(inside, r, -1)
 
-    def __call__(self, x: np.ndarray, nu: int = 0, runs: np.ndarray | None = None):
-        """Values (or ``nu``-th derivatives) at ``x``; NaN outside the runs; returns (values, inside)."""
-        r = self.run_of(x) if runs is None else runs
+    def __call__(self, x: np.ndarray, nu: int = 0, inside: np.ndarray | None = None):
+        """Values (or ``nu``-th derivatives) at ``x``, NaN outside the runs; returns (values, inside)."""
+        if inside is None:
+            inside = self.run_of(x) >= 0
         out = np.full(x.shape + self.width, np.nan)
-        inside = r >= 0
         if inside.any():
-            order = np.flatnonzero(inside)
-            rr = r[order]
-            bounds = np.flatnonzero(np.diff(rr)) + 1
-            for part in np.split(np.arange(order.size), bounds):
-                k = rr[part[0]]
-                q = order[part]
-                out[q] = self.splines[k](x[q], nu)
+            out[inside] = self.poly(x[inside], nu)
         return out, inside
 
 
 def resample(t_src, omega_src, t_grid, *, valid=None, max_gap_s: float | None = None):
     """Resample rates onto new instants with cubic splines, never bridging gaps or masked samples.
 
-    A cubic spline (scipy ``CubicSpline``, not-a-knot ends) is fitted to each contiguous run of
+    A not-a-knot cubic spline (the one scipy's ``CubicSpline`` fits) is fitted to each contiguous run of
     valid samples; a run ends at a masked or non-finite sample or at a step longer than
     ``max_gap_s``. Grid points outside every run are invalid.
 
@@ -373,9 +440,22 @@ def _masked_correlation(f, mf, g, mg, d_lo, d_hi, min_overlap):
 
 
 def _norm_on_grid(t, w, ok, grid, gap):
-    spl = _RunSplines(t, np.linalg.norm(np.where(ok[:, None], w, 0.0), axis=1)[:, None], ok, gap)
-    val, inside = spl(grid)
-    x = np.where(inside, val[:, 0], 0.0)
+    """Standardised rate norm on ``grid`` (linear interpolation inside runs; 0 elsewhere) and its mask.
+
+    Linear interpolation is enough for the coarse search (the refinement uses splines) and
+    stays cheap for records split into many runs by masked samples.
+    """
+    norm = np.linalg.norm(np.where(ok[:, None], w, 0.0), axis=1)
+    x = np.zeros(grid.size)
+    inside = np.zeros(grid.size, dtype=bool)
+    runs = _runs(t, ok, gap)
+    if runs:
+        first = np.array([r[0] for r in runs])
+        last = np.array([r[-1] for r in runs])
+        k = np.searchsorted(t[first], grid, side="right") - 1
+        inside = (k >= 0) & (grid <= t[last[np.clip(k, 0, None)]])
+        sel = np.flatnonzero(ok)
+        x[inside] = np.interp(grid[inside], t[sel], norm[sel])
     if inside.sum() < 2:
         return x, inside
     mu, sd = x[inside].mean(), x[inside].std()
@@ -394,6 +474,44 @@ def _profile_cost(w1, w2):
     return float(np.trace(m.S11) - np.trace(A @ m.S12.T)), A
 
 
+def _parabolic_peak(r, i) -> float:
+    """Sub-step position (in steps, within +-0.5) of the peak at ``i`` of a sampled curve."""
+    if i == 0 or i == r.size - 1 or not (np.isfinite(r[i - 1]) and np.isfinite(r[i + 1])):
+        return 0.0
+    den = r[i - 1] - 2.0 * r[i] + r[i + 1]
+    return float(np.clip(0.5 * (r[i - 1] - r[i + 1]) / den, -0.5, 0.5)) if den < 0 else 0.0
+
+
+def _refine(spl2: _RunSplines, x1, y1, tau0: float, h: float):
+    """Offset minimising the profiled rigid-model misfit near ``tau0`` (Brent, bracket +-1.5 steps).
+
+    Returns ``(tau, x_used, omega_1_used, rss / n)``. The gyro-1 samples used are those whose
+    whole bracket maps inside one run of gyro 2, so the set is fixed and the cost smooth;
+    the bracket moves if the minimum lands on its edge.
+    """
+    tau, half = tau0, 1.5 * h
+    for _ in range(6):
+        lo, hi = tau - half, tau + half
+        ra, rb = spl2.run_of(x1 - hi), spl2.run_of(x1 - lo)
+        use = (ra >= 0) & (ra == rb)
+        if use.sum() < 16:
+            raise TimeAlignmentError(f"only {int(use.sum())} gyro-1 samples overlap valid gyro-2 data near the "
+                                     f"offset {tau0:+.4f} s; need at least 16")
+        xe, ye = x1[use], y1[use]
+        inside = np.ones(xe.size, dtype=bool)
+
+        def cost(tt):
+            return _profile_cost(ye, spl2(xe - tt, inside=inside)[0])[0]
+
+        res = minimize_scalar(cost, bounds=(lo, hi), method="bounded",
+                              options={"xatol": 1e-9 * max(1.0, abs(tau)) + 1e-4 * h})
+        tau = float(res.x)
+        if min(tau - lo, hi - tau) >= 0.05 * half:
+            return tau, xe, ye, float(res.fun) / xe.size
+    raise TimeAlignmentError(f"the sub-sample refinement did not settle near the correlation peak "
+                             f"{tau0:+.4f} s (last {tau:+.6f} s)")
+
+
 def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.0, valid_1=None, valid_2=None,
                          min_correlation: float = 0.5) -> TimeOffset:
     """Estimate the time offset between two rigidly mounted gyroscopes from their rates alone.
@@ -403,7 +521,10 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.
        shorter nominal sample period of the two streams, so different rates are handled) and
        cross-correlated by FFT, each lag normalised over the samples valid in both streams
        (gaps and masks allowed). The peak in ``[-max_offset_s, max_offset_s]`` is located to a
-       fraction of a step by parabolic interpolation.
+       fraction of a step by parabolic interpolation. When several separate lobes come close to
+       the peak (norms of periodic motion repeat), each is refined as in step 2 and the one with
+       the smallest rigid-model misfit wins; if the misfits are within a factor of 1.5 the
+       offset is ambiguous.
     2. Fine: the offset minimises the residual sum of squares of the rigid-pair model
        ``omega_1(t_k) = A omega_2(t_k - offset) + b`` (Eq. 3-5 with ``A = S_1 C S_2^-1``) over the
        valid gyro-1 samples, gyro 2 evaluated with cubic splines; ``A`` and ``b`` are profiled out
@@ -440,7 +561,9 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.
         Bad shapes, timestamps or ``max_offset_s``.
     TimeAlignmentError
         The streams do not overlap within ``max_offset_s``, the correlation peak is weak (little
-        motion), lies on the search boundary, or a second lobe is nearly as good (periodic motion).
+        motion, or an offset beyond ``max_offset_s``), lies on the search boundary, or a second
+        lobe is nearly as good in both the norm correlation and the rigid-model misfit
+        (periodic motion).
     """
     t1, w1, ok1 = _stream("t_1", t_1, "omega_1", omega_1, valid_1)
     t2, w2, ok2 = _stream("t_2", t_2, "omega_2", omega_2, valid_2)
@@ -478,65 +601,44 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.
         raise TimeAlignmentError("no trial offset within max_offset_s overlaps enough valid samples of both "
                                  f"streams (need {int(min_overlap)} common grid points)")
     rr = np.where(np.isfinite(r), r, -np.inf)
-    i = int(np.argmax(rr))
-    peak = float(r[i])
-    if peak < min_correlation:
+    top = float(rr.max())
+    if top < min_correlation:
         raise TimeAlignmentError(
-            f"weak correlation of the rate norms: peak {peak:.3f} at {lags[i]:+.4f} s (need >= "
-            f"{min_correlation:g}); the recording has too little motion, or the streams are not from one rigid body")
+            f"weak correlation of the rate norms: peak {top:.3f} at {lags[int(np.argmax(rr))]:+.4f} s (need >= "
+            f"{min_correlation:g}); too little motion, an offset beyond max_offset_s={max_offset_s:g} s, or streams "
+            "that are not from one rigid body")
+    # lobes: contiguous lag ranges whose misfit (1 - r) is within _AMBIGUITY_RATIO of the best
+    thr = 1.0 - _AMBIGUITY_RATIO * (1.0 - top)
+    above = np.r_[False, rr >= thr, False].astype(np.int8)
+    edges = np.flatnonzero(np.diff(above))
+    cands = [int(lo + np.argmax(rr[lo:hi])) for lo, hi in zip(edges[::2], edges[1::2])]
+
+    spl2 = _RunSplines(t2, w2, ok2, gap2)
+    x1, y1 = t1[ok1], w1[ok1]
+    fits = [_refine(spl2, x1, y1, lags[i] + _parabolic_peak(rr, i) * h, h) for i in cands]
+    order = np.argsort([fit[3] for fit in fits])
+    best = int(order[0])
+    if len(cands) > 1:  # periodic norms: let the full rigid-model misfit decide, if it can
+        k = int(order[1])
+        if fits[k][3] < _AMBIGUITY_RATIO * fits[best][3]:
+            raise TimeAlignmentError(
+                f"ambiguous time offset: the rate norms correlate at {lags[cands[best]]:+.4f} s "
+                f"({r[cands[best]]:.4f}) and at {lags[cands[k]]:+.4f} s ({r[cands[k]]:.4f}), and the rigid-model "
+                f"misfits there differ by only {fits[k][3] / fits[best][3]:.3g}x; periodic motion? record less "
+                "repetitive motion or pass a smaller max_offset_s around the expected offset")
+    i = cands[best]
+    peak = float(r[i])
     if i == 0 or i == lags.size - 1 or not np.isfinite(r[i - 1]) or not np.isfinite(r[i + 1]):
         raise TimeAlignmentError(
             f"the correlation peak ({peak:.3f}) lies on the search boundary at {lags[i]:+.4f} s; the offset may "
             f"exceed max_offset_s={max_offset_s:g} s: pass a larger max_offset_s")
-    thr = 1.0 - _AMBIGUITY_RATIO * (1.0 - peak)
-    lobe_lo, lobe_hi = i, i
-    while lobe_lo > 0 and rr[lobe_lo - 1] >= thr:
-        lobe_lo -= 1
-    while lobe_hi < rr.size - 1 and rr[lobe_hi + 1] >= thr:
-        lobe_hi += 1
-    others = np.r_[rr[:lobe_lo], rr[lobe_hi + 1:]]
-    if others.size and others.max() >= thr:
-        j = int(np.flatnonzero(rr >= thr)[np.argmax(np.abs(np.flatnonzero(rr >= thr) - i))])
-        raise TimeAlignmentError(
-            f"ambiguous time offset: the norm correlation peaks at {lags[i]:+.4f} s ({peak:.4f}) and again at "
-            f"{lags[j]:+.4f} s ({r[j]:.4f}); periodic motion? record less repetitive motion or pass a smaller "
-            "max_offset_s around the expected offset")
-    den = rr[i - 1] - 2.0 * rr[i] + rr[i + 1]
-    frac = 0.5 * (rr[i - 1] - rr[i + 1]) / den if den < 0 else 0.0
-    tau0 = lags[i] + float(np.clip(frac, -0.5, 0.5)) * h
-
-    # ---- fine: profiled rigid-model misfit, Brent on the bracket around the coarse peak
-    spl2 = _RunSplines(t2, w2, ok2, gap2)
-    x1, y1 = t1[ok1], w1[ok1]
-    tau, half = tau0, 1.5 * h
-    for _ in range(6):
-        lo, hi = tau - half, tau + half
-        # gyro-1 samples whose whole bracket maps inside one run of gyro 2 (fixed set: a smooth cost)
-        ra, rb = spl2.run_of(x1 - hi), spl2.run_of(x1 - lo)
-        use = (ra >= 0) & (ra == rb)
-        if use.sum() < 16:
-            raise TimeAlignmentError(f"only {int(use.sum())} gyro-1 samples overlap valid gyro-2 data near the "
-                                     f"offset {tau0:+.4f} s; need at least 16")
-        xe, ye, runs = x1[use], y1[use], ra[use]
-
-        def cost(tt):
-            return _profile_cost(ye, spl2(xe - tt, runs=runs)[0])[0]
-
-        res = minimize_scalar(cost, bounds=(lo, hi), method="bounded",
-                              options={"xatol": 1e-9 * max(1.0, abs(tau)) + 1e-4 * h})
-        tau_new = float(res.x)
-        at_edge = min(tau_new - lo, hi - tau_new) < 0.05 * half
-        tau = tau_new
-        if not at_edge:
-            break
-    else:
-        raise TimeAlignmentError(f"the sub-sample refinement did not settle near the correlation peak "
-                                 f"{tau0:+.4f} s (last {tau:+.6f} s)")
+    tau, xe, ye, _ = fits[best]
+    inside = np.ones(xe.size, dtype=bool)
 
     # ---- uncertainty: Gauss-Newton curvature of the profiled misfit
-    w2e = spl2(xe - tau, runs=runs)[0]
+    w2e = spl2(xe - tau, inside=inside)[0]
     rss, A = _profile_cost(ye, w2e)
-    dw2 = spl2(xe - tau, nu=1, runs=runs)[0]
+    dw2 = spl2(xe - tau, nu=1, inside=inside)[0]
     m = Moments.from_samples(dw2, w2e)  # centred: projects out the bias direction
     P = m.S11 - m.S12 @ np.linalg.pinv(m.S22, rcond=1e-12, hermitian=True) @ m.S12.T  # project out A
     info = float(np.trace(A @ P @ A.T))
