@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from .direct import Gauge, decompose, solve_A
-from .errors import ConfigurationError, InputError
+from .errors import ConfigurationError, InputError, NotRigidError
 from .model import BIAS, ROT, S1, S2, PairCalibration
 from .moments import Moments
 from .observability import (A_of, check_excitation, classify, dA_dp, fisher_information, per_axis_snr,
@@ -59,7 +59,8 @@ def _transform(moments: Moments, T1, T2) -> Moments:
 
 def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_prior",
           scale_prior_std: float | None = None, parallel_tol_deg: float = 5.0,
-          intrinsics_1=None, intrinsics_2=None, skew_std=0.0, min_snr: float = 10.0) -> PairCalibration:
+          intrinsics_1=None, intrinsics_2=None, skew_std=0.0, min_snr: float = 10.0,
+          max_unexplained: float = 0.05, on_not_rigid: str = "raise") -> PairCalibration:
     """Calibrate a pair from its sufficient statistics.
 
     Parameters
@@ -91,7 +92,15 @@ def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_p
         covariance.
     min_snr : float
         Smallest SNR of any principal motion direction accepted (Lemma 1).
+    max_unexplained : float
+        Rigidity test: the pair is "not rigid" when the least-squares fit leaves more than this
+        fraction of gyro 1's (centred) motion energy unexplained.
+    on_not_rigid : {"raise", "flag"}
+        Raise :class:`NotRigidError` (default), or return the result with ``rigid=False`` and the
+        covariance from the residual scatter.
     """
+    if on_not_rigid not in ("raise", "flag"):
+        raise InputError(f"on_not_rigid: expected 'raise' or 'flag', got {on_not_rigid!r}")
     if method not in METHODS:
         raise InputError(f"method: expected one of {METHODS}, got {method!r}")
     if scale_prior_std is not None and (method != "ml" or not scale_prior_std > 0):
@@ -102,23 +111,33 @@ def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_p
     T1, T2 = _skew_compensation(intrinsics_1, "intrinsics_1"), _skew_compensation(intrinsics_2, "intrinsics_2")
     moments = _transform(moments, T1, T2) if (intrinsics_1 is not None or intrinsics_2 is not None) else moments
     noise = _noise_pair(noise_std)
+    check_excitation(moments, (1e-300, 1e-300), min_snr=0.0)  # sample count and constant input only
+    A_ls, _ = solve_A(moments)
+    unexplained = float(np.trace(_residual_scatter(A_ls, moments.scatter)) / np.trace(moments.S11))
+    rigid = unexplained <= max_unexplained
+    if not rigid and on_not_rigid == "raise":
+        raise NotRigidError(
+            f"not rigid: a single rotation and scale factors leave {100 * unexplained:.1f}% of gyro 1's motion "
+            f"unexplained (a rigid pair leaves <= {100 * max_unexplained:g}%); the gyros move relative to each "
+            "other, the streams are misaligned in time, or they are not the same device")
     if noise is None:
-        check_excitation(moments, (1e-300, 1e-300), min_snr=0.0)  # shapes / constant input only
-        A_ls, _ = solve_A(moments)
         noise = _residual_noise(moments, A_ls)
         noise_source = "residual (split equally between the gyros)"
     else:
         noise_source = "user"
-    check_excitation(moments, noise, min_snr=min_snr)
-    A_ls, _ = solve_A(moments)
+    if rigid:
+        check_excitation(moments, noise, min_snr=min_snr)
     config = classify(_polar(A_ls), parallel_tol_deg)
-    R, s1, s2 = decompose(A_ls, config)
-    config = classify(R, parallel_tol_deg)
-    R, s1, s2 = decompose(A_ls, config)
-    s1, s2 = gauge.apply(config.groups, s1, s2)
     notes = []
     iterations = 0
-    if method == "ml":
+    if rigid:
+        R, s1, s2 = decompose(A_ls, config)
+        config = classify(R, parallel_tol_deg)
+        R, s1, s2 = decompose(A_ls, config)
+    else:  # no rigid model fits: report the nearest rotation with unit scales, flagged, never refined
+        R, s1, s2 = _polar(A_ls), np.ones(3), np.ones(3)
+    s1, s2 = gauge.apply(config.groups, s1, s2)
+    if method == "ml" and rigid:
         use_prior = scale_prior_std is not None
         ref = refine_ml(moments, R, s1, s2, noise, scale_prior_std=scale_prior_std,
                         constraints=None if use_prior else (lambda a, b: gauge.constraints(config.groups, a, b)),
@@ -140,6 +159,8 @@ def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_p
     chi2 = float(np.trace(W @ M))
     dof = max(3.0 * moments.dof - 8.0, 1.0)
     ratio = chi2 / dof
+    if not rigid:
+        notes.append(f"NOT RIGID: {100 * unexplained:.1f}% of the motion is unexplained; do not use this estimate")
     if noise_source == "user" and ratio > 1.5:
         P9 = P9 * ratio
         notes.append(f"residuals are {np.sqrt(ratio):.2f}x larger than noise_std explains (flex, skew, time offset "
@@ -169,7 +190,7 @@ def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_p
         n_samples=int(moments.count), noise_std=np.array(noise), noise_source=noise_source,
         residual_rms=float(np.sqrt(max(np.trace(M), 0.0) / (3.0 * max(moments.dof, 1.0)))), method=method,
         iterations=iterations, skew_rotation_covariance=skew_cov, bias_segments=moments.segments,
-        notes=tuple(notes))
+        rigid=rigid, unexplained_fraction=unexplained, notes=tuple(notes))
 
 
 def _polar(A):
@@ -226,17 +247,35 @@ def _assemble_covariance(P9, R, s1, s2, A, moments, noise):
     return cov
 
 
-def calibrate_pair(omega_1, omega_2, *, method: str = "ml", noise_std=None, gauge="unit_prior",
-                   scale_prior_std: float | None = None, bias_window: int | None = None, mask=None,
+def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s: float | None = None,
+                   max_offset_s: float = 1.0, rate_hz: float | None = None, saturation_limit=None,
+                   method: str = "ml", noise_std=None, gauge="unit_prior", scale_prior_std: float | None = None,
+                   bias_window: int | None = None, mask=None, flex_rejection="auto", flex_margin: int = 2,
                    parallel_tol_deg: float = 5.0, intrinsics_1=None, intrinsics_2=None, skew_std=0.0,
-                   min_snr: float = 10.0) -> PairCalibration:
-    """Calibrate two rigidly mounted gyroscopes from sample-aligned angular rates.
+                   min_snr: float = 10.0, max_unexplained: float = 0.05, on_not_rigid: str = "raise"
+                   ) -> PairCalibration:
+    """Calibrate two rigidly mounted gyroscopes from their angular rates.
 
     Parameters
     ----------
-    omega_1, omega_2 : array_like, shape (N, 3)
-        Measured angular rates (rad/s) of gyro 1 (the reference) and gyro 2 at the same
-        instants, float32 or float64.
+    omega_1, omega_2 : array_like, shape (N, 3) and (M, 3)
+        Measured angular rates (rad/s) of gyro 1 (the reference) and gyro 2, float32 or
+        float64. Without timestamps they must be sample-aligned (N == M, same instants).
+    t_1, t_2 : array_like (N,) and (M,), optional
+        Timestamps (s) of each stream on its own clock. When given, saturated and non-finite
+        samples are masked, the time offset is estimated by correlating the rate norms and
+        refined below one sample (unless ``time_offset_s`` is given), and gyro 2 is resampled
+        onto gyro 1's timestamps (or a ``rate_hz`` grid) with cubic splines that never cross
+        a gap (see :mod:`fusion_gyrocal.preprocess`).
+    time_offset_s : float, optional
+        Known offset, ADDED to gyro 2's timestamps to put them on gyro 1's clock.
+    max_offset_s : float
+        Search range of the offset estimate.
+    rate_hz : float, optional
+        Resample both streams onto a uniform grid at this rate.
+    saturation_limit : float or (float, float), optional
+        Sensor range (rad/s) of each gyro for masking clipped samples (default: detect samples
+        sitting flat at the extreme values).
     method : {"ml", "direct"}
         Estimator (see :func:`solve`); ``"ml"`` is the default and the best available.
     noise_std : float or (float, float), optional
@@ -250,8 +289,13 @@ def calibrate_pair(omega_1, omega_2, *, method: str = "ml", noise_std=None, gaug
         Model the bias as piecewise constant over windows of this many samples (for drifting
         biases); default: one constant bias (Eq. 11).
     mask : array_like of bool (N,), optional
-        Samples to use.
-    parallel_tol_deg, intrinsics_1, intrinsics_2, skew_std, min_snr
+        Samples to use (sample-aligned input only).
+    flex_rejection : {"auto", True, False}
+        The paper's flex rejection (Section VI.C): residuals beyond the 3-sigma gate (in its 3-D
+        form, chi-square with the same 0.27% false-alarm rate) and ``flex_margin`` samples on each
+        side are removed and the pair is solved again. ``"auto"`` applies it only when more than
+        1% of the samples exceed the gate (four times what white noise explains).
+    parallel_tol_deg, intrinsics_1, intrinsics_2, skew_std, min_snr, max_unexplained, on_not_rigid
         See :func:`solve`.
 
     Returns
@@ -261,10 +305,15 @@ def calibrate_pair(omega_1, omega_2, *, method: str = "ml", noise_std=None, gaug
     Raises
     ------
     InputError
-        Wrong shapes or lengths, non-finite values, fewer than 4 samples, constant input.
+        Wrong shapes or lengths, non-finite values, fewer than 4 samples, constant input, bad
+        timestamps (unsorted, duplicate, non-finite).
     ExcitationError
         Motion that does not determine all parameters (Lemma 1); the message names the weak
         axes, their SNR and the motion to add.
+    NotRigidError
+        The gyros do not move as one rigid body (unless ``on_not_rigid="flag"``).
+    TimeAlignmentError
+        The time offset cannot be determined from the data.
 
     Examples
     --------
@@ -275,11 +324,161 @@ def calibrate_pair(omega_1, omega_2, *, method: str = "ml", noise_std=None, gaug
     >>> cal.configuration
     'general'
     """
-    if bias_window is None:
-        moments = Moments.from_samples(omega_1, omega_2, mask=mask)
+    if flex_rejection not in ("auto", True, False):
+        raise InputError(f"flex_rejection: expected 'auto', True or False, got {flex_rejection!r}")
+    offset, offset_std = 0.0, 0.0
+    if (t_1 is None) != (t_2 is None):
+        raise InputError("t_1 and t_2: expected both timestamps or neither (sample-aligned input)")
+    if t_1 is not None:
+        from .preprocess import align_streams, valid_mask
+        if mask is not None:
+            raise InputError("mask: only for sample-aligned input; with timestamps, saturated and non-finite "
+                             "samples are masked automatically")
+        lim = (None, None) if saturation_limit is None else np.broadcast_to(np.asarray(saturation_limit, float), (2,))
+        pair = align_streams(t_1, omega_1, t_2, omega_2, time_offset_s=time_offset_s, max_offset_s=max_offset_s,
+                             rate_hz=rate_hz, valid_1=valid_mask(omega_1, limit=lim[0]),
+                             valid_2=valid_mask(omega_2, limit=lim[1]))
+        w1 = np.where(pair.valid[:, None], pair.omega_1, 0.0)
+        w2 = np.where(pair.valid[:, None], pair.omega_2, 0.0)
+        mask = pair.valid
+        offset = pair.time_offset_s
+        offset_std = pair.time_offset.std_s if pair.time_offset is not None else 0.0
     else:
+        w1, w2 = omega_1, omega_2
+        if mask is not None:
+            mask = np.asarray(mask, dtype=bool)
+    kw = dict(method=method, noise_std=noise_std, gauge=gauge, scale_prior_std=scale_prior_std,
+              parallel_tol_deg=parallel_tol_deg, intrinsics_1=intrinsics_1, intrinsics_2=intrinsics_2,
+              skew_std=skew_std, min_snr=min_snr, max_unexplained=max_unexplained, on_not_rigid=on_not_rigid)
+
+    def moments_of(use):
+        if bias_window is None:
+            return Moments.from_samples(w1, w2, mask=use)
         from .moments import window_moments
-        moments = Moments.pool_all(window_moments(omega_1, omega_2, int(bias_window), mask=mask))
-    return solve(moments, method=method, noise_std=noise_std, gauge=gauge, scale_prior_std=scale_prior_std,
-                 parallel_tol_deg=parallel_tol_deg, intrinsics_1=intrinsics_1, intrinsics_2=intrinsics_2,
-                 skew_std=skew_std, min_snr=min_snr)
+        return Moments.pool_all(window_moments(w1, w2, int(bias_window), mask=use))
+
+    mom = moments_of(mask)
+    cal = solve(mom, **kw)
+    rejected = 0.0
+    corr = float("nan")
+    if flex_rejection is not False and cal.rigid:
+        n_used = cal.n_samples
+        keep = mask
+        for _ in range(5):  # the paper's gate, iterated until no new sample is rejected
+            A_ls, b_ls = solve_A(mom)
+            out = _outliers(w1, w2, A_ls, b_ls, keep, bias_window)
+            if not out.any() or (flex_rejection == "auto" and keep is mask and out.sum() <= 0.01 * n_used):
+                break
+            gate = np.convolve(out, np.ones(2 * flex_margin + 1), mode="same") > 0  # neighbours too
+            keep = ~gate if keep is None else (keep & ~gate)
+            mom = moments_of(keep)
+        A_ls, b_ls = solve_A(mom)
+        fast = _flexing_rates(w1, w2, A_ls, b_ls, keep, bias_window)
+        if fast is not None:
+            keep = ~fast if keep is None else (keep & ~fast)
+            mom = moments_of(keep)
+        if keep is not mask:
+            rejected = 1.0 - mom.count / max(n_used, 1)
+            cal = solve(mom, **kw)
+            mask = keep
+        corr = _rate_residual_correlation(w1, w2, cal, mask, bias_window)
+    return _replace(cal, time_offset_s=offset, time_offset_std_s=offset_std, rejected_fraction=rejected,
+                    rate_residual_correlation=corr)
+
+
+def _replace(cal: PairCalibration, **changes) -> PairCalibration:
+    import dataclasses
+    return dataclasses.replace(cal, **changes)
+
+
+def _residual_chunks(w1, w2, A, bias, mask, bias_window, chunk=65536):
+    """Yield ``(start, residual, used)`` chunks of ``omega_1 - A omega_2 - b`` (per-window bias if windowed)."""
+    n = np.asarray(w1).shape[0]
+    step = chunk if bias_window is None else max(int(bias_window), 1) * max(1, chunk // max(int(bias_window), 1))
+    for start in range(0, n, step):
+        stop = min(start + step, n)
+        a = np.asarray(w1[start:stop], dtype=float)
+        b = np.asarray(w2[start:stop], dtype=float)
+        r = a - b @ A.T
+        used = np.ones(stop - start, bool) if mask is None else mask[start:stop]
+        if bias_window is None:
+            r -= bias
+        else:
+            for k in range(0, stop - start, int(bias_window)):
+                sl = slice(k, k + int(bias_window))
+                u = used[sl]
+                if u.any():
+                    r[sl] -= r[sl][u].mean(axis=0)
+        yield start, r, used
+
+
+def _outliers(w1, w2, A, bias, mask, bias_window) -> np.ndarray:
+    """Samples whose residual exceeds the 3-sigma gate (chi-square, 3 dof, 0.27% false alarms).
+
+    The residual is that of the unconstrained least-squares ``A`` (Eq. 16), which absorbs any
+    linear model error (skew, misalignment), so what the gate sees is noise plus the non-linear,
+    time-varying effects the paper's gate is for (flex, Section VI.C). Its covariance is
+    estimated robustly (median of a subsample), so the outliers do not widen their own gate.
+    """
+    from scipy.stats import chi2
+    sample = np.concatenate([r[u][:: max(1, len(r) // 4000)] for _, r, u in _residual_chunks(
+        w1, w2, A, bias, mask, bias_window)])
+    # robust covariance: scale the sample covariance by the median chi-square of the sample
+    W = np.linalg.inv(np.cov(sample.T) + 1e-300 * np.eye(3))
+    d2 = np.einsum("ij,jk,ik->i", sample, W, sample)
+    W = W * (chi2.median(3) / max(np.median(d2), 1e-300))
+    limit = chi2.ppf(0.9973, 3)
+    out = np.zeros(np.asarray(w1).shape[0], dtype=bool)
+    for start, r, used in _residual_chunks(w1, w2, A, bias, mask, bias_window):
+        out[start:start + len(r)] = used & (np.einsum("ij,jk,ik->i", r, W, r) > limit)
+    return out
+
+
+def _flexing_rates(w1, w2, A, bias, mask, bias_window, bins: int = 20):
+    """Samples above the rate from which the residual grows with the rate (flex that the gate missed).
+
+    The used samples are split into ``bins`` equal-count bins of gyro 1's rate norm. A bin is
+    inflated when its mean normalised squared residual exceeds that of the slower half of the
+    data by more than 5 standard errors. If the fastest bins are inflated, every sample from
+    the slowest of the consecutive inflated top bins upwards is returned (None otherwise).
+    """
+    d2, rate, idx = [], [], []
+    for start, r, used in _residual_chunks(w1, w2, A, bias, mask, bias_window):
+        k = np.flatnonzero(used)
+        d2.append((r[k] ** 2).sum(axis=1))
+        rate.append(np.linalg.norm(np.asarray(w1[start:start + len(r)])[k], axis=1))
+        idx.append(k + start)
+    d2, rate, idx = np.concatenate(d2), np.concatenate(rate), np.concatenate(idx)
+    if d2.size < 20 * bins:
+        return None
+    order = np.argsort(rate)
+    groups = np.array_split(order, bins)
+    means = np.array([d2[g].mean() for g in groups])
+    ref = np.median(means[: bins // 2])
+    se = ref * np.sqrt(2.0 / (3.0 * len(groups[0])))  # chi-square(3)/3 per sample, mean over a bin
+    inflated = means > ref + 5.0 * se
+    if not inflated[-1]:
+        return None
+    first = bins - 1
+    while first > bins // 2 and inflated[first - 1]:
+        first -= 1
+    cut = rate[groups[first][0]]
+    out = np.zeros(np.asarray(w1).shape[0], dtype=bool)
+    out[idx[rate >= cut]] = True
+    return out
+
+
+def _rate_residual_correlation(w1, w2, cal, mask, bias_window, max_points=20000) -> float:
+    """Spearman correlation of residual norm with gyro 1's rate norm (the flex signature)."""
+    from scipy.stats import spearmanr
+    rn, wn = [], []
+    n = np.asarray(w1).shape[0]
+    stride = max(1, n // max_points)
+    for start, r, used in _residual_chunks(w1, w2, cal.A, cal.bias, mask, bias_window):
+        idx = np.arange(len(r))[((np.arange(len(r)) + start) % stride == 0) & used]
+        rn.append(np.linalg.norm(r[idx], axis=1))
+        wn.append(np.linalg.norm(np.asarray(w1[start:start + len(r)])[idx], axis=1))
+    rn, wn = np.concatenate(rn), np.concatenate(wn)
+    if rn.size < 10:
+        return float("nan")
+    return float(spearmanr(rn, wn).statistic)

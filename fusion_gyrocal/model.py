@@ -98,7 +98,13 @@ class PairCalibration:
     bias_segments : int
         Number of independent bias segments (1 for a constant bias).
     rigid : bool or None
-        Rigidity verdict from the residual-versus-rate test (None when not tested).
+        Rigidity verdict: False when a rigid rotation and scale factors leave more than 5% of
+        gyro 1's motion energy unexplained (``unexplained_fraction``); None when not tested.
+    unexplained_fraction : float
+        Residual energy over gyro 1's signal energy (0 for a perfect rigid fit).
+    rate_residual_correlation : float
+        Spearman correlation of the residual norm with the rate norm (the paper's flex signature,
+        Section VI.C; near 0 for a rigid pair limited by white noise). NaN when not computed.
     rejected_fraction : float
         Fraction of samples rejected by flex/outlier gating.
     notes : tuple of str
@@ -125,6 +131,8 @@ class PairCalibration:
     skew_rotation_covariance: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
     bias_segments: int = 1
     rigid: bool | None = None
+    unexplained_fraction: float = float("nan")
+    rate_residual_correlation: float = float("nan")
     rejected_fraction: float = 0.0
     notes: tuple = ()
 

@@ -101,7 +101,8 @@ def random_rotation(rng=None, *, angle_deg: float | None = None) -> np.ndarray:
 def simulate_pair(omega_true_1=None, *, n: int = 6000, rate_hz: float = PAPER_RATE_HZ, R_1_2=None,
                   scale_1=(1.0, 1.0, 1.0), scale_2=(1.0, 1.0, 1.0), noise_std=PAPER_NOISE_STD,
                   bias_walk_std: float = PAPER_BIAS_WALK_STD, bias_1=None, bias_2=None,
-                  skew_std: float = 0.0, rms=1.0, rng=None) -> SimulatedPair:
+                  skew_std: float = 0.0, rms=1.0, flex_deg: float = 0.0, flex_quantile: float = 0.9,
+                  rng=None) -> SimulatedPair:
     """Simulate a rigid gyro pair following the paper's protocol (Section V).
 
     Parameters
@@ -121,6 +122,9 @@ def simulate_pair(omega_true_1=None, *, n: int = 6000, rate_hz: float = PAPER_RA
         Initial biases (rad/s). Default: drawn from N(0, (0.5 deg/s)^2).
     skew_std : float
         Standard deviation of the upper off-diagonal skew terms of S_i (the paper: 2.357e-4).
+    flex_deg : float
+        Device flex: above the ``flex_quantile`` of the rate norm the extrinsic bends by up to
+        ``flex_deg`` degrees (Section VI.C); 0 for a rigid pair.
     rng : numpy.random.Generator or int, optional
     """
     rng = np.random.default_rng(rng)
@@ -147,6 +151,17 @@ def simulate_pair(omega_true_1=None, *, n: int = 6000, rate_hz: float = PAPER_RA
         walk = np.cumsum(rng.normal(0, bias_walk_std, (n, 3)), axis=0) if bias_walk_std > 0 else 0.0
         biases.append(b0 + walk)
     omega_true_2 = omega_true_1 @ R  # R^T omega_1, row-wise
+    if flex_deg:
+        # device flex (Section VI.C): above the rate quantile the extrinsic bends by up to flex_deg about a
+        # fixed axis, smoothly with the excess rate, with onset/settle over a few samples
+        speed = np.linalg.norm(omega_true_1, axis=1)
+        thr = np.quantile(speed, flex_quantile)
+        amount = np.clip((speed - thr) / max(speed.max() - thr, 1e-12), 0.0, 1.0) ** 0.5
+        amount = np.convolve(amount, np.ones(5) / 5, mode="same")
+        axis = rng.standard_normal(3)
+        axis /= np.linalg.norm(axis)
+        bend = Rotation.from_rotvec(np.outer(amount * flex_deg * DEG, axis)).as_matrix()  # R(t) = Exp(bend) R
+        omega_true_2 = np.einsum("nji,nj->ni", bend @ R, omega_true_1)
     w1 = omega_true_1 @ S[0].T + biases[0] + rng.normal(0, sig[0], (n, 3))
     w2 = omega_true_2 @ S[1].T + biases[1] + rng.normal(0, sig[1], (n, 3))
     return SimulatedPair(t, w1, w2, omega_true_1, R, s1, s2, S[0], S[1],
