@@ -347,6 +347,48 @@ def test_write_imu_bag_failure_keeps_old_bag(tmp_path, monkeypatch):
     np.testing.assert_array_equal(read_bag(path).omega, old.omega)
 
 
+def _raw_ros1_imu_bag(path, stamps_ns, recv_ns, omega):
+    """A ROS1 Imu bag written message by message with rosbags (header stamps chosen freely)."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    T = store.types
+    with Writer(path) as w:
+        c = w.add_connection("/imu", "sensor_msgs/msg/Imu", typestore=store)
+        for k, (st, rc, om) in enumerate(zip(stamps_ns, recv_ns, omega)):
+            msg = T["sensor_msgs/msg/Imu"](
+                header=T["std_msgs/msg/Header"](seq=k, stamp=T["builtin_interfaces/msg/Time"](
+                    sec=int(st // 10**9), nanosec=int(st % 10**9)), frame_id="imu"),
+                orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+                orientation_covariance=np.zeros(9),
+                angular_velocity=T["geometry_msgs/msg/Vector3"](x=om[0], y=om[1], z=om[2]),
+                angular_velocity_covariance=np.zeros(9),
+                linear_acceleration=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
+                linear_acceleration_covariance=np.zeros(9))
+            w.write(c, int(rc), store.serialize_ros1(msg, "sensor_msgs/msg/Imu"))
+
+
+def test_read_bag_sorts_by_header_stamp(tmp_path):
+    rng = np.random.default_rng(16)
+    stamps = 5 * 10**9 + np.arange(20, dtype=np.int64) * 10_000_000
+    perm = rng.permutation(20)  # received (and stored) out of stamp order
+    omega = rng.normal(size=(20, 3))
+    _raw_ros1_imu_bag(tmp_path / "j.bag", stamps[perm], 6 * 10**9 + np.arange(20) * 10**6, omega[perm])
+    r = read_bag(tmp_path / "j.bag")
+    np.testing.assert_allclose(r.t, stamps * 1e-9, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(r.omega, omega)
+
+
+def test_read_bag_zero_header_stamps_fall_back_to_receive_time(tmp_path):
+    rng = np.random.default_rng(17)
+    recv = 7 * 10**9 + np.arange(30, dtype=np.int64) * 5_000_000
+    _raw_ros1_imu_bag(tmp_path / "z.bag", np.zeros(30, dtype=np.int64), recv, rng.normal(size=(30, 3)))
+    r = read_bag(tmp_path / "z.bag")
+    np.testing.assert_allclose(r.t, recv * 1e-9, rtol=0, atol=1e-12)
+    assert r.rate_hz == pytest.approx(200.0)
+
+
 def test_read_bag_rejects_non_bag(tmp_path):
     p = tmp_path / "notes.bag"
     p.write_text("not a bag")
@@ -519,3 +561,22 @@ def test_read_imu_dispatches_on_suffix_and_content(tmp_path):
 def test_read_imu_missing_file_message(tmp_path):
     with pytest.raises(FormatError, match="nope.csv: no such file"):
         read_imu(tmp_path / "nope.csv")
+
+
+# ----------------------------------------------------------------------------- end to end
+def test_read_bag_feeds_calibrate_pair_with_time_offset(tmp_path):
+    """Two Imu topics on different clocks -> bag -> read -> calibrate -> Kalibr time_offset."""
+    from fusion_gyrocal import calibrate_pair
+    from fusion_gyrocal.sim import PAPER_NOISE_STD, rotation_error, simulate_pair
+
+    sim = simulate_pair(n=6000, rng=50)
+    offset = 0.0234  # added to gyro 2's stamps puts them on gyro 1's clock
+    write_imu_bag(tmp_path / "pair", {"/imu0": ImuStream(100.0 + sim.t, sim.omega_1),
+                                      "/imu1": ImuStream(100.0 + sim.t - offset, sim.omega_2)}, version=2)
+    g1, g2 = read_bag(tmp_path / "pair", "/imu0"), read_bag(tmp_path / "pair", "/imu1")
+    cal = calibrate_pair(g1.omega, g2.omega, t_1=g1.t, t_2=g2.t, noise_std=PAPER_NOISE_STD)
+    assert abs(cal.time_offset_s - offset) < 5 * cal.time_offset_std_s + 1e-9  # + ns rounding of the stamps
+    assert rotation_error(cal.R_1_2, sim.R_1_2) < 5 * np.linalg.norm(cal.rotation_std_rad)
+    y = yaml.safe_load(write_kalibr_imu_yaml(cal, tmp_path / "imu.yaml").read_text())
+    assert y["imu1"]["time_offset"] == cal.time_offset_s
+    np.testing.assert_array_equal(read_json(write_json(cal, tmp_path / "cal.json")).R_1_2, cal.R_1_2)

@@ -27,12 +27,12 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import FormatError, InputError
-from ..preprocess import check_timestamps, to_rad_per_s
+from ..preprocess import UNITS, check_timestamps, to_rad_per_s
 
 DEG = np.pi / 180.0
 
-#: Rate units understood by the readers and the factor that turns them into rad/s.
-RATE_UNITS = {"rad/s": 1.0, "deg/s": DEG, "counts": None}
+#: Rate units understood by the readers (converted with :func:`fusion_gyrocal.preprocess.to_rad_per_s`).
+RATE_UNITS = UNITS
 #: Time units understood by the readers, as powers of ten of one second.
 TIME_UNITS = {"s": 0, "ms": 3, "us": 6, "ns": 9}
 
@@ -108,7 +108,7 @@ class ImuStream:
                 raise InputError(f"{name}: expected a valid mask of shape {valid.shape}, got {given.shape}")
             valid &= given.astype(bool)
         if self.unit_in not in RATE_UNITS:
-            raise InputError(f"{name}: expected unit_in in {tuple(RATE_UNITS)}, got {self.unit_in!r}")
+            raise InputError(f"{name}: expected unit_in in {RATE_UNITS}, got {self.unit_in!r}")
         rate = float(1.0 / np.median(dt)) if self.rate_hz is None else float(self.rate_hz)
         if not (np.isfinite(rate) and rate > 0):
             raise InputError(f"{name}: expected a positive finite rate_hz, got {self.rate_hz!r}")
