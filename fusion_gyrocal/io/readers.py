@@ -29,7 +29,6 @@ import numpy as np
 from ..errors import FormatError, InputError
 from ..preprocess import UNITS, check_timestamps, to_rad_per_s
 
-DEG = np.pi / 180.0
 
 #: Rate units understood by the readers (converted with :func:`fusion_gyrocal.preprocess.to_rad_per_s`).
 RATE_UNITS = UNITS
