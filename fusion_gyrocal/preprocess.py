@@ -615,23 +615,41 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.
 
     spl2 = _RunSplines(t2, w2, ok2, gap2)
     x1, y1 = t1[ok1], w1[ok1]
-    fits = [_refine(spl2, x1, y1, lags[i] + _parabolic_peak(rr, i) * h, h) for i in cands]
-    order = np.argsort([fit[3] for fit in fits])
-    best = int(order[0])
-    if len(cands) > 1:  # periodic norms: let the full rigid-model misfit decide, if it can
-        k = int(order[1])
-        if fits[k][3] < _AMBIGUITY_RATIO * fits[best][3]:
-            raise TimeAlignmentError(
-                f"ambiguous time offset: the rate norms correlate at {lags[cands[best]]:+.4f} s "
-                f"({r[cands[best]]:.4f}) and at {lags[cands[k]]:+.4f} s ({r[cands[k]]:.4f}), and the rigid-model "
-                f"misfits there differ by only {fits[k][3] / fits[best][3]:.3g}x; periodic motion? record less "
-                "repetitive motion or pass a smaller max_offset_s around the expected offset")
-    i = cands[best]
-    peak = float(r[i])
-    if i == 0 or i == lags.size - 1 or not np.isfinite(r[i - 1]) or not np.isfinite(r[i + 1]):
-        raise TimeAlignmentError(
-            f"the correlation peak ({peak:.3f}) lies on the search boundary at {lags[i]:+.4f} s; the offset may "
+
+    def on_edge(i):
+        return i == 0 or i == lags.size - 1 or not (np.isfinite(r[i - 1]) and np.isfinite(r[i + 1]))
+
+    def boundary_error(i):
+        return TimeAlignmentError(
+            f"the correlation peak ({r[i]:.3f}) lies on the search boundary at {lags[i]:+.4f} s; the offset may "
             f"exceed max_offset_s={max_offset_s:g} s: pass a larger max_offset_s")
+
+    fits, failures = [], []
+    for i in cands:
+        try:
+            fits.append(_refine(spl2, x1, y1, lags[i] + _parabolic_peak(rr, i) * h, h))
+        except TimeAlignmentError as exc:  # e.g. a lobe on the boundary whose minimum lies outside
+            fits.append(None)
+            failures.append(exc)
+    score = np.array([np.inf if fit is None else fit[3] for fit in fits])
+    best = int(np.argmin(score))
+    i = cands[best]
+    if not np.isfinite(score[best]):
+        raise boundary_error(i) if on_edge(i) else failures[0]
+    if on_edge(i) or abs(fits[best][0]) > lags[-1] + h:
+        raise boundary_error(i)
+    for j, c in enumerate(cands):  # a lobe on the boundary may hide a better offset outside the range
+        if on_edge(c) and not score[j] >= _AMBIGUITY_RATIO * score[best]:
+            raise boundary_error(c)
+    if len(cands) > 1:  # periodic norms: let the full rigid-model misfit decide, if it can
+        k = int(np.argsort(score)[1])
+        if score[k] < _AMBIGUITY_RATIO * score[best]:
+            raise TimeAlignmentError(
+                f"ambiguous time offset: the rate norms correlate at {lags[i]:+.4f} s ({r[i]:.4f}) and at "
+                f"{lags[cands[k]]:+.4f} s ({r[cands[k]]:.4f}), and the rigid-model misfits there differ by only "
+                f"{score[k] / score[best]:.3g}x; periodic motion? record less repetitive motion or pass a smaller "
+                "max_offset_s around the expected offset")
+    peak = float(r[i])
     tau, xe, ye, _ = fits[best]
     inside = np.ones(xe.size, dtype=bool)
 
