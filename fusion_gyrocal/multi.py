@@ -1,0 +1,890 @@
+"""More than two gyroscopes: one joint maximum-likelihood calibration of a rigid gyro array.
+
+Every gyro ``k`` of the array measures the same true angular rate ``omega`` (expressed in the
+reference gyro's frame, before any scale factor), the paper's measurement model (Eq. 1-3)
+written once per gyro::
+
+    y_k = S_k R_ref_k^T omega + b_k + n_k,        n_k ~ N(0, sigma_k^2 I),
+
+with ``R_ref_k`` mapping gyro k's frame into the reference gyro's frame (``R_ref_ref = I``) and
+``S_k = diag(scale_k)``. Stacking the N gyros, ``y = H omega + b + n`` with
+``H = [S_0 R_ref_0^T; ...; S_{N-1} R_ref_{N-1}^T]`` (3N x 3) and
+``Sigma = blockdiag(sigma_k^2 I)``. Profiling the true rate of every sample and the (constant
+or per-segment) biases out of the likelihood leaves
+
+    L(theta) = tr(P S_c),   P = Sigma^-1 - Sigma^-1 H (H^T Sigma^-1 H)^-1 H^T Sigma^-1,
+
+where ``S_c`` is the (3N x 3N) centred scatter of the stacked measurements. For two gyros this is
+exactly the pair cost :func:`fusion_gyrocal.refine.ml_cost` (``A = S_1 R_1_2 S_2^-1``, Eq. 4); for
+more it uses every pair at once, and because one true rate drives all gyros the rotations are
+consistent around every loop by construction (``R_i_j = R_ref_i^T R_ref_j``).
+
+Unknowns are the rotations of every non-reference gyro and the log scale factors of every gyro;
+the scale factors are determined only up to one common factor per group of linked axes
+(Theorem 2; for axis-parallel gyros, Lemma 2, one group per axis). The minimisation is Fisher
+scoring (Gauss-Newton on the expected Hessian, the Appendix B information generalised to N gyros)
+with an analytic gradient, seeded from the pairwise direct solutions (Eq. 16, Lemmas 2-4) of every
+gyro to the reference. The covariance is the inverse Fisher information in the gauge.
+
+The one O(N) pass over the samples is :meth:`ArrayMoments.from_samples`: the
+:class:`~fusion_gyrocal.moments.Moments` of every pair of gyros, from which the stacked scatter is
+assembled.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+from typing import Iterable, Sequence
+
+import numpy as np
+from scipy.linalg import null_space
+from scipy.optimize import nnls
+from scipy.spatial.transform import Rotation
+
+from .calibrate import solve
+from .errors import ConfigurationError, InputError
+from .model import BIAS, ROT, S1, S2, PairCalibration
+from .moments import Moments, as_rates, window_moments
+from .observability import A_of, classify, dA_dp, per_axis_snr, skew
+
+GAUGES = ("unit_prior", "fixed")
+
+
+# ---------------------------------------------------------------------------------------- statistics
+def _pair_index(n: int, i: int, j: int) -> int:
+    """Position of pair ``(i, j)``, ``i < j``, in ``itertools.combinations(range(n), 2)`` order."""
+    return i * n - i * (i + 1) // 2 + (j - i - 1)
+
+
+def _swap(m: Moments) -> Moments:
+    """Moments of ``[omega_2; omega_1]`` from those of ``[omega_1; omega_2]``."""
+    perm = np.r_[3:6, 0:3]
+    return Moments(m.count, m.mean[perm], m.scatter[np.ix_(perm, perm)], m.segments)
+
+
+@dataclass(frozen=True)
+class ArrayMoments:
+    """Sufficient statistics of N sample-aligned gyros: the :class:`Moments` of every pair.
+
+    The pairwise moments hold every block of the stacked (3N x 3N) centred scatter, so they are
+    all the joint estimator needs; they merge, pool and decay pair by pair with the
+    :class:`Moments` algebra (streaming, distributed reductions).
+
+    Attributes
+    ----------
+    n_gyros : int
+        Number of gyros N (at least 2).
+    pairs : tuple of Moments
+        Moments of ``[omega_i; omega_j]`` for ``i < j`` in ``itertools.combinations`` order.
+    """
+
+    n_gyros: int
+    pairs: tuple = field(repr=False)
+
+    def __post_init__(self):
+        n = int(self.n_gyros)
+        if n < 2:
+            raise InputError(f"expected at least 2 gyros, got {n}")
+        pairs = tuple(self.pairs)
+        if len(pairs) != n * (n - 1) // 2:
+            raise InputError(f"expected {n * (n - 1) // 2} pairwise Moments for {n} gyros, got {len(pairs)}")
+        counts = {p.count for p in pairs}
+        if max(counts) - min(counts) > 1e-9 * max(max(counts), 1.0):
+            raise InputError(f"pairwise Moments: expected the same samples for every pair, got counts {sorted(counts)}")
+        object.__setattr__(self, "n_gyros", n)
+        object.__setattr__(self, "pairs", pairs)
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def empty(cls, n_gyros: int) -> "ArrayMoments":
+        """Moments of no samples (the identity of :meth:`merge` and :meth:`pool`)."""
+        return cls(n_gyros, tuple(Moments.empty() for _ in range(n_gyros * (n_gyros - 1) // 2)))
+
+    @classmethod
+    def from_samples(cls, omegas, *, mask=None) -> "ArrayMoments":
+        """One bounded-memory pass (per pair, :meth:`Moments.from_samples`) over N aligned streams.
+
+        Parameters
+        ----------
+        omegas : array_like (n_samples, N, 3) or sequence of N arrays (n_samples, 3)
+            Measured rates (rad/s) of every gyro at the same instants.
+        mask : array_like of bool (n_samples,), optional
+            Samples to use (True = keep); a sample is used for all gyros or for none.
+        """
+        rates = as_array_rates(omegas)
+        mask = _check_mask(mask, rates[0].shape[0])
+        _check_finite(rates, mask)
+        n = len(rates)
+        return cls(n, tuple(Moments.from_samples(rates[i], rates[j], mask=mask)
+                            for i, j in itertools.combinations(range(n), 2)))
+
+    @classmethod
+    def from_windows(cls, omegas, window: int, *, mask=None) -> "ArrayMoments":
+        """Pooled moments of consecutive windows of ``window`` samples (piecewise-constant biases)."""
+        rates = as_array_rates(omegas)
+        mask = _check_mask(mask, rates[0].shape[0])
+        _check_finite(rates, mask)
+        n = len(rates)
+        return cls(n, tuple(Moments.pool_all(window_moments(rates[i], rates[j], int(window), mask=mask))
+                            for i, j in itertools.combinations(range(n), 2)))
+
+    # ------------------------------------------------------------------ algebra (pair by pair)
+    def _check_same(self, other: "ArrayMoments"):
+        if not isinstance(other, ArrayMoments) or other.n_gyros != self.n_gyros:
+            raise InputError(f"expected ArrayMoments of {self.n_gyros} gyros, got "
+                             f"{getattr(other, 'n_gyros', type(other).__name__)}")
+
+    def merge(self, other: "ArrayMoments") -> "ArrayMoments":
+        """Combine with moments of more samples that share the same biases (:meth:`Moments.merge`)."""
+        self._check_same(other)
+        return ArrayMoments(self.n_gyros, tuple(a.merge(b) for a, b in zip(self.pairs, other.pairs)))
+
+    __add__ = merge
+
+    def pool(self, other: "ArrayMoments") -> "ArrayMoments":
+        """Combine with moments of samples that have their own biases (:meth:`Moments.pool`)."""
+        self._check_same(other)
+        return ArrayMoments(self.n_gyros, tuple(a.pool(b) for a, b in zip(self.pairs, other.pairs)))
+
+    def decayed(self, factor: float) -> "ArrayMoments":
+        """Down-weight all samples by ``factor`` in (0, 1] (exponential forgetting)."""
+        return ArrayMoments(self.n_gyros, tuple(p.decayed(factor) for p in self.pairs))
+
+    @staticmethod
+    def merge_all(parts: Iterable["ArrayMoments"]) -> "ArrayMoments":
+        """Merge a non-empty sequence of moments that share their biases."""
+        parts = iter(parts)
+        out = next(parts)
+        for p in parts:
+            out = out.merge(p)
+        return out
+
+    # ------------------------------------------------------------------ views
+    def pair(self, i: int, j: int) -> Moments:
+        """:class:`Moments` of ``[omega_i; omega_j]`` (gyro indices from 0)."""
+        n = self.n_gyros
+        if not (0 <= i < n and 0 <= j < n) or i == j:
+            raise InputError(f"pair: expected two different gyro indices in [0, {n}), got ({i}, {j})")
+        if i < j:
+            return self.pairs[_pair_index(n, i, j)]
+        return _swap(self.pairs[_pair_index(n, j, i)])
+
+    @property
+    def count(self) -> float:
+        return self.pairs[0].count
+
+    @property
+    def segments(self) -> int:
+        return self.pairs[0].segments
+
+    @property
+    def dof(self) -> float:
+        return self.pairs[0].dof
+
+    @property
+    def mean(self) -> np.ndarray:
+        """(3N,) mean of the stacked measurements."""
+        n = self.n_gyros
+        return np.concatenate([self.pair(k, (k + 1) % n).mean_1 for k in range(n)])
+
+    @property
+    def scatter(self) -> np.ndarray:
+        """(3N, 3N) centred (or per-segment pooled) scatter of the stacked measurements."""
+        n = self.n_gyros
+        S = np.empty((3 * n, 3 * n))
+        for k in range(n):
+            S[3 * k:3 * k + 3, 3 * k:3 * k + 3] = self.pair(k, (k + 1) % n).S11
+        for i, j in itertools.combinations(range(n), 2):
+            block = self.pairs[_pair_index(n, i, j)].S12
+            S[3 * i:3 * i + 3, 3 * j:3 * j + 3] = block
+            S[3 * j:3 * j + 3, 3 * i:3 * i + 3] = block.T
+        return S
+
+
+def as_array_rates(omegas) -> list[np.ndarray]:
+    """Return N read-only-safe ``(n_samples, 3)`` arrays from an (n, N, 3) array or a sequence."""
+    if isinstance(omegas, np.ndarray) or not isinstance(omegas, Sequence):
+        arr = np.asarray(omegas)
+        if arr.ndim != 3 or arr.shape[2] != 3:
+            raise InputError(f"omegas: expected shape (n_samples, n_gyros, 3) or a sequence of (n_samples, 3) "
+                             f"arrays, got shape {arr.shape}")
+        rates = [as_rates(f"omegas[:, {k}]", arr[:, k, :]) for k in range(arr.shape[1])]
+    else:
+        rates = [as_rates(f"omegas[{k}]", w) for k, w in enumerate(omegas)]
+    if len(rates) < 2:
+        raise InputError(f"omegas: expected at least 2 gyros, got {len(rates)}")
+    n = rates[0].shape[0]
+    for k, w in enumerate(rates):
+        if w.shape[0] != n:
+            raise InputError(f"gyro {k}: expected {n} samples (the length of gyro 0), got {w.shape[0]}; "
+                             "the array calibration needs sample-aligned streams")
+    return rates
+
+
+def _check_mask(mask, n):
+    if mask is None:
+        return None
+    mask = np.asarray(mask, dtype=bool)
+    if mask.shape != (n,):
+        raise InputError(f"mask: expected shape ({n},), got {mask.shape}")
+    return mask
+
+
+def _check_finite(rates, mask):
+    for k, w in enumerate(rates):
+        bad = ~np.isfinite(w).all(axis=1)
+        if mask is not None:
+            bad &= mask
+        if bad.any():
+            idx = np.flatnonzero(bad)
+            raise InputError(f"gyro {k}: expected finite rates, got a non-finite value at sample {idx[0]} "
+                             f"({idx.size} such sample(s)); mask or drop those samples first")
+
+
+# ---------------------------------------------------------------------------------------- result
+@dataclass(frozen=True)
+class ArrayCalibration:
+    """Joint calibration of N rigidly mounted gyroscopes (indices from 0).
+
+    Attributes
+    ----------
+    R_ref_k : ndarray (N, 3, 3)
+        ``R_ref_k[k]`` maps gyro k's frame into the reference gyro's frame
+        (``omega_ref = R_ref_k[k] @ omega_k``); ``R_ref_k[reference]`` is the identity.
+    scale : ndarray (N, 3)
+        Scale factors of every gyro in the gauge named by ``gauge``.
+    bias : ndarray (N, 3)
+        Combined bias of every gyro against the reference, ``b_ref - A_ref_k b_k`` (Eq. 5) in rad/s
+        (the individual biases are not observable: a common rate offset is indistinguishable from
+        them); ``bias[reference]`` is zero.
+    reference : int
+        Index of the reference gyro.
+    scale_observable : ndarray (N, 3) of bool
+        Scale factors determined up to the one global scale (Theorem 2). Where False, only ratios
+        inside its group of linked axes (``scale_groups``) are determined (Lemmas 2-3).
+    scale_groups : tuple of tuple of (gyro, axis)
+        Scale factors whose ratios the data determine; each group has one undetermined common factor.
+    configurations : tuple of tuple of str, (N, N)
+        Configuration class (Lemmas 2-4) of every pair; ``""`` on the diagonal.
+    covariance : ndarray (9N, 9N)
+        Covariance of ``[dtheta_0..dtheta_{N-1}, scale_0..scale_{N-1}, bias_0..bias_{N-1}]`` (3 entries
+        each) with ``R_ref_k_true = Exp(dtheta_k) @ R_ref_k[k]``, in the gauge. For scale factors whose
+        ``scale_observable`` is False the marginal variances belong to the gauge convention; only
+        ratios within a group are meaningful (:meth:`scale_ratio`). The reference's blocks are zero.
+    gauge : str
+        How the global scale (one factor per group) was fixed.
+    snr : ndarray (3,)
+        Per-axis SNR of the common angular rate (reference frame) against the reference gyro's noise.
+    n_samples : int
+    noise_std : ndarray (N,)
+        White-noise std per sample of every gyro (rad/s) used for the weights and the covariance.
+    noise_source : str
+    residual_rms : ndarray (N,)
+        RMS per axis of every gyro's residual against the fitted common rate (rad/s).
+    iterations : int
+    bias_segments : int
+    notes : tuple of str
+    moments : ArrayMoments
+        The statistics the calibration was computed from (used by :meth:`pair`).
+    """
+
+    R_ref_k: np.ndarray
+    scale: np.ndarray
+    bias: np.ndarray
+    reference: int
+    scale_observable: np.ndarray
+    scale_groups: tuple
+    configurations: tuple
+    covariance: np.ndarray
+    gauge: str
+    snr: np.ndarray
+    n_samples: int
+    noise_std: np.ndarray
+    noise_source: str
+    residual_rms: np.ndarray
+    iterations: int
+    bias_segments: int
+    notes: tuple
+    moments: ArrayMoments = field(repr=False)
+
+    def __post_init__(self):
+        n = np.asarray(self.scale).shape[0]
+        shapes = {"R_ref_k": (n, 3, 3), "scale": (n, 3), "bias": (n, 3), "scale_observable": (n, 3),
+                  "covariance": (9 * n, 9 * n), "snr": (3,), "noise_std": (n,), "residual_rms": (n,)}
+        for name, shape in shapes.items():
+            arr = np.array(getattr(self, name), dtype=bool if name == "scale_observable" else np.float64)
+            if arr.shape != shape:
+                raise ValueError(f"{name}: expected shape {shape}, got {arr.shape}")
+            arr.flags.writeable = False
+            object.__setattr__(self, name, arr)
+        object.__setattr__(self, "notes", tuple(self.notes))
+
+    @property
+    def n_gyros(self) -> int:
+        return self.scale.shape[0]
+
+    def _idx(self, part: str, k: int) -> slice:
+        off = {"rot": 0, "scale": 3, "bias": 6}[part] * self.n_gyros
+        return slice(off + 3 * k, off + 3 * k + 3)
+
+    @property
+    def rotation_std_rad(self) -> np.ndarray:
+        """(N, 3) 1-sigma rotation uncertainty per axis of the reference frame (rad)."""
+        return np.sqrt(np.clip(np.diag(self.covariance)[:3 * self.n_gyros], 0, None)).reshape(-1, 3)
+
+    def scale_ratio(self, i: int, axis_i: int, j: int, axis_j: int) -> tuple[float, float]:
+        """``scale[i, axis_i] / scale[j, axis_j]`` and its 1-sigma uncertainty.
+
+        Gauge-invariant (and reported) only for two scale factors in the same group of linked
+        axes; for all-axes-parallel gyros (Lemma 2) that is ``axis_j = perm(axis_i)``.
+
+        Raises
+        ------
+        ConfigurationError
+            If the two scale factors are in different groups (their ratio is not determined).
+        """
+        a, b = (i, axis_i), (j, axis_j)
+        if not any(a in g and b in g for g in self.scale_groups):
+            raise ConfigurationError(f"scale_ratio: scale[{i}, {axis_i}] and scale[{j}, {axis_j}] are in different "
+                                     "groups of linked axes; the data do not determine their ratio")
+        r = self.scale[i, axis_i] / self.scale[j, axis_j]
+        ka, kb = 3 * self.n_gyros + 3 * i + axis_i, 3 * self.n_gyros + 3 * j + axis_j
+        C = self.covariance
+        var_log = (C[ka, ka] / self.scale[i, axis_i] ** 2 + C[kb, kb] / self.scale[j, axis_j] ** 2
+                   - 2 * C[ka, kb] / (self.scale[i, axis_i] * self.scale[j, axis_j]))
+        return float(r), float(r * np.sqrt(max(var_log, 0.0)))
+
+    def pair(self, i: int, j: int) -> PairCalibration:
+        """The joint estimate seen as the calibration of the pair (gyro i as "gyro 1", gyro j as "gyro 2").
+
+        ``R_1_2 = R_ref_k[i]^T R_ref_k[j]`` (so loops close exactly), scale factors of the two gyros
+        in the array's gauge, bias ``mean_i - A mean_j`` (Eq. 12), and the 12x12 covariance derived
+        from the joint one (undetermined scale factors: infinite variance, as in
+        :class:`PairCalibration`).
+        """
+        n = self.n_gyros
+        if not (0 <= i < n and 0 <= j < n) or i == j:
+            raise InputError(f"pair: expected two different gyro indices in [0, {n}), got ({i}, {j})")
+        Ri, Rj = self.R_ref_k[i], self.R_ref_k[j]
+        R = Ri.T @ Rj
+        s1, s2 = self.scale[i], self.scale[j]
+        m = self.moments.pair(i, j)
+        A = A_of(R, s1, s2)
+        noise = (float(self.noise_std[i]), float(self.noise_std[j]))
+        # [dtheta_ij, log s_i, log s_j] = J [dtheta_all, log s_all]; dtheta_ij = R_i^T (dtheta_j - dtheta_i)
+        J = np.zeros((9, 6 * n))
+        J[0:3, 3 * i:3 * i + 3] = -Ri.T
+        J[0:3, 3 * j:3 * j + 3] += Ri.T
+        J[3:6, 3 * n + 3 * i:3 * n + 3 * i + 3] = np.eye(3)
+        J[6:9, 3 * n + 3 * j:3 * n + 3 * j + 3] = np.eye(3)
+        P9 = J @ _log_parameter_covariance(self) @ J.T
+        cov = _pair_covariance(P9, R, s1, s2, A, m, noise)
+        obs = np.stack([self.scale_observable[i], self.scale_observable[j]])
+        for g in range(2):
+            for a in range(3):
+                if not obs[g, a]:
+                    k = 3 + 3 * g + a
+                    cov[k, :], cov[:, k] = 0.0, 0.0
+                    cov[k, k] = np.inf
+        M = _pair_residual_scatter(A, m.scatter)
+        return PairCalibration(
+            R_1_2=R, scale_1=s1, scale_2=s2, bias=m.mean_1 - A @ m.mean_2,
+            configuration=self.configurations[i][j], scale_observable=obs, covariance=cov,
+            gauge=self.gauge, snr=per_axis_snr(m, noise), n_samples=int(m.count), noise_std=np.array(noise),
+            noise_source=self.noise_source,
+            residual_rms=float(np.sqrt(max(np.trace(M), 0.0) / (3.0 * max(m.dof, 1.0)))),
+            method="ml_array", iterations=self.iterations, bias_segments=m.segments,
+            notes=(f"view of the joint calibration of {n} gyros (gyro {i} as gyro 1, gyro {j} as gyro 2)",)
+            + self.notes)
+
+
+def _log_parameter_covariance(cal: ArrayCalibration) -> np.ndarray:
+    """(6N, 6N) covariance of ``[dtheta_all, log scale_all]`` from the stored one."""
+    n = cal.n_gyros
+    d = np.concatenate([np.ones(3 * n), 1.0 / cal.scale.ravel()])
+    return cal.covariance[:6 * n, :6 * n] * np.outer(d, d)
+
+
+def _pair_residual_scatter(A, Sc):
+    K = np.hstack([np.eye(3), -A])
+    return K @ Sc @ K.T
+
+
+def _pair_covariance(P9, R, s1, s2, A, m: Moments, noise):
+    """12x12 pair covariance ``[dtheta, scale_1, scale_2, bias]`` from ``[dtheta, log s_1, log s_2]``.
+
+    The bias ``mean_1 - A mean_2`` (Eq. 12) carries the noise of the means and the propagated
+    uncertainty of A (as in :func:`fusion_gyrocal.solve`).
+    """
+    Jl = np.diag(np.concatenate([np.ones(3), s1, s2]))
+    G = np.einsum("pij,j->ip", dA_dp(R, s1, s2), m.mean_2)  # d(A m_2)/dp
+    Sigma_r = noise[0] ** 2 * np.eye(3) + noise[1] ** 2 * A @ A.T
+    cov = np.zeros((12, 12))
+    cov[:9, :9] = Jl @ P9 @ Jl.T
+    cov[BIAS, BIAS] = Sigma_r / m.count + G @ P9 @ G.T
+    cov[BIAS, :9] = -G @ P9 @ Jl.T
+    cov[:9, BIAS] = cov[BIAS, :9].T
+    return cov
+
+
+# ---------------------------------------------------------------------------------------- the joint model
+def _H_of(R, s):
+    """Stacked design ``H = [S_k R_ref_k^T]_k`` (3N, 3)."""
+    return np.concatenate([s[k][:, None] * R[k].T for k in range(len(s))])
+
+
+def _projector(H, sig2):
+    """``P = Sigma^-1 - Sigma^-1 H M^-1 H^T Sigma^-1`` and ``K = M^-1 H^T Sigma^-1``, ``M^-1``."""
+    w = 1.0 / np.repeat(sig2, 3)
+    WH = H * w[:, None]
+    Minv = np.linalg.inv(H.T @ WH)
+    K = Minv @ WH.T
+    P = np.diag(w) - WH @ K
+    return 0.5 * (P + P.T), K, Minv
+
+
+def _dH(R, s):
+    """Derivatives (6N, 3N, 3) of H w.r.t. ``[dtheta_0..N-1, log s_0..N-1]``.
+
+    ``R_k <- Exp(dtheta_k) R_k`` gives ``dH_k = -S_k R_k^T [e_m x]``; ``s_k,i <- s_k,i e^dl`` scales row i of H_k.
+    """
+    n = len(s)
+    D = np.zeros((6 * n, 3 * n, 3))
+    for k in range(n):
+        Hk = s[k][:, None] * R[k].T
+        for m in range(3):
+            e = np.zeros(3)
+            e[m] = 1.0
+            D[3 * k + m, 3 * k:3 * k + 3] = -Hk @ skew(e)
+        for i in range(3):
+            D[3 * n + 3 * k + i, 3 * k + i] = Hk[i]
+    return D
+
+
+def joint_cost(R, s, scatter, noise_std) -> float:
+    """Negative log-likelihood (times 2, up to a constant) of the array model, ``tr(P S_c)``.
+
+    Parameters
+    ----------
+    R : (N, 3, 3) rotations ``R_ref_k``; s : (N, 3) scale factors; scatter : (3N, 3N) centred scatter;
+    noise_std : (N,) white-noise std per gyro (rad/s).
+    """
+    P, _, _ = _projector(_H_of(R, s), np.asarray(noise_std, float) ** 2)
+    return float(np.sum(P * scatter))
+
+
+def joint_gradient(R, s, scatter, noise_std) -> np.ndarray:
+    """Gradient of :func:`joint_cost` w.r.t. ``[dtheta_0..N-1, log s_0..N-1]``: ``-2 tr(P dH K S_c)``."""
+    P, K, _ = _projector(_H_of(R, s), np.asarray(noise_std, float) ** 2)
+    KS = K @ scatter
+    return -2.0 * np.einsum("ab,pbc,ca->p", P, _dH(R, s), KS)
+
+
+def joint_information(R, s, noise_std, Omega_c) -> np.ndarray:
+    """Fisher information (6N, 6N) of ``[dtheta, log s]`` with rates and biases profiled out.
+
+    ``I_pq = tr(D_p^T P D_q Omega_c)`` with ``D_p = dH/dp`` and ``Omega_c`` the centred scatter of the
+    true rate (Appendix B generalised: the information of the errors-in-variables model).
+    """
+    P, _, _ = _projector(_H_of(R, s), np.asarray(noise_std, float) ** 2)
+    D = _dH(R, s)
+    PD = np.einsum("ab,qbc->qac", P, D)
+    DO = np.einsum("pab,bc->pac", D, Omega_c)
+    F = np.einsum("pac,qac->pq", DO, PD)
+    return 0.5 * (F + F.T)
+
+
+def _signal_scatter(R, s, scatter, noise_std, dof):
+    """Noise-corrected centred scatter of the common rate, ``K S_c K^T - dof M^-1`` (clipped PSD)."""
+    _, K, Minv = _projector(_H_of(R, s), np.asarray(noise_std, float) ** 2)
+    X = K @ scatter @ K.T - dof * Minv
+    w, V = np.linalg.eigh(0.5 * (X + X.T))
+    return (V * np.clip(w, 0.0, None)) @ V.T
+
+
+def _retract(R, s, delta):
+    n = len(s)
+    rot = Rotation.from_rotvec(delta[:3 * n].reshape(n, 3)).as_matrix()
+    return np.einsum("kij,kjl->kil", rot, R), s * np.exp(delta[3 * n:].reshape(n, 3))
+
+
+# ---------------------------------------------------------------------------------------- gauge
+def _gauge_members(gauge: str, n: int, reference: int):
+    if gauge == "unit_prior":
+        return tuple((k, 0) for k in range(n)), None
+    if gauge == "fixed":
+        return ((reference, 0),), 1.0
+    raise ConfigurationError(f"gauge: expected one of {GAUGES}, got {gauge!r}")
+
+
+def _gauge_apply(groups, members, value, s):
+    """Rescale each group of linked scale factors so that the gauge holds (as :meth:`Gauge.apply`)."""
+    s = np.array(s, dtype=float)
+    for group in groups:
+        own = [m for m in members if m in group]
+        use = own or list(group)
+        r = np.array([s[g, a] for g, a in use])
+        c = value / r[0] if (value is not None and own) else r.sum() / (r**2).sum()  # Eq. 31-32
+        for g, a in group:
+            s[g, a] *= c
+    return s
+
+
+def _gauge_rows(groups, members, value, s, n, reference):
+    """Linearised conditions on ``[dtheta, log s]``: the reference rotation is fixed, one row per group."""
+    rows = []
+    for m in range(3):
+        r = np.zeros(6 * n)
+        r[3 * reference + m] = 1.0
+        rows.append(r)
+    for group in groups:
+        own = [m for m in members if m in group]
+        use = own or list(group)
+        r = np.zeros(6 * n)
+        for g, a in use:
+            r[3 * n + 3 * g + a] = 1.0 if (value is not None and own) else s[g, a] * (2 * s[g, a] - 1)
+        rows.append(r)
+    return np.array(rows)
+
+
+def _describe_gauge(gauge, reference, n_groups):
+    if gauge == "fixed":
+        text = f"scale[{reference}][0] == 1"
+    else:
+        text = "unit prior on the x-axis scale factors of every gyro (Eq. 31-32 generalised)"
+    if n_groups > 1:
+        text += f"; {n_groups} groups of linked axes, each other group at its members' unit prior"
+    return text
+
+
+def _scale_groups(R, n, tol):
+    """Union of the linked-scale groups of every pair (Lemmas 2-4); also the pair configurations."""
+    parent = {(k, a): (k, a) for k in range(n) for a in range(3)}
+
+    def find(x):
+        while parent[x] != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    configs = [[""] * n for _ in range(n)]
+    for i, j in itertools.combinations(range(n), 2):
+        conf = classify(R[i].T @ R[j], tol)
+        configs[i][j] = configs[j][i] = conf.name
+        for group in conf.groups:
+            ms = [(i if g == 0 else j, a) for g, a in group]
+            for m in ms[1:]:
+                parent[find(m)] = find(ms[0])
+    groups = {}
+    for k in range(n):
+        for a in range(3):
+            groups.setdefault(find((k, a)), []).append((k, a))
+    groups = tuple(tuple(sorted(g)) for g in sorted(groups.values()))
+    return groups, tuple(tuple(c) for c in configs)
+
+
+def _observable(groups, n):
+    """Scale factors determined up to the global scale: the largest group, if it links two axes of a gyro."""
+    obs = np.zeros((n, 3), dtype=bool)
+    if len(groups) == 1:
+        obs[:] = True
+        return obs
+    best = max(groups, key=len)
+    gyros = [g for g, _ in best]
+    if len([x for x in groups if len(x) == len(best)]) == 1 and len(set(gyros)) < len(gyros):
+        for g, a in best:
+            obs[g, a] = True
+    return obs
+
+
+# ---------------------------------------------------------------------------------------- seeds and noise
+def _seed(moments: ArrayMoments, reference, noise_std, parallel_tol_deg, min_snr):
+    """Rotations from the pairwise direct solutions to the reference; log scales by least squares
+    on the ratios every pair determines."""
+    n = moments.n_gyros
+    R = np.tile(np.eye(3), (n, 1, 1))
+    rows, rhs = [], []
+    for k in range(n):
+        if k == reference:
+            continue
+        pn = None if noise_std is None else (noise_std[reference], noise_std[k])
+        pc = solve(moments.pair(reference, k), method="direct", noise_std=pn, parallel_tol_deg=parallel_tol_deg,
+                   min_snr=min_snr)
+        R[k] = pc.R_1_2
+        lp = np.log(np.stack([pc.scale_1, pc.scale_2]))
+        for group in classify(pc.R_1_2, parallel_tol_deg).groups:
+            (g0, a0), rest = group[0], group[1:]
+            for g, a in rest:
+                row = np.zeros(3 * n)
+                row[3 * (reference if g == 0 else k) + a] += 1.0
+                row[3 * (reference if g0 == 0 else k) + a0] -= 1.0
+                rows.append(row)
+                rhs.append(lp[g, a] - lp[g0, a0])
+    l = np.linalg.lstsq(np.array(rows), np.array(rhs), rcond=None)[0] if rows else np.zeros(3 * n)
+    return R, np.exp(l.reshape(n, 3))
+
+
+def _noise_from_pairs(moments: ArrayMoments, R, s):
+    """Per-gyro white-noise std from every pair's residual ``y_i - A_ij y_j`` (three-cornered hat).
+
+    ``E[r r^T] = sigma_i^2 I + sigma_j^2 A A^T``: one linear equation in the variances per pair,
+    solved by non-negative least squares; with two gyros only the sum is observable and is split
+    equally (as :func:`fusion_gyrocal.solve`).
+    """
+    n = moments.n_gyros
+    X, y = [], []
+    for i, j in itertools.combinations(range(n), 2):
+        m = moments.pairs[_pair_index(n, i, j)]
+        A = A_of(R[i].T @ R[j], s[i], s[j])
+        row = np.zeros(n)
+        row[i] += 3.0
+        row[j] += float(np.trace(A @ A.T))
+        X.append(row)
+        y.append(float(np.trace(_pair_residual_scatter(A, m.scatter))) / max(m.dof - 3.0, 1.0))
+    X, y = np.array(X), np.array(y)
+    if n == 2:
+        v = np.full(2, y[0] / X[0].sum())
+    else:
+        v = nnls(X, y)[0]
+    floor = max(1e-24 * float(np.trace(moments.pairs[0].S11)) / (3.0 * max(moments.dof, 1.0)),
+                (0.1 * np.sqrt(np.median(v))) ** 2 if np.median(v) > 0 else 0.0)
+    return np.sqrt(np.maximum(v, floor))
+
+
+def _noise_vector(noise_std, n):
+    if noise_std is None:
+        return None
+    arr = np.broadcast_to(np.asarray(noise_std, dtype=float), (n,)).copy() if np.ndim(noise_std) == 0 \
+        else np.asarray(noise_std, dtype=float)
+    if arr.shape != (n,) or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
+        raise InputError(f"noise_std: expected positive rad/s per sample (one value or one per gyro, {n}), "
+                         f"got {noise_std}")
+    return arr
+
+
+def _refine(R, s, moments_scatter, dof, noise, constraints, regauge, max_iter, tol=1e-11):
+    """Fisher scoring in the gauge's tangent space with a backtracking line search (as refine.refine_ml)."""
+    cost = joint_cost(R, s, moments_scatter, noise)
+    converged, it = False, 0
+    for it in range(1, max_iter + 1):
+        Omega = _signal_scatter(R, s, moments_scatter, noise, dof)
+        H = 2.0 * joint_information(R, s, noise, Omega)
+        g = joint_gradient(R, s, moments_scatter, noise)
+        Z = null_space(constraints(s))
+        step = -Z @ np.linalg.lstsq(Z.T @ H @ Z, Z.T @ g, rcond=1e-12)[0]
+        t = 1.0
+        while True:
+            Rn, sn = _retract(R, s, t * step)
+            sn = regauge(sn)
+            new = joint_cost(Rn, sn, moments_scatter, noise)
+            if new <= cost + 1e-12 * abs(cost) or t < 1e-4:
+                break
+            t *= 0.5
+        R, s = Rn, sn
+        decrease, cost = cost - new, new
+        if np.max(np.abs(t * step)) < tol or (0 <= decrease <= 1e-14 * max(abs(cost), 1.0)):
+            converged = True
+            break
+    return R, s, it, converged
+
+
+# ---------------------------------------------------------------------------------------- public solvers
+def solve_array(moments: ArrayMoments, *, reference: int = 0, noise_std=None, gauge: str = "unit_prior",
+                parallel_tol_deg: float = 5.0, min_snr: float = 10.0, max_iter: int = 50) -> ArrayCalibration:
+    """Jointly calibrate N gyros from their pairwise sufficient statistics (maximum likelihood).
+
+    Parameters
+    ----------
+    moments : ArrayMoments
+        Statistics of N sample-aligned gyros (pooled per segment for piecewise-constant biases).
+    reference : int
+        Index of the reference gyro (its frame is the array frame, ``R_ref_k[reference] = I``).
+    noise_std : float or array_like (N,), optional
+        White-noise std per sample of every gyro (rad/s). Default: from the pairwise residuals
+        (three-cornered hat for N >= 3; equal split for N = 2, where only the sum is observable).
+    gauge : {"unit_prior", "fixed"}
+        ``"unit_prior"``: the x-axis scale factors of all gyros as close to 1 as their determined
+        ratios allow (Eq. 31-32 generalised); ``"fixed"``: ``scale[reference][0] == 1``. Groups of
+        linked axes that hold no gauge member follow the unit prior over their own members.
+    parallel_tol_deg : float
+        Axes closer than this to (anti)parallel are treated as parallel (see :func:`classify`).
+    min_snr : float
+        Smallest SNR of any principal motion direction accepted for every gyro pair with the
+        reference (Lemma 1).
+    max_iter : int
+        Fisher-scoring iterations at most (per noise update).
+
+    Returns
+    -------
+    ArrayCalibration
+
+    Raises
+    ------
+    InputError
+        Fewer than 4 samples, reference out of range, bad ``noise_std`` or ``gauge``.
+    ExcitationError
+        Motion that does not determine every gyro's rotation (Lemma 1).
+    """
+    if not isinstance(moments, ArrayMoments):
+        raise InputError(f"moments: expected ArrayMoments, got {type(moments).__name__}")
+    n = moments.n_gyros
+    if not (isinstance(reference, (int, np.integer)) and 0 <= reference < n):
+        raise InputError(f"reference: expected a gyro index in [0, {n}), got {reference!r}")
+    reference = int(reference)
+    if moments.count < 4:
+        raise InputError(f"expected at least 4 samples (Lemma 1), got {int(moments.count)}")
+    members, value = _gauge_members(gauge, n, reference)
+    user_noise = _noise_vector(noise_std, n)
+
+    R, s = _seed(moments, reference, user_noise, parallel_tol_deg, min_snr)
+    groups, configs = _scale_groups(R, n, parallel_tol_deg)
+    s = _gauge_apply(groups, members, value, s)
+    Sc, dof = moments.scatter, moments.dof
+
+    def constraints(sc):
+        return _gauge_rows(groups, members, value, sc, n, reference)
+
+    def regauge(sc):
+        return _gauge_apply(groups, members, value, sc)
+
+    notes = []
+    total_it = 0
+    if user_noise is not None:
+        noise = user_noise
+        R, s, total_it, converged = _refine(R, s, Sc, dof, noise, constraints, regauge, max_iter)
+        noise_source = "user"
+    else:
+        noise = _noise_from_pairs(moments, R, s)
+        for _ in range(4):  # alternate: weights from the current fit, fit with the current weights
+            R, s, it, converged = _refine(R, s, Sc, dof, noise, constraints, regauge, max_iter)
+            total_it += it
+            new = _noise_from_pairs(moments, R, s)
+            done = np.max(np.abs(new / noise - 1.0)) < 1e-3
+            noise = new
+            if done:
+                break
+        noise_source = ("residual (three-cornered hat over all pairs)" if n > 2
+                        else "residual (split equally between the gyros)")
+    if not converged:
+        notes.append(f"joint maximum-likelihood refinement stopped after {total_it} iterations without converging")
+
+    # covariance: inverse Fisher information in the gauge's tangent space
+    Omega = _signal_scatter(R, s, Sc, noise, dof)
+    F = joint_information(R, s, noise, Omega)
+    Z = null_space(constraints(s))
+    P = Z @ np.linalg.pinv(Z.T @ F @ Z, rcond=1e-12, hermitian=True) @ Z.T
+    cost = joint_cost(R, s, Sc, noise)
+    chi2_dof = max(3.0 * (n - 1) * dof - (Z.shape[1]), 1.0)
+    ratio = cost / chi2_dof
+    if user_noise is not None and ratio > 1.5:
+        P = P * ratio
+        notes.append(f"residuals are {np.sqrt(ratio):.2f}x larger than noise_std explains (flex, skew, timing "
+                     f"or a wrong noise_std?); covariance inflated by {ratio:.2f}")
+
+    # biases against the reference (Eq. 5, 12) and the full covariance
+    means = moments.mean.reshape(n, 3)
+    bias = np.zeros((n, 3))
+    cov = np.zeros((9 * n, 9 * n))
+    Jl = np.diag(np.concatenate([np.ones(3 * n), s.ravel()]))
+    cov[:6 * n, :6 * n] = Jl @ P @ Jl.T
+    Gs = {}
+    for k in range(n):
+        if k == reference:
+            continue
+        A = A_of(R[k], s[reference], s[k])
+        bias[k] = means[reference] - A @ means[k]
+        Dk = dA_dp(R[k], s[reference], s[k])  # w.r.t. [dtheta_k, log s_ref, log s_k]
+        G = np.zeros((3, 6 * n))
+        idx = np.r_[3 * k:3 * k + 3, 3 * n + 3 * reference:3 * n + 3 * reference + 3, 3 * n + 3 * k:3 * n + 3 * k + 3]
+        G[:, idx] = np.einsum("pij,j->ip", Dk, means[k])
+        Gs[k] = (G, A)
+    for k, (Gk, Ak) in Gs.items():
+        bk = slice(6 * n + 3 * k, 6 * n + 3 * k + 3)
+        cov[bk, :6 * n] = -Gk @ P @ Jl.T
+        cov[:6 * n, bk] = cov[bk, :6 * n].T
+        for l, (Gl, Al) in Gs.items():
+            bl = slice(6 * n + 3 * l, 6 * n + 3 * l + 3)
+            noise_part = noise[reference] ** 2 * np.eye(3)
+            if k == l:
+                noise_part = noise_part + noise[k] ** 2 * Ak @ Ak.T
+            cov[bk, bl] = noise_part / moments.count + Gk @ P @ Gl.T
+
+    # per-gyro residuals against the fitted common rate: e = Sigma P y
+    Pm, _, _ = _projector(_H_of(R, s), noise**2)
+    E = np.repeat(noise**2, 3)[:, None] * Pm
+    Res = E @ Sc @ E.T
+    residual_rms = np.sqrt(np.clip([np.trace(Res[3 * k:3 * k + 3, 3 * k:3 * k + 3]) for k in range(n)], 0, None)
+                           / (3.0 * max(dof, 1.0)))
+    snr = np.sqrt(np.clip(np.diag(Omega), 0.0, None)) / noise[reference]
+    obs = _observable(groups, n)
+    if len(groups) > 1:
+        notes.append(f"{len(groups)} groups of linked scale factors (axis-parallel gyros, Lemmas 2-3); only ratios "
+                     "within a group are determined")
+    return ArrayCalibration(
+        R_ref_k=R, scale=s, bias=bias, reference=reference, scale_observable=obs, scale_groups=groups,
+        configurations=configs, covariance=cov, gauge=_describe_gauge(gauge, reference, len(groups)), snr=snr,
+        n_samples=int(moments.count), noise_std=noise, noise_source=noise_source, residual_rms=residual_rms,
+        iterations=total_it, bias_segments=moments.segments, notes=tuple(notes), moments=moments)
+
+
+def calibrate_array(omegas, *, reference: int = 0, noise_std=None, gauge: str = "unit_prior", mask=None,
+                    bias_window: int | None = None, parallel_tol_deg: float = 5.0, min_snr: float = 10.0
+                    ) -> ArrayCalibration:
+    """Jointly calibrate N rigidly mounted gyroscopes from sample-aligned angular rates.
+
+    Parameters
+    ----------
+    omegas : array_like (n_samples, N, 3) or sequence of N arrays (n_samples, 3)
+        Measured rates (rad/s) of every gyro at the same instants.
+    reference : int
+        Index of the reference gyro.
+    noise_std : float or array_like (N,), optional
+        White-noise std per sample (rad/s); estimated from the residuals when omitted.
+    gauge : {"unit_prior", "fixed"}
+        Global-scale gauge (see :func:`solve_array`).
+    mask : array_like of bool (n_samples,), optional
+        Samples to use (e.g. False where any gyro saturates).
+    bias_window : int, optional
+        Model every bias as piecewise constant over windows of this many samples.
+    parallel_tol_deg, min_snr
+        See :func:`solve_array`.
+
+    Returns
+    -------
+    ArrayCalibration
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from fusion_gyrocal.multi import calibrate_array
+    >>> from fusion_gyrocal.sim import HumanMotion, random_rotation
+    >>> rng = np.random.default_rng(0)
+    >>> omega = HumanMotion(rng=rng)(np.arange(4000) / 100.0)
+    >>> R = [np.eye(3)] + [random_rotation(rng) for _ in range(2)]
+    >>> omegas = [omega @ Rk + rng.normal(0, 1e-3, omega.shape) for Rk in R]
+    >>> cal = calibrate_array(omegas)
+    >>> bool(np.allclose(cal.R_ref_k, R, atol=1e-3))
+    True
+    """
+    if bias_window is None:
+        moments = ArrayMoments.from_samples(omegas, mask=mask)
+    else:
+        moments = ArrayMoments.from_windows(omegas, int(bias_window), mask=mask)
+    return solve_array(moments, reference=reference, noise_std=noise_std, gauge=gauge,
+                       parallel_tol_deg=parallel_tol_deg, min_snr=min_snr)
+
+
+# ---------------------------------------------------------------------------------------- MIMU helper
+def _read_mimu_npz(path, *, clip_counts: int = 32767):
+    """Rates (rad/s, (n, 8, 3)) and the mask of unsaturated samples of a MIMU4444 ``exp_N.npz``.
+
+    A private reader for the example and the tests (the project's readers live in ``fusion_gyrocal.io``):
+    ``gyro_counts / gyro_lsb_per_dps`` deg/s, samples with any gyro axis at the rail masked out.
+    """
+    with np.load(path) as d:
+        counts = np.asarray(d["gyro_counts"])
+        lsb = float(d["gyro_lsb_per_dps"])
+    rates = counts.astype(np.float64) / lsb * (np.pi / 180.0)
+    mask = ~(np.abs(counts.astype(np.int32)) >= clip_counts).any(axis=(1, 2))
+    return rates, mask
