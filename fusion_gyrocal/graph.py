@@ -69,6 +69,7 @@ __all__ = [
 
 GAUGE_PRIOR_STD = 1e-8          # log-scale std of the numerical gauge priors (removed again in the covariance)
 GLOBAL_SCALE_GAUGE = "global scale estimated from rotation increments"
+MARGINALS_MAX_SEGMENTS = 64     # above: bias-mean covariance by a sparse solve of the same information
 
 
 # ---------------------------------------------------------------------------------------------- keys
@@ -514,9 +515,8 @@ class GyroPairGraph:
     Parameters
     ----------
     seed : PairCalibration
-        Initial values (typically the direct solution, ``solve(moments, method="direct")``); its
-        ``A`` also fixes the residual weight ``W`` of the window factors, and its ``noise_std`` is
-        used unless ``noise_std`` is given.
+        Initial values (typically the direct solution, ``solve(moments, method="direct")``) and its
+        configuration class (Lemmas 2-4); its ``noise_std`` is used unless ``noise_std`` is given.
     noise_std : (float, float), optional
         White-noise standard deviation per sample of gyro 1 and gyro 2 (rad/s).
     bias_walk_std : float, optional
@@ -554,6 +554,7 @@ class GyroPairGraph:
         if not np.all(np.isfinite(sig)) or np.any(sig <= 0):
             raise InputError(f"noise_std: expected two positive finite standard deviations (rad/s), got {sig}")
         self.noise_std = sig.copy()
+        self._noise_source = seed.noise_source if noise_std is None else "user"
         for name, v in (("bias_walk_std", bias_walk_std), ("bias_1_walk_std", bias_1_walk_std)):
             if v is not None and not v > 0:
                 raise InputError(f"{name}: expected None, a positive float or inf, got {v}")
@@ -769,7 +770,7 @@ class GyroPairGraph:
             if not self._camera or self._repreintegrate(values) < 1e-7:
                 break
         graph = self.graph
-        return self._result(values, gtsam.Marginals(graph, values), graph, "graph_lm", iterations)
+        return self._result(values, gtsam.Marginals(graph, values), "graph_lm", iterations)
 
     def update(self) -> GraphEstimate:
         """Push the factors and variables added since the last call into iSAM2; return the estimate.
@@ -803,27 +804,51 @@ class GyroPairGraph:
         if self._pending.size() or self._pending_values.size():
             self.update()
         values = self._isam.calculateEstimate()
-        return self._result(values, self._isam, self._isam.getFactorsUnsafe(), "graph_isam2", 0)
+        return self._result(values, self._isam, "graph_isam2", 0)
 
     # ------------------------------------------------------------------ result
-    def _result(self, values, marginals, graph, method: str, iterations: int) -> PairCalibration:
+    def _joint_covariance(self, values, marginals, x_keys, weights) -> np.ndarray:
+        """Covariance of ``[x_keys..., sum_i weights_i b_i]`` (tangent spaces of the keys).
+
+        Up to :data:`MARGINALS_MAX_SEGMENTS` bias segments: ``jointMarginalCovariance`` of
+        ``gtsam.Marginals`` (or of iSAM2) over every key. Beyond, that dense joint marginal grows
+        cubically, so the same Gauss-Newton information ``J^T J`` of the graph linearised at
+        ``values`` is factorised sparsely and solved for the few columns needed.
+        """
+        nb = len(self._bias_keys)
+        dx = 10 if self.global_scale else 9
+        if nb <= MARGINALS_MAX_SEGMENTS:
+            P = np.asarray(marginals.jointMarginalCovariance(x_keys + self._bias_keys).fullMatrix())
+            T = np.zeros((dx + 3, dx + 3 * nb))
+            T[:dx, :dx] = np.eye(dx)
+            T[dx:, dx:] = np.kron(weights[None, :], np.eye(3))
+            return T @ P @ T.T
+        return _sparse_covariance(self.graph, values, self._key_dims(), x_keys, self._bias_keys, weights)
+
+    def _key_dims(self) -> dict:
+        k = self.keys
+        dims = {k.rotation: 3, k.log_scale: 6, k.global_scale: 1}
+        dims.update({b: 3 for b in self._bias_keys})
+        dims.update({c.key: 3 for c in self._camera})
+        return dims
+
+    def _result(self, values, marginals, method: str, iterations: int) -> PairCalibration:
         k = self.keys
         R = values.atRot3(k.rotation).matrix()
         l = values.atVector(k.log_scale).copy()
         n_b = len(self._bias_keys)
-        cov_keys = [k.rotation, k.log_scale] + ([k.global_scale] if self.global_scale else []) + self._bias_keys
-        P = np.asarray(marginals.jointMarginalCovariance(cov_keys).fullMatrix())
-        d = 10 if self.global_scale else 9
-        # linear map from [d_right (3), dl (6), (dg), db_0..] to [dtheta, dlog s1, dlog s2, d mean bias]
+        x_keys = [k.rotation, k.log_scale] + ([k.global_scale] if self.global_scale else [])
         weights = np.asarray(self._bias_counts) / np.sum(self._bias_counts)
-        T = np.zeros((12, d + 3 * n_b))
+        P = self._joint_covariance(values, marginals, x_keys, weights)
+        d = 10 if self.global_scale else 9
+        # linear map from [d_right (3), dl (6), (dg), d mean bias] to [dtheta, dlog s1, dlog s2, d mean bias]
+        T = np.zeros((12, d + 3))
         T[ROT, :3] = R                                         # dtheta = R d (left vs right perturbation)
         T[3:9, 3:9] = np.eye(6)
         if self.global_scale:
             T[3:9, 9] = 1.0                                    # absolute log-scale = g + l
             l = l + values.atVector(k.global_scale)[0]
-        for i, w in enumerate(weights):
-            T[BIAS, d + 3 * i: d + 3 * i + 3] = w * np.eye(3)
+        T[BIAS, d:] = np.eye(3)
         C = T @ P @ T.T
         C = 0.5 * (C + C.T)
         s1, s2 = np.exp(l[:3]), np.exp(l[3:])
@@ -860,9 +885,49 @@ class GyroPairGraph:
             R_1_2=R, scale_1=s1, scale_2=s2, bias=bias, configuration=self.configuration.name,
             scale_observable=scale_observable, covariance=C, gauge=gauge,
             snr=per_axis_snr(self._moments, self.noise_std), n_samples=int(round(n)), noise_std=self.noise_std,
-            noise_source=self.seed.noise_source, residual_rms=float(np.sqrt(ssr / (3.0 * n))), method=method,
+            noise_source=self._noise_source, residual_rms=float(np.sqrt(ssr / (3.0 * n))), method=method,
             iterations=int(iterations), time_offset_s=self.seed.time_offset_s,
             time_offset_std_s=self.seed.time_offset_std_s, bias_segments=n_b, notes=tuple(notes))
+
+
+def _sparse_covariance(graph, values, dims: dict, x_keys, bias_keys, weights) -> np.ndarray:
+    """``E^T (J^T J)^-1 E`` from the graph's whitened Jacobian at ``values`` (sparse LU).
+
+    ``E`` selects the ``x_keys`` columns and forms ``sum_i weights_i b_i``; same linearisation as
+    ``gtsam.Marginals`` (Gauss-Newton information), without the dense joint over every bias.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.linalg import splu
+
+    offsets, col = {}, 0
+    for key in list(x_keys) + list(bias_keys) + [key for key in dims if key not in x_keys and key not in bias_keys]:
+        if values.exists(key) and key not in offsets:
+            offsets[key] = col
+            col += dims[key]
+    lin = graph.linearize(values)
+    rows, cols, vals, row0 = [], [], [], 0
+    for i in range(lin.size()):
+        f = lin.at(i)
+        A, _ = f.jacobian()
+        c0 = 0
+        for key in f.keys():
+            block = A[:, c0:c0 + dims[key]]
+            r, c = np.nonzero(block)
+            rows.append(r + row0)
+            cols.append(c + offsets[key])
+            vals.append(block[r, c])
+            c0 += dims[key]
+        row0 += A.shape[0]
+    J = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(row0, col)).tocsc()
+    H = (J.T @ J).tocsc()
+    dx = sum(dims[key] for key in x_keys)
+    E = np.zeros((col, dx + 3))
+    E[:dx, :dx] = np.eye(dx)
+    for w, key in zip(weights, bias_keys):
+        E[offsets[key]:offsets[key] + 3, dx:] = w * np.eye(3)
+    Y = splu(H).solve(E)
+    P = E.T @ Y
+    return 0.5 * (P + P.T)
 
 
 def _mean_walk_variance(n_a: float, n_b: float) -> float:
