@@ -7,6 +7,8 @@ generalised, default) -> covariance from the Fisher information (Appendix B gene
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from .direct import Gauge, decompose, solve_A
@@ -324,9 +326,43 @@ def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s: float
     >>> cal.configuration
     'general'
     """
+    return run_pipeline(omega_1, omega_2, t_1=t_1, t_2=t_2, time_offset_s=time_offset_s, max_offset_s=max_offset_s,
+                        rate_hz=rate_hz, saturation_limit=saturation_limit, method=method, noise_std=noise_std,
+                        gauge=gauge, scale_prior_std=scale_prior_std, bias_window=bias_window, mask=mask,
+                        flex_rejection=flex_rejection, flex_margin=flex_margin, parallel_tol_deg=parallel_tol_deg,
+                        intrinsics_1=intrinsics_1, intrinsics_2=intrinsics_2, skew_std=skew_std, min_snr=min_snr,
+                        max_unexplained=max_unexplained, on_not_rigid=on_not_rigid).calibration
+
+
+@dataclass(frozen=True)
+class PipelineRun:
+    """Everything :func:`calibrate_pair` saw and decided, for reports and plots.
+
+    ``omega_1``/``omega_2`` are the sample-aligned rates the solver used (zero where ``valid`` is
+    False), ``t`` their times on gyro 1's clock (None for sample-aligned input), ``used`` the
+    samples kept after masking and flex rejection, and ``aligned`` the
+    :class:`~fusion_gyrocal.preprocess.AlignedPair` (None for sample-aligned input).
+    """
+
+    calibration: PairCalibration
+    t: np.ndarray | None
+    omega_1: np.ndarray
+    omega_2: np.ndarray
+    valid: np.ndarray | None
+    used: np.ndarray | None
+    aligned: object | None
+
+
+def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s=None, max_offset_s=1.0, rate_hz=None,
+                 saturation_limit=None, method="ml", noise_std=None, gauge="unit_prior", scale_prior_std=None,
+                 bias_window=None, mask=None, flex_rejection="auto", flex_margin=2, parallel_tol_deg=5.0,
+                 intrinsics_1=None, intrinsics_2=None, skew_std=0.0, min_snr=10.0, max_unexplained=0.05,
+                 on_not_rigid="raise") -> PipelineRun:
+    """:func:`calibrate_pair` returning its intermediate products too (same parameters)."""
     if flex_rejection not in ("auto", True, False):
         raise InputError(f"flex_rejection: expected 'auto', True or False, got {flex_rejection!r}")
     offset, offset_std = 0.0, 0.0
+    pair, t_grid = None, None
     if (t_1 is None) != (t_2 is None):
         raise InputError("t_1 and t_2: expected both timestamps or neither (sample-aligned input)")
     if t_1 is not None:
@@ -341,6 +377,7 @@ def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s: float
         w1 = np.where(pair.valid[:, None], pair.omega_1, 0.0)
         w2 = np.where(pair.valid[:, None], pair.omega_2, 0.0)
         mask = pair.valid
+        t_grid = pair.t
         offset = pair.time_offset_s
         offset_std = pair.time_offset.std_s if pair.time_offset is not None else 0.0
     else:
@@ -357,6 +394,7 @@ def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s: float
         from .moments import window_moments
         return Moments.pool_all(window_moments(w1, w2, int(bias_window), mask=use))
 
+    valid_in = mask
     mom = moments_of(mask)
     cal = solve(mom, **kw)
     rejected = 0.0
@@ -382,8 +420,9 @@ def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s: float
             cal = solve(mom, **kw)
             mask = keep
         corr = _rate_residual_correlation(w1, w2, cal, mask, bias_window)
-    return _replace(cal, time_offset_s=offset, time_offset_std_s=offset_std, rejected_fraction=rejected,
-                    rate_residual_correlation=corr)
+    cal = _replace(cal, time_offset_s=offset, time_offset_std_s=offset_std, rejected_fraction=rejected,
+                   rate_residual_correlation=corr)
+    return PipelineRun(cal, t_grid, np.asarray(w1), np.asarray(w2), valid_in, mask, pair)
 
 
 def _replace(cal: PairCalibration, **changes) -> PairCalibration:

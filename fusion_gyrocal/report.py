@@ -1,0 +1,147 @@
+"""Figures a person can read: residual versus rate norm, SNR accumulation, alignment, rejections.
+
+Every function returns a :class:`matplotlib.figure.Figure` (Agg backend, no display needed);
+:func:`write_report` saves them as PNG files beside a short Markdown summary.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .calibrate import PipelineRun
+from .model import PairCalibration
+
+
+def _figure(nrows=1, ncols=1, **kw):
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=kw.pop("figsize", (8, 4.5)), layout="constrained")
+    axes = fig.subplots(nrows, ncols, **kw)
+    return fig, axes
+
+
+def residual_vs_rate(run: PipelineRun, max_points: int = 20000):
+    """Residual norm against gyro 1's rate norm (the paper's Fig. 6): flat for a rigid pair."""
+    cal = run.calibration
+    valid = np.ones(len(run.omega_1), bool) if run.valid is None else run.valid
+    used = valid if run.used is None else run.used
+    idx = np.flatnonzero(valid)
+    idx = idx[:: max(1, idx.size // max_points)]
+    rate = np.linalg.norm(run.omega_1[idx], axis=1)
+    res = np.linalg.norm(run.omega_1[idx] - cal.compensate(run.omega_2[idx]), axis=1)
+    fig, ax = _figure()
+    kept = used[idx]
+    ax.scatter(np.rad2deg(rate[kept]), np.rad2deg(res[kept]), s=2, alpha=0.4, label="used")
+    if (~kept).any():
+        ax.scatter(np.rad2deg(rate[~kept]), np.rad2deg(res[~kept]), s=4, color="tab:red", alpha=0.6,
+                   label=f"rejected ({100 * cal.rejected_fraction:.1f}% of samples)")
+    ax.set_xlabel("rate norm of gyro 1 (deg/s)")
+    ax.set_ylabel("residual norm (deg/s)")
+    ax.set_yscale("log")
+    ax.set_title(f"Residual vs rate (Spearman rho = {cal.rate_residual_correlation:.2f}; "
+                 f"{'rigid' if cal.rigid else 'NOT RIGID'})")
+    ax.legend(loc="upper left")
+    return fig
+
+
+def snr_accumulation(run: PipelineRun, target_snr: float = 4e3):
+    """Per-axis SNR of gyro 1 as samples accumulate (Eq. 33 per axis), with the paper's target."""
+    from .preprocess import excitation_report
+
+    cal = run.calibration
+    sigma = float(np.hypot(*cal.noise_std))
+    used = run.used if run.used is not None else None
+    rep = excitation_report(run.omega_1, sigma, valid=used, target_snr=target_snr)
+    x = np.arange(len(run.omega_1)) if run.t is None else run.t - run.t[0]
+    fig, ax = _figure()
+    for i, name in enumerate("xyz"):
+        ax.plot(x, rep.cumulative_snr[:, i], label=f"axis {name}: {rep.snr[i]:.3g}")
+    ax.axhline(target_snr, color="k", ls="--", lw=1, label=f"target {target_snr:g} (paper, Section VI)")
+    ax.set_yscale("log")
+    ax.set_xlabel("time (s)" if run.t is not None else "sample")
+    ax.set_ylabel("per-axis SNR")
+    ax.set_title("Excitation: SNR accumulation per axis")
+    ax.legend()
+    return fig
+
+
+def alignment_curve(run: PipelineRun):
+    """Correlation of the rate norms against the trial time offset (None for aligned input)."""
+    if run.aligned is None or run.aligned.time_offset is None:
+        return None
+    off = run.aligned.time_offset
+    fig, ax = _figure()
+    ax.plot(off.lags_s * 1e3, off.correlation)
+    ax.axvline(off.offset_s * 1e3, color="tab:red", ls="--",
+               label=f"offset {off.offset_s * 1e3:+.3f} ms +- {off.std_s * 1e3:.3f} ms")
+    ax.set_xlabel("offset added to gyro 2's timestamps (ms)")
+    ax.set_ylabel("correlation of rate norms")
+    ax.set_title("Time alignment")
+    ax.legend()
+    return fig
+
+
+def rejected_stretches(run: PipelineRun):
+    """Gyro 1's rate norm over time with the rejected and masked stretches shaded."""
+    cal = run.calibration
+    x = np.arange(len(run.omega_1)) if run.t is None else run.t - run.t[0]
+    valid = np.ones(len(x), bool) if run.valid is None else run.valid
+    used = valid if run.used is None else run.used
+    fig, ax = _figure()
+    ax.plot(x, np.rad2deg(np.linalg.norm(run.omega_1, axis=1)), lw=0.6, color="tab:blue")
+    for m, color, label in ((~valid, "0.6", "masked (saturated / gap)"), (valid & ~used, "tab:red", "rejected (flex)")):
+        if m.any():
+            ax.fill_between(x, 0, 1, where=m, color=color, alpha=0.3, transform=ax.get_xaxis_transform(), label=label)
+    ax.set_xlabel("time (s)" if run.t is not None else "sample")
+    ax.set_ylabel("rate norm of gyro 1 (deg/s)")
+    ax.set_title(f"Samples used: {cal.n_samples}; rejected {100 * cal.rejected_fraction:.1f}%")
+    if (~used).any():
+        ax.legend()
+    return fig
+
+
+def summary_markdown(cal: PairCalibration) -> str:
+    """A short human-readable summary of a calibration."""
+    rv = np.rad2deg(cal.rotvec)
+    rs = np.rad2deg(cal.rotation_std_rad) * 1e3
+    lines = [
+        "# Gyroscope pair calibration", "",
+        f"- configuration: **{cal.configuration}**; rigid: **{cal.rigid}**; method: {cal.method}",
+        f"- R_1_2 rotation vector: {np.array2string(rv, precision=4)} deg (1-sigma {np.array2string(rs, precision=2)} mdeg)",
+        f"- scale_1: {np.array2string(cal.scale_1, precision=6)}; scale_2: {np.array2string(cal.scale_2, precision=6)}",
+        f"- scale observable: {cal.scale_observable.tolist()}; gauge: {cal.gauge}",
+        f"- bias: {np.array2string(np.rad2deg(cal.bias), precision=4)} deg/s",
+        f"- time offset: {cal.time_offset_s * 1e3:+.4f} ms +- {cal.time_offset_std_s * 1e3:.4f} ms",
+        f"- per-axis SNR: {np.array2string(cal.snr, precision=0)}; samples: {cal.n_samples}; "
+        f"rejected: {100 * cal.rejected_fraction:.2f}%",
+        f"- noise std: {np.array2string(np.rad2deg(cal.noise_std), precision=4)} deg/s ({cal.noise_source})",
+    ]
+    lines += [f"- note: {n}" for n in cal.notes]
+    return "\n".join(lines) + "\n"
+
+
+def write_report(run: PipelineRun, out_dir, *, extra_figures=None) -> list[Path]:
+    """Write the summary (``report.md``) and every figure as PNG into ``out_dir``."""
+    from .io.writers import atomic_write
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    figs = {"residual_vs_rate": residual_vs_rate(run), "snr_accumulation": snr_accumulation(run),
+            "alignment": alignment_curve(run), "rejected_stretches": rejected_stretches(run)}
+    figs.update(extra_figures or {})
+    paths = []
+    md = summary_markdown(run.calibration)
+    for name, fig in figs.items():
+        if fig is None:
+            continue
+        p = out / f"{name}.png"
+        fig.savefig(p, dpi=110)
+        paths.append(p)
+        md += f"\n![{name}]({p.name})\n"
+    paths.append(atomic_write(out / "report.md", md))
+    return paths
