@@ -336,3 +336,16 @@ def test_calibrate_array_mimu_joint_at_least_as_consistent_as_pairwise(mimu_runs
     dev_p, rat_p = mimu_runs["pairwise"]
     assert dev_j.std(axis=0).mean() <= dev_p.std(axis=0).mean()
     assert rat_j.std(axis=0).mean() <= rat_p.std(axis=0).mean()
+
+
+def test_example_mimu_array_runs_and_reports_both_estimates():
+    _mimu_dir()
+    import importlib.util
+    path = Path(__file__).resolve().parents[1] / "examples" / "mimu_array.py"
+    spec = importlib.util.spec_from_file_location("mimu_array_example", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    out = mod.main(["--sessions", "3"])
+    dev, ratios = out["joint"]
+    assert dev.shape == (1, 7, 3) and ratios.shape == (1, 7, 3)
+    assert np.linalg.norm(dev, axis=2).max() < 0.5
