@@ -357,8 +357,13 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s=None, ma
                  saturation_limit=None, method="ml", noise_std=None, gauge="unit_prior", scale_prior_std=None,
                  bias_window=None, mask=None, flex_rejection="auto", flex_margin=2, parallel_tol_deg=5.0,
                  intrinsics_1=None, intrinsics_2=None, skew_std=0.0, min_snr=10.0, max_unexplained=0.05,
-                 on_not_rigid="raise") -> PipelineRun:
-    """:func:`calibrate_pair` returning its intermediate products too (same parameters)."""
+                 on_not_rigid="raise", min_kept_energy=0.5) -> PipelineRun:
+    """:func:`calibrate_pair` returning its intermediate products too (same parameters).
+
+    ``min_kept_energy``: flex rejection is applied only when the kept samples retain at least this
+    fraction of gyro 1's motion energy; otherwise the rate-dependent residual is not a flex burst
+    but pervasive, removing it would remove the excitation itself, and a note says so.
+    """
     if flex_rejection not in ("auto", True, False):
         raise InputError(f"flex_rejection: expected 'auto', True or False, got {flex_rejection!r}")
     offset, offset_std = 0.0, 0.0
@@ -395,7 +400,7 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s=None, ma
         return Moments.pool_all(window_moments(w1, w2, int(bias_window), mask=use))
 
     valid_in = mask
-    mom = moments_of(mask)
+    mom = mom0 = moments_of(mask)
     cal = solve(mom, **kw)
     rejected = 0.0
     corr = float("nan")
@@ -415,10 +420,15 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s=None, ma
         if fast is not None:
             keep = ~fast if keep is None else (keep & ~fast)
             mom = moments_of(keep)
-        if keep is not mask:
+        kept_energy = float(np.trace(mom.S11) / np.trace(mom0.S11)) if keep is not mask else 1.0
+        if keep is not mask and kept_energy >= min_kept_energy:
             rejected = 1.0 - mom.count / max(n_used, 1)
             cal = solve(mom, **kw)
             mask = keep
+        elif keep is not mask:
+            cal = _replace(cal, notes=cal.notes + (
+                f"the residual grows with the rate across the motion (model error or flex everywhere): rejecting it "
+                f"would keep only {100 * kept_energy:.0f}% of the motion energy, so no sample was rejected",))
         corr = _rate_residual_correlation(w1, w2, cal, mask, bias_window)
     cal = _replace(cal, time_offset_s=offset, time_offset_std_s=offset_std, rejected_fraction=rejected,
                    rate_residual_correlation=corr)
@@ -479,7 +489,10 @@ def _flexing_rates(w1, w2, A, bias, mask, bias_window, bins: int = 20):
     The used samples are split into ``bins`` equal-count bins of gyro 1's rate norm. A bin is
     inflated when its mean normalised squared residual exceeds that of the slower half of the
     data by more than 5 standard errors. If the fastest bins are inflated, every sample from
-    the slowest of the consecutive inflated top bins upwards is returned (None otherwise).
+    the slowest of the consecutive inflated top bins upwards is returned. Flex comes in bursts at
+    the fastest motion: when the inflation reaches below the fastest fifth of the samples, the
+    residual grows with the rate everywhere (a model error such as a sampling skew between the
+    gyros, not flex) and nothing is cut (None); ``rate_residual_correlation`` reports it.
     """
     d2, rate, idx = [], [], []
     for start, r, used in _residual_chunks(w1, w2, A, bias, mask, bias_window):
@@ -499,8 +512,10 @@ def _flexing_rates(w1, w2, A, bias, mask, bias_window, bins: int = 20):
     if not inflated[-1]:
         return None
     first = bins - 1
-    while first > bins // 2 and inflated[first - 1]:
+    while first > 0 and inflated[first - 1]:
         first -= 1
+    if first < bins - bins // 5:
+        return None
     cut = rate[groups[first][0]]
     out = np.zeros(np.asarray(w1).shape[0], dtype=bool)
     out[idx[rate >= cut]] = True
