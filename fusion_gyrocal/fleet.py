@@ -1,0 +1,526 @@
+"""Fleets of devices and huge logs on Dask.
+
+Two uses of one idea (the sufficient statistics are the hinge, see ``ARCHITECTURE.md``):
+
+* :func:`run_fleet` maps the per-device pipeline (:func:`fusion_gyrocal.calibrate_pair`: alignment,
+  saturation masks, flex gating, maximum likelihood) over many device recordings on a Dask cluster
+  and returns a results table with one row per device; a device that fails gets a row with its
+  error message instead of stopping the run. :func:`write_results` writes the table as Parquet.
+* :func:`log_moments` splits one huge log (a Parquet file or dataset) into its row groups, computes
+  :meth:`Moments.from_samples` of every row group on the workers and reduces them with a
+  ``dask.bag`` tree reduction of :meth:`Moments.merge`; :func:`calibrate_log` then solves from the
+  reduced statistics (:func:`fusion_gyrocal.solve`). The result equals the single-process pass to
+  rounding (about 1e-12 relative), with memory bounded by one row group per worker.
+
+Device layouts (every path given to :func:`run_fleet` is a device, or a folder of devices):
+
+* ``<device>.parquet``: a Parquet file, or a folder of that name holding ``*.parquet`` part files
+  (a Parquet dataset as Dask or Spark write it; parts read in name order): sample-aligned columns ``t`` (s), ``w1x w1y w1z`` (gyro 1,
+  rad/s), ``w2x w2y w2z`` (gyro 2, rad/s). Rows with a non-finite rate are missing samples.
+* ``<device>/`` holding ``gyro1.<ext>`` and ``gyro2.<ext>``: one recording per gyro in any format
+  :func:`fusion_gyrocal.io.read_imu` reads (e.g. CSV with columns ``t,wx,wy,wz`` in s and rad/s),
+  each on its own clock; the pipeline aligns them (time offset estimated).
+
+The CLI subcommand ``gyrocal fleet`` is added by :func:`add_fleet_parser`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import inspect
+import math
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from .calibrate import calibrate_pair, solve
+from .errors import ConfigurationError, FormatError, GyroCalError, InputError
+from .model import PairCalibration
+from .moments import Moments
+
+COLUMNS = ("t", "w1x", "w1y", "w1z", "w2x", "w2y", "w2z")
+GYRO_FILES = ("gyro1", "gyro2")
+RESULT_COLUMNS = (
+    "device", "path", "ok", "error_type", "error", "seconds", "n_samples", "configuration", "rigid",
+    "rotvec_x", "rotvec_y", "rotvec_z", "rotation_std_x", "rotation_std_y", "rotation_std_z",
+    "scale_1_x", "scale_1_y", "scale_1_z", "scale_2_x", "scale_2_y", "scale_2_z",
+    "bias_x", "bias_y", "bias_z", "time_offset_s", "time_offset_std_s", "noise_std_1", "noise_std_2",
+    "residual_rms", "rejected_fraction", "gauge", "calibration_json",
+)
+
+
+# ---------------------------------------------------------------------------------------- devices
+def _parquet_parts(path: Path) -> list[Path]:
+    if path.is_file():
+        return [path]
+    return sorted(p for p in path.glob("*.parquet") if p.is_file())
+
+
+def _gyro_files(path: Path) -> tuple[Path, Path] | None:
+    if not path.is_dir():
+        return None
+    found = []
+    for stem in GYRO_FILES:
+        hits = sorted(p for p in path.iterdir() if p.stem == stem or p.name == stem)
+        if not hits:
+            return None
+        found.append(hits[0])
+    return found[0], found[1]
+
+
+def _is_device(path: Path) -> bool:
+    if path.suffix == ".parquet":
+        return path.is_file() or (path.is_dir() and bool(_parquet_parts(path)))
+    return _gyro_files(path) is not None
+
+
+def find_devices(paths: Iterable) -> list[Path]:
+    """Expand device paths and folders of devices into a sorted list of device paths.
+
+    A path that is a device (see the module docstring) is kept; a folder that is not a device
+    contributes its children that are. Paths that do not exist are kept (their row will say so).
+    """
+    out = []
+    for p in paths:
+        p = Path(p).expanduser()
+        if not p.exists() or _is_device(p):
+            out.append(p)
+        elif p.is_dir():
+            out.extend(sorted(c for c in p.iterdir() if _is_device(c)))
+    if not out:
+        raise InputError(f"expected at least one device (a .parquet file, a <name>.parquet dataset folder or a folder "
+                         f"with gyro1.* and gyro2.*), found none in {[str(p) for p in paths]}")
+    return out
+
+
+def _check_columns(names: Sequence[str], where: Path):
+    missing = [c for c in COLUMNS if c not in names]
+    if missing:
+        raise FormatError(f"{where}: expected Parquet columns {list(COLUMNS)}, missing {missing} (got {list(names)})")
+
+
+def _read_parquet_device(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    import pyarrow.parquet as pq
+
+    parts = _parquet_parts(path)
+    if not parts:
+        raise FormatError(f"{path}: expected a .parquet file or a folder of .parquet parts, found none")
+    tables = []
+    for part in parts:
+        try:
+            pf = pq.ParquetFile(part)
+            _check_columns(pf.schema_arrow.names, part)
+            tables.append(pf.read(columns=list(COLUMNS)))
+        except GyroCalError:
+            raise
+        except Exception as exc:  # pyarrow raises its own types for damaged files
+            raise FormatError(f"{part}: not a readable Parquet file: {exc}") from exc
+    cols = {c: np.concatenate([np.asarray(t.column(c).to_numpy(zero_copy_only=False), dtype=np.float64)
+                               for t in tables]) for c in COLUMNS}
+    t = cols["t"]
+    steps = np.diff(t)
+    bad = np.flatnonzero(~(steps > 0))
+    if bad.size:
+        raise InputError(f"{path}: t: expected strictly increasing timestamps, got a step of {steps[bad[0]]:.6g} s "
+                         f"at sample {bad[0] + 1}")
+    w1 = np.column_stack([cols["w1x"], cols["w1y"], cols["w1z"]])
+    w2 = np.column_stack([cols["w2x"], cols["w2y"], cols["w2z"]])
+    return t, w1, w2
+
+
+def calibrate_device(path, **options) -> PairCalibration:
+    """Run the per-device pipeline (:func:`fusion_gyrocal.calibrate_pair`) on one device recording.
+
+    Parameters
+    ----------
+    path : str or Path
+        A device (see the module docstring).
+    **options
+        Keyword arguments of :func:`fusion_gyrocal.calibrate_pair` (``method``, ``noise_std``, ...).
+
+    Raises
+    ------
+    FormatError
+        Unreadable files, missing columns, or a folder that is no device.
+    GyroCalError
+        Anything :func:`fusion_gyrocal.calibrate_pair` raises.
+    """
+    path = Path(path).expanduser()
+    if not path.exists():
+        raise FormatError(f"{path}: no such device file or folder")
+    gyros = _gyro_files(path)
+    if gyros is not None:
+        from .io import read_imu
+
+        s1, s2 = read_imu(gyros[0]), read_imu(gyros[1])
+        w1 = np.where(s1.valid[:, None], s1.omega, np.nan)
+        w2 = np.where(s2.valid[:, None], s2.omega, np.nan)
+        return calibrate_pair(w1, w2, t_1=s1.t, t_2=s2.t, **options)
+    if not _is_device(path):
+        raise FormatError(f"{path}: expected a .parquet file, a <name>.parquet folder of .parquet parts or a folder "
+                          f"with {GYRO_FILES[0]}.* and {GYRO_FILES[1]}.*")
+    _, w1, w2 = _read_parquet_device(path)
+    finite = np.isfinite(w1).all(axis=1) & np.isfinite(w2).all(axis=1)
+    return calibrate_pair(np.where(finite[:, None], w1, 0.0), np.where(finite[:, None], w2, 0.0),
+                          mask=finite, **options)
+
+
+# ---------------------------------------------------------------------------------------- rows
+def _row(name: str, path: str, cal: PairCalibration | None, exc: BaseException | None, seconds: float) -> dict:
+    from scipy.spatial.transform import Rotation
+
+    row = {c: None for c in RESULT_COLUMNS}
+    row.update(device=name, path=path, ok=cal is not None, seconds=float(seconds))
+    for c in RESULT_COLUMNS[6:-2]:
+        if c not in ("configuration", "rigid"):
+            row[c] = math.nan
+    if exc is not None:
+        known = isinstance(exc, GyroCalError)
+        row["error_type"] = type(exc).__name__
+        row["error"] = str(exc) if known else f"unexpected {type(exc).__name__}: {exc}"
+        return row
+    rv = Rotation.from_matrix(cal.R_1_2).as_rotvec()
+    std = cal.rotation_std_rad
+    for a, ax in enumerate("xyz"):
+        row[f"rotvec_{ax}"] = float(rv[a])
+        row[f"rotation_std_{ax}"] = float(std[a])
+        row[f"scale_1_{ax}"] = float(cal.scale_1[a])
+        row[f"scale_2_{ax}"] = float(cal.scale_2[a])
+        row[f"bias_{ax}"] = float(cal.bias[a])
+    row.update(n_samples=int(cal.n_samples), configuration=cal.configuration,
+               rigid=None if cal.rigid is None else bool(cal.rigid), time_offset_s=float(cal.time_offset_s),
+               time_offset_std_s=float(cal.time_offset_std_s), noise_std_1=float(cal.noise_std[0]),
+               noise_std_2=float(cal.noise_std[1]), residual_rms=float(cal.residual_rms),
+               rejected_fraction=float(cal.rejected_fraction), gauge=cal.gauge, calibration_json=cal.to_json())
+    return row
+
+
+def device_row(path, options: dict | None = None) -> dict:
+    """Calibrate one device and return its results-table row; never raises for a failing device.
+
+    A :class:`~fusion_gyrocal.errors.GyroCalError` is recorded with its message in ``error``; any
+    other exception too (``error`` starts with "unexpected"), so one bad device cannot stop a fleet.
+    """
+    path = Path(path)
+    t0 = time.perf_counter()
+    try:
+        cal = calibrate_device(path, **(options or {}))
+        return _row(path.stem, str(path), cal, None, time.perf_counter() - t0)
+    except Exception as exc:  # noqa: BLE001 - recorded per device by design
+        return _row(path.stem, str(path), None, exc, time.perf_counter() - t0)
+
+
+def _check_options(func, options: dict, reserved=()):
+    allowed = set(inspect.signature(func).parameters) - {"omega_1", "omega_2", "moments", "t_1", "t_2", "mask"}
+    allowed -= set(reserved)
+    unknown = sorted(set(options) - allowed)
+    if unknown:
+        raise ConfigurationError(f"unknown option(s) {unknown} for {func.__name__}(); expected some of "
+                                 f"{sorted(allowed)}")
+
+
+def _table(rows):
+    import pandas as pd
+
+    df = pd.DataFrame(rows, columns=list(RESULT_COLUMNS))
+    return df.astype({"ok": bool})
+
+
+def run_fleet(devices, *, client=None, output=None, chunked: bool = False, split_every: int = 8,
+              **options):
+    """Calibrate many devices on Dask; one results row per device, errors recorded per device.
+
+    Parameters
+    ----------
+    devices : path or iterable of paths
+        Devices or folders of devices (see the module docstring and :func:`find_devices`).
+    client : distributed.Client, optional
+        Cluster to run on (tasks are sent with ``client.map``). Default: Dask's local threaded
+        scheduler in this process.
+    output : path, optional
+        Also write the table as Parquet (:func:`write_results`).
+    chunked : bool
+        Calibrate every device from its Parquet row groups reduced across the workers
+        (:func:`log_moments` then :func:`fusion_gyrocal.solve`): for devices whose logs are too big
+        for one worker. Parquet devices only; no time alignment or flex gating.
+    split_every : int
+        Fan-in of the tree reduction (``chunked`` only).
+    **options
+        Keyword arguments of :func:`fusion_gyrocal.calibrate_pair` (or of :func:`fusion_gyrocal.solve`
+        when ``chunked``), e.g. ``method="direct"``, ``noise_std=1e-3``.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns :data:`RESULT_COLUMNS`: ``device``, ``path``, ``ok``, ``error_type``, ``error`` (the
+        error message, None when ok), ``seconds``, the estimate in SI units (rotation vector of
+        ``R_1_2`` in rad, scale factors, combined bias in rad/s, time offset in s, ...) and the full
+        result as ``calibration_json`` (:meth:`PairCalibration.from_dict` reads it back).
+
+    Raises
+    ------
+    InputError
+        When no device is found.
+    ConfigurationError
+        For an option the pipeline does not have.
+    """
+    paths = find_devices([devices] if isinstance(devices, (str, Path)) else devices)
+    if chunked:
+        _check_options(solve, options)
+        rows = _run_chunked(paths, client, split_every, options)
+    else:
+        _check_options(calibrate_pair, options)
+        task = functools.partial(device_row, options=options)
+        if client is not None:
+            futures = client.map(task, [str(p) for p in paths], pure=False)
+            rows = client.gather(futures)
+        else:
+            import dask
+
+            rows = dask.compute(*[dask.delayed(task, pure=False)(str(p)) for p in paths], scheduler="threads")
+    df = _table(list(rows))
+    if output is not None:
+        write_results(df, output)
+    return df
+
+
+def write_results(df, path) -> Path:
+    """Write a results table (:func:`run_fleet`) to ``path`` as Parquet, atomically."""
+    import io as _io
+
+    from .io.writers import atomic_write
+
+    buf = _io.BytesIO()
+    try:
+        df.to_parquet(buf, engine="pyarrow", index=False)
+    except Exception as exc:  # noqa: BLE001 - pyarrow's own error types
+        raise FormatError(f"{path}: could not encode the results table as Parquet: {exc}") from exc
+    return atomic_write(path, buf.getvalue())
+
+
+# ---------------------------------------------------------------------------------------- huge logs
+@dataclass(frozen=True)
+class _Failed:
+    """A failed chunk: carried through the reduction so one device's error stays in its row."""
+
+    error_type: str
+    message: str
+
+
+def row_groups(path) -> list[tuple[str, int]]:
+    """The ``(file, row_group)`` chunks of a Parquet log (file or dataset folder), in order."""
+    import pyarrow.parquet as pq
+
+    path = Path(path).expanduser()
+    if not path.exists():
+        raise FormatError(f"{path}: no such Parquet file or folder")
+    parts = _parquet_parts(path)
+    if not parts:
+        raise FormatError(f"{path}: expected a .parquet file or a folder of .parquet parts, found none")
+    out = []
+    for part in parts:
+        try:
+            pf = pq.ParquetFile(part)
+        except Exception as exc:  # noqa: BLE001
+            raise FormatError(f"{part}: not a readable Parquet file: {exc}") from exc
+        _check_columns(pf.schema_arrow.names, part)
+        out.extend((str(part), i) for i in range(pf.num_row_groups))
+    return out
+
+
+def chunk_moments(file: str, row_group: int) -> Moments:
+    """:meth:`Moments.from_samples` of one row group (rows with a non-finite rate are missing samples)."""
+    import pyarrow.parquet as pq
+
+    try:
+        table = pq.ParquetFile(file).read_row_group(row_group, columns=list(COLUMNS[1:]))
+    except Exception as exc:  # noqa: BLE001
+        raise FormatError(f"{file}: row group {row_group}: could not read: {exc}") from exc
+    x = np.column_stack([np.asarray(table.column(c).to_numpy(zero_copy_only=False), dtype=np.float64)
+                         for c in COLUMNS[1:]])
+    finite = np.isfinite(x).all(axis=1)
+    if not finite.all():
+        x[~finite] = 0.0
+        return Moments.from_samples(x[:, :3], x[:, 3:], mask=finite)
+    return Moments.from_samples(x[:, :3], x[:, 3:])
+
+
+def _safe_chunk(task) -> Moments | _Failed:
+    try:
+        return chunk_moments(*task)
+    except Exception as exc:  # noqa: BLE001 - carried to the device's row
+        return _Failed(type(exc).__name__, str(exc) if isinstance(exc, GyroCalError)
+                       else f"unexpected {type(exc).__name__}: {exc}")
+
+
+def _merge(parts) -> Moments | _Failed:
+    """Merge moments; the first failure wins (the reduction of a device with a bad chunk fails)."""
+    out = Moments.empty()
+    for p in parts:
+        if isinstance(p, _Failed):
+            return p
+        out = out.merge(p)
+    return out
+
+
+def _reduction(tasks, split_every):
+    import dask.bag as db
+
+    return (db.from_sequence(tasks, npartitions=max(1, len(tasks)))
+            .map(_safe_chunk)
+            .reduction(_merge, _merge, split_every=split_every))
+
+
+def _compute(items, client):
+    if client is not None:
+        return client.gather(client.compute(list(items)))
+    import dask
+
+    return list(dask.compute(*items, scheduler="threads"))
+
+
+def log_moments(path, *, client=None, split_every: int = 8) -> Moments:
+    """Statistics of a huge Parquet log, reduced across Dask workers (one task per row group).
+
+    Parameters
+    ----------
+    path : str or Path
+        A Parquet file or dataset folder with the columns :data:`COLUMNS` (sample-aligned).
+    client : distributed.Client, optional
+        Cluster to run on; default: Dask's local threaded scheduler.
+    split_every : int
+        Fan-in of the ``dask.bag`` tree reduction of :meth:`Moments.merge`.
+
+    Returns
+    -------
+    Moments
+        Equal to ``Moments.from_samples`` of the whole log to rounding (~1e-12 relative).
+    """
+    tasks = row_groups(path)
+    (m,) = _compute([_reduction(tasks, split_every)], client)
+    if isinstance(m, _Failed):
+        raise (FormatError if m.error_type == "FormatError" else InputError)(m.message)
+    return m
+
+
+def calibrate_log(path, *, client=None, split_every: int = 8, **solve_options) -> PairCalibration:
+    """Calibrate a pair from a huge Parquet log: :func:`log_moments` across workers, then :func:`fusion_gyrocal.solve`."""
+    _check_options(solve, solve_options)
+    return solve(log_moments(path, client=client, split_every=split_every), **solve_options)
+
+
+def _run_chunked(paths, client, split_every, options):
+    items, rows, pending = [], [None] * len(paths), []
+    for i, p in enumerate(paths):
+        try:
+            items.append(_reduction(row_groups(p), split_every))
+            pending.append(i)
+        except Exception as exc:  # noqa: BLE001 - recorded per device
+            rows[i] = _row(p.stem, str(p), None, exc, 0.0)
+    t0 = time.perf_counter()
+    results = _compute(items, client) if items else []
+    per_device = (time.perf_counter() - t0) / max(len(items), 1)
+    for i, m in zip(pending, results):
+        p = paths[i]
+        t1 = time.perf_counter()
+        try:
+            if isinstance(m, _Failed):
+                raise (FormatError if m.error_type == "FormatError" else InputError)(m.message)
+            cal = solve(m, **options)
+            rows[i] = _row(p.stem, str(p), cal, None, per_device + time.perf_counter() - t1)
+        except Exception as exc:  # noqa: BLE001 - recorded per device
+            rows[i] = _row(p.stem, str(p), None, exc, per_device + time.perf_counter() - t1)
+    return rows
+
+
+# ---------------------------------------------------------------------------------------- CLI
+EXIT_SOME_FAILED = 4
+
+
+def add_fleet_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``fleet`` subcommand to a ``gyrocal`` subparsers object (sets ``func``)."""
+    p = subparsers.add_parser(
+        "fleet", help="calibrate many devices on Dask, one Parquet row per device",
+        description="Calibrate every device (a .parquet file or dataset with columns t,w1x,w1y,w1z,w2x,w2y,w2z in "
+                    "s and rad/s, or a folder with gyro1.* and gyro2.* recordings) on a Dask cluster and write a "
+                    "results table with one row per device. A failing device gets a row with its error. Exit code "
+                    f"0 when every device was calibrated, {EXIT_SOME_FAILED} when some failed (the table is still "
+                    "written).")
+    p.add_argument("devices", nargs="+", help="device paths, or folders holding devices")
+    p.add_argument("--output", "-o", default="fleet_results.parquet", help="results table (Parquet)")
+    p.add_argument("--workers", type=int, default=2,
+                   help="local Dask worker processes (0: threads in this process); ignored with --scheduler")
+    p.add_argument("--threads-per-worker", type=int, default=1)
+    p.add_argument("--scheduler", help="address of a running Dask scheduler (e.g. tcp://10.0.0.5:8786)")
+    p.add_argument("--chunked", action="store_true",
+                   help="huge Parquet logs: reduce each device's row-group statistics across the workers, then solve")
+    p.add_argument("--method", choices=("ml", "direct"), default="ml")
+    p.add_argument("--noise-std", type=float, nargs="+", metavar="RAD_S",
+                   help="white-noise std per sample (rad/s), one value or one per gyro")
+    p.add_argument("--gauge", choices=("unit_prior", "fixed"), default="unit_prior")
+    p.add_argument("--max-offset", type=float, help="time-offset search range in s (gyro1/gyro2 devices)")
+    p.add_argument("--no-flex-rejection", action="store_true", help="keep every sample (no flex/outlier gate)")
+    p.set_defaults(func=cmd_fleet)
+    return p
+
+
+def _cli_options(args) -> dict:
+    opts = {"method": args.method, "gauge": args.gauge}
+    if args.noise_std:
+        opts["noise_std"] = args.noise_std if len(args.noise_std) > 1 else args.noise_std[0]
+    if not args.chunked:
+        if args.max_offset is not None:
+            opts["max_offset_s"] = args.max_offset
+        if args.no_flex_rejection:
+            opts["flex_rejection"] = False
+    return opts
+
+
+def cmd_fleet(args) -> int:
+    """Run ``gyrocal fleet`` from parsed arguments; returns the exit code."""
+    options = _cli_options(args)
+    cluster = client = None
+    try:
+        if args.scheduler or args.workers > 0:
+            from distributed import Client, LocalCluster
+
+            if args.scheduler:
+                client = Client(args.scheduler)
+            else:
+                cluster = LocalCluster(n_workers=args.workers, threads_per_worker=args.threads_per_worker,
+                                       processes=True, host="127.0.0.1", dashboard_address=None)
+                client = Client(cluster)
+        df = run_fleet(args.devices, client=client, output=args.output, chunked=args.chunked, **options)
+    finally:
+        if client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+    failed = df[~df["ok"]]
+    for _, r in df.iterrows():
+        status = "ok" if r["ok"] else f"FAILED ({r['error_type']}): {r['error']}"
+        print(f"{r['device']}: {status}")
+    print(f"{len(df)} device(s), {len(failed)} failed; table written to {args.output}")
+    return 0 if failed.empty else EXIT_SOME_FAILED
+
+
+def fleet_main(argv=None) -> int:
+    """Standalone entry point: ``python -m fusion_gyrocal.fleet DEVICES... -o results.parquet``."""
+    parser = argparse.ArgumentParser(prog="gyrocal")
+    sub = parser.add_subparsers(dest="command", required=True)
+    add_fleet_parser(sub)
+    args = parser.parse_args(["fleet", *(sys.argv[1:] if argv is None else argv)])
+    try:
+        return cmd_fleet(args)
+    except GyroCalError as exc:
+        print(f"gyrocal: error: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(fleet_main())

@@ -1,0 +1,184 @@
+import json
+
+import numpy as np
+import pytest
+
+pd = pytest.importorskip("pandas")
+pa = pytest.importorskip("pyarrow")
+pq = pytest.importorskip("pyarrow.parquet")
+distributed = pytest.importorskip("distributed")
+
+from fusion_gyrocal import ConfigurationError, FormatError, InputError, Moments, PairCalibration, solve  # noqa: E402
+from fusion_gyrocal.fleet import (COLUMNS, RESULT_COLUMNS, calibrate_log, find_devices, fleet_main,  # noqa: E402
+                                  log_moments, row_groups, run_fleet)
+from fusion_gyrocal.sim import PAPER_NOISE_STD, HumanMotion, rotation_error, simulate_pair  # noqa: E402
+
+
+def _write_parquet(path, sim, *, row_group_size=1000, t0=0.0):
+    t = t0 + np.arange(sim.omega_1.shape[0]) / 100.0
+    data = {"t": t}
+    for g, w in (("1", sim.omega_1), ("2", sim.omega_2)):
+        for a, ax in enumerate("xyz"):
+            data[f"w{g}{ax}"] = w[:, a]
+    pq.write_table(pa.table(data), path, row_group_size=row_group_size)
+
+
+def _write_csv_device(folder, sim):
+    folder.mkdir()
+    t = np.arange(sim.omega_1.shape[0]) / 100.0
+    for name, w in (("gyro1.csv", sim.omega_1), ("gyro2.csv", sim.omega_2)):
+        np.savetxt(folder / name, np.column_stack([t, w]), delimiter=",", header="t,wx,wy,wz", comments="",
+                   fmt="%.10g")
+
+
+@pytest.fixture(scope="module")
+def client():
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                  dashboard_address=None) as cluster, distributed.Client(cluster) as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def fleet_dir(tmp_path_factory):
+    """Five devices: two Parquet, one gyro1/gyro2 CSV folder, one with a missing column, one not rigid."""
+    root = tmp_path_factory.mktemp("fleet")
+    truth = {}
+    for i, name in enumerate(("dev_a", "dev_b")):
+        sim = simulate_pair(rng=10 + i, n=4000)
+        _write_parquet(root / f"{name}.parquet", sim)
+        truth[name] = sim
+    sim = simulate_pair(rng=12, n=4000)
+    _write_csv_device(root / "dev_c", sim)
+    truth["dev_c"] = sim
+    pq.write_table(pa.table({"t": np.arange(10.0), "w1x": np.zeros(10)}), root / "dev_d.parquet")
+    a, b = simulate_pair(rng=13, n=4000), simulate_pair(rng=14, n=4000)  # two unrelated motions
+    _write_parquet(root / "dev_e.parquet", type(a)(**{**a.__dict__, "omega_2": b.omega_2}))
+    return root, truth
+
+
+def test_run_fleet_one_row_per_device_with_errors_recorded(client, fleet_dir):
+    root, truth = fleet_dir
+    df = run_fleet(root, client=client, noise_std=PAPER_NOISE_STD)
+    assert list(df.columns) == list(RESULT_COLUMNS)
+    assert df["device"].tolist() == ["dev_a", "dev_b", "dev_c", "dev_d", "dev_e"]
+    assert df["ok"].tolist() == [True, True, True, False, False]
+    assert df.loc[3, "error_type"] == "FormatError" and "missing ['w1y'" in df.loc[3, "error"]
+    assert df.loc[4, "error_type"] == "NotRigidError" and "not rigid" in df.loc[4, "error"]
+    assert df.loc[:2, "error"].isna().all()
+    for _, row in df[df["ok"]].iterrows():
+        cal = PairCalibration.from_dict(json.loads(row["calibration_json"]))
+        sim = truth[row["device"]]
+        assert rotation_error(cal.R_1_2, sim.R_1_2) < 5 * np.linalg.norm(cal.rotation_std_rad)
+        np.testing.assert_allclose([row["rotvec_x"], row["rotvec_y"], row["rotvec_z"]], cal.rotvec, atol=1e-12)
+
+
+def test_run_fleet_without_client_matches_cluster(client, fleet_dir):
+    root, _ = fleet_dir
+    on_cluster = run_fleet([root / "dev_a.parquet", root / "dev_c"], client=client)
+    local = run_fleet([root / "dev_a.parquet", root / "dev_c"])
+    cols = ["rotvec_x", "rotvec_y", "rotvec_z", "scale_2_x", "bias_z", "time_offset_s"]
+    np.testing.assert_allclose(local[cols].to_numpy(float), on_cluster[cols].to_numpy(float), rtol=1e-12, atol=1e-15)
+
+
+def test_run_fleet_writes_parquet_results_table(fleet_dir, tmp_path):
+    root, _ = fleet_dir
+    out = tmp_path / "results.parquet"
+    df = run_fleet([root / "dev_b.parquet", root / "dev_d.parquet"], output=out)
+    back = pd.read_parquet(out)
+    assert back["device"].tolist() == ["dev_b", "dev_d"] and back["ok"].tolist() == [True, False]
+    np.testing.assert_array_equal(back["scale_2_y"].to_numpy(), df["scale_2_y"].to_numpy())
+    assert back.loc[1, "error"] == df.loc[1, "error"]
+
+
+def test_run_fleet_csv_device_estimates_time_offset(fleet_dir):
+    root, truth = fleet_dir
+    df = run_fleet([root / "dev_c"])
+    assert df.loc[0, "ok"] and abs(df.loc[0, "time_offset_s"]) < 5 * df.loc[0, "time_offset_std_s"] + 1e-4
+
+
+def test_run_fleet_missing_device_is_a_row_not_a_crash(fleet_dir):
+    root, _ = fleet_dir
+    df = run_fleet([root / "dev_a.parquet", root / "no_such_device"])
+    assert df["ok"].tolist() == [True, False]
+    assert df.loc[1, "error_type"] == "FormatError" and "no such device" in df.loc[1, "error"]
+
+
+def test_run_fleet_unknown_option_raises_configuration_error(fleet_dir):
+    with pytest.raises(ConfigurationError, match="no_such_option"):
+        run_fleet(fleet_dir[0], no_such_option=1)
+
+
+def test_find_devices_in_empty_folder_raises_input_error(tmp_path):
+    with pytest.raises(InputError, match="at least one device"):
+        find_devices([tmp_path])
+
+
+@pytest.fixture(scope="module")
+def huge_log(tmp_path_factory):
+    """A Parquet dataset of two part files, 30 row groups, with a few missing (NaN) samples."""
+    folder = tmp_path_factory.mktemp("huge") / "log.parquet"
+    folder.mkdir()
+    sim = simulate_pair(rng=20, n=30000)
+    w1 = sim.omega_1.copy()
+    w1[[5, 17000, 29999], 1] = np.nan
+    sim = type(sim)(**{**sim.__dict__, "omega_1": w1})
+    half = type(sim)(**{**sim.__dict__, "omega_1": w1[:12000], "omega_2": sim.omega_2[:12000]})
+    rest = type(sim)(**{**sim.__dict__, "omega_1": w1[12000:], "omega_2": sim.omega_2[12000:]})
+    _write_parquet(folder / "part-000.parquet", half, row_group_size=1000)
+    _write_parquet(folder / "part-001.parquet", rest, row_group_size=1000, t0=120.0)
+    keep = np.isfinite(w1).all(axis=1)
+    return folder, np.where(keep[:, None], w1, 0.0), sim.omega_2, keep
+
+
+def test_log_moments_on_cluster_matches_single_process(client, huge_log):
+    folder, w1, w2, keep = huge_log
+    assert len(row_groups(folder)) == 30
+    m = log_moments(folder, client=client, split_every=4)
+    ref = Moments.from_samples(w1, w2, mask=keep)
+    assert m.count == ref.count == 29997
+    np.testing.assert_allclose(m.mean, ref.mean, rtol=1e-12, atol=1e-12 * np.abs(ref.mean).max())
+    np.testing.assert_allclose(m.scatter, ref.scatter, rtol=1e-12, atol=1e-12 * np.abs(ref.scatter).max())
+
+
+def test_calibrate_log_matches_in_process_solve(client, huge_log):
+    folder, w1, w2, keep = huge_log
+    cal = calibrate_log(folder, client=client, noise_std=PAPER_NOISE_STD)
+    ref = solve(Moments.from_samples(w1, w2, mask=keep), noise_std=PAPER_NOISE_STD)
+    assert rotation_error(cal.R_1_2, ref.R_1_2) < 1e-10
+    np.testing.assert_allclose(cal.scale_2, ref.scale_2, rtol=1e-10)
+
+
+def test_run_fleet_chunked_matches_log_moments_and_records_errors(client, huge_log, fleet_dir):
+    folder, w1, w2, keep = huge_log
+    df = run_fleet([folder, fleet_dir[0] / "dev_d.parquet"], client=client, chunked=True, noise_std=PAPER_NOISE_STD)
+    assert df["ok"].tolist() == [True, False] and df.loc[1, "error_type"] == "FormatError"
+    ref = solve(Moments.from_samples(w1, w2, mask=keep), noise_std=PAPER_NOISE_STD)
+    assert df.loc[0, "n_samples"] == 29997
+    np.testing.assert_allclose(df.loc[0, ["scale_2_x", "scale_2_y", "scale_2_z"]].to_numpy(float), ref.scale_2,
+                               rtol=1e-10)
+
+
+def test_log_moments_damaged_row_group_raises_format_error(tmp_path):
+    bad = tmp_path / "bad.parquet"
+    bad.write_bytes(b"PAR1 this is not parquet")
+    with pytest.raises(FormatError, match="not a readable Parquet file"):
+        log_moments(bad)
+
+
+def test_fleet_main_writes_table_and_flags_failures_in_exit_code(fleet_dir, tmp_path, capsys):
+    root, _ = fleet_dir
+    out = tmp_path / "cli.parquet"
+    code = fleet_main([str(root / "dev_a.parquet"), str(root / "dev_d.parquet"), "-o", str(out), "--workers", "0"])
+    assert code == 4
+    assert pd.read_parquet(out)["ok"].tolist() == [True, False]
+    assert "1 failed" in capsys.readouterr().out
+    assert fleet_main([str(root / "dev_a.parquet"), "-o", str(out), "--workers", "0"]) == 0
+
+
+def test_gyrocal_cli_has_fleet_subcommand(fleet_dir, tmp_path):
+    from fusion_gyrocal.cli import main
+
+    out = tmp_path / "via_cli.parquet"
+    assert main(["fleet", str(fleet_dir[0] / "dev_b.parquet"), "-o", str(out), "--workers", "0",
+                 "--method", "direct"]) == 0
+    assert pd.read_parquet(out)["ok"].tolist() == [True]
