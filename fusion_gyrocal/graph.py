@@ -67,7 +67,7 @@ __all__ = [
     "calibrate_pair_graph",
 ]
 
-GAUGE_PRIOR_STD = 1e-8          # log-scale std of the numerical gauge priors (removed again in the covariance)
+GAUGE_PRIOR_RATIO = 1e-2        # gauge-prior std relative to the seed's smallest scale std (see GyroPairGraph notes)
 GLOBAL_SCALE_GAUGE = "global scale estimated from rotation increments"
 MARGINALS_MAX_SEGMENTS = 64     # above: bias-mean covariance by a sparse solve of the same information
 
@@ -250,18 +250,39 @@ def gyro_pair_factor(moments: Moments | WindowStatistics, noise_std, *, rotation
                               partial(_pair_error, stats, (float(sig[0]), float(sig[1]))))
 
 
-def _component_prior_error(index, value, this, values, H):
-    x = values.atVector(this.keys()[0])
+def _gauge_error(indices, value, this, values, H):
+    l = values.atVector(this.keys()[0])
+    J = np.zeros((1, l.size))
+    if value is not None:                 # a known scale factor: log s_m - log value
+        h = l[indices[0]] - value
+        J[0, indices[0]] = 1.0
+    else:                                 # unit convention: sum_m s_m (s_m - 1) = 0 (Eq. 31-32)
+        s = np.exp(l[indices])
+        h = float(np.sum(s * (s - 1.0)))
+        J[0, indices] = s * (2.0 * s - 1.0)
     if H is not None:
-        J = np.zeros((1, x.size))
-        J[0, index] = 1.0
         H[0] = J
-    return np.array([x[index] - value])
+    return np.array([h])
 
 
-def _component_prior(key, index, value, sigma) -> gtsam.CustomFactor:
+def _gauge_factor(key, gauge: Gauge, group, sigma: float, log_value=None) -> gtsam.CustomFactor:
+    """A tight prior imposing the gauge condition of one linked group of scale factors.
+
+    The condition and its linearisation are those of :meth:`Gauge.apply` / :meth:`Gauge.constraints`:
+    ``log s_m = log value`` for a known scale factor, else ``sum_m s_m (s_m - 1) = 0`` over the group's
+    gauge members (all its members when the gauge has none in it). ``log_value`` overrides with a
+    fixed log-scale of the group's first gauge member.
+    """
+    members = [m for m in gauge.members if m in group] or list(group)
+    indices = np.array([3 * g + a for g, a in members])
+    if log_value is not None:
+        value = float(log_value)
+    elif gauge.value is not None and gauge.members[0] in group:
+        value = float(np.log(gauge.value))
+    else:
+        value = None
     return gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, sigma), [key],
-                              partial(_component_prior_error, int(index), float(value)))
+                              partial(_gauge_error, indices[:1] if value is not None else indices, value))
 
 
 # ---------------------------------------------------------------------------------------------- camera factor
@@ -490,8 +511,8 @@ def rotation_increment_factor(preintegrated: PreintegratedRotations, k: int, del
 class GraphEstimate:
     """Current point estimate (no covariance), cheap to read after each iSAM2 update.
 
-    ``scale_1``/``scale_2`` are in the graph's working gauge (one member of each linked group held
-    at its seed value), or absolute with the global-scale variable; ``bias`` is the latest window's.
+    ``scale_1``/``scale_2`` are in the graph's gauge, or absolute with the global-scale variable;
+    ``bias`` is the latest window's.
     """
 
     R_1_2: np.ndarray
@@ -539,9 +560,15 @@ class GyroPairGraph:
 
     Notes
     -----
-    Numerically the graph holds one member of each linked group of scale factors (Theorem 2;
-    all six in the general configuration) at its seed value with a tight prior; results are
-    re-expressed in ``gauge`` and the covariance projected onto it afterwards.
+    The gauge (Theorem 2) enters as one tight prior per linked group of scale factors on the
+    same nonlinear condition the batch refinement imposes (:meth:`Gauge.apply`), so graph and
+    batch solve the same constrained problem -- also near a parallel-axis configuration, where
+    the group levels are not exactly free. With ``global_scale`` only the level of scale_1[0]'s
+    group is held (``g`` carries the common factor) and the rotation increments fix the rest.
+    The priors' std is ``GAUGE_PRIOR_RATIO`` (1e-2) times the seed's smallest scale std: along an
+    exact null direction of the data the prior's strength changes neither the estimate (it sits
+    on the condition) nor the covariance once projected onto the gauge (:func:`_project_gauge`),
+    while far tighter priors make GTSAM's Cholesky report an indeterminate system.
     """
 
     def __init__(self, seed: PairCalibration, *, noise_std=None, bias_walk_std: float | None = None,
@@ -580,28 +607,25 @@ class GyroPairGraph:
         self._initial = gtsam.Values()
 
         k = self.keys
+        groups = self.configuration.groups
+        # gauge-prior std: 1e-2 of the seed's smallest scale std (see the class notes)
+        seed_std = np.sqrt(np.diag(seed.covariance)[3:9]) / np.concatenate([seed.scale_1, seed.scale_2])
+        seed_std = seed_std[np.isfinite(seed_std) & (seed_std > 0)]
+        sigma = GAUGE_PRIOR_RATIO * (float(seed_std.min()) if seed_std.size else 1e-6)
+        s1, s2 = (seed.scale_1, seed.scale_2) if self.global_scale else self.gauge.apply(groups, seed.scale_1,
+                                                                                         seed.scale_2)
         self._insert(k.rotation, gtsam.Rot3(seed.R_1_2))
-        self._insert(k.log_scale, np.log(np.concatenate([seed.scale_1, seed.scale_2])))
+        self._insert(k.log_scale, np.log(np.concatenate([s1, s2])))
         if self.global_scale:
             self._insert(k.global_scale, np.zeros(1))
-        l0 = np.log(np.concatenate([seed.scale_1, seed.scale_2]))
-        for group in self._prior_groups():
-            member = self._held_member(group)
-            idx = 3 * member[0] + member[1]
-            self._add_fixed(_component_prior(k.log_scale, idx, l0[idx], GAUGE_PRIOR_STD))
+            # g and the relative log-scales overlap in one direction: hold the level of scale_1[0]'s group
+            groups = tuple(g for g in groups if (0, 0) in g)
+            self._add_fixed(_gauge_factor(k.log_scale, Gauge.fixed(), groups[0], sigma, np.log(s1[0])))
+        else:
+            for group in groups:   # the same nonlinear gauge conditions as the batch refinement
+                self._add_fixed(_gauge_factor(k.log_scale, self.gauge, group, sigma))
 
     # ------------------------------------------------------------------ construction helpers
-    def _prior_groups(self):
-        groups = self.configuration.groups
-        if not self.global_scale:
-            return groups
-        # with g, hold only the group of scale_1[0]; the rotation increments fix every scale_1 (and the rest)
-        return tuple(g for g in groups if (0, 0) in g)
-
-    def _held_member(self, group):
-        inside = [m for m in self.gauge.members if m in group]
-        return inside[0] if inside and not self.global_scale else (0, 0) if (0, 0) in group else group[0]
-
     def _insert(self, key, value):
         self._initial.insert(key, value)
         self._pending_values.insert(key, value)
