@@ -11,7 +11,7 @@ exactly that, on plain arrays, with masks for the samples that must not be used:
   norms (rotation invariant), refined below one sample by minimising the misfit of the
   rigid-pair model ``omega_1(t) = A omega_2(t - offset) + b`` (Eq. 3-5) over the offset, with
   ``A`` and ``b`` profiled out by least squares (the direct solution, Eq. 14-16) at every trial
-  offset, and gyro 2 evaluated with cubic splines.
+  offset, and both gyros evaluated with cubic splines.
 * :func:`resample`: cubic splines per contiguous run of valid samples, never across a gap.
 * :func:`align_streams`: both of the above, giving an :class:`AlignedPair` on gyro 1's clock.
 * :func:`informative_mask` and :func:`excitation_report`: sample selection (Section III,
@@ -41,6 +41,8 @@ DEFAULT_GAP_PERIODS = 2.5      # default max_gap_s in nominal sample periods
 PAPER_TARGET_SNR = 4e3         # Section VI: accumulate until this SNR per axis
 _AMBIGUITY_RATIO = 1.5         # a second lobe with misfit (1 - r) below this times the peak's is ambiguous
 _MIN_OVERLAP_FRACTION = 0.5    # lags overlapping fewer valid grid points than this fraction are ignored
+_EVAL_STEP = 2.0 / (1.0 + 5.0 ** 0.5)  # refinement instants every 0.618 grid steps (golden ratio: equidistributed)
+_STD_BLOCK_S = 0.25            # block length of the sandwich estimate of the offset's std
 
 
 # ---------------------------------------------------------------------------------------------- stream checks
@@ -381,7 +383,7 @@ class TimeOffset:
         What must be ADDED to gyro 2's timestamps to put them on gyro 1's clock (s).
     std_s : float
         Standard deviation of ``offset_s`` (s), from the curvature of the misfit and the
-        residual noise.
+        (block-summed) residuals.
     lags_s : ndarray, shape (L,)
         Trial offsets of the coarse search (s), spaced by one grid step.
     correlation : ndarray, shape (L,)
@@ -390,7 +392,8 @@ class TimeOffset:
     peak_correlation : float
         Largest value of ``correlation``.
     n_samples : int
-        Gyro-1 samples used in the sub-sample refinement.
+        Instants compared in the sub-sample refinement (gyro 1 interpolated about 1.6 times per
+        sample of the faster stream).
     """
 
     offset_s: float
@@ -485,9 +488,10 @@ def _parabolic_peak(r, i) -> float:
 def _refine(spl2: _RunSplines, x1, y1, tau0: float, h: float):
     """Offset minimising the profiled rigid-model misfit near ``tau0`` (Brent, bracket +-1.5 steps).
 
-    Returns ``(tau, x_used, omega_1_used, rss / n)``. The gyro-1 samples used are those whose
-    whole bracket maps inside one run of gyro 2, so the set is fixed and the cost smooth;
-    the bracket moves if the minimum lands on its edge.
+    ``(x1, y1)`` are the evaluation instants on gyro 1's clock and gyro 1's rates there.
+    Returns ``(tau, x_used, y_used, rss / n)``. The instants used are those whose whole
+    bracket maps inside one run of gyro 2, so the set is fixed and the cost smooth; the
+    bracket moves if the minimum lands on its edge.
     """
     tau, half = tau0, 1.5 * h
     for _ in range(6):
@@ -495,7 +499,7 @@ def _refine(spl2: _RunSplines, x1, y1, tau0: float, h: float):
         ra, rb = spl2.run_of(x1 - hi), spl2.run_of(x1 - lo)
         use = (ra >= 0) & (ra == rb)
         if use.sum() < 16:
-            raise TimeAlignmentError(f"only {int(use.sum())} gyro-1 samples overlap valid gyro-2 data near the "
+            raise TimeAlignmentError(f"only {int(use.sum())} gyro-1 instants overlap valid gyro-2 data near the "
                                      f"offset {tau0:+.4f} s; need at least 16")
         xe, ye = x1[use], y1[use]
         inside = np.ones(xe.size, dtype=bool)
@@ -512,29 +516,66 @@ def _refine(spl2: _RunSplines, x1, y1, tau0: float, h: float):
                              f"{tau0:+.4f} s (last {tau:+.6f} s)")
 
 
+def _offset_std(spl2: _RunSplines, xe, ye, tau: float) -> float:
+    """Standard deviation of the refined offset: a sandwich (block) estimate of the profiled misfit.
+
+    At the minimum, ``tau_hat - tau ~ sum_m u_m / sum_m |d_m|^2`` with ``d_m = P A d/dt omega_2(x_m - tau)``
+    (``P`` projects out the directions of the profiled ``A`` and ``b``) and ``u_m = d_m . r_m``.
+    The residuals of neighbouring (interpolated) instants are correlated, so ``Var(sum u)`` is
+    estimated from the sums of ``u`` over consecutive blocks of about ``_STD_BLOCK_S`` seconds.
+    """
+    inside = np.ones(xe.size, dtype=bool)
+    w2 = spl2(xe - tau, inside=inside)[0]
+    dw2 = spl2(xe - tau, nu=1, inside=inside)[0]
+    m = Moments.from_samples(ye, w2)
+    S22p = np.linalg.pinv(m.S22, rcond=1e-12, hermitian=True)
+    A = m.S12 @ S22p
+    w2c = w2 - m.mean_2
+    resid = (ye - m.mean_1) - w2c @ A.T
+    md = Moments.from_samples(dw2, w2)  # project d/dt omega_2 on the regressors [omega_2, 1]
+    G = md.S12 @ S22p
+    d = ((dw2 - md.mean_1) - (w2 - md.mean_2) @ G.T) @ A.T
+    info = float(np.einsum("ij,ij->", d, d))
+    if not info > 0:
+        return float("inf")
+    u = np.einsum("ij,ij->i", d, resid)
+    block = np.floor((xe - xe[0]) / _STD_BLOCK_S).astype(np.int64)
+    sums = np.bincount(block, weights=u)
+    sums = sums[np.bincount(block) > 0]
+    nb = sums.size
+    var_u = float(np.sum(sums**2)) * nb / max(nb - 1, 1)
+    return float(np.sqrt(var_u) / info)
+
+
 def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.0, valid_1=None, valid_2=None,
                          min_correlation: float = 0.5) -> TimeOffset:
     """Estimate the time offset between two rigidly mounted gyroscopes from their rates alone.
 
     1. Coarse: the rate norms ``|omega_i|`` (invariant to the unknown rotation, as in the paper's
-       footnote on time alignment) are spline-resampled onto one uniform grid (step = the
-       shorter nominal sample period of the two streams, so different rates are handled) and
-       cross-correlated by FFT, each lag normalised over the samples valid in both streams
-       (gaps and masks allowed). The peak in ``[-max_offset_s, max_offset_s]`` is located to a
-       fraction of a step by parabolic interpolation. When several separate lobes come close to
-       the peak (norms of periodic motion repeat), each is refined as in step 2 and the one with
-       the smallest rigid-model misfit wins; if the misfits are within a factor of 1.5 the
-       offset is ambiguous.
+       footnote on time alignment) are interpolated (linearly, inside runs of valid samples) onto
+       one uniform grid (step = the shorter nominal sample period of the two streams, so
+       different rates are handled) and cross-correlated by FFT, each lag normalised over the
+       grid points valid in both streams (gaps and masks allowed). The peak in
+       ``[-max_offset_s, max_offset_s]`` is located to a fraction of a step by parabolic
+       interpolation. When several separate lobes come close to the peak (norms of periodic
+       motion repeat), each is refined as in step 2 and the one with the smallest rigid-model
+       misfit wins; if the misfits are within a factor of 1.5 the offset is ambiguous.
     2. Fine: the offset minimises the residual sum of squares of the rigid-pair model
-       ``omega_1(t_k) = A omega_2(t_k - offset) + b`` (Eq. 3-5 with ``A = S_1 C S_2^-1``) over the
-       valid gyro-1 samples, gyro 2 evaluated with cubic splines; ``A`` and ``b`` are profiled out
-       by least squares (Eq. 14-16) at every trial offset, so the unknown rotation, scale factors
-       and biases cannot bias the offset (matching norms alone would be biased by unequal
-       scale factors and biases). The 1-D minimisation is Brent's method on the bracket around
-       the coarse peak.
-    3. Uncertainty: ``std_s = sigma_r / sqrt(sum_k |P A d/dt omega_2(t_k - offset)|^2)``, the
-       Gauss-Newton (curvature) standard deviation, where ``P`` projects out the directions of
-       the profiled ``A`` and ``b`` and ``sigma_r^2`` is the residual variance per component.
+       ``omega_1(x) = A omega_2(x - offset) + b`` (Eq. 3-5 with ``A = S_1 C S_2^-1``), both gyros
+       evaluated with cubic splines at instants ``x`` spaced 0.618 grid steps apart. ``A`` and
+       ``b`` are profiled out by least squares (Eq. 14-16) at every trial offset, so the unknown
+       rotation, scale factors and biases cannot bias the offset (matching norms alone would be
+       biased by unequal scale factors and biases: see ``benchmarks/alignment.py``). The
+       golden-ratio spacing keeps the instants' phases relative to gyro 2's samples uniformly
+       spread at every trial offset; evaluating at gyro 1's own sample times instead lets the
+       phase-dependent variance of the interpolated noise pull the offset (up to ~0.1 ms for
+       two 200 Hz streams with slow motion). The 1-D minimisation is Brent's method on a
+       +-1.5-step bracket around the coarse peak.
+    3. Uncertainty: first order, ``offset_hat - offset = sum_m d_m . r_m / sum_m |d_m|^2`` with
+       ``d_m = P A d/dt omega_2(x_m - offset)`` (``P`` projects out the directions of the profiled
+       ``A`` and ``b``) and residuals ``r_m``; the variance of the numerator is estimated from its
+       sums over 0.25 s blocks (a sandwich estimate: the residuals of interpolated neighbours are
+       correlated, and model errors are included).
 
     Parameters
     ----------
@@ -613,8 +654,15 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.
     edges = np.flatnonzero(np.diff(above))
     cands = [int(lo + np.argmax(rr[lo:hi])) for lo, hi in zip(edges[::2], edges[1::2])]
 
+    # evaluation instants: gyro 1 spline-interpolated at a step incommensurate with both sample
+    # periods, so their phases w.r.t. gyro 2's samples stay uniformly spread for every trial offset
+    # and the variance of the interpolated noise (lowest between samples) cannot pull the offset
+    spl1 = _RunSplines(t1, w1, ok1, gap1)
     spl2 = _RunSplines(t2, w2, ok2, gap2)
-    x1, y1 = t1[ok1], w1[ok1]
+    he = h * _EVAL_STEP
+    x1 = np.arange(int(np.ceil(t1[0] / he)), int(np.floor(t1[-1] / he)) + 1) * he
+    x1 = x1[spl1.run_of(x1) >= 0]
+    y1 = spl1(x1, inside=np.ones(x1.size, dtype=bool))[0]
 
     def on_edge(i):
         return i == 0 or i == lags.size - 1 or not (np.isfinite(r[i - 1]) and np.isfinite(r[i + 1]))
@@ -651,19 +699,7 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.
                 "max_offset_s around the expected offset")
     peak = float(r[i])
     tau, xe, ye, _ = fits[best]
-    inside = np.ones(xe.size, dtype=bool)
-
-    # ---- uncertainty: Gauss-Newton curvature of the profiled misfit
-    w2e = spl2(xe - tau, inside=inside)[0]
-    rss, A = _profile_cost(ye, w2e)
-    dw2 = spl2(xe - tau, nu=1, inside=inside)[0]
-    m = Moments.from_samples(dw2, w2e)  # centred: projects out the bias direction
-    P = m.S11 - m.S12 @ np.linalg.pinv(m.S22, rcond=1e-12, hermitian=True) @ m.S12.T  # project out A
-    info = float(np.trace(A @ P @ A.T))
-    n = xe.size
-    sigma2 = rss / max(3 * n - 13, 1)
-    std = float(np.sqrt(sigma2 / info)) if info > 0 else float("inf")
-    return TimeOffset(float(tau), std, lags, r, peak, int(n))
+    return TimeOffset(float(tau), _offset_std(spl2, xe, ye, tau), lags, r, peak, int(xe.size))
 
 
 # ---------------------------------------------------------------------------------------------- alignment
