@@ -601,6 +601,9 @@ class GyroPairGraph:
         self._bias_keys: list[int] = []
         self._bias_counts: list[float] = []
         self._window_steps: list[float] = []
+        self._n_windows = 0
+        self._pair_dirty = False             # constant bias: the merged pair factor changed since the last update
+        self._pair_index: int | None = None  # its index inside iSAM2
         self._moments = Moments.empty()
         self._pending = gtsam.NonlinearFactorGraph()
         self._pending_values = gtsam.Values()
@@ -637,10 +640,15 @@ class GyroPairGraph:
     # ------------------------------------------------------------------ public building
     @property
     def n_windows(self) -> int:
-        return len(self._pair)
+        """Windows added so far."""
+        return self._n_windows
 
     def add_window(self, moments: Moments, *, steps: int | None = None) -> int:
-        """Add one window's moments as a gyro-pair factor; returns the window's bias-segment index.
+        """Add one window's moments; returns the index of its bias segment.
+
+        With a bias per window the window becomes one gyro-pair factor (plus a random-walk factor
+        to the previous bias). With one constant bias the windows' moments are merged and the
+        graph holds a single pair factor built from them (exactly the sum of the windows' factors).
 
         Parameters
         ----------
@@ -672,10 +680,22 @@ class GyroPairGraph:
             self._window_steps.append(float(moments.count if steps is None else steps))
         key = self._bias_keys[-1]
         self._bias_counts[-1] += moments.count
-        factor = gyro_pair_factor(stats, self.noise_std, rotation_key=k.rotation, log_scale_key=k.log_scale, bias_key=key)
-        self._pair.append((stats, key, factor))
-        self._pending.add(factor)
-        self._moments = self._moments.pool(moments) if self.bias_walk_std is not None else self._moments.merge(moments)
+        self._n_windows += 1
+        if self.bias_walk_std is None:
+            # one shared bias: the merged moments give exactly the sum of the windows' costs, so the
+            # graph keeps ONE pair factor, replaced as windows arrive (iSAM2 removes the old one)
+            self._moments = self._moments.merge(moments)
+            stats = WindowStatistics.from_moments(self._moments)
+            factor = gyro_pair_factor(stats, self.noise_std, rotation_key=k.rotation, log_scale_key=k.log_scale,
+                                      bias_key=key)
+            self._pair = [(stats, key, factor)]
+            self._pair_dirty = True
+        else:
+            factor = gyro_pair_factor(stats, self.noise_std, rotation_key=k.rotation, log_scale_key=k.log_scale,
+                                      bias_key=key)
+            self._pair.append((stats, key, factor))
+            self._pending.add(factor)
+            self._moments = self._moments.pool(moments)
         return len(self._bias_keys) - 1
 
     def add_rotation_increments(self, omega_1, rate_hz: float, increments: RotationIncrements) -> int:
@@ -810,7 +830,15 @@ class GyroPairGraph:
                 params.setRelinearizeThreshold(1e-3)
                 params.relinearizeSkip = 1
             self._isam = gtsam.ISAM2(params)
-        self._isam.update(self._pending, self._pending_values)
+        remove = []
+        if self._pair_dirty:
+            self._pending.add(self._pair[0][2])
+            if self._pair_index is not None:
+                remove = [self._pair_index]
+        res = self._isam.update(self._pending, self._pending_values, remove)
+        if self._pair_dirty:
+            self._pair_index = int(res.getNewFactorsIndices()[-1])
+            self._pair_dirty = False
         self._pending = gtsam.NonlinearFactorGraph()
         self._pending_values = gtsam.Values()
         k = self.keys
@@ -825,7 +853,7 @@ class GyroPairGraph:
         """The iSAM2 estimate of everything pushed by :meth:`update`, with its joint marginal covariance."""
         if self._isam is None:
             raise InputError("graph: call update() before result() (no iSAM2 estimate yet)")
-        if self._pending.size() or self._pending_values.size():
+        if self._pending.size() or self._pending_values.size() or self._pair_dirty:
             self.update()
         values = self._isam.calculateEstimate()
         return self._result(values, self._isam, "graph_isam2", 0)

@@ -243,10 +243,14 @@ def test_gyro_pair_graph_sparse_covariance_matches_marginals(monkeypatch):
 def test_gyro_pair_graph_factor_count_is_per_window_not_per_sample():
     sim = simulate_pair(n=100_000, scale_1=S1, scale_2=S2, bias_walk_std=0.0, rng=13)
     parts = window_moments(sim.omega_1, sim.omega_2, 1000)
-    g = GyroPairGraph(solve(Moments.merge_all(parts), noise_std=sim.noise_std, method="direct"))
+    seed = solve(Moments.merge_all(parts), noise_std=sim.noise_std, method="direct")
+    windowed, constant = GyroPairGraph(seed, bias_walk_std=1e-6), GyroPairGraph(seed)
     for m in parts:
-        g.add_window(m)
-    assert g.graph.size() == 100 + 1      # one factor per window plus the gauge prior
+        windowed.add_window(m)
+        constant.add_window(m)
+    assert constant.n_windows == windowed.n_windows == 100
+    assert windowed.graph.size() == 100 + 99 + 1   # a pair factor per window, random walks, the gauge prior
+    assert constant.graph.size() == 1 + 1          # one pair factor of the merged moments, the gauge prior
 
 
 def test_mean_walk_variance_matches_simulation():
