@@ -26,7 +26,8 @@ centring of Eq. 12-15, with the bias kept as a variable)::
     ||V [I, -A] L_w||_F^2  +  n_w ||V (m_1 - A m_2 - b_w)||^2,   Sc_w = L_w L_w^T,  V^T V = W(A)
 
 so each window is one fixed-size factor with a 21-dimensional residual (18 + 3), whatever
-``n_w``: a million samples cost no more than a few hundred factors. ``W`` is evaluated at the
+``n_w``: a million samples cost no more than a few hundred factors (and with one constant bias
+the windows' moments are merged into a single factor, exactly their sum). ``W`` is evaluated at the
 current ``A`` (``V`` the inverse Cholesky factor of ``W^-1``) and differentiated analytically, so
 the graph minimises the same profiled likelihood as the batch maximum-likelihood refinement
 (:mod:`fusion_gyrocal.refine`) and agrees with it on the same data.
@@ -39,8 +40,14 @@ The pair alone cannot fix the global scale (Theorem 2). An external orientation 
 absolute ``scale_1`` (and through the pair factors ``scale_2``). The integration is preintegrated
 once (rate increments by a 4th-order quadrature, products of exponentials, first-order Jacobians
 with respect to ``log scale_1`` and ``b_1``, as in IMU preintegration); the factor residual is
-``Log(dR_cam^T dR_hat Exp(J_s dlog_s + J_b db_1))``. The pair factor constrains only ``b``; the
-camera factor needs ``b_1``, which is therefore a separate variable.
+``Log(dR_cam^T dR_hat Exp(J_s dlog_s + J_b db_1))``; a batch solve re-preintegrates at its
+solution. The pair factor constrains only ``b``; the camera factor needs ``b_1``, which is
+therefore a separate variable. Each increment's noise is its own ``sigma_rad`` plus gyro 1's white
+noise integrated over the interval, independent between increments (visual odometry between
+consecutive keyframes; increments formed from noisy absolute orientations are anti-correlated,
+and the covariance is then conservative); its correlation with the pair factors through gyro 1's
+noise is neglected. Rotation composition per sample leaves a coning error of ~1e-5 rad per 0.1 s
+interval of 1 rad/s hand-held motion at 100 Hz.
 
 Covariance order and conventions follow :mod:`fusion_gyrocal.model`: ``[dtheta, scale_1,
 scale_2, bias]`` with ``R_true = Exp(dtheta) R_1_2``; GTSAM's right perturbation ``d`` maps to
@@ -57,7 +64,7 @@ import numpy as np
 
 from .direct import Gauge
 from .errors import ConfigurationError, InputError
-from .model import BIAS, ROT, S1, S2, PairCalibration
+from .model import BIAS, ROT, PairCalibration
 from .moments import Moments, as_rates
 from .observability import classify, per_axis_snr
 
