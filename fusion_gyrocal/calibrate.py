@@ -31,14 +31,28 @@ def _noise_pair(noise_std) -> tuple[float, float] | None:
     return float(arr[0]), float(arr[1])
 
 
-def _residual_noise(moments: Moments, A) -> tuple[float, float]:
-    """Noise per gyro from the least-squares residual, split equally between the gyros."""
+def difference_noise_std(omega, max_samples: int = 200000) -> float:
+    """White-noise std per sample of one stream from its third differences (robust, MAD).
+
+    ``Var(Delta^3 n) = 20 sigma^2`` for white noise, while smooth motion contributes little to the
+    third difference; fast motion at a low sample rate biases the value upwards, so the library
+    uses it only to split the residual variance between the gyros, never for its level.
+    """
+    w = np.asarray(omega, dtype=float)[:max_samples]
+    d = np.diff(w[np.isfinite(w).all(axis=1)], n=3, axis=0)
+    if d.shape[0] < 10:
+        return float("nan")
+    return float(np.median(1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0)) / np.sqrt(20.0))
+
+
+def _residual_noise(moments: Moments, A, ratio: float = 1.0) -> tuple[float, float]:
+    """Noise per gyro from the least-squares residual, split in the ratio ``sigma_1 / sigma_2``."""
     M = _residual_scatter(A, moments.scatter)
     dof = max(moments.dof - 3.0, 1.0)
     total = float(np.trace(M)) / (3.0 * dof)
     floor = 1e-24 * float(np.trace(moments.S11)) / (3.0 * dof)  # noise-free input: keep weights finite
-    s = np.sqrt(max(total, floor) / 2.0)
-    return s, s
+    s2 = max(total, floor) / (1.0 + ratio**2)
+    return float(np.sqrt(s2) * ratio), float(np.sqrt(s2))
 
 
 def _skew_compensation(intrinsics, name):
@@ -62,7 +76,8 @@ def _transform(moments: Moments, T1, T2) -> Moments:
 def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_prior",
           scale_prior_std: float | None = None, parallel_tol_deg: float = 5.0,
           intrinsics_1=None, intrinsics_2=None, skew_std=0.0, min_snr: float = 10.0,
-          max_unexplained: float = 0.05, on_not_rigid: str = "raise") -> PairCalibration:
+          max_unexplained: float = 0.05, on_not_rigid: str = "raise", noise_ratio: float | None = None
+          ) -> PairCalibration:
     """Calibrate a pair from its sufficient statistics.
 
     Parameters
@@ -100,6 +115,9 @@ def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_p
     on_not_rigid : {"raise", "flag"}
         Raise :class:`NotRigidError` (default), or return the result with ``rigid=False`` and the
         covariance from the residual scatter.
+    noise_ratio : float, optional
+        ``sigma_1 / sigma_2`` used to split the residual variance when ``noise_std`` is not given
+        (only the sum ``sigma_1^2 + sigma_2^2`` is observable from the residual); default 1.
     """
     if on_not_rigid not in ("raise", "flag"):
         raise InputError(f"on_not_rigid: expected 'raise' or 'flag', got {on_not_rigid!r}")
@@ -123,8 +141,10 @@ def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_p
             f"unexplained (a rigid pair leaves <= {100 * max_unexplained:g}%); the gyros move relative to each "
             "other, the streams are misaligned in time, or they are not the same device")
     if noise is None:
-        noise = _residual_noise(moments, A_ls)
-        noise_source = "residual (split equally between the gyros)"
+        ratio = 1.0 if noise_ratio is None or not np.isfinite(noise_ratio) else float(noise_ratio)
+        noise = _residual_noise(moments, A_ls, ratio)
+        noise_source = ("residual (split equally between the gyros)" if noise_ratio is None else
+                        f"residual, split {ratio:.3g}:1 by the third differences of each stream")
     else:
         noise_source = "user"
     if rigid:
@@ -252,7 +272,8 @@ def _assemble_covariance(P9, R, s1, s2, A, moments, noise):
 def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s: float | None = None,
                    max_offset_s: float = 1.0, rate_hz: float | None = None, saturation_limit=None,
                    method: str = "ml", noise_std=None, gauge="unit_prior", scale_prior_std: float | None = None,
-                   bias_window: int | None = None, mask=None, flex_rejection="auto", flex_margin: int = 2,
+                   bias_window: int | None = None, bias_walk_std=None, mask=None, flex_rejection="auto",
+                   flex_margin: int = 2,
                    parallel_tol_deg: float = 5.0, intrinsics_1=None, intrinsics_2=None, skew_std=0.0,
                    min_snr: float = 10.0, max_unexplained: float = 0.05, on_not_rigid: str = "raise"
                    ) -> PairCalibration:
@@ -290,6 +311,11 @@ def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s: float
     bias_window : int, optional
         Model the bias as piecewise constant over windows of this many samples (for drifting
         biases); default: one constant bias (Eq. 11).
+    bias_walk_std : float or (float, float), optional
+        Model the bias of each gyro as a random walk with this step std per sample (rad/s); the
+        streams are whitened by the Kalman innovations filter of that model
+        (:func:`~fusion_gyrocal.moments.random_walk_bias_moments`), which is the exact likelihood.
+        Needs ``noise_std``. The best choice for temperature drift over long logs.
     mask : array_like of bool (N,), optional
         Samples to use (sample-aligned input only).
     flex_rejection : {"auto", True, False}
@@ -328,7 +354,7 @@ def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s: float
     """
     return run_pipeline(omega_1, omega_2, t_1=t_1, t_2=t_2, time_offset_s=time_offset_s, max_offset_s=max_offset_s,
                         rate_hz=rate_hz, saturation_limit=saturation_limit, method=method, noise_std=noise_std,
-                        gauge=gauge, scale_prior_std=scale_prior_std, bias_window=bias_window, mask=mask,
+                        gauge=gauge, scale_prior_std=scale_prior_std, bias_window=bias_window, bias_walk_std=bias_walk_std, mask=mask,
                         flex_rejection=flex_rejection, flex_margin=flex_margin, parallel_tol_deg=parallel_tol_deg,
                         intrinsics_1=intrinsics_1, intrinsics_2=intrinsics_2, skew_std=skew_std, min_snr=min_snr,
                         max_unexplained=max_unexplained, on_not_rigid=on_not_rigid).calibration
@@ -355,7 +381,7 @@ class PipelineRun:
 
 def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s=None, max_offset_s=1.0, rate_hz=None,
                  saturation_limit=None, method="ml", noise_std=None, gauge="unit_prior", scale_prior_std=None,
-                 bias_window=None, mask=None, flex_rejection="auto", flex_margin=2, parallel_tol_deg=5.0,
+                 bias_window=None, bias_walk_std=None, mask=None, flex_rejection="auto", flex_margin=2, parallel_tol_deg=5.0,
                  intrinsics_1=None, intrinsics_2=None, skew_std=0.0, min_snr=10.0, max_unexplained=0.05,
                  on_not_rigid="raise", min_kept_energy=0.5) -> PipelineRun:
     """:func:`calibrate_pair` returning its intermediate products too (same parameters).
@@ -393,12 +419,31 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s=None, ma
               parallel_tol_deg=parallel_tol_deg, intrinsics_1=intrinsics_1, intrinsics_2=intrinsics_2,
               skew_std=skew_std, min_snr=min_snr, max_unexplained=max_unexplained, on_not_rigid=on_not_rigid)
 
+    if bias_walk_std is not None:
+        if noise_std is None:
+            raise ConfigurationError("bias_walk_std: the drifting-bias filter needs noise_std too (rad/s per sample)")
+        if bias_window is not None:
+            raise ConfigurationError("bias_window and bias_walk_std: expected one bias model, got both")
+        from .moments import random_walk_bias_moments
+        _, noise_scale = random_walk_bias_moments(np.zeros((10, 3)), np.zeros((10, 3)), bias_walk_std, noise_std,
+                                                  settle=0)
+        kw["noise_std"] = np.broadcast_to(np.asarray(noise_std, float), (2,)) * noise_scale
+        gate_window = max(20, int(round(1.0 / (1.0 - noise_scale**-2))))  # the filter time constant 1/K
+    else:
+        gate_window = bias_window
+
     def moments_of(use):
+        if bias_walk_std is not None:
+            return random_walk_bias_moments(w1, w2, bias_walk_std, noise_std, mask=use)[0]
         if bias_window is None:
             return Moments.from_samples(w1, w2, mask=use)
         from .moments import window_moments
         return Moments.pool_all(window_moments(w1, w2, int(bias_window), mask=use))
 
+    if noise_std is None:  # split the residual variance by each stream's high-frequency noise
+        v = slice(None) if mask is None else mask
+        d1, d2 = difference_noise_std(np.asarray(w1)[v]), difference_noise_std(np.asarray(w2)[v])
+        kw["noise_ratio"] = d1 / d2 if d1 > 0 and d2 > 0 else None
     valid_in = mask
     mom = mom0 = moments_of(mask)
     cal = solve(mom, **kw)
@@ -409,14 +454,14 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s=None, ma
         keep = mask
         for _ in range(5):  # the paper's gate, iterated until no new sample is rejected
             A_ls, b_ls = solve_A(mom)
-            out = _outliers(w1, w2, A_ls, b_ls, keep, bias_window)
+            out = _outliers(w1, w2, A_ls, b_ls, keep, gate_window)
             if not out.any() or (flex_rejection == "auto" and keep is mask and out.sum() <= 0.01 * n_used):
                 break
             gate = np.convolve(out, np.ones(2 * flex_margin + 1), mode="same") > 0  # neighbours too
             keep = ~gate if keep is None else (keep & ~gate)
             mom = moments_of(keep)
         A_ls, b_ls = solve_A(mom)
-        fast = _flexing_rates(w1, w2, A_ls, b_ls, keep, bias_window)
+        fast = _flexing_rates(w1, w2, A_ls, b_ls, keep, gate_window)
         if fast is not None:
             keep = ~fast if keep is None else (keep & ~fast)
             mom = moments_of(keep)
@@ -429,7 +474,7 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s=None, ma
             cal = _replace(cal, notes=cal.notes + (
                 f"the residual grows with the rate across the motion (model error or flex everywhere): rejecting it "
                 f"would keep only {100 * kept_energy:.0f}% of the motion energy, so no sample was rejected",))
-        corr = _rate_residual_correlation(w1, w2, cal, mask, bias_window)
+        corr = _rate_residual_correlation(w1, w2, cal, mask, gate_window)
     cal = _replace(cal, time_offset_s=offset, time_offset_std_s=offset_std, rejected_fraction=rejected,
                    rate_residual_correlation=corr)
     return PipelineRun(cal, t_grid, np.asarray(w1), np.asarray(w2), valid_in, mask, pair)

@@ -301,3 +301,68 @@ def window_moments(omega_1, omega_2, window: int, *, mask=None) -> list[Moments]
         if m.count > 1:
             out.append(m)
     return out
+
+
+def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask=None,
+                             chunk_size: int = CHUNK_SIZE, settle: int | None = None) -> tuple[Moments, float]:
+    """Moments for a bias that drifts as a random walk, by the Kalman innovations filter.
+
+    With ``r_k = omega_1(k) - A omega_2(k) = b_k + n_k``, a random-walk bias
+    ``b_{k+1} = b_k + nu_k`` (``Var nu = q``) and white noise (``Var n = R``), the steady-state
+    Kalman filter of ``b`` turns ``r`` into white innovations with variance ``P + R`` through the
+    fixed first-order high-pass ``G(z) = (1 - z^-1) / (1 - (1 - K) z^-1)``. Because ``G`` is
+    linear and the same for both gyros, ``G r = G omega_1 - A G omega_2``: the exact likelihood of
+    A with the drifting bias profiled out is the constant-bias cost of the *filtered* streams,
+    so the direct solver and its refinement apply unchanged to these moments (a direct,
+    non-iterative core; Eq. 11 with ``b(k)`` no longer constant).
+
+    Parameters
+    ----------
+    omega_1, omega_2 : (N, 3) sample-aligned rates (rad/s).
+    bias_walk_std : float or (float, float)
+        Bias random-walk step std per sample of gyro 1 and gyro 2 (rad/s).
+    noise_std : float or (float, float)
+        White-noise std per sample (rad/s).
+    settle : int, optional
+        Leading filtered samples dropped while the filter settles (default ``5 / K``).
+
+    Returns
+    -------
+    moments : Moments
+        ``scatter`` of the innovations; ``mean`` is the mean of the raw samples, so that
+        ``mean_1 - A mean_2`` is the mean combined bias over the log.
+    noise_scale : float
+        ``sqrt((P + R) / R)``: multiply the noise std by it for the innovations' likelihood.
+    """
+    from scipy.signal import lfilter
+
+    w1 = as_rates("omega_1", omega_1)
+    w2 = as_rates("omega_2", omega_2, length=w1.shape[0])
+    qs = np.broadcast_to(np.asarray(bias_walk_std, float), (2,))
+    rs = np.broadcast_to(np.asarray(noise_std, float), (2,))
+    if np.any(qs <= 0) or np.any(rs <= 0):
+        raise InputError(f"bias_walk_std and noise_std: expected positive rad/s per sample, got {qs} and {rs}")
+    q, R = float((qs**2).sum()), float((rs**2).sum())
+    P = 0.5 * (q + np.sqrt(q * q + 4.0 * q * R))  # steady-state prior variance of the bias
+    K = P / (P + R)
+    settle = int(np.ceil(5.0 / K)) if settle is None else int(settle)
+    keep = np.ones(w1.shape[0], bool) if mask is None else np.asarray(mask, bool)
+    idx = np.flatnonzero(keep)
+    zi = None
+    out, raw = Moments.empty(), Moments.empty()
+    done = 0
+    for start in range(0, idx.size, chunk_size):
+        sel = idx[start:start + chunk_size]
+        x = np.hstack([w1[sel], w2[sel]]).astype(np.float64)
+        if zi is None:
+            zi = np.zeros((1, 6))
+            x0 = x[0].copy()  # the filter kills constants; starting from the first sample avoids a transient
+        raw = raw.merge(Moments.from_samples(x[:, :3], x[:, 3:]))
+        y, zi = lfilter([1.0, -1.0], [1.0, -(1.0 - K)], x - x0, axis=0, zi=zi)
+        lo = max(0, settle - done)
+        done += len(sel)
+        if lo < len(y):
+            out = out.merge(Moments.from_samples(y[lo:, :3], y[lo:, 3:]))
+    if out.count < 4:
+        raise InputError(f"expected more than {settle} samples for the drifting-bias filter to settle, got {idx.size}")
+    return Moments(out.count, raw.mean, out.scatter, 1), float(np.sqrt((P + R) / R))
