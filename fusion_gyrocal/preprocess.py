@@ -516,35 +516,44 @@ def _refine(spl2: _RunSplines, x1, y1, tau0: float, h: float):
                              f"{tau0:+.4f} s (last {tau:+.6f} s)")
 
 
-def _offset_std(spl2: _RunSplines, xe, ye, tau: float) -> float:
-    """Standard deviation of the refined offset: a sandwich (block) estimate of the profiled misfit.
+def _offset_std(spl2: _RunSplines, x1, y1, tau: float, h: float) -> float:
+    """Standard deviation of the refined offset: a sandwich estimate on the profiled misfit ``C``.
 
-    At the minimum, ``tau_hat - tau ~ sum_m u_m / sum_m |d_m|^2`` with ``d_m = P A d/dt omega_2(x_m - tau)``
-    (``P`` projects out the directions of the profiled ``A`` and ``b``) and ``u_m = d_m . r_m``.
-    The residuals of neighbouring (interpolated) instants are correlated, so ``Var(sum u)`` is
+    At the minimum, ``tau_hat - tau ~ -sum_m u_m / (C''/2)`` with ``u_m = d_m . r_m``,
+    ``d_m = P A d/dt omega_2(x_m - tau)`` (``P`` projects out the directions of the profiled ``A``
+    and ``b``) and residuals ``r_m``. ``C''`` is taken by central differences of the profiled
+    misfit, so it contains the term ``-sum r . A d2/dt2 omega_2`` that cancels the noise energy of
+    the spline derivative (using ``sum |d|^2`` alone would overstate the information). The
+    residuals of neighbouring (interpolated) instants are correlated, so ``Var(sum u)`` is
     estimated from the sums of ``u`` over consecutive blocks of about ``_STD_BLOCK_S`` seconds.
     """
+    delta = 0.25 * h
+    ra, rb = spl2.run_of(x1 - tau - delta), spl2.run_of(x1 - tau + delta)
+    use = (ra >= 0) & (ra == rb)
+    xe, ye = x1[use], y1[use]
     inside = np.ones(xe.size, dtype=bool)
+
+    def cost(tt):
+        return _profile_cost(ye, spl2(xe - tt, inside=inside)[0])[0]
+
+    c0 = cost(tau)
+    half_curv = 0.5 * (cost(tau + delta) - 2.0 * c0 + cost(tau - delta)) / delta**2
+    if not half_curv > 0:
+        return float("inf")
     w2 = spl2(xe - tau, inside=inside)[0]
     dw2 = spl2(xe - tau, nu=1, inside=inside)[0]
     m = Moments.from_samples(ye, w2)
     S22p = np.linalg.pinv(m.S22, rcond=1e-12, hermitian=True)
     A = m.S12 @ S22p
-    w2c = w2 - m.mean_2
-    resid = (ye - m.mean_1) - w2c @ A.T
+    resid = (ye - m.mean_1) - (w2 - m.mean_2) @ A.T
     md = Moments.from_samples(dw2, w2)  # project d/dt omega_2 on the regressors [omega_2, 1]
-    G = md.S12 @ S22p
-    d = ((dw2 - md.mean_1) - (w2 - md.mean_2) @ G.T) @ A.T
-    info = float(np.einsum("ij,ij->", d, d))
-    if not info > 0:
-        return float("inf")
+    d = ((dw2 - md.mean_1) - (w2 - md.mean_2) @ (md.S12 @ S22p).T) @ A.T
     u = np.einsum("ij,ij->i", d, resid)
     block = np.floor((xe - xe[0]) / _STD_BLOCK_S).astype(np.int64)
-    sums = np.bincount(block, weights=u)
-    sums = sums[np.bincount(block) > 0]
+    sums = np.bincount(block, weights=u)[np.bincount(block) > 0]
     nb = sums.size
     var_u = float(np.sum(sums**2)) * nb / max(nb - 1, 1)
-    return float(np.sqrt(var_u) / info)
+    return float(np.sqrt(var_u) / half_curv)
 
 
 def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.0, valid_1=None, valid_2=None,
@@ -571,11 +580,12 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.
        phase-dependent variance of the interpolated noise pull the offset (up to ~0.1 ms for
        two 200 Hz streams with slow motion). The 1-D minimisation is Brent's method on a
        +-1.5-step bracket around the coarse peak.
-    3. Uncertainty: first order, ``offset_hat - offset = sum_m d_m . r_m / sum_m |d_m|^2`` with
+    3. Uncertainty: first order, ``offset_hat - offset = -sum_m d_m . r_m / (C''/2)`` with
        ``d_m = P A d/dt omega_2(x_m - offset)`` (``P`` projects out the directions of the profiled
-       ``A`` and ``b``) and residuals ``r_m``; the variance of the numerator is estimated from its
-       sums over 0.25 s blocks (a sandwich estimate: the residuals of interpolated neighbours are
-       correlated, and model errors are included).
+       ``A`` and ``b``), residuals ``r_m`` and ``C''`` the curvature of the profiled misfit (central
+       differences); the variance of the numerator is estimated from its sums over 0.25 s
+       blocks (a sandwich estimate: the residuals of interpolated neighbours are correlated,
+       and model errors are included).
 
     Parameters
     ----------
@@ -699,7 +709,7 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.
                 "max_offset_s around the expected offset")
     peak = float(r[i])
     tau, xe, ye, _ = fits[best]
-    return TimeOffset(float(tau), _offset_std(spl2, xe, ye, tau), lags, r, peak, int(xe.size))
+    return TimeOffset(float(tau), _offset_std(spl2, x1, y1, tau, h), lags, r, peak, int(xe.size))
 
 
 # ---------------------------------------------------------------------------------------------- alignment
