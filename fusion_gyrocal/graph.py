@@ -62,6 +62,7 @@ from functools import partial
 import gtsam
 import numpy as np
 
+from .calibrate import solve
 from .direct import Gauge
 from .errors import ConfigurationError, InputError
 from .model import BIAS, ROT, PairCalibration
@@ -465,6 +466,21 @@ def preintegrate_rotations(omega_1, rate_hz: float, increments: RotationIncremen
     return _preintegrate(phi, steps, dt, np.log(np.asarray(scale_1, float)), np.asarray(bias_1, float))
 
 
+def _fit_scale_and_bias(omega_1, rate_hz, increments, measured, sigma, l_rel, g, b, iterations: int = 5):
+    """Gauss-Newton on the global log-scale ``g`` and gyro 1's bias alone (relative scales held)."""
+    w = 1.0 / np.asarray(sigma) ** 2
+    for _ in range(iterations):
+        pre = preintegrate_rotations(omega_1, rate_hz, increments, scale_1=np.exp(g + l_rel), bias_1=b)
+        r = np.array([gtsam.Rot3.Logmap(gtsam.Rot3(m.T @ d)) for m, d in zip(measured, pre.delta_R)])
+        J = np.concatenate([pre.J_scale.sum(axis=2)[..., None], pre.J_bias], axis=2)     # (K, 3, 4)
+        H = np.einsum("k,kia,kib->ab", w, J, J)
+        step = -np.linalg.lstsq(H, np.einsum("k,kia,ki->a", w, J, r), rcond=1e-12)[0]
+        g, b = g + step[0], b + step[1:]
+        if np.max(np.abs(step)) < 1e-10:
+            break
+    return float(g), np.asarray(b, dtype=float)
+
+
 def _increment_residual(g, log_scale, bias_1, delta_R_meas, delta_R, J_s, J_b, ls_lin, b_lin, jacobians: bool):
     """``Log(dR_meas^T dR_hat Exp(xi))`` with ``xi = J_s (g + l_1 - ls_lin) + J_b (b_1 - b_lin)``."""
     xi = J_s @ (g + log_scale[:3] - ls_lin) + J_b @ (bias_1 - b_lin)
@@ -564,6 +580,10 @@ class GyroPairGraph:
         :meth:`add_rotation_increments` segments (``None``: one ``b_1`` for all of them).
     keys : GraphKeys, optional
     isam2_params : gtsam.ISAM2Params, optional
+        Default: ``relinearizeThreshold`` 1e-3, ``relinearizeSkip`` 1.
+    parallel_tol_deg : float
+        Axes closer than this to parallel are treated as parallel (as in :func:`fusion_gyrocal.solve`);
+        must reproduce the seed's configuration class.
 
     Notes
     -----
@@ -580,7 +600,8 @@ class GyroPairGraph:
 
     def __init__(self, seed: PairCalibration, *, noise_std=None, bias_walk_std: float | None = None,
                  gauge="unit_prior", global_scale: bool = False, bias_1_walk_std: float | None = None,
-                 keys: GraphKeys | None = None, isam2_params: gtsam.ISAM2Params | None = None):
+                 keys: GraphKeys | None = None, isam2_params: gtsam.ISAM2Params | None = None,
+                 parallel_tol_deg: float = 5.0):
         if not isinstance(seed, PairCalibration):
             raise InputError(f"seed: expected a PairCalibration, got {type(seed).__name__}")
         self.seed = seed
@@ -597,7 +618,12 @@ class GyroPairGraph:
         self.gauge = Gauge.parse(gauge)
         self.global_scale = bool(global_scale)
         self.keys = keys or GraphKeys()
-        self.configuration = classify(seed.R_1_2)
+        self.configuration = classify(seed.R_1_2, parallel_tol_deg)
+        if self.configuration.name != seed.configuration:
+            raise ConfigurationError(
+                f"seed: its configuration is {seed.configuration!r} but its R_1_2 classifies as "
+                f"{self.configuration.name!r} at parallel_tol_deg={parallel_tol_deg:g}; pass the tolerance the seed "
+                "was solved with")
         self._isam_params = isam2_params
         self._isam: gtsam.ISAM2 | None = None
 
@@ -729,29 +755,45 @@ class GyroPairGraph:
                                      "global_scale=True (got global_scale=False)")
         if len(increments) == 0:
             raise InputError("rotation increments: expected at least one increment, got 0")
+        k = self.keys
+        measured = increments.in_gyro_frame()
+        # residual std: the increment's own plus gyro 1's white noise integrated over the interval
+        duration = (increments.stop - increments.start) / float(rate_hz)
+        sigma = np.sqrt(increments.sigma_rad**2 + (self.noise_std[0] / self.seed.scale_1.min())**2
+                        * duration / float(rate_hz))
+        # linearization point: the current estimate; for the first increments a Gauss-Newton fit of
+        # (g, b_1) alone, so that the first-order preintegration starts close to the solution
+        l_rel = self._current_vector(k.log_scale)[:3]
+        g0 = float(self._current_vector(k.global_scale)[0])
+        b0 = self._current_vector(self._camera[-1].key) if self._camera else np.zeros(3)
+        if not self._camera and not (self._isam is not None and self._isam.valueExists(k.global_scale)):
+            g0, b0 = _fit_scale_and_bias(omega_1, rate_hz, increments, measured, sigma, l_rel, g0, b0)
+            self._initial.update(k.global_scale, np.array([g0]))
+            self._pending_values.update(k.global_scale, np.array([g0]))
         if not self._camera or self.bias_1_walk_std is not None:
             seg = len({c.key for c in self._camera})
-            key = self.keys.bias_1(seg)
-            self._insert(key, np.zeros(3))
+            key = k.bias_1(seg)
+            self._insert(key, b0)
             if self._camera and np.isfinite(self.bias_1_walk_std):
                 n_a = float(self._camera[-1].preintegrated.steps.sum())
                 n_b = float((increments.stop - increments.start).sum())
-                sigma = self.bias_1_walk_std * np.sqrt(_mean_walk_variance(n_a, n_b))
+                sd = self.bias_1_walk_std * np.sqrt(_mean_walk_variance(n_a, n_b))
                 self._add_fixed(gtsam.BetweenFactorVector(self._camera[-1].key, key, np.zeros(3),
-                                                          gtsam.noiseModel.Isotropic.Sigma(3, sigma)))
+                                                          gtsam.noiseModel.Isotropic.Sigma(3, sd)))
         else:
             seg, key = 0, self._camera[0].key
-        ls1 = np.log(self.seed.scale_1)
-        pre = preintegrate_rotations(omega_1, rate_hz, increments, scale_1=np.exp(ls1), bias_1=np.zeros(3))
-        # residual std: the increment's own plus gyro 1's white noise integrated over the interval
-        sigma = np.sqrt(increments.sigma_rad**2 + (self.noise_std[0] / self.seed.scale_1.min())**2
-                        * pre.dt * pre.duration)
-        cam = _CameraSegment(increments, pre, increments.in_gyro_frame(), sigma, key)
+        pre = preintegrate_rotations(omega_1, rate_hz, increments, scale_1=np.exp(g0 + l_rel), bias_1=b0)
+        cam = _CameraSegment(increments, pre, measured, sigma, key)
         self._camera.append(cam)
         for f in self._camera_segment_factors(cam):
             self._camera_factors.append(f)
             self._pending.add(f)
         return seg
+
+    def _current_vector(self, key) -> np.ndarray:
+        if self._isam is not None and self._isam.valueExists(key):
+            return np.asarray(self._isam.calculateEstimateVector(key))
+        return np.asarray(self._initial.atVector(key))
 
     def _camera_segment_factors(self, cam: _CameraSegment):
         k = self.keys
@@ -1021,7 +1063,7 @@ def _project_gauge(C, gauge: Gauge, groups, s1, s2) -> np.ndarray:
 def calibrate_pair_graph(omega_1, omega_2, *, noise_std=None, window: int = 1000, bias_walk_std: float | None = None,
                          gauge="unit_prior", rotation_increments: RotationIncrements | None = None,
                          rate_hz: float | None = None, solver: str = "lm", seed: PairCalibration | None = None,
-                         mask=None) -> PairCalibration:
+                         mask=None, parallel_tol_deg: float = 5.0) -> PairCalibration:
     """Calibrate a sample-aligned gyro pair with the factor graph (windows of ``window`` samples).
 
     Parameters
@@ -1046,9 +1088,24 @@ def calibrate_pair_graph(omega_1, omega_2, *, noise_std=None, window: int = 1000
         Initial values; default the direct solution ``solve(moments, method="direct")``.
     mask : array_like of bool (N,), optional
         Samples to use.
-    """
-    from . import calibrate as _cal  # the batch solver (seed)
+    parallel_tol_deg : float
+        Near-parallel tolerance of the configuration class (Lemmas 2-3), as in :func:`fusion_gyrocal.solve`.
 
+    Returns
+    -------
+    PairCalibration
+        ``method`` ``"graph_lm"`` or ``"graph_isam2"``; ``bias`` the count-weighted mean of the window
+        biases; covariance from the graph's marginals in the order of :mod:`fusion_gyrocal.model`.
+
+    Examples
+    --------
+    >>> from fusion_gyrocal.graph import calibrate_pair_graph
+    >>> from fusion_gyrocal.sim import simulate_pair
+    >>> sim = simulate_pair(rng=0)
+    >>> cal = calibrate_pair_graph(sim.omega_1, sim.omega_2, noise_std=sim.noise_std, window=500)
+    >>> cal.method, cal.bias_segments
+    ('graph_lm', 1)
+    """
     if solver not in ("lm", "isam2"):
         raise ConfigurationError(f"solver: expected 'lm' or 'isam2', got {solver!r}")
     if rotation_increments is not None and rate_hz is None:
@@ -1073,9 +1130,10 @@ def calibrate_pair_graph(omega_1, omega_2, *, noise_std=None, window: int = 1000
         parts = [m for _, m in windows]
         total = Moments.pool_all(parts) if bias_walk_std is not None else Moments.merge_all(parts)
         sig = None if noise_std is None else np.broadcast_to(np.asarray(noise_std, float), (2,))
-        seed = _cal.solve(total, noise_std=sig, method="direct", gauge=gauge)
+        seed = solve(total, noise_std=sig, method="direct", gauge=gauge, parallel_tol_deg=parallel_tol_deg)
     glob = rotation_increments is not None
     g = GyroPairGraph(seed, noise_std=noise_std, bias_walk_std=bias_walk_std, gauge=gauge, global_scale=glob,
+                      parallel_tol_deg=parallel_tol_deg,
                       bias_1_walk_std=(bias_walk_std / np.sqrt(2.0) if bias_walk_std is not None else None))
     for start, m in windows:
         g.add_window(m)

@@ -291,6 +291,48 @@ def test_example_graph_global_scale_recovers_absolute_scale(capsys):
     assert np.ptp(pair) < 1e-3
 
 
+def _camera_pair(seed, n=3000, bias_walk_std=None):
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / 100.0
+    motion = HumanMotion(1.0, rng=rng)
+    s1, s2 = rng.normal(1.0, 0.02, 3), rng.normal(1.0, 0.02, 3)
+    kw = {} if bias_walk_std is None else {"bias_walk_std": bias_walk_std}
+    sim = simulate_pair(motion(t), scale_1=s1, scale_2=s2, rng=rng, **kw)
+    inc = _example().simulate_camera_increments(motion, t, np.arange(0, n, 10), 1e-3, rng)
+    return sim, inc
+
+
+def test_calibrate_pair_graph_isam2_with_rotation_increments_matches_lm():
+    sim, inc = _camera_pair(20)
+    kw = dict(noise_std=sim.noise_std, window=500, rotation_increments=inc, rate_hz=100.0)
+    lm = calibrate_pair_graph(sim.omega_1, sim.omega_2, **kw)
+    isam = calibrate_pair_graph(sim.omega_1, sim.omega_2, solver="isam2", **kw)
+    assert isam.gauge == lm.gauge == graph_module.GLOBAL_SCALE_GAUGE
+    # iSAM2 keeps the first preintegration point, LM re-preintegrates at its solution
+    assert np.abs(_normalised_difference(isam, lm)).max() <= 0.02
+
+
+def test_calibrate_pair_graph_drifting_biases_with_rotation_increments_recover_absolute_scale():
+    walk = 2e-3 * DEG
+    sim, inc = _camera_pair(21, n=6000, bias_walk_std=walk)
+    cal = calibrate_pair_graph(sim.omega_1, sim.omega_2, noise_std=sim.noise_std, window=500,
+                               bias_walk_std=np.sqrt(2.0) * walk, rotation_increments=inc, rate_hz=100.0)
+    err = np.concatenate([cal.scale_1 - sim.scale_1, cal.scale_2 - sim.scale_2])
+    assert cal.bias_segments == 12 and "12 windows" in " ".join(cal.notes)
+    assert np.all(np.abs(err) < 4.0 * cal.scale_std.reshape(-1))
+
+
+def test_gyro_pair_graph_seed_configuration_mismatch_raises():
+    R = Rotation.from_euler("z", 30, degrees=True).as_matrix() @ Rotation.from_euler("x", 3, degrees=True).as_matrix()
+    sim = simulate_pair(n=3000, R_1_2=R, scale_1=S1, scale_2=S2, rng=22)
+    seed = solve(Moments.from_samples(sim.omega_1, sim.omega_2), noise_std=sim.noise_std, method="direct",
+                 parallel_tol_deg=1.0)
+    assert seed.configuration == "general"
+    with pytest.raises(ConfigurationError, match="parallel_tol_deg"):
+        GyroPairGraph(seed)                      # default 5 deg: the 3 deg tilt counts as parallel
+    assert GyroPairGraph(seed, parallel_tol_deg=1.0).configuration.name == "general"
+
+
 def test_gyro_pair_graph_global_scale_without_increments_raises(constant_bias_case):
     sim, ml = constant_bias_case
     g = GyroPairGraph(ml, global_scale=True)
