@@ -56,9 +56,12 @@ Robustness
   chi-square(3) quantile (flex spikes; in the fast mode vectorised over the block, with the
   neighbouring samples also removed as in the paper's flex rejection);
 * step changes: a CUSUM on the (clipped) normalised innovation detects a shock; the tracker
-  then solves :func:`fusion_gyrocal.calibrate_pair` over a window after the estimated onset
-  (ring buffer of recent samples, flex-screened in two passes as in the paper) and re-seeds
-  from it if it differs significantly from the filter (chi-square test on the difference);
+  opens its covariance by a step prior (so it follows the step at once and its bands say so),
+  solves :func:`fusion_gyrocal.calibrate_pair` (with its flex rejection) over a window after the
+  estimated onset (ring buffer of recent samples) and re-seeds from it if it differs
+  significantly from the filter's state at the alarm (chi-square test on the difference);
+  otherwise (a false alarm, e.g. a long flex burst) it restores that state and replays the
+  buffered samples;
 * gaps and unsynchronised streams: :meth:`GyroPairTracker.run_streams` resamples gyro 2 onto
   gyro 1's clock (cubic spline, after adding ``time_offset_s``) only inside gyro 2's contiguous
   segments; blocks never straddle a gap.
@@ -81,11 +84,12 @@ from .moments import Moments, as_rates
 from .observability import CONFIG_ALL, CONFIG_ONE_PAIR, classify, skew
 
 __all__ = ["DriftNoise", "GyroPairTracker", "PairTruth", "ReseedEvent", "StepPrior", "TrackHistory",
-           "plot_history", "simulate_drifting_pair"]
+           "plot_history", "simulate_drifting_pair", "track_figure_for_report"]
 
 _DIM = 12
 _LOG = slice(3, 9)
 _REFRESH = 50     # folds between re-linearisations of the gauge projector and the measurement noise
+                  # (they change at second order only: the scale factors move by < 1e-3 between them)
 
 
 # ====================================================================== configuration types
@@ -349,6 +353,22 @@ def _jacobian(R, s1, s2, w2):
     return H
 
 
+def _innovation_d2(H, P, Rm, r):
+    """Per-sample ``r_k^T (H_k P H_k^T + R)^-1 r_k`` for stacked ``H`` (B, 3, 12), ``r`` (B, 3)."""
+    S = (H @ P) @ np.swapaxes(H, 1, 2) + Rm
+    return np.einsum("ka,ka->k", r, np.linalg.solve(S, r[:, :, None])[:, :, 0])
+
+
+def _log_so3(R) -> np.ndarray:
+    """Rotation vector of a rotation matrix (scipy for large angles)."""
+    c = 0.5 * (np.trace(R) - 1.0)
+    v = 0.5 * np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    if c > 0.5:   # below 60 deg: asin of the axial vector's norm is accurate
+        s = np.linalg.norm(v)
+        return v if s < 1e-12 else v * (np.arcsin(min(s, 1.0)) / s)
+    return Rotation.from_matrix(R).as_rotvec()
+
+
 def _check_times(name, t):
     t = np.asarray(t, dtype=np.float64)
     if t.ndim != 1:
@@ -403,27 +423,12 @@ class _Ring:
         return float(self.buf[0 if self.n < self.cap else self.head, 0])
 
 
-def _solve_window(w1, w2, noise_std, gauge, reject_prob=0.9973, neighbours=1):
-    """Batch calibration of a window with the paper's two-pass flex rejection (3-sigma gate).
-
-    Returns the calibration of the remaining samples and the fraction rejected.
-    """
+def _batch(w1, w2, noise_std, gauge) -> PairCalibration:
+    """Batch calibration of a window (:func:`fusion_gyrocal.calibrate_pair`, which applies the paper's
+    flex rejection, Section VI.C, when the residuals call for it)."""
     from .calibrate import calibrate_pair
 
-    cal = calibrate_pair(w1, w2, noise_std=noise_std, gauge=gauge)
-    A = cal.A
-    W = np.linalg.inv(noise_std[0] ** 2 * np.eye(3) + noise_std[1] ** 2 * A @ A.T)
-    r = w1 - w2 @ A.T - cal.bias
-    d2 = np.einsum("ki,ij,kj->k", r, W, r)
-    bad = d2 > chi2.ppf(reject_prob, 3)
-    if not bad.any():
-        return cal, 0.0
-    for _ in range(neighbours):
-        bad[1:] |= bad[:-1].copy()
-        bad[:-1] |= bad[1:].copy()
-    keep = ~bad
-    cal = calibrate_pair(w1, w2, noise_std=noise_std, gauge=gauge, mask=keep)
-    return cal, float(bad.mean())
+    return calibrate_pair(w1, w2, noise_std=noise_std, gauge=gauge)
 
 
 # ====================================================================== the tracker
@@ -475,7 +480,7 @@ class GyroPairTracker:
         Capacity of the ring buffer of recent samples.
     reseed_solver : callable ``(omega_1, omega_2) -> PairCalibration``, optional
         Batch solver for re-seeding; default :func:`fusion_gyrocal.calibrate_pair` with the
-        tracker's noise and gauge and the paper's two-pass flex rejection.
+        tracker's noise and gauge (and its flex rejection).
     """
 
     def __init__(self, calibration: PairCalibration, *, t0: float = 0.0, drift: DriftNoise = DriftNoise(),
@@ -542,7 +547,7 @@ class GyroPairTracker:
     def from_samples(cls, t, omega_1, omega_2, *, noise_std=None, gauge="unit_prior", **kwargs) -> "GyroPairTracker":
         """Seed a tracker from sample-aligned data with :func:`fusion_gyrocal.calibrate_pair`.
 
-        The batch solve uses the paper's two-pass flex rejection; the tracker starts at ``t[-1]``
+        The batch solve applies the paper's flex rejection; the tracker starts at ``t[-1]``
         with the seed inflated for the drift over the window (``seed_span_s``). Further keyword
         arguments go to the constructor.
         """
@@ -555,7 +560,7 @@ class GyroPairTracker:
             cal = calibrate_pair(w1, w2, gauge=gauge)
             noise_std = tuple(cal.noise_std)
         noise_std = tuple(np.broadcast_to(np.asarray(noise_std, float), (2,)))
-        cal, _ = _solve_window(w1, w2, noise_std, gauge)
+        cal = _batch(w1, w2, noise_std, gauge)
         return cls(cal, t0=float(t[-1]), gauge=gauge, seed_span_s=float(t[-1] - t[0]), **kwargs)
 
     def _seed(self, cal: PairCalibration, span_s: float = 0.0) -> None:
@@ -767,7 +772,7 @@ class GyroPairTracker:
         factors expressed in the gauge; it has :attr:`nees_dof` degrees of freedom.
         """
         t1, t2 = self.express_in_gauge(scale_1, scale_2)
-        e = np.concatenate([Rotation.from_matrix(np.asarray(R_1_2) @ self._R.T).as_rotvec(),
+        e = np.concatenate([_log_so3(np.asarray(R_1_2) @ self._R.T),
                             np.log(t1 / self._s1), np.log(t2 / self._s2), np.asarray(bias) - self._b])
         eo = self._W_obs_T @ e
         Po = self._W_obs_T @ self.kf.P @ self._obs_basis
@@ -950,14 +955,12 @@ class GyroPairTracker:
         A, b, P, Rm = self.A, self._b, self.kf.P, self.kf.R
         G = self._block_generators()
         # ---- per-sample gate, vectorised
-        H = np.einsum("kj,jai->kai", w2, G[:3]) + G[3]
+        H = (w2 @ G[:3].reshape(3, 3 * _DIM)).reshape(B, 3, _DIM) + G[3]
         r = w1 - w2 @ A.T - b
-        S = np.einsum("kai,ij,kbj->kab", H, P, H) + Rm
-        d2 = np.einsum("ka,ka->k", r, np.linalg.solve(S, r[:, :, None])[:, :, 0])
+        d2 = _innovation_d2(H, P, Rm, r)
         if self._cusum_step(t, d2) is not None:
             P = self.kf.P                          # covariance opened by the step prior
-            S = np.einsum("kai,ij,kbj->kab", H, P, H) + Rm
-            d2 = np.einsum("ka,ka->k", r, np.linalg.solve(S, r[:, :, None])[:, :, 0])
+            d2 = _innovation_d2(H, P, Rm, r)
         keep = d2 <= self.gate
         if not keep.all():
             bad = ~keep
@@ -998,7 +1001,7 @@ class GyroPairTracker:
             Hp = sq[:, None] * V.T
             zp = np.where(ok, (V.T @ eta) / np.where(ok, sq, 1.0), 0.0)
             self.kf.update(zp[:, None], HJacobian=lambda x: Hp, Hx=lambda x: Hp @ x, R=np.eye(_DIM))
-            self._fold(refresh=True)
+            self._fold()
         self._record(t_mid, nis, n_used)
         self._maybe_reseed()
         return n_used
@@ -1016,7 +1019,7 @@ class GyroPairTracker:
             if self._reseed_solver is not None:
                 cal = self._reseed_solver(data[:, 1:4], data[:, 4:7])
             else:
-                cal, _ = _solve_window(data[:, 1:4], data[:, 4:7], self.noise_std, self.gauge)
+                cal = _batch(data[:, 1:4], data[:, 4:7], self.noise_std, self.gauge)
         except GyroCalError as exc:
             if self._t - onset < self.reseed_max_s and self._buffer.oldest() <= onset:
                 self._next_try_t = self._t + 0.5 * self.reseed_window_s  # wait for more motion
@@ -1275,9 +1278,48 @@ def plot_history(history: TrackHistory, *, title: str | None = None):
     return fig
 
 
+def track_figure_for_report(run, *, seed_fraction: float = 0.2, rate_hz: float = 100.0, drift: DriftNoise = DriftNoise(),
+                            block_size: int | None = None):
+    """Drift-tracking figure for ``gyrocal report --track``: seed on the start, track the rest.
+
+    Parameters
+    ----------
+    run : fusion_gyrocal.calibrate.PipelineRun
+        Sample-aligned rates the batch solver used (``run.omega_1``, ``run.omega_2``, ``run.t`` on
+        gyro 1's clock, ``run.valid``).
+    seed_fraction : float
+        Leading fraction of the samples used to seed the tracker (not re-used by it).
+    rate_hz : float
+        Sample rate assumed when ``run.t`` is None (sample-aligned input without timestamps).
+    drift : DriftNoise
+    block_size : int, optional
+        Samples per fast-mode block (default: about one second).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    w1, w2 = np.asarray(run.omega_1, float), np.asarray(run.omega_2, float)
+    n = w1.shape[0]
+    t = np.arange(n) / float(rate_hz) if run.t is None else np.asarray(run.t, float)
+    keep = np.ones(n, bool) if run.valid is None else np.asarray(run.valid, bool)
+    keep &= np.isfinite(w1).all(axis=1) & np.isfinite(w2).all(axis=1)
+    t, w1, w2 = t[keep], w1[keep], w2[keep]
+    if t.size < 20:
+        raise InputError(f"run: expected at least 20 valid samples to track, got {t.size}")
+    k = max(int(seed_fraction * t.size), 10)
+    tracker = GyroPairTracker.from_samples(t[:k], w1[:k], w2[:k], noise_std=tuple(run.calibration.noise_std),
+                                           drift=drift)
+    if block_size is None:
+        block_size = max(1, int(round(1.0 / float(np.median(np.diff(t))))))
+    h = tracker.run(t[k:], w1[k:], w2[k:], block_size=block_size) if k < t.size else tracker.history()
+    return plot_history(h, title=f"Drift tracking (EKF, seeded on the first {100 * seed_fraction:.0f} %; "
+                                 f"{len(h.reseeds)} step alarm(s); gauge: {h.gauge})")
+
+
 # ====================================================================== simulation with drifting parameters
 def simulate_drifting_pair(t, R_1_2, scale_1, scale_2, *, bias_1=None, bias_2=None, noise_std=0.1 * np.pi / 180,
-                           rms=1.0, rng=None) -> tuple[np.ndarray, np.ndarray, PairTruth]:
+                           omega_true_1=None, rms=1.0, rng=None) -> tuple[np.ndarray, np.ndarray, PairTruth]:
     """Simulate a pair whose calibration changes over time (the paper's Eq. 1 per sample).
 
     Parameters
@@ -1292,8 +1334,11 @@ def simulate_drifting_pair(t, R_1_2, scale_1, scale_2, *, bias_1=None, bias_2=No
         True biases per sample (rad/s); default zero.
     noise_std : float or (float, float)
         White noise per sample (rad/s).
+    omega_true_1 : array_like (N, 3), optional
+        True rate in gyro 1's frame (rad/s), e.g. recorded motion from
+        :func:`fusion_gyrocal.sim.load_broad_rates`. Default: :class:`fusion_gyrocal.sim.HumanMotion`.
     rms : float
-        RMS rate of the human-like motion (rad/s per axis).
+        RMS rate of the default human-like motion (rad/s per axis).
     rng : numpy.random.Generator or int, optional
 
     Returns
@@ -1312,7 +1357,10 @@ def simulate_drifting_pair(t, R_1_2, scale_1, scale_2, *, bias_1=None, bias_2=No
     b1 = np.broadcast_to(np.zeros(3) if bias_1 is None else np.asarray(bias_1, float), (n, 3))
     b2 = np.broadcast_to(np.zeros(3) if bias_2 is None else np.asarray(bias_2, float), (n, 3))
     sig = np.broadcast_to(np.asarray(noise_std, float), (2,))
-    w_true_1 = HumanMotion(rms, rng=rng)(t)
+    if omega_true_1 is None:
+        w_true_1 = HumanMotion(rms, rng=rng)(t)
+    else:
+        w_true_1 = as_rates("omega_true_1", omega_true_1, length=n).astype(float)
     w_true_2 = np.einsum("kji,kj->ki", R, w_true_1)          # R^T omega_1
     w1 = s1 * w_true_1 + b1 + rng.normal(0, sig[0], (n, 3))
     w2 = s2 * w_true_2 + b2 + rng.normal(0, sig[1], (n, 3))

@@ -1,0 +1,429 @@
+"""Tests of the online drift tracker (fusion_gyrocal.ekf)."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
+from fusion_gyrocal import PairCalibration, calibrate_pair
+from fusion_gyrocal.ekf import (DriftNoise, GyroPairTracker, PairTruth, TrackHistory, plot_history,
+                                simulate_drifting_pair)
+from fusion_gyrocal.errors import InputError
+from fusion_gyrocal.sim import DEG, HumanMotion, random_rotation, rotation_error, scale_error, shared_data_dir
+
+RATE = 100.0
+NOISE = 0.1 * DEG          # the paper's white noise per sample (rad/s)
+
+
+# ---------------------------------------------------------------------------- helpers
+def general_rotation(rng, min_angle_deg=15.0):
+    """A random rotation with no pair of axes within ``min_angle_deg`` of parallel (Lemma 4)."""
+    while True:
+        R = random_rotation(rng)
+        if np.abs(R).max() < np.cos(np.deg2rad(min_angle_deg)):
+            return R
+
+
+def scenario(rng, duration_s, *, R=None, scale_2_ramp=None, step=None, rate=RATE):
+    """Times, measurements and truth; optional linear ramp of scale_2 and a rotation step (t, rotvec)."""
+    t = np.arange(0.0, duration_s, 1.0 / rate)
+    n = t.size
+    R0 = general_rotation(rng) if R is None else R
+    s1, s2 = 1 + rng.normal(0, 0.01, 3), 1 + rng.normal(0, 0.01, 3)
+    S2 = np.tile(s2, (n, 1))
+    if scale_2_ramp is not None:
+        axis, total = scale_2_ramp
+        S2[:, axis] *= 1.0 + total * t / t[-1]
+    Rt = np.tile(R0, (n, 1, 1))
+    if step is not None:
+        t_step, rotvec = step
+        Rt[t >= t_step] = Rotation.from_rotvec(rotvec).as_matrix() @ R0
+    w1, w2, truth = simulate_drifting_pair(t, Rt, s1, S2, bias_1=rng.normal(0, 0.01, 3),
+                                           bias_2=rng.normal(0, 0.01, 3), noise_std=NOISE, rng=rng)
+    return t, w1, w2, truth
+
+
+def part(truth, sl):
+    return PairTruth(truth.R_1_2[sl], truth.scale_1[sl], truth.scale_2[sl], truth.bias[sl])
+
+
+def normalised_errors(h: TrackHistory):
+    """Estimate-minus-truth over 1-sigma for rotation (3), scale_1 (3), scale_2 (3), bias (3)."""
+    return np.hstack([h.rotation_error / h.rotation_std, (h.scale_1 - h.truth_scale_1) / h.scale_1_std,
+                      (h.scale_2 - h.truth_scale_2) / h.scale_2_std, (h.bias - h.truth_bias) / h.bias_std])
+
+
+def random_walk_truth(t, drift: DriftNoise, rng):
+    """Per-sample truth drawn from the tracker's own process model (random walks with ``drift``)."""
+    n, dt = t.size, np.diff(t, prepend=t[0])
+    sq = np.sqrt(dt)[:, None]
+    R0 = general_rotation(rng)
+    theta = np.cumsum(rng.normal(0, 1, (n, 3)) * drift.rotation * sq, axis=0)  # small: Exp(sum) = prod Exp
+    R = Rotation.from_rotvec(theta).as_matrix() @ R0
+    logs = np.log(1 + rng.normal(0, 0.01, 6)) + np.cumsum(rng.normal(0, 1, (n, 6)) * drift.log_scale * sq, axis=0)
+    b1 = rng.normal(0, 0.01, 3) + np.cumsum(rng.normal(0, 1, (n, 3)) * drift.bias * sq, axis=0)
+    return R, np.exp(logs[:, :3]), np.exp(logs[:, 3:]), b1   # bias_2 = 0: the combined bias is b1
+
+
+# ---------------------------------------------------------------------------- construction
+def test_GyroPairTracker_ready_after_construction():
+    rng = np.random.default_rng(1)
+    t, w1, w2, truth = scenario(rng, 20.0)
+    cal = calibrate_pair(w1, w2)
+    tr = GyroPairTracker(cal, t0=t[-1])
+    # the filterpy filter is fully set: zero error state, the seed's covariance (log-scale coordinates)
+    assert tr.kf.x.shape == (12, 1) and not tr.kf.x.any()
+    np.testing.assert_allclose(tr.covariance[:3, :3], cal.covariance[:3, :3], rtol=1e-9)
+    np.testing.assert_allclose(tr.covariance[9:, 9:], cal.covariance[9:, 9:], rtol=1e-9)
+    A = cal.A
+    np.testing.assert_allclose(tr.kf.R, cal.noise_std[0] ** 2 * np.eye(3) + cal.noise_std[1] ** 2 * A @ A.T,
+                               rtol=1e-12)
+    np.testing.assert_allclose(tr.R_1_2, cal.R_1_2, atol=1e-15)
+    np.testing.assert_allclose(tr.scale_1, cal.scale_1, rtol=1e-12)
+    assert tr.update(t[-1] + 0.01, w1[0], w2[0]) in (True, False)
+    assert tr.history().t.shape == (1,)
+
+
+def test_update_block_equals_stacked_update():
+    """The moments-based block update equals the stacked 3B-dimensional EKF update at the same point."""
+    rng = np.random.default_rng(2)
+    t, w1, w2, truth = scenario(rng, 20.0)
+    cal = calibrate_pair(w1[:1000], w2[:1000])
+    B = 60
+    tb, w1b, w2b = t[1000:1000 + B], w1[1000:1000 + B], w2[1000:1000 + B]
+    tr = GyroPairTracker(cal, t0=t[999], drift=DriftNoise.constant())
+    P0, R0, s10, s20, b0 = tr.error_covariance, tr.R_1_2, tr.scale_1, tr.scale_2, tr.bias
+    A = tr.A
+    u = (w2b / s20) @ R0.T
+    H = np.zeros((B, 3, 12))
+    for k in range(B):
+        H[k, :, 0:3] = -np.diag(s10) @ np.array([[0, -u[k, 2], u[k, 1]], [u[k, 2], 0, -u[k, 0]],
+                                                 [-u[k, 1], u[k, 0], 0]])
+        H[k, :, 3:6] = np.diag(A @ w2b[k])
+        H[k, :, 6:9] = -A @ np.diag(w2b[k])
+        H[k, :, 9:12] = np.eye(3)
+    Hs = H.reshape(3 * B, 12)
+    r = (w1b - w2b @ A.T - b0).reshape(3 * B)
+    Rk = tr.kf.R
+    Rs = np.kron(np.eye(B), Rk)
+    S = Hs @ P0 @ Hs.T + Rs
+    K = P0 @ Hs.T @ np.linalg.inv(S)
+    x = K @ r
+    P1 = (np.eye(12) - K @ Hs) @ P0
+    used = tr.update_block(tb, w1b, w2b)
+    assert used == B
+    np.testing.assert_allclose(tr.error_covariance, 0.5 * (P1 + P1.T), rtol=1e-6, atol=1e-14)
+    R_expected = Rotation.from_rotvec(x[:3]).as_matrix() @ R0
+    assert rotation_error(tr.R_1_2, R_expected) < 1e-3 * np.sqrt(P1[0, 0])
+    np.testing.assert_allclose(tr.bias, b0 + x[9:], atol=1e-3 * np.sqrt(P1[9, 9]))
+    # scale factors: same up to the gauge's (unobservable) common factor
+    ratio = np.log(np.concatenate([tr.scale_1, tr.scale_2]) / np.concatenate([s10, s20])) - x[3:9]
+    assert np.ptp(ratio) < 1e-3 * np.sqrt(P1[3, 3])
+
+
+# ---------------------------------------------------------------------------- tracking
+def test_run_tracks_linear_scale_drift_within_2sigma():
+    rng = np.random.default_rng(3)
+    t, w1, w2, truth = scenario(rng, 600.0, scale_2_ramp=(1, 0.005))   # +0.5 % over 10 minutes
+    n0 = int(30 * RATE)
+    tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0])
+    h = tr.run(t[n0:], w1[n0:], w2[n0:], mode="fast", truth=part(truth, slice(n0, None)))
+    e = normalised_errors(h)
+    assert np.all(np.mean(np.abs(e) <= 2.0, axis=0) >= 0.95), np.mean(np.abs(e) <= 2.0, axis=0)
+    assert abs(e[-1, 7]) <= 2.0                                   # scale_2[y] at the end
+    tracked = h.scale_2[-1, 1] / h.scale_2[0, 1] - 1.0           # the drift was followed, not smoothed away
+    true = h.truth_scale_2[-1, 1] / h.truth_scale_2[0, 1] - 1.0
+    assert abs(tracked - true) <= 2.0 * h.scale_2_std[-1, 1] * np.sqrt(2)
+    assert h.reseeds == ()
+
+
+def test_run_tracks_rotation_step_within_2sigma():
+    rng = np.random.default_rng(4)
+    rotvec = 0.5 * DEG * np.array([0.6, -0.48, 0.64])
+    t, w1, w2, truth = scenario(rng, 600.0, step=(300.0, rotvec), scale_2_ramp=(1, 0.005))
+    n0 = int(30 * RATE)
+    tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0])
+    h = tr.run(t[n0:], w1[n0:], w2[n0:], mode="fast", truth=part(truth, slice(n0, None)))
+    assert len(h.reseeds) == 1
+    ev = h.reseeds[0]
+    assert ev.accepted and 300.0 <= ev.t_detected <= 300.5 and abs(ev.t_onset - 300.0) <= 0.5
+    e = normalised_errors(h)
+    assert np.all(np.mean(np.abs(e) <= 2.0, axis=0) >= 0.95), np.mean(np.abs(e) <= 2.0, axis=0)
+    after = h.t > ev.t_detected + 1.0
+    assert np.mean(np.abs(e[after, :3]) <= 2.0) >= 0.95
+    assert rotation_error(h.R_1_2[-1], truth.R_1_2[-1]) <= 2.0 * np.linalg.norm(h.rotation_std[-1])
+
+
+def test_run_nees_consistent_over_monte_carlo():
+    """Truth drawn from the process model: average NEES at the end inside the 95 % chi-square interval."""
+    rng = np.random.default_rng(5)
+    drift = DriftNoise()
+    t = np.arange(0.0, 60.0, 1.0 / RATE)
+    n0 = int(10 * RATE)
+    runs = 50
+    nees = []
+    for _ in range(runs):
+        R, s1, s2, b1 = random_walk_truth(t, drift, rng)
+        w1, w2, truth = simulate_drifting_pair(t, R, s1, s2, bias_1=b1, noise_std=NOISE, rng=rng)
+        tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0], drift=drift)
+        h = tr.run(t[n0:], w1[n0:], w2[n0:], truth=part(truth, slice(n0, None)))
+        nees.append(h.nees[-1])
+    dof = h.nees_dof
+    lo, hi = chi2.ppf([0.025, 0.975], runs * dof) / runs
+    assert dof == 11
+    assert lo <= np.mean(nees) <= hi, (np.mean(nees), lo, hi)
+
+
+def test_run_constant_parameters_within_1p2_of_batch_rmse():
+    rng = np.random.default_rng(6)
+    t = np.arange(0.0, 60.0, 1.0 / RATE)
+    n0 = int(10 * RATE)
+    err = {k: [] for k in ("ekf_r", "ekf_s", "direct_r", "direct_s", "ml_r", "ml_s")}
+    for _ in range(30):
+        R = general_rotation(rng)
+        s1, s2 = 1 + rng.normal(0, 0.01, 3), 1 + rng.normal(0, 0.01, 3)
+        w1, w2, _ = simulate_drifting_pair(t, R, s1, s2, bias_1=rng.normal(0, 0.01, 3),
+                                           bias_2=rng.normal(0, 0.01, 3), noise_std=NOISE, rng=rng)
+        tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0], drift=DriftNoise.constant())
+        tr.run(t[n0:], w1[n0:], w2[n0:])
+        for key, c in (("ekf", tr.calibration), ("direct", calibrate_pair(w1, w2, method="direct")),
+                       ("ml", calibrate_pair(w1, w2))):
+            err[key + "_r"].append(rotation_error(c.R_1_2, R))
+            err[key + "_s"].append(scale_error(c.scale_1, c.scale_2, s1, s2))
+    rmse = {k: np.sqrt(np.mean(np.square(v))) for k, v in err.items()}
+    for ref in ("direct", "ml"):
+        assert rmse["ekf_r"] <= 1.2 * rmse[ref + "_r"], rmse
+        assert rmse["ekf_s"] <= 1.2 * rmse[ref + "_s"], rmse
+
+
+def test_run_sample_mode_agrees_with_fast_mode():
+    rng = np.random.default_rng(7)
+    t, w1, w2, truth = scenario(rng, 40.0)
+    n0 = int(10 * RATE)
+    out = {}
+    for mode in ("sample", "fast"):
+        tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0], drift=DriftNoise.constant())
+        out[mode] = tr.run(t[n0:], w1[n0:], w2[n0:], mode=mode)
+    hs, hf = out["sample"], out["fast"]
+    assert len(hs) == t.size - n0 and len(hf) == (t.size - n0) // 100
+    assert rotation_error(hs.R_1_2[-1], hf.R_1_2[-1]) <= 0.2 * np.linalg.norm(hf.rotation_std[-1])
+    np.testing.assert_array_less(np.abs(hs.scale_2[-1] - hf.scale_2[-1]), 0.2 * hf.scale_2_std[-1])
+    np.testing.assert_allclose(hs.rotation_std[-1], hf.rotation_std[-1], rtol=0.05)
+
+
+# ---------------------------------------------------------------------------- robustness
+def test_update_block_gates_flex_spikes():
+    rng = np.random.default_rng(8)
+    t, w1, w2, truth = scenario(rng, 60.0)
+    n0 = int(10 * RATE)
+    w2 = w2.copy()
+    starts = rng.choice(np.arange(n0 + 50, t.size - 50), size=20, replace=False)
+    for s in starts:                                   # 30 ms bursts of flex: 0.2 rad/s disturbances
+        w2[s:s + 3] += rng.normal(0, 0.2, (3, 3))
+    tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0])
+    h = tr.run(t[n0:], w1[n0:], w2[n0:], truth=part(truth, slice(n0, None)))
+    assert h.n_rejected >= 60                           # every spike sample (and neighbours) was gated
+    assert h.n_rejected <= 60 * 3 + 0.01 * h.n_samples
+    assert not any(ev.accepted for ev in h.reseeds)
+    assert np.all(np.abs(normalised_errors(h)[-1]) <= 3.0)
+    assert np.nanmean(h.nis) < 1.2
+
+
+def test_run_false_alarm_restores_filter():
+    """A long flex burst raises the alarm; the batch solve agrees with the old state; state is restored."""
+    rng = np.random.default_rng(9)
+    t, w1, w2, truth = scenario(rng, 60.0)
+    n0 = int(10 * RATE)
+    ref = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0])
+    ref.run(t[n0:], w1[n0:], w2[n0:])
+    w2f = w2.copy()
+    burst = (t >= 30.0) & (t < 30.5)                    # 0.5 s of flex: rate-dependent misalignment (2 deg)
+    w2f[burst] = w2[burst] @ Rotation.from_rotvec([0, 0, 2 * DEG]).as_matrix().T
+    tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2f[:n0])
+    h = tr.run(t[n0:], w1[n0:], w2f[n0:], truth=part(truth, slice(n0, None)))
+    assert len(h.reseeds) == 1 and not h.reseeds[0].accepted
+    assert 30.0 <= h.reseeds[0].t_detected <= 30.5
+    # after restore and replay, the filter is where the undisturbed one is
+    assert rotation_error(tr.R_1_2, ref.R_1_2) <= 0.5 * np.linalg.norm(np.sqrt(np.diag(ref.error_covariance))[:3])
+    np.testing.assert_allclose(np.diag(tr.error_covariance), np.diag(ref.error_covariance), rtol=0.1)
+    assert np.all(np.abs(normalised_errors(h)[-1]) <= 3.0)
+
+
+@pytest.mark.parametrize("config", ["all_axes_parallel", "one_axis_pair_parallel"])
+def test_GyroPairTracker_degenerate_configuration_holds_prior(config):
+    rng = np.random.default_rng(10)
+    if config == "all_axes_parallel":
+        R = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])   # signed permutation, det +1
+    else:
+        R = Rotation.from_euler("z", 40.0, degrees=True).as_matrix()          # z axes parallel
+    t, w1, w2, truth = scenario(rng, 300.0, R=R, scale_2_ramp=(2, 0.003))   # 0.6 % per 10 min
+    n0 = int(10 * RATE)
+    tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0], scale_prior_std=0.01)
+    assert tr.configuration.name == config
+    pairs = [g for g in tr.configuration.groups if len(g) == 2]
+    P0 = tr.error_covariance
+    h = tr.run(t[n0:], w1[n0:], w2[n0:], truth=part(truth, slice(n0, None)))
+    P1 = tr.error_covariance
+    s_end = np.log(np.concatenate([tr.scale_1, tr.scale_2]))
+    s_start = np.log(np.concatenate([h.scale_1[0], h.scale_2[0]]))
+    for g in pairs:
+        idx = [3 + 3 * gy + a for gy, a in g]
+        mean_dir = np.zeros(12)
+        mean_dir[idx] = 0.5
+        ratio_dir = np.zeros(12)
+        ratio_dir[idx] = (1.0, -1.0)
+        # the pair's common factor: std stays at the prior, value stays at the seed
+        assert np.sqrt(mean_dir @ P1 @ mean_dir) == pytest.approx(0.01, rel=1e-6)
+        assert np.sqrt(mean_dir @ P0 @ mean_dir) == pytest.approx(0.01, rel=1e-6)
+        k = [i - 3 for i in idx]
+        assert s_end[k].mean() == pytest.approx(s_start[k].mean(), abs=1e-12)
+        # the ratio is observable and learnt from the data (well below the prior)
+        assert np.sqrt(ratio_dir @ P1 @ ratio_dir) < 0.05 * 0.01
+    within = np.abs(normalised_errors(h)) <= 2.0     # 300 s of autocorrelated errors: pooled 95 %, each 90 %
+    assert within.mean() >= 0.95 and np.all(within.mean(axis=0) >= 0.90), within.mean(axis=0)
+    assert h.nees_dof == 12 - len(tr.configuration.groups)
+
+
+def test_GyroPairTracker_fixed_gauge_holds_scale_1_x():
+    rng = np.random.default_rng(11)
+    t, w1, w2, truth = scenario(rng, 120.0, scale_2_ramp=(1, 0.005))
+    n0 = int(10 * RATE)
+    tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0], gauge="fixed")
+    h = tr.run(t[n0:], w1[n0:], w2[n0:], truth=part(truth, slice(n0, None)))
+    np.testing.assert_allclose(h.scale_1[:, 0], 1.0, atol=1e-12)
+    np.testing.assert_allclose(h.truth_scale_1[:, 0], 1.0, atol=1e-12)   # the truth in the same gauge
+    assert np.all(h.scale_1_std[:, 0] < 1e-9)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        e = np.delete(normalised_errors(h), 3, axis=1)                    # scale_1[x] has no error to normalise
+    assert np.mean(np.abs(e) <= 2.0) >= 0.95          # 110 autocorrelated rows: pooled over the components
+
+
+def test_run_gap_grows_covariance_by_the_random_walk():
+    rng = np.random.default_rng(12)
+    t, w1, w2, truth = scenario(rng, 80.0)
+    n0 = int(10 * RATE)
+    keep = (t < 30.0) | (t >= 60.0)                     # a 30 s gap in both streams
+    drift = DriftNoise()
+    tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0], drift=drift)
+    h = tr.run(t[keep][n0:], w1[keep][n0:], w2[keep][n0:], truth=part(truth, np.flatnonzero(keep)[n0:]))
+    assert not np.any((h.t > 30.0) & (h.t < 60.0))        # no block straddles the gap
+    i = int(np.searchsorted(h.t, 45.0))
+    before, after = h.bias_std[i - 1], h.bias_std[i]
+    grown = np.sqrt(before**2 + drift.bias**2 * (h.t[i] - h.t[i - 1]))
+    assert np.all(after > before)
+    assert np.all(after < grown)                          # the first block after the gap pulls it back in
+    assert np.mean(np.abs(normalised_errors(h)) <= 2.0) >= 0.95
+
+
+def test_run_streams_unsynchronised_with_offset_and_gap():
+    rng = np.random.default_rng(13)
+    motion = HumanMotion(1.0, rng=rng)
+    R = general_rotation(rng)
+    s1, s2 = 1 + rng.normal(0, 0.01, 3), 1 + rng.normal(0, 0.01, 3)
+    b1, b2 = rng.normal(0, 0.01, 3), rng.normal(0, 0.01, 3)
+    offset = 0.0137                                      # add to gyro 2's stamps to reach gyro 1's clock
+
+    def gyro_1(t):
+        return s1 * motion(t) + b1 + rng.normal(0, NOISE, (t.size, 3))
+
+    def gyro_2(t_clock_2):
+        return s2 * (motion(t_clock_2 + offset) @ R) + b2 + rng.normal(0, NOISE, (t_clock_2.size, 3))
+
+    t_seed = np.arange(0.0, 10.0, 0.01)
+    cal = calibrate_pair(gyro_1(t_seed), gyro_2(t_seed - offset))
+    cal = dataclasses.replace(cal, time_offset_s=offset)
+    t1 = np.arange(10.0, 70.0, 0.01)
+    t2 = np.arange(10.0, 70.0, 1.0 / 97.0) - offset        # another rate and clock
+    t2 = t2[(t2 < 30.0) | (t2 > 32.0)]                      # a 2 s gap in gyro 2 only
+    tr = GyroPairTracker(cal, t0=10.0, seed_span_s=10.0)
+    h = tr.run_streams(t1, gyro_1(t1), t2, gyro_2(t2))
+    assert not np.any((h.t > 30.0 + offset + 0.6) & (h.t < 32.0 + offset - 0.6))
+    assert h.n_samples < t1.size - 190                     # gyro-1 samples inside the gap were dropped
+    assert np.nanmean(h.nis) < 1.2                          # interpolation adds no visible error
+    assert rotation_error(tr.R_1_2, R) <= 2.0 * np.linalg.norm(h.rotation_std[-1])
+
+
+def test_update_rejects_time_going_backwards():
+    rng = np.random.default_rng(14)
+    t, w1, w2, _ = scenario(rng, 12.0)
+    tr = GyroPairTracker.from_samples(t[:1000], w1[:1000], w2[:1000])
+    with pytest.raises(InputError, match="non-decreasing"):
+        tr.update(t[500], w1[1000], w2[1000])
+    bad_t = t[1000:1100].copy()
+    bad_t[40] = bad_t[38]
+    with pytest.raises(InputError, match="strictly increasing.*sample 40"):
+        tr.run(bad_t, w1[1000:1100], w2[1000:1100])
+
+
+def test_GyroPairTracker_rejects_non_calibration_seed():
+    with pytest.raises(InputError, match="expected a PairCalibration"):
+        GyroPairTracker({"R_1_2": np.eye(3)})
+
+
+# ---------------------------------------------------------------------------- outputs
+def test_plot_history_returns_figure_with_bands():
+    rng = np.random.default_rng(15)
+    t, w1, w2, truth = scenario(rng, 30.0)
+    tr = GyroPairTracker.from_samples(t[:1000], w1[:1000], w2[:1000])
+    h = tr.run(t[1000:], w1[1000:], w2[1000:], truth=part(truth, slice(1000, None)))
+    fig = plot_history(h)
+    from matplotlib.figure import Figure
+    assert isinstance(fig, Figure) and len(fig.axes) == 3
+    line = fig.axes[0].lines[0]
+    np.testing.assert_allclose(line.get_ydata(), h.rotation_change[:, 0] / DEG)
+    np.testing.assert_allclose(fig.axes[1].lines[0].get_ydata(), (h.scale_1[:, 0] - 1) * 100)
+    assert len(fig.axes[0].collections) == 3             # one 1-sigma band per axis
+
+
+def test_calibration_property_is_a_serialisable_pair_calibration():
+    rng = np.random.default_rng(16)
+    t, w1, w2, _ = scenario(rng, 30.0)
+    tr = GyroPairTracker.from_samples(t[:1000], w1[:1000], w2[:1000])
+    tr.run(t[1000:], w1[1000:], w2[1000:])
+    cal = tr.calibration
+    assert isinstance(cal, PairCalibration) and cal.method == "ekf" and cal.n_samples == t.size - 1000
+    back = PairCalibration.from_dict(cal.to_dict())
+    np.testing.assert_allclose(back.R_1_2, tr.R_1_2)
+    np.testing.assert_allclose(back.covariance, tr.covariance)
+
+
+# ---------------------------------------------------------------------------- real motion, example
+@pytest.mark.shared_data
+def test_run_tracks_drift_with_recorded_hand_motion():
+    root = shared_data_dir()
+    if not (root / "broad_handheld").exists():
+        pytest.skip("../shared/data not present (real recordings are only in the project checkout)")
+    from fusion_gyrocal.sim import load_broad_rates
+
+    motion, fs = load_broad_rates("01_undisturbed_slow_rotation_A")
+    rng = np.random.default_rng(17)
+    t = np.arange(motion.shape[0]) / fs
+    R = general_rotation(rng)
+    s1, s2 = 1 + rng.normal(0, 0.01, 3), 1 + rng.normal(0, 0.01, 3)
+    S2 = np.tile(s2, (t.size, 1))
+    S2[:, 0] *= 1.0 + 0.005 * t / t[-1]
+    w1, w2, truth = simulate_drifting_pair(t, R, s1, S2, bias_1=rng.normal(0, 0.01, 3), noise_std=NOISE,
+                                           omega_true_1=motion, rng=rng)
+    n0 = int(20 * fs)
+    tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0])
+    h = tr.run(t[n0:], w1[n0:], w2[n0:], block_size=int(fs), truth=part(truth, slice(n0, None)))
+    assert np.all(np.mean(np.abs(normalised_errors(h)) <= 2.0, axis=0) >= 0.95)
+    assert not any(ev.accepted for ev in h.reseeds)
+
+
+def test_example_track_drift_runs(tmp_path, capsys):
+    path = Path(__file__).resolve().parents[1] / "examples" / "track_drift.py"
+    spec = importlib.util.spec_from_file_location("track_drift_example", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    out = tmp_path / "drift.png"
+    mod.main(["--duration", "120", "--step-at", "60", "--out", str(out), "--seed", "3"])
+    text = capsys.readouterr().out
+    assert out.exists() and out.stat().st_size > 10_000
+    assert "re-seeded" in text and "within 2 sigma" in text
