@@ -1,0 +1,143 @@
+"""Throughput of the Dask fleet run and of the distributed huge-log reduction on this machine.
+
+Prints measured figures (nothing is hard-coded):
+
+1. ``run_fleet`` over generated Parquet devices on a ``LocalCluster`` with 1 and with 2 worker
+   processes (one thread each), and on Dask's threaded scheduler in this process: devices/s and
+   samples/s (after a warm-up run that pays the workers' imports).
+2. One huge Parquet log: the in-process pass (read the whole file, ``Moments.from_samples``)
+   versus ``log_moments`` (one task per row group, ``dask.bag`` tree reduction of
+   ``Moments.merge``) on 1 and 2 workers: samples/s, and the largest relative difference of the
+   reduced statistics from the in-process ones.
+
+Run: ``python benchmarks/fleet.py [--devices 24 --device-samples 60000 --log-samples 6000000]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+from distributed import Client, LocalCluster
+
+from fusion_gyrocal import Moments
+from fusion_gyrocal.fleet import COLUMNS, log_moments, run_fleet
+from fusion_gyrocal.sim import simulate_pair
+
+
+def write_log(path: Path, n: int, *, seed: int, row_group_size: int, base: int = 200_000) -> None:
+    """A sample-aligned Parquet log of ``n`` rows: a simulated pair of ``base`` samples, repeated with fresh noise."""
+    rng = np.random.default_rng(seed)
+    sim = simulate_pair(rng=rng, n=min(base, n))
+    writer = pq.ParquetWriter(path, pa.schema([(c, pa.float64()) for c in COLUMNS]))
+    try:
+        for start in range(0, n, sim.omega_1.shape[0]):
+            m = min(sim.omega_1.shape[0], n - start)
+            noise = rng.normal(0.0, 1e-4, (m, 6))
+            data = {"t": (start + np.arange(m)) / 100.0}
+            for g, w in (("1", sim.omega_1[:m]), ("2", sim.omega_2[:m])):
+                for a, ax in enumerate("xyz"):
+                    data[f"w{g}{ax}"] = w[:, a] + noise[:, 3 * (g == "2") + a]
+            writer.write_table(pa.table(data), row_group_size=row_group_size)
+    finally:
+        writer.close()
+
+
+def timed(fn, repeat: int = 1):
+    best = np.inf
+    out = None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t0)
+    return best, out
+
+
+def bench_fleet(root: Path, n_devices: int, n_samples: int) -> None:
+    for i in range(n_devices):
+        write_log(root / f"device_{i:03d}.parquet", n_samples, seed=i, row_group_size=n_samples, base=n_samples)
+    total = n_devices * n_samples
+    print(f"\n1. fleet: {n_devices} Parquet devices x {n_samples} samples (calibrate_pair per device, method ml)")
+    print(f"   {'engine':38s} {'seconds':>8s} {'devices/s':>10s} {'Msamples/s':>11s}  rows ok")
+    warm = [root / "device_000.parquet", root / "device_001.parquet"]
+    dt, df = timed(lambda: run_fleet(root), repeat=1)  # warm-up of this process's imports
+    dt, df = timed(lambda: run_fleet(root), repeat=1)
+    print(f"   {'threaded scheduler, this process':38s} {dt:8.2f} {n_devices / dt:10.2f} {total / dt / 1e6:11.3f}  "
+          f"{int(df['ok'].sum())}/{len(df)}")
+    for workers in (1, 2):
+        with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                          dashboard_address=None) as cluster, Client(cluster) as client:
+            run_fleet(warm, client=client)  # warm-up: imports in every worker
+            dt, df = timed(lambda: run_fleet(root, client=client), repeat=2)
+            print(f"   {f'LocalCluster, {workers} worker process(es)':38s} {dt:8.2f} {n_devices / dt:10.2f} "
+                  f"{total / dt / 1e6:11.3f}  {int(df['ok'].sum())}/{len(df)}")
+
+
+def bench_log(root: Path, n: int, row_group_size: int) -> None:
+    path = root / "huge.parquet"
+    write_log(path, n, seed=99, row_group_size=row_group_size)
+    size_mb = path.stat().st_size / 1e6
+    n_groups = pq.ParquetFile(path).num_row_groups
+    print(f"\n2. huge log: {n} samples, {n_groups} row groups, {size_mb:.0f} MB on disk")
+
+    def in_process():
+        table = pq.read_table(path, columns=list(COLUMNS[1:]))
+        x = np.column_stack([table.column(c).to_numpy() for c in COLUMNS[1:]])
+        return Moments.from_samples(x[:, :3], x[:, 3:])
+
+    table = pq.read_table(path, columns=list(COLUMNS[1:]))
+    x = np.column_stack([table.column(c).to_numpy() for c in COLUMNS[1:]])
+    del table
+    dt_mem, _ = timed(lambda: Moments.from_samples(x[:, :3], x[:, 3:]), repeat=3)
+    del x
+    dt_ref, ref = timed(in_process, repeat=2)
+    print(f"   {'engine':46s} {'seconds':>8s} {'Msamples/s':>11s} {'max rel diff':>13s}")
+    print(f"   {'in-process pass over arrays already in memory':46s} {dt_mem:8.2f} {n / dt_mem / 1e6:11.2f} {'-':>13s}")
+    print(f"   {'in-process: read whole file + one pass':46s} {dt_ref:8.2f} {n / dt_ref / 1e6:11.2f} {'(reference)':>13s}")
+
+    def rel(m):
+        return max(float(np.max(np.abs(m.scatter - ref.scatter)) / np.max(np.abs(ref.scatter))),
+                   float(np.max(np.abs(m.mean - ref.mean)) / np.max(np.abs(ref.mean))), abs(m.count - ref.count))
+
+    dt, m = timed(lambda: log_moments(path), repeat=2)
+    print(f"   {'dask threaded scheduler, this process':46s} {dt:8.2f} {n / dt / 1e6:11.2f} {rel(m):13.2e}")
+    for workers in (1, 2):
+        with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                          dashboard_address=None) as cluster, Client(cluster) as client:
+            log_moments(path, client=client)  # warm-up (imports, file cache)
+            dt, m = timed(lambda: log_moments(path, client=client), repeat=2)
+            print(f"   {f'LocalCluster, {workers} worker process(es)':46s} {dt:8.2f} {n / dt / 1e6:11.2f} "
+                  f"{rel(m):13.2e}")
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--devices", type=int, default=24)
+    p.add_argument("--device-samples", type=int, default=60_000)
+    p.add_argument("--log-samples", type=int, default=6_000_000)
+    p.add_argument("--row-group", type=int, default=250_000)
+    args = p.parse_args(argv)
+    print(f"machine: {os.cpu_count()} CPU(s); load average at start {os.getloadavg()[0]:.1f} "
+          "(other processes share the CPUs: figures are only comparable at low load)")
+    root = Path(tempfile.mkdtemp(prefix="gyrocal_fleet_bench_"))
+    try:
+        (root / "fleet").mkdir()
+        bench_fleet(root / "fleet", args.devices, args.device_samples)
+        bench_log(root, args.log_samples, args.row_group)
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
+    print(f"\nload average at the end {os.getloadavg()[0]:.1f}")
+
+
+if __name__ == "__main__":
+    import logging
+
+    logging.getLogger("distributed").setLevel(logging.WARNING)
+    main()
