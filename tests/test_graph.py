@@ -174,6 +174,15 @@ def test_calibrate_pair_graph_covariance_matches_batch_ml(constant_bias_case):
     np.testing.assert_allclose(np.diag(gr.covariance), np.diag(ml.covariance), rtol=1e-2)
 
 
+def test_calibrate_pair_graph_independent_window_biases_agree_with_batch_bias_window():
+    sim = simulate_pair(n=6000, scale_1=S1, scale_2=S2, noise_std=NOISE, bias_walk_std=2e-3 * DEG, rng=30)
+    ml = calibrate_pair(sim.omega_1, sim.omega_2, noise_std=NOISE, bias_window=500)      # pooled moments
+    gr = calibrate_pair_graph(sim.omega_1, sim.omega_2, noise_std=NOISE, window=500, bias_walk_std=np.inf)
+    assert gr.bias_segments == ml.bias_segments == 12
+    assert np.abs(_normalised_difference(gr, ml)).max() <= 0.1
+    np.testing.assert_allclose(np.diag(gr.covariance), np.diag(ml.covariance), rtol=1e-2)
+
+
 def test_gyro_pair_graph_isam2_matches_batch_lm(constant_bias_case):
     sim, _ = constant_bias_case
     parts = window_moments(sim.omega_1, sim.omega_2, 500)
