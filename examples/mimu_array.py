@@ -24,7 +24,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from fusion_gyrocal import solve
-from fusion_gyrocal.multi import _read_mimu_npz, calibrate_array
+from fusion_gyrocal.io import read_npz
+from fusion_gyrocal.multi import calibrate_array
 from fusion_gyrocal.sim import DEG, shared_data_dir
 
 C_BOTTOM = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # SOURCE.md, bottom-side IMUs
@@ -55,7 +56,9 @@ def main(argv=None) -> dict:
     gains = source_gains(folder)
     res = {"joint": ([], []), "pairwise": ([], [])}
     for e in args.sessions:
-        rates, mask = _read_mimu_npz(folder / "npz" / f"exp_{e}.npz")
+        streams = read_npz(folder / "npz" / f"exp_{e}.npz")  # 8 IMUs, rad/s; clipped samples flagged invalid
+        rates = np.stack([s.omega for s in streams], axis=1)
+        mask = np.all([s.valid for s in streams], axis=0)
         t0 = time.perf_counter()
         cal = calibrate_array(rates, mask=mask)
         dt = time.perf_counter() - t0

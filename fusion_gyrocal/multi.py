@@ -873,18 +873,3 @@ def calibrate_array(omegas, *, reference: int = 0, noise_std=None, gauge: str = 
         moments = ArrayMoments.from_windows(omegas, int(bias_window), mask=mask)
     return solve_array(moments, reference=reference, noise_std=noise_std, gauge=gauge,
                        parallel_tol_deg=parallel_tol_deg, min_snr=min_snr)
-
-
-# ---------------------------------------------------------------------------------------- MIMU helper
-def _read_mimu_npz(path, *, clip_counts: int = 32767):
-    """Rates (rad/s, (n, 8, 3)) and the mask of unsaturated samples of a MIMU4444 ``exp_N.npz``.
-
-    A private reader for the example and the tests (the project's readers live in ``fusion_gyrocal.io``):
-    ``gyro_counts / gyro_lsb_per_dps`` deg/s, samples with any gyro axis at the rail masked out.
-    """
-    with np.load(path) as d:
-        counts = np.asarray(d["gyro_counts"])
-        lsb = float(d["gyro_lsb_per_dps"])
-    rates = counts.astype(np.float64) / lsb * (np.pi / 180.0)
-    mask = ~(np.abs(counts.astype(np.int32)) >= clip_counts).any(axis=(1, 2))
-    return rates, mask

@@ -8,8 +8,9 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from fusion_gyrocal import ConfigurationError, InputError, Moments, solve
-from fusion_gyrocal.multi import (ArrayCalibration, ArrayMoments, _read_mimu_npz, _retract, calibrate_array,
-                                  joint_cost, joint_gradient, solve_array)
+from fusion_gyrocal.io import read_npz
+from fusion_gyrocal.multi import (ArrayCalibration, ArrayMoments, _retract, calibrate_array, joint_cost,
+                                  joint_gradient, solve_array)
 from fusion_gyrocal.refine import ml_cost
 from fusion_gyrocal.sim import DEG, PAPER_NOISE_STD, HumanMotion, random_rotation, rotation_error, shared_data_dir
 
@@ -298,7 +299,9 @@ def mimu_runs():
     d = _mimu_dir()
     out = {"joint": ([], []), "pairwise": ([], [])}
     for e in range(1, 10):
-        rates, mask = _read_mimu_npz(d / "npz" / f"exp_{e}.npz")
+        streams = read_npz(d / "npz" / f"exp_{e}.npz")  # 8 IMUs; samples at the +-1998 deg/s clip are invalid
+        rates = np.stack([s.omega for s in streams], axis=1)
+        mask = np.all([s.valid for s in streams], axis=0)
         cal = calibrate_array(rates, mask=mask)
         for name in out:
             devs, ratios = [], []
