@@ -43,7 +43,7 @@ from scipy.optimize import nnls
 from scipy.spatial.transform import Rotation
 
 from .calibrate import solve
-from .errors import ConfigurationError, InputError
+from .errors import ConfigurationError, GyroCalError, InputError
 from .model import BIAS, ROT, S1, S2, PairCalibration
 from .moments import Moments, as_rates, window_moments
 from .observability import A_of, classify, dA_dp, per_axis_snr, skew
@@ -609,8 +609,11 @@ def _seed(moments: ArrayMoments, reference, noise_std, parallel_tol_deg, min_snr
         if k == reference:
             continue
         pn = None if noise_std is None else (noise_std[reference], noise_std[k])
-        pc = solve(moments.pair(reference, k), method="direct", noise_std=pn, parallel_tol_deg=parallel_tol_deg,
-                   min_snr=min_snr)
+        try:
+            pc = solve(moments.pair(reference, k), method="direct", noise_std=pn, parallel_tol_deg=parallel_tol_deg,
+                       min_snr=min_snr)
+        except GyroCalError as err:  # name the gyro: the pair solver only knows "gyro 1" and "gyro 2"
+            raise type(err)(f"gyro {k} against the reference gyro {reference} (as gyro 1 / gyro 2): {err}") from err
         R[k] = pc.R_1_2
         lp = np.log(np.stack([pc.scale_1, pc.scale_2]))
         for group in classify(pc.R_1_2, parallel_tol_deg).groups:

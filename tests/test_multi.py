@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from fusion_gyrocal import ConfigurationError, InputError, Moments, solve
+from fusion_gyrocal import ConfigurationError, ExcitationError, InputError, Moments, NotRigidError, solve
 from fusion_gyrocal.io import read_npz
 from fusion_gyrocal.multi import (ArrayCalibration, ArrayMoments, _retract, calibrate_array, joint_cost,
                                   joint_gradient, solve_array)
@@ -67,6 +67,34 @@ def test_calibrate_array_noisy_error_within_reported_sigma():
         nees.append(err @ np.linalg.solve(cal.covariance[np.ix_(idx, idx)], err))
     lo, hi = chi2.ppf([0.005, 0.995], 14 * 12) / 12
     assert lo < np.mean(nees) < hi, np.mean(nees)
+
+
+def test_calibrate_array_bias_error_within_reported_sigma():
+    # NEES of the combined biases b_0 - A_0k b_k of gyros 1 and 2 (6 dof) over 12 runs
+    nees = []
+    for seed in range(12):
+        R = _rotations(300 + seed, 3)
+        w, b = _simulate(40 + seed, R, SCALES[:3], PAPER_NOISE_STD, n=3000)
+        cal = calibrate_array(w, noise_std=PAPER_NOISE_STD)
+        truth = [b[0] - np.diag(SCALES[0]) @ R[k] @ np.diag(1.0 / SCALES[k]) @ b[k] for k in (1, 2)]
+        err = np.concatenate([cal.bias[k] - truth[k - 1] for k in (1, 2)])
+        idx = np.r_[18 + 3:18 + 9]
+        nees.append(err @ np.linalg.solve(cal.covariance[np.ix_(idx, idx)], err))
+    lo, hi = chi2.ppf([0.005, 0.995], 6 * 12) / 12
+    assert lo < np.mean(nees) < hi, np.mean(nees)
+
+
+def test_calibrate_array_names_the_gyro_that_fails():
+    R = _rotations(34, 3)
+    w, _ = _simulate(35, R, SCALES[:3], PAPER_NOISE_STD)
+    w = w.copy()
+    w[:, 2] = _simulate(36, R, SCALES[:3], PAPER_NOISE_STD)[0][:, 2]  # gyro 2 rides on another device
+    with pytest.raises(NotRigidError, match="gyro 2 against the reference gyro 0"):
+        calibrate_array(w)
+    still = w.copy()
+    still[:, 1] = still[0, 1]  # gyro 1 reports a constant rate
+    with pytest.raises((ExcitationError, InputError), match="gyro 1 against"):
+        calibrate_array(still)
 
 
 def test_calibrate_array_loops_close_exactly():
