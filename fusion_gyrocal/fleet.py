@@ -258,7 +258,8 @@ def run_fleet(devices, *, client=None, output=None, chunked: bool = False, split
     -------
     pandas.DataFrame
         Columns :data:`RESULT_COLUMNS`: ``device``, ``path``, ``ok``, ``error_type``, ``error`` (the
-        error message, None when ok), ``seconds``, the estimate in SI units (rotation vector of
+        error message, None when ok), ``seconds`` (wall time of the device's pipeline on its worker;
+        with ``chunked``, the shared reduction time split evenly plus the device's solve), the estimate in SI units (rotation vector of
         ``R_1_2`` in rad, scale factors, combined bias in rad/s, time offset in s, ...) and the full
         result as ``calibration_json`` (:meth:`PairCalibration.from_dict` reads it back).
 
