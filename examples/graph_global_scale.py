@@ -51,13 +51,13 @@ class Demo:
 
     scale_1: np.ndarray
     scale_2: np.ndarray
-    pair_only: PairCalibration
+    pair_only: PairCalibration | None
     with_camera: PairCalibration
 
 
 def run(seconds: float = 60.0, seed: int = 0, *, rate_hz: float = 100.0, camera_hz: float = 10.0,
-        camera_sigma_rad: float = 1e-3, window: int = 1000) -> Demo:
-    """Simulate the paper's protocol plus a 10 Hz camera and calibrate with and without it."""
+        camera_sigma_rad: float = 1e-3, window: int = 1000, pair_only: bool = True) -> Demo:
+    """Simulate the paper's protocol plus a 10 Hz camera and calibrate with it (and, if asked, without)."""
     rng = np.random.default_rng(seed)
     n = int(round(seconds * rate_hz))
     t = np.arange(n) / rate_hz
@@ -67,10 +67,11 @@ def run(seconds: float = 60.0, seed: int = 0, *, rate_hz: float = 100.0, camera_
     sim = simulate_pair(motion(t), scale_1=scale_1, scale_2=scale_2, rng=rng)
     keyframes = np.arange(0, n, int(round(rate_hz / camera_hz)))
     increments = simulate_camera_increments(motion, t, keyframes, camera_sigma_rad, rng)
-    pair_only = calibrate_pair_graph(sim.omega_1, sim.omega_2, noise_std=sim.noise_std, window=window)
+    without = calibrate_pair_graph(sim.omega_1, sim.omega_2, noise_std=sim.noise_std, window=window) \
+        if pair_only else None
     with_camera = calibrate_pair_graph(sim.omega_1, sim.omega_2, noise_std=sim.noise_std, window=window,
                                        rotation_increments=increments, rate_hz=rate_hz)
-    return Demo(scale_1, scale_2, pair_only, with_camera)
+    return Demo(scale_1, scale_2, without, with_camera)
 
 
 def main(argv=None) -> Demo:
