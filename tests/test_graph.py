@@ -149,6 +149,16 @@ def test_rotation_increment_factor_jacobians_match_numerical():
     assert np.abs(analytic - numeric).max() <= 1e-7 * np.abs(numeric).max()
 
 
+def test_rotation_increments_in_gyro_frame_undoes_camera_mounting():
+    rng = np.random.default_rng(6)
+    R_w_1 = Rotation.random(4, random_state=rng).as_matrix()       # gyro 1 orientations at 4 keyframes
+    R_cam_1 = random_rotation(rng)                                  # gyro 1 frame -> camera frame
+    R_w_c = R_w_1 @ R_cam_1.T
+    inc = RotationIncrements.from_orientations([0, 10, 20, 30], R_w_c, 1e-3, R_cam_1)
+    expected = np.einsum("kji,kjl->kil", R_w_1[:-1], R_w_1[1:])
+    np.testing.assert_allclose(inc.in_gyro_frame(), expected, atol=1e-12)
+
+
 def test_rotation_increments_stop_before_start_raises():
     with pytest.raises(InputError, match="stop > start"):
         RotationIncrements([0, 10], [10, 10], np.broadcast_to(np.eye(3), (2, 3, 3)), 1e-3)
