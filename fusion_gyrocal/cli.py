@@ -117,46 +117,51 @@ def _pipeline(args, s1, s2):
 
 
 def _summary_table(cal, truth=None):
+    """Per-axis table: estimate +- 1-sigma (and the truth when known)."""
     import numpy as np
     from rich.table import Table
 
-    t = Table(title=f"gyro pair calibration ({cal.configuration}, method {cal.method}, {cal.n_samples} samples)")
+    t = Table(title=f"gyro pair calibration: {cal.configuration}, method {cal.method}, {cal.n_samples} samples, "
+                    f"rigid {cal.rigid}")
     t.add_column("quantity")
-    t.add_column("estimate")
-    t.add_column("1-sigma")
-    if truth is not None:
-        t.add_column("truth")
+    for axis in "xyz":
+        t.add_column(axis, justify="right")
 
-    def fmt(v, p=6):
-        return np.array2string(np.asarray(v), precision=p, suppress_small=True, max_line_width=200)
+    def cells(v, sd, fmt):
+        return [f"{fmt(a)} +- {fmt(b)}" if np.isfinite(b) else f"{fmt(a)} (ratio only)" for a, b in zip(v, sd)]
 
-    rows = [
-        ("R_1_2 rotvec (deg)", fmt(np.rad2deg(cal.rotvec), 4), fmt(np.rad2deg(cal.rotation_std_rad), 5),
-         None if truth is None else fmt(np.rad2deg(truth["rotvec"]), 4)),
-        ("scale_1", fmt(cal.scale_1), fmt(cal.scale_std[0], 6), None if truth is None else fmt(truth["scale_1"])),
-        ("scale_2", fmt(cal.scale_2), fmt(cal.scale_std[1], 6), None if truth is None else fmt(truth["scale_2"])),
-        ("bias b1 - A b2 (deg/s)", fmt(np.rad2deg(cal.bias), 4), fmt(np.rad2deg(cal.bias_std), 5),
-         None if truth is None else fmt(np.rad2deg(truth["bias"]), 4)),
-        ("time offset (ms)", f"{cal.time_offset_s * 1e3:+.4f}", f"{cal.time_offset_std_s * 1e3:.4f}",
-         None if truth is None else f"{truth['time_offset_s'] * 1e3:+.4f}"),
-        ("per-axis SNR", fmt(cal.snr, 0), "", None if truth is None else ""),
-        ("scale observable", str(cal.scale_observable.tolist()), "", None if truth is None else ""),
-        ("gauge", cal.gauge, "", None if truth is None else ""),
-        ("rigid", f"{cal.rigid} (unexplained {100 * cal.unexplained_fraction:.3g}%, rejected "
-                  f"{100 * cal.rejected_fraction:.2f}%)", "", None if truth is None else ""),
-    ]
-    for r in rows:
-        t.add_row(*(r if truth is not None else r[:3]))
+    deg = np.rad2deg
+    rows = [("R_1_2 rotvec (deg)", deg(cal.rotvec), deg(cal.rotation_std_rad), "{:.4f}", "rotvec", deg),
+            ("scale_1", cal.scale_1, cal.scale_std[0], "{:.6f}", "scale_1", None),
+            ("scale_2", cal.scale_2, cal.scale_std[1], "{:.6f}", "scale_2", None),
+            ("bias b1 - A b2 (deg/s)", deg(cal.bias), deg(cal.bias_std), "{:.4f}", "bias", deg)]
+    for name, v, sd, f, key, conv in rows:
+        t.add_row(name, *cells(v, sd, f.format))
+        if truth is not None:
+            tv = truth[key] if conv is None else conv(truth[key])
+            t.add_row("  truth", *[f.format(x) for x in tv], style="dim")
+    t.add_row("per-axis SNR", *[f"{x:.0f}" for x in cal.snr])
+    extra = (f"time offset {cal.time_offset_s * 1e3:+.4f} +- {cal.time_offset_std_s * 1e3:.4f} ms"
+             + (f" (truth {truth['time_offset_s'] * 1e3:+.4f} ms)" if truth is not None else "")
+             + f"; gauge: {cal.gauge}; unexplained {100 * cal.unexplained_fraction:.3g}%, "
+               f"rejected {100 * cal.rejected_fraction:.2f}%")
+    t.caption = extra
     return t
 
 
-def cmd_calibrate(args) -> int:
+def _console():
     from rich.console import Console
+
+    c = Console()
+    return c if c.is_terminal and c.width >= 100 else Console(width=110)
+
+
+def cmd_calibrate(args) -> int:
     from rich.progress import Progress
 
     from .io import write_json, write_kalibr_imu_yaml, write_openvins_imu_chain
 
-    console = Console(stderr=False)
+    console = _console()
     with Progress(transient=True, disable=not sys.stderr.isatty()) as progress:
         task = progress.add_task("reading", total=3)
         s1, s2 = _read_streams(args, lambda: progress.advance(task))
@@ -197,7 +202,6 @@ def cmd_report(args) -> int:
 
 def cmd_demo(args) -> int:
     import numpy as np
-    from rich.console import Console
 
     from .calibrate import run_pipeline
     from .sim import PAPER_NOISE_STD, HumanMotion, random_rotation
@@ -220,7 +224,7 @@ def cmd_demo(args) -> int:
     A = (s1[:, None] * R) / s2[None, :]
     truth = {"rotvec": __import__("scipy.spatial.transform", fromlist=["Rotation"]).Rotation.from_matrix(R).as_rotvec(),
              "scale_1": s1 * c, "scale_2": s2 * c, "bias": b1 - A @ b2, "time_offset_s": offset}
-    console = Console()
+    console = _console()
     console.print("Demo: a simulated gyro pair (60 s of hand-held motion, gyro 1 at 200 Hz, gyro 2 at 100 Hz with "
                   "timestamp jitter, 47.3 ms clock offset, noise 0.1 deg/s per sample)")
     console.print(_summary_table(cal, truth))
