@@ -35,6 +35,12 @@ from scipy.optimize import minimize_scalar
 from .errors import InputError, TimeAlignmentError
 from .moments import Moments, as_rates
 
+__all__ = [
+    "UNITS", "check_timestamps", "to_rad_per_s", "saturation_mask", "valid_mask", "resample", "TimeOffset",
+    "estimate_time_offset", "AlignedPair", "align_streams", "informative_mask", "ExcitationReport",
+    "excitation_report",
+]
+
 DEG = np.pi / 180.0
 UNITS = ("rad/s", "deg/s", "counts")
 DEFAULT_GAP_PERIODS = 2.5      # default max_gap_s in nominal sample periods
@@ -251,7 +257,8 @@ def _spline_slopes(x: np.ndarray, Y: np.ndarray, first: np.ndarray, last: np.nda
     d0 = x[i0 + 2] - x[i0]
     ab[1, i0] = dx[i0 + 1]
     ab[0, i0 + 1] = d0
-    rhs[i0] = (((dx[i0] + 2.0 * d0) * dx[i0 + 1])[:, None] * slope[i0] + (dx[i0] ** 2)[:, None] * slope[i0 + 1]) / d0[:, None]
+    rhs[i0] = (((dx[i0] + 2.0 * d0) * dx[i0 + 1])[:, None] * slope[i0]
+               + (dx[i0] ** 2)[:, None] * slope[i0 + 1]) / d0[:, None]
     d1 = x[i1] - x[i1 - 2]
     ab[1, i1] = dx[i1 - 2]
     ab[2, i1 - 1] = d1
