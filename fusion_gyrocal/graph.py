@@ -979,7 +979,8 @@ class GyroPairGraph:
         n = self._moments.count
         notes = []
         if self.global_scale:
-            notes.append(f"gyro 1 bias b_1 estimated per rotation-increment segment ({len(self._camera)} segment(s))")
+            notes.append(f"gyro 1 bias b_1 estimated for the rotation increments "
+                         f"({len({c.key for c in self._camera})} segment(s))")
         if self.bias_walk_std is not None:
             notes.append(f"combined bias modelled per window ({n_b} windows); 'bias' is their count-weighted mean")
         return PairCalibration(
