@@ -44,7 +44,7 @@ from scipy.spatial.transform import Rotation
 
 from .calibrate import solve
 from .errors import ConfigurationError, GyroCalError, InputError
-from .model import BIAS, ROT, S1, S2, PairCalibration
+from .model import BIAS, PairCalibration
 from .moments import Moments, as_rates, window_moments
 from .observability import A_of, classify, dA_dp, per_axis_snr, skew
 

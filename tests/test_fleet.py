@@ -9,9 +9,9 @@ pq = pytest.importorskip("pyarrow.parquet")
 distributed = pytest.importorskip("distributed")
 
 from fusion_gyrocal import ConfigurationError, FormatError, InputError, Moments, PairCalibration, solve  # noqa: E402
-from fusion_gyrocal.fleet import (COLUMNS, RESULT_COLUMNS, calibrate_log, find_devices, fleet_main,  # noqa: E402
-                                  log_moments, row_groups, run_fleet)
-from fusion_gyrocal.sim import PAPER_NOISE_STD, HumanMotion, rotation_error, simulate_pair  # noqa: E402
+from fusion_gyrocal.fleet import (RESULT_COLUMNS, calibrate_log, find_devices, fleet_main, log_moments,  # noqa: E402
+                                  row_groups, run_fleet)
+from fusion_gyrocal.sim import PAPER_NOISE_STD, rotation_error, simulate_pair  # noqa: E402
 
 
 def _write_parquet(path, sim, *, row_group_size=1000, t0=0.0):
