@@ -69,7 +69,7 @@ Robustness
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -78,10 +78,10 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from .direct import Gauge
-from .errors import ConfigurationError, ExcitationError, GyroCalError, InputError
+from .errors import ConfigurationError, GyroCalError, InputError
 from .model import BIAS, ROT, S1, S2, PairCalibration
 from .moments import Moments, as_rates
-from .observability import CONFIG_ALL, CONFIG_ONE_PAIR, classify, skew
+from .observability import classify, skew
 
 __all__ = ["DriftNoise", "GyroPairTracker", "PairTruth", "ReseedEvent", "StepPrior", "TrackHistory",
            "plot_history", "simulate_drifting_pair", "track_figure_for_report"]
@@ -547,19 +547,14 @@ class GyroPairTracker:
     def from_samples(cls, t, omega_1, omega_2, *, noise_std=None, gauge="unit_prior", **kwargs) -> "GyroPairTracker":
         """Seed a tracker from sample-aligned data with :func:`fusion_gyrocal.calibrate_pair`.
 
-        The batch solve applies the paper's flex rejection; the tracker starts at ``t[-1]``
-        with the seed inflated for the drift over the window (``seed_span_s``). Further keyword
-        arguments go to the constructor.
+        The batch solve applies the paper's flex rejection; ``noise_std`` (rad/s per sample, one
+        value or one per gyro) defaults to its residual estimate. The tracker starts at
+        ``t[-1]`` with the seed inflated for the drift over the window (``seed_span_s``).
+        Further keyword arguments go to the constructor.
         """
-        from .calibrate import calibrate_pair
-
         t = _check_times("t", t)
         w1 = as_rates("omega_1", omega_1, length=t.shape[0])
         w2 = as_rates("omega_2", omega_2, length=t.shape[0])
-        if noise_std is None:
-            cal = calibrate_pair(w1, w2, gauge=gauge)
-            noise_std = tuple(cal.noise_std)
-        noise_std = tuple(np.broadcast_to(np.asarray(noise_std, float), (2,)))
         cal = _batch(w1, w2, noise_std, gauge)
         return cls(cal, t0=float(t[-1]), gauge=gauge, seed_span_s=float(t[-1] - t[0]), **kwargs)
 
@@ -1302,8 +1297,9 @@ def track_figure_for_report(run, *, seed_fraction: float = 0.2, rate_hz: float =
     w1, w2 = np.asarray(run.omega_1, float), np.asarray(run.omega_2, float)
     n = w1.shape[0]
     t = np.arange(n) / float(rate_hz) if run.t is None else np.asarray(run.t, float)
-    keep = np.ones(n, bool) if run.valid is None else np.asarray(run.valid, bool)
-    keep &= np.isfinite(w1).all(axis=1) & np.isfinite(w2).all(axis=1)
+    keep = np.isfinite(w1).all(axis=1) & np.isfinite(w2).all(axis=1)
+    if run.valid is not None:
+        keep = keep & np.asarray(run.valid, bool)       # never modify the run's arrays
     t, w1, w2 = t[keep], w1[keep], w2[keep]
     if t.size < 20:
         raise InputError(f"run: expected at least 20 valid samples to track, got {t.size}")

@@ -393,6 +393,24 @@ def test_calibration_property_is_a_serialisable_pair_calibration():
     np.testing.assert_allclose(back.covariance, tr.covariance)
 
 
+def test_track_figure_for_report_tracks_a_pipeline_run():
+    from fusion_gyrocal.calibrate import run_pipeline
+    from fusion_gyrocal.ekf import track_figure_for_report
+
+    rng = np.random.default_rng(18)
+    motion = HumanMotion(0.8, rng=rng)
+    R = general_rotation(rng)
+    t1, t2 = np.arange(0, 60, 1 / 200.0), np.arange(0.013, 60, 1 / 100.0)     # unsynchronised, 47 ms offset
+    w1 = motion(t1) + rng.normal(0, NOISE, (t1.size, 3))
+    w2 = (motion(t2 + 0.0473) @ R) + rng.normal(0, NOISE, (t2.size, 3))
+    run = run_pipeline(w1, w2, t_1=t1, t_2=t2, noise_std=NOISE)
+    fig = track_figure_for_report(run)
+    assert len(fig.axes) == 3
+    t_plot = fig.axes[0].lines[0].get_xdata()
+    assert t_plot[0] > 0.2 * 60 - 1 and t_plot[-1] > 58           # seeded on the first 20 %, tracked the rest
+    assert np.ptp(t_plot) / (len(t_plot) - 1) == pytest.approx(1.0, rel=0.05)   # ~1 s blocks
+
+
 # ---------------------------------------------------------------------------- real motion, example
 @pytest.mark.shared_data
 def test_run_tracks_drift_with_recorded_hand_motion():
