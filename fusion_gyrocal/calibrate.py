@@ -450,19 +450,29 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s=None, ma
     rejected = 0.0
     corr = float("nan")
     if flex_rejection is not False and cal.rigid:
-        n_used = cal.n_samples
-        keep = mask
-        for _ in range(5):  # the paper's gate, iterated until no new sample is rejected
-            A_ls, b_ls = solve_A(mom)
-            out = _outliers(w1, w2, A_ls, b_ls, keep, gate_window)
-            if not out.any() or (flex_rejection == "auto" and keep is mask and out.sum() <= 0.01 * n_used):
-                break
-            gate = np.convolve(out, np.ones(2 * flex_margin + 1), mode="same") > 0  # neighbours too
-            keep = ~gate if keep is None else (keep & ~gate)
-            mom = moments_of(keep)
+        from . import flex
+
+        n, n_used, keep = len(w1), cal.n_samples, mask
+        sub = flex.block_ranges(n, gate_window, max_points=30_000)
         A_ls, b_ls = solve_A(mom)
-        fast = _flexing_rates(w1, w2, A_ls, b_ls, keep, gate_window)
-        if fast is not None:
+        L = flex.robust_whitener(w1, w2, A_ls, b_ls, keep, gate_window, sub)
+        n_sub = sum(b - a for a, b in sub) if mask is None else sum(int(mask[a:b].sum()) for a, b in sub)
+        frac = flex.outliers(w1, w2, A_ls, b_ls, keep, gate_window, sub, L).size / max(n_sub, 1)
+        if flex_rejection is True or frac > 0.01:  # the paper's gate, iterated until nothing new is rejected
+            everything = flex.block_ranges(n, gate_window)
+            for _ in range(5):
+                out = flex.outliers(w1, w2, A_ls, b_ls, keep, gate_window, everything, L)
+                if out.size == 0:
+                    break
+                gate = np.ones(n, bool) if keep is None else keep.copy()
+                gate[flex.dilate(out, flex_margin, n)] = False  # the outliers and their neighbours
+                keep = gate
+                mom = moments_of(keep)
+                A_ls, b_ls = solve_A(mom)
+                L = flex.robust_whitener(w1, w2, A_ls, b_ls, keep, gate_window, sub)
+        cut = flex.flex_rate_cut(*flex.normalised_residuals(w1, w2, A_ls, b_ls, keep, gate_window, sub, L))
+        if cut is not None:
+            fast = flex.above_rate(w1, cut, n)
             keep = ~fast if keep is None else (keep & ~fast)
             mom = moments_of(keep)
         kept_energy = float(np.trace(mom.S11) / np.trace(mom0.S11)) if keep is not mask else 1.0
@@ -474,7 +484,8 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s=None, ma
             cal = _replace(cal, notes=cal.notes + (
                 f"the residual grows with the rate across the motion (model error or flex everywhere): rejecting it "
                 f"would keep only {100 * kept_energy:.0f}% of the motion energy, so no sample was rejected",))
-        corr = _rate_residual_correlation(w1, w2, cal, mask, gate_window)
+        d2, rate = flex.normalised_residuals(w1, w2, cal.A, cal.bias, mask, gate_window, sub, np.eye(3))
+        corr = flex.spearman(np.sqrt(d2), rate)
     cal = _replace(cal, time_offset_s=offset, time_offset_std_s=offset_std, rejected_fraction=rejected,
                    rate_residual_correlation=corr)
     return PipelineRun(cal, t_grid, np.asarray(w1), np.asarray(w2), valid_in, mask, pair)
@@ -483,101 +494,3 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s=None, ma
 def _replace(cal: PairCalibration, **changes) -> PairCalibration:
     import dataclasses
     return dataclasses.replace(cal, **changes)
-
-
-def _residual_chunks(w1, w2, A, bias, mask, bias_window, chunk=65536):
-    """Yield ``(start, residual, used)`` chunks of ``omega_1 - A omega_2 - b`` (per-window bias if windowed)."""
-    n = np.asarray(w1).shape[0]
-    step = chunk if bias_window is None else max(int(bias_window), 1) * max(1, chunk // max(int(bias_window), 1))
-    for start in range(0, n, step):
-        stop = min(start + step, n)
-        a = np.asarray(w1[start:stop], dtype=float)
-        b = np.asarray(w2[start:stop], dtype=float)
-        r = a - b @ A.T
-        used = np.ones(stop - start, bool) if mask is None else mask[start:stop]
-        if bias_window is None:
-            r -= bias
-        else:
-            for k in range(0, stop - start, int(bias_window)):
-                sl = slice(k, k + int(bias_window))
-                u = used[sl]
-                if u.any():
-                    r[sl] -= r[sl][u].mean(axis=0)
-        yield start, r, used
-
-
-def _outliers(w1, w2, A, bias, mask, bias_window) -> np.ndarray:
-    """Samples whose residual exceeds the 3-sigma gate (chi-square, 3 dof, 0.27% false alarms).
-
-    The residual is that of the unconstrained least-squares ``A`` (Eq. 16), which absorbs any
-    linear model error (skew, misalignment), so what the gate sees is noise plus the non-linear,
-    time-varying effects the paper's gate is for (flex, Section VI.C). Its covariance is
-    estimated robustly (median of a subsample), so the outliers do not widen their own gate.
-    """
-    from scipy.stats import chi2
-    sample = np.concatenate([r[u][:: max(1, len(r) // 4000)] for _, r, u in _residual_chunks(
-        w1, w2, A, bias, mask, bias_window)])
-    # robust covariance: scale the sample covariance by the median chi-square of the sample
-    W = np.linalg.inv(np.cov(sample.T) + 1e-300 * np.eye(3))
-    d2 = np.einsum("ij,jk,ik->i", sample, W, sample)
-    W = W * (chi2.median(3) / max(np.median(d2), 1e-300))
-    limit = chi2.ppf(0.9973, 3)
-    out = np.zeros(np.asarray(w1).shape[0], dtype=bool)
-    for start, r, used in _residual_chunks(w1, w2, A, bias, mask, bias_window):
-        out[start:start + len(r)] = used & (np.einsum("ij,jk,ik->i", r, W, r) > limit)
-    return out
-
-
-def _flexing_rates(w1, w2, A, bias, mask, bias_window, bins: int = 20):
-    """Samples above the rate from which the residual grows with the rate (flex that the gate missed).
-
-    The used samples are split into ``bins`` equal-count bins of gyro 1's rate norm. A bin is
-    inflated when its mean normalised squared residual exceeds that of the slower half of the
-    data by more than 5 standard errors. If the fastest bins are inflated, every sample from
-    the slowest of the consecutive inflated top bins upwards is returned. Flex comes in bursts at
-    the fastest motion: when the inflation reaches below the fastest fifth of the samples, the
-    residual grows with the rate everywhere (a model error such as a sampling skew between the
-    gyros, not flex) and nothing is cut (None); ``rate_residual_correlation`` reports it.
-    """
-    d2, rate, idx = [], [], []
-    for start, r, used in _residual_chunks(w1, w2, A, bias, mask, bias_window):
-        k = np.flatnonzero(used)
-        d2.append((r[k] ** 2).sum(axis=1))
-        rate.append(np.linalg.norm(np.asarray(w1[start:start + len(r)])[k], axis=1))
-        idx.append(k + start)
-    d2, rate, idx = np.concatenate(d2), np.concatenate(rate), np.concatenate(idx)
-    if d2.size < 20 * bins:
-        return None
-    order = np.argsort(rate)
-    groups = np.array_split(order, bins)
-    means = np.array([d2[g].mean() for g in groups])
-    ref = np.median(means[: bins // 2])
-    se = ref * np.sqrt(2.0 / (3.0 * len(groups[0])))  # chi-square(3)/3 per sample, mean over a bin
-    inflated = means > ref + 5.0 * se
-    if not inflated[-1]:
-        return None
-    first = bins - 1
-    while first > 0 and inflated[first - 1]:
-        first -= 1
-    if first < bins - bins // 5:
-        return None
-    cut = rate[groups[first][0]]
-    out = np.zeros(np.asarray(w1).shape[0], dtype=bool)
-    out[idx[rate >= cut]] = True
-    return out
-
-
-def _rate_residual_correlation(w1, w2, cal, mask, bias_window, max_points=20000) -> float:
-    """Spearman correlation of residual norm with gyro 1's rate norm (the flex signature)."""
-    from scipy.stats import spearmanr
-    rn, wn = [], []
-    n = np.asarray(w1).shape[0]
-    stride = max(1, n // max_points)
-    for start, r, used in _residual_chunks(w1, w2, cal.A, cal.bias, mask, bias_window):
-        idx = np.arange(len(r))[((np.arange(len(r)) + start) % stride == 0) & used]
-        rn.append(np.linalg.norm(r[idx], axis=1))
-        wn.append(np.linalg.norm(np.asarray(w1[start:start + len(r)])[idx], axis=1))
-    rn, wn = np.concatenate(rn), np.concatenate(wn)
-    if rn.size < 10:
-        return float("nan")
-    return float(spearmanr(rn, wn).statistic)
