@@ -23,6 +23,7 @@ import numpy as np
 
 from ..errors import FormatError, GyroCalError, InputError
 from .readers import ImuStream, _int_time_to_seconds
+from .writers import _fsync_dir
 
 IMU_MSGTYPE = "sensor_msgs/msg/Imu"
 _IMU_TYPES = (IMU_MSGTYPE, "sensor_msgs/Imu")
@@ -302,16 +303,3 @@ def _fsync_tree(p: Path) -> None:
             os.close(fd)
     if p.is_dir():
         _fsync_dir(p)
-
-
-def _fsync_dir(d: Path) -> None:
-    try:
-        fd = os.open(d, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
