@@ -27,22 +27,7 @@ from scipy.optimize import minimize_scalar
 from scipy.signal import correlate
 
 from fusion_gyrocal.preprocess import estimate_time_offset
-from fusion_gyrocal.sim import DEG, PAPER_NOISE_STD, HumanMotion, random_rotation
-
-
-def simulate_streams(rng, *, rate_1, rate_2, duration, offset, rms, jitter=0.25, noise=PAPER_NOISE_STD,
-                     scale_std=0.01, bias_std=0.5 * DEG):
-    """Gyro 2's sample at its own time s happened at s + offset on gyro 1's clock."""
-    motion = HumanMotion(rms, rng=rng)
-    R = random_rotation(rng)
-    s2 = 1.0 + scale_std * rng.standard_normal(3)
-    b1, b2 = rng.normal(0.0, bias_std, 3), rng.normal(0.0, bias_std, 3)
-    n1, n2 = int(duration * rate_1), int(duration * rate_2)
-    t1 = (np.arange(n1) + rng.uniform(-jitter, jitter, n1)) / rate_1
-    t2 = rng.uniform(0.0, 1.0) / rate_2 - offset + (np.arange(n2) + rng.uniform(-jitter, jitter, n2)) / rate_2
-    w1 = motion(t1) + b1 + rng.normal(0.0, noise, (n1, 3))
-    w2 = (motion(t2 + offset) @ R) * s2 + b2 + rng.normal(0.0, noise, (n2, 3))
-    return t1, w1, t2, w2
+from fusion_gyrocal.sim import simulate_streams
 
 
 def coarse_offset(est) -> float:
@@ -76,7 +61,7 @@ def run(scenario: str, runs: int, rng, *, duration: float, rms: float, rates=((1
     for k in range(runs):
         offset = rng.uniform(-0.3, 0.3)
         rate_1, rate_2 = rates[k % len(rates)]
-        t1, w1, t2, w2 = simulate_streams(rng, rate_1=rate_1, rate_2=rate_2, duration=duration,
+        t1, w1, t2, w2, *_ = simulate_streams(rng, rate_1=rate_1, rate_2=rate_2, duration=duration,
                                           offset=offset, rms=rms)
         t0 = time.perf_counter()
         est = estimate_time_offset(t1, w1, t2, w2)

@@ -13,7 +13,7 @@ import numpy as np
 
 from .direct import Gauge, decompose, solve_A
 from .errors import ConfigurationError, InputError, NotRigidError
-from .model import BIAS, ROT, S1, S2, PairCalibration
+from .model import BIAS, ROT, PairCalibration
 from .moments import Moments
 from .observability import (A_of, check_excitation, classify, dA_dp, fisher_information, per_axis_snr,
                             residual_weight, signal_scatter)

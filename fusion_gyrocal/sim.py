@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -167,6 +168,40 @@ def simulate_pair(omega_true_1=None, *, n: int = 6000, rate_hz: float = PAPER_RA
     return SimulatedPair(t, w1, w2, omega_true_1, R, s1, s2, S[0], S[1],
                          np.broadcast_to(biases[0], (n, 3)), np.broadcast_to(biases[1], (n, 3)),
                          (float(sig[0]), float(sig[1])))
+
+
+class SimulatedStreams(NamedTuple):
+    """Two gyro streams on their own clocks (unpacks as ``t_1, omega_1, t_2, omega_2, R_1_2, motion``)."""
+
+    t_1: np.ndarray
+    omega_1: np.ndarray
+    t_2: np.ndarray
+    omega_2: np.ndarray
+    R_1_2: np.ndarray
+    motion: HumanMotion
+
+
+def simulate_streams(rng=None, *, rate_1: float = 100.0, rate_2: float = 200.0, duration: float = 60.0,
+                     offset: float = 0.1, jitter: float = 0.25, noise=PAPER_NOISE_STD, rms=1.0,
+                     scale_std: float = 0.01, bias_std: float = 0.5 * DEG) -> SimulatedStreams:
+    """Two gyros sampled on their own clocks from one continuous :class:`HumanMotion`.
+
+    Gyro 2's sample at its own time ``s`` happened at ``s + offset`` on gyro 1's clock (the
+    library's sign of ``time_offset_s``). Sample instants are jittered by up to ``jitter``
+    periods (uniform) and recorded exactly; gyro 2 is rotated by a random rotation and scaled by
+    ``1 + N(0, scale_std^2)`` per axis; both carry a bias ``N(0, bias_std^2)`` and white noise.
+    """
+    rng = np.random.default_rng(rng)
+    motion = HumanMotion(rms, rng=rng)
+    R = random_rotation(rng)
+    s2 = 1.0 + scale_std * rng.standard_normal(3)
+    b1, b2 = rng.normal(0.0, bias_std, 3), rng.normal(0.0, bias_std, 3)
+    n1, n2 = int(duration * rate_1), int(duration * rate_2)
+    t1 = (np.arange(n1) + rng.uniform(-jitter, jitter, n1)) / rate_1
+    t2 = rng.uniform(0.0, 1.0) / rate_2 - offset + (np.arange(n2) + rng.uniform(-jitter, jitter, n2)) / rate_2
+    w1 = motion(t1) + b1 + rng.normal(0.0, noise, (n1, 3))
+    w2 = (motion(t2 + offset) @ R) * s2 + b2 + rng.normal(0.0, noise, (n2, 3))
+    return SimulatedStreams(t1, w1, t2, w2, R, motion)
 
 
 def rotation_error(R_hat, R_true) -> float:

@@ -14,29 +14,10 @@ from fusion_gyrocal.moments import Moments
 from fusion_gyrocal.preprocess import (AlignedPair, TimeOffset, align_streams, check_timestamps, estimate_time_offset,
                                        excitation_report, informative_mask, resample, saturation_mask, to_rad_per_s,
                                        valid_mask)
-from fusion_gyrocal.sim import DEG, PAPER_NOISE_STD, HumanMotion, random_rotation, rotation_error, shared_data_dir
+from fusion_gyrocal.sim import (DEG, PAPER_NOISE_STD, HumanMotion, random_rotation, rotation_error, shared_data_dir,
+                                simulate_streams)
 
 NO_DATA = "../shared/data not present (real recordings are only in the project checkout)"
-
-
-def simulate_streams(rng, *, rate_1=100.0, rate_2=200.0, duration=60.0, offset=0.1, jitter=0.25,
-                     noise=PAPER_NOISE_STD, rms=1.0, scale_std=0.01, bias_std=0.5 * DEG):
-    """Two gyros on their own clocks: gyro 2's sample at its own time s happened at s + offset on gyro 1's clock.
-
-    Sample instants are jittered by up to ``jitter`` periods (uniform) and recorded exactly; gyro 2 is
-    rotated by a random rotation, scaled by ~``scale_std``, both are biased and carry white noise.
-    """
-    rng = np.random.default_rng(rng)
-    motion = HumanMotion(rms, rng=rng)
-    R = random_rotation(rng)
-    s2 = 1.0 + scale_std * rng.standard_normal(3)
-    b1, b2 = rng.normal(0.0, bias_std, 3), rng.normal(0.0, bias_std, 3)
-    n1, n2 = int(duration * rate_1), int(duration * rate_2)
-    t1 = (np.arange(n1) + rng.uniform(-jitter, jitter, n1)) / rate_1
-    t2 = rng.uniform(0.0, 1.0) / rate_2 - offset + (np.arange(n2) + rng.uniform(-jitter, jitter, n2)) / rate_2
-    w1 = motion(t1) + b1 + rng.normal(0.0, noise, (n1, 3))
-    w2 = (motion(t2 + offset) @ R) * s2 + b2 + rng.normal(0.0, noise, (n2, 3))
-    return t1, w1, t2, w2, R, motion
 
 
 # ------------------------------------------------------------------------------------------------ stream checks
