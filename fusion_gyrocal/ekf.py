@@ -814,7 +814,7 @@ class GyroPairTracker:
     def _cusum_step(self, t, d2):
         """Vectorised CUSUM over per-sample ``d2`` at times ``t``; returns (alarm index or None)."""
         x = np.minimum(d2, self.gate) / 3.0 - 1.0 - self.cusum_drift
-        if self._alarm is not None:
+        if self._alarm is not None or self._replaying:   # replays re-process a span judged transient
             return None
         S = np.cumsum(x)
         g0 = self._cusum
@@ -844,7 +844,7 @@ class GyroPairTracker:
 
     def _cusum_sample(self, t, d2) -> bool:
         """Scalar CUSUM step (per-sample mode); same recursion as :meth:`_cusum_step`. True on an alarm."""
-        if self._alarm is not None:
+        if self._alarm is not None or self._replaying:
             return False
         g = self._cusum + min(d2, self.gate) / 3.0 - 1.0 - self.cusum_drift
         if g <= 0.0:

@@ -235,18 +235,19 @@ def test_update_block_gates_flex_spikes():
     assert np.nanmean(h.nis) < 1.2
 
 
-def test_run_false_alarm_restores_filter():
+@pytest.mark.parametrize("mode", ["fast", "sample"])
+def test_run_false_alarm_restores_filter(mode):
     """A long flex burst raises the alarm; the batch solve agrees with the old state; state is restored."""
     rng = np.random.default_rng(9)
     t, w1, w2, truth = scenario(rng, 60.0)
     n0 = int(10 * RATE)
     ref = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0])
-    ref.run(t[n0:], w1[n0:], w2[n0:])
+    ref.run(t[n0:], w1[n0:], w2[n0:], mode=mode)
     w2f = w2.copy()
     burst = (t >= 30.0) & (t < 30.5)                    # 0.5 s of flex: rate-dependent misalignment (2 deg)
     w2f[burst] = w2[burst] @ Rotation.from_rotvec([0, 0, 2 * DEG]).as_matrix().T
     tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2f[:n0])
-    h = tr.run(t[n0:], w1[n0:], w2f[n0:], truth=part(truth, slice(n0, None)))
+    h = tr.run(t[n0:], w1[n0:], w2f[n0:], mode=mode, truth=part(truth, slice(n0, None)))
     assert len(h.reseeds) == 1 and not h.reseeds[0].accepted
     assert 30.0 <= h.reseeds[0].t_detected <= 30.5
     # after restore and replay, the filter is where the undisturbed one is
