@@ -1,7 +1,11 @@
 """fusion_gyrocal: infield calibration of rigidly mounted gyroscopes from their rates alone.
 
 Implements T. Wang and S. I. Roumeliotis, "A Direct Algorithm for Multi-Gyroscope Infield
-Calibration", and goes beyond it (maximum likelihood, drifting bias, priors, streaming).
+Calibration", and goes beyond it (maximum likelihood, drifting bias, priors, N gyros,
+streaming, an EKF, a GTSAM graph, fleets on Dask).
+
+The core names import eagerly; the estimators with heavy dependencies (filterpy, gtsam, dask)
+load on first use.
 """
 
 from .calibrate import calibrate_pair, solve
@@ -13,8 +17,24 @@ from .moments import Moments
 
 __version__ = "0.1.0"
 
+_LAZY = {
+    "calibrate_array": "multi", "ArrayCalibration": "multi",
+    "StreamingCalibrator": "stream",
+    "GyroPairTracker": "ekf",
+    "calibrate_pair_graph": "graph", "GyroPairGraph": "graph",
+    "run_fleet": "fleet",
+}
+
 __all__ = [
     "calibrate_pair", "solve", "Gauge", "PairCalibration", "Moments",
     "GyroCalError", "InputError", "ExcitationError", "ConfigurationError", "TimeAlignmentError",
-    "NotRigidError", "FormatError", "__version__",
+    "NotRigidError", "FormatError", "__version__", *_LAZY,
 ]
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    raise AttributeError(f"module 'fusion_gyrocal' has no attribute {name!r}")
