@@ -60,32 +60,33 @@ def timed(fn, repeat: int = 1):
     return best, out
 
 
-def bench_fleet(root: Path, n_devices: int, n_samples: int) -> None:
+def bench_fleet(root: Path, n_devices: int, n_samples: int, repeat: int) -> None:
     for i in range(n_devices):
         write_log(root / f"device_{i:03d}.parquet", n_samples, seed=i, row_group_size=n_samples, base=n_samples)
     total = n_devices * n_samples
-    print(f"\n1. fleet: {n_devices} Parquet devices x {n_samples} samples (calibrate_pair per device, method ml)")
-    print(f"   {'engine':38s} {'seconds':>8s} {'devices/s':>10s} {'Msamples/s':>11s}  rows ok")
-    warm = [root / "device_000.parquet", root / "device_001.parquet"]
-    dt, df = timed(lambda: run_fleet(root), repeat=1)  # warm-up of this process's imports
-    dt, df = timed(lambda: run_fleet(root), repeat=1)
-    print(f"   {'threaded scheduler, this process':38s} {dt:8.2f} {n_devices / dt:10.2f} {total / dt / 1e6:11.3f}  "
-          f"{int(df['ok'].sum())}/{len(df)}")
+    print(f"\n1. fleet: {n_devices} Parquet devices x {n_samples} samples (calibrate_pair per device, method ml); "
+          f"best of {repeat} after a warm-up run")
+    print(f"   {'engine':38s} {'seconds':>8s} {'devices/s':>10s} {'Msamples/s':>11s} {'sum of task s':>14s}  rows ok")
+
+    def report(label, run):
+        run()  # warm-up: imports in this process or in every worker, file cache
+        dt, df = timed(run, repeat=repeat)
+        print(f"   {label:38s} {dt:8.2f} {n_devices / dt:10.2f} {total / dt / 1e6:11.3f} {df['seconds'].sum():14.2f}  "
+              f"{int(df['ok'].sum())}/{len(df)}")
+
+    report("threaded scheduler, this process", lambda: run_fleet(root))
     for workers in (1, 2):
         with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                           dashboard_address=None) as cluster, Client(cluster) as client:
-            run_fleet(warm, client=client)  # warm-up: imports in every worker
-            dt, df = timed(lambda: run_fleet(root, client=client), repeat=2)
-            print(f"   {f'LocalCluster, {workers} worker process(es)':38s} {dt:8.2f} {n_devices / dt:10.2f} "
-                  f"{total / dt / 1e6:11.3f}  {int(df['ok'].sum())}/{len(df)}")
+            report(f"LocalCluster, {workers} worker process(es)", lambda: run_fleet(root, client=client))
 
 
-def bench_log(root: Path, n: int, row_group_size: int) -> None:
+def bench_log(root: Path, n: int, row_group_size: int, repeat: int) -> None:
     path = root / "huge.parquet"
     write_log(path, n, seed=99, row_group_size=row_group_size)
     size_mb = path.stat().st_size / 1e6
     n_groups = pq.ParquetFile(path).num_row_groups
-    print(f"\n2. huge log: {n} samples, {n_groups} row groups, {size_mb:.0f} MB on disk")
+    print(f"\n2. huge log: {n} samples, {n_groups} row groups, {size_mb:.0f} MB on disk; best of {repeat}")
 
     def in_process():
         table = pq.read_table(path, columns=list(COLUMNS[1:]))
@@ -98,7 +99,7 @@ def bench_log(root: Path, n: int, row_group_size: int) -> None:
         return timed(lambda: Moments.from_samples(x[:, :3], x[:, 3:]), repeat=3)[0]
 
     dt_mem = in_memory_pass_time()
-    dt_ref, ref = timed(in_process, repeat=2)
+    dt_ref, ref = timed(in_process, repeat=repeat)
     print(f"   {'engine':46s} {'seconds':>8s} {'Msamples/s':>11s} {'max rel diff':>13s}")
     print(f"   {'in-process pass over arrays already in memory':46s} {dt_mem:8.2f} {n / dt_mem / 1e6:11.2f} {'-':>13s}")
     print(f"   {'in-process: read whole file + one pass':46s} {dt_ref:8.2f} {n / dt_ref / 1e6:11.2f} {'(reference)':>13s}")
@@ -107,13 +108,13 @@ def bench_log(root: Path, n: int, row_group_size: int) -> None:
         return max(float(np.max(np.abs(m.scatter - ref.scatter)) / np.max(np.abs(ref.scatter))),
                    float(np.max(np.abs(m.mean - ref.mean)) / np.max(np.abs(ref.mean))), abs(m.count - ref.count))
 
-    dt, m = timed(lambda: log_moments(path), repeat=2)
+    dt, m = timed(lambda: log_moments(path), repeat=repeat)
     print(f"   {'dask threaded scheduler, this process':46s} {dt:8.2f} {n / dt / 1e6:11.2f} {rel(m):13.2e}")
     for workers in (1, 2):
         with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                           dashboard_address=None) as cluster, Client(cluster) as client:
             log_moments(path, client=client)  # warm-up (imports, file cache)
-            dt, m = timed(lambda: log_moments(path, client=client), repeat=2)
+            dt, m = timed(lambda: log_moments(path, client=client), repeat=repeat)
             print(f"   {f'LocalCluster, {workers} worker process(es)':46s} {dt:8.2f} {n / dt / 1e6:11.2f} "
                   f"{rel(m):13.2e}")
 
@@ -124,14 +125,15 @@ def main(argv=None) -> None:
     p.add_argument("--device-samples", type=int, default=60_000)
     p.add_argument("--log-samples", type=int, default=6_000_000)
     p.add_argument("--row-group", type=int, default=250_000)
+    p.add_argument("--repeat", type=int, default=3)
     args = p.parse_args(argv)
     print(f"machine: {os.cpu_count()} CPU(s); load average at start {os.getloadavg()[0]:.1f} "
           "(other processes share the CPUs: figures are only comparable at low load)")
     root = Path(tempfile.mkdtemp(prefix="gyrocal_fleet_bench_"))
     try:
         (root / "fleet").mkdir()
-        bench_fleet(root / "fleet", args.devices, args.device_samples)
-        bench_log(root, args.log_samples, args.row_group)
+        bench_fleet(root / "fleet", args.devices, args.device_samples, args.repeat)
+        bench_log(root, args.log_samples, args.row_group, args.repeat)
     finally:
         shutil.rmtree(root, ignore_errors=True)
     print(f"\nload average at the end {os.getloadavg()[0]:.1f}")
