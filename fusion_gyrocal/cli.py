@@ -189,11 +189,12 @@ def cmd_report(args) -> int:
     run = _pipeline(args, s1, s2)
     extra = {}
     if args.track:
+        from .ekf import track_figure_for_report  # drift tracking plot
+        from .errors import GyroCalError
         try:
-            from .ekf import track_figure_for_report  # optional: drift tracking plot
             extra["drift_tracking"] = track_figure_for_report(run)
-        except ImportError:
-            pass
+        except GyroCalError as e:  # the rest of the report is still worth writing
+            print(f"gyrocal: drift tracking skipped: {e}", file=sys.stderr)
     for p in write_report(run, args.out, extra_figures=extra):
         print(f"wrote {p}")
     return 0

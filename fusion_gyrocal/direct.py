@@ -140,7 +140,8 @@ class Gauge:
             return f"unit prior on {names} (Eq. 31-32)"
         return f"{names} == {self.value:g}"
 
-    def _members_in(self, group):
+    def members_in(self, group) -> list:
+        """The gauge's members that belong to ``group`` (a tuple of ``(gyro, axis)``)."""
         return [m for m in self.members if m in group]
 
     def apply(self, groups, s1, s2) -> tuple[np.ndarray, np.ndarray]:
@@ -152,9 +153,9 @@ class Gauge:
         """
         s = np.stack([np.asarray(s1, float), np.asarray(s2, float)])
         for group in groups:
-            members = self._members_in(group) or list(group)
+            members = self.members_in(group) or list(group)
             r = np.array([s[g, a] for g, a in members])
-            if self.value is not None and self._members_in(group):
+            if self.value is not None and self.members_in(group):
                 c = self.value / r[0]
             else:
                 c = r.sum() / (r**2).sum()  # argmin_c sum (c r - 1)^2 (Eq. 31-32 for two members)
@@ -167,11 +168,11 @@ class Gauge:
         s = np.stack([s1, s2])
         rows = []
         for group in groups:
-            members = self._members_in(group) or list(group)
+            members = self.members_in(group) or list(group)
             row = np.zeros(9)
             for g, a in members:
                 # fixed: d log s = 0; unit prior: d/dlog s of sum (s - 1) s = (2 s - 1) s
-                row[3 + 3 * g + a] = 1.0 if (self.value is not None and self._members_in(group)) \
+                row[3 + 3 * g + a] = 1.0 if (self.value is not None and self.members_in(group)) \
                     else s[g, a] * (2 * s[g, a] - 1)
             rows.append(row)
         return np.array(rows)

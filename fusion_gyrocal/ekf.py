@@ -567,7 +567,7 @@ class GyroPairTracker:
             config = self._config_like(R, cal.configuration)  # trust the seed's class
         self.configuration = config
         # groups of at least four linked scale factors follow the gauge; parallel pairs are held by the prior
-        self._gauge_groups = [g for g in config.groups if len(g) >= 4 and self.gauge._members_in(g)]
+        self._gauge_groups = [g for g in config.groups if len(g) >= 4 and self.gauge.members_in(g)]
         self._prior_groups = [g for g in config.groups if g not in self._gauge_groups]
 
         # covariance in [dtheta, log s1, log s2, b]; undetermined scale factors get the prior

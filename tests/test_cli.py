@@ -70,6 +70,13 @@ def test_cli_report_writes_figures(tmp_path):
     assert "configuration" in (tmp_path / "rep" / "report.md").read_text()
 
 
+def test_cli_report_track_adds_drift_plot(tmp_path):
+    p1, p2, _, _ = _write_pair(tmp_path, seed=2)
+    code = main(["report", str(p1), str(p2), "--unit2", "deg/s", "--out", str(tmp_path / "rep"), "--track"])
+    assert code == 0
+    assert (tmp_path / "rep" / "drift_tracking.png").stat().st_size > 10000
+
+
 def test_cli_demo_prints_estimate_beside_truth():
     r = subprocess.run([sys.executable, "-m", "fusion_gyrocal.cli", "demo"], capture_output=True, text=True,
                        timeout=120)
