@@ -13,7 +13,7 @@ import numpy as np
 
 from .direct import Gauge, decompose, solve_A
 from .errors import ConfigurationError, InputError, NotRigidError
-from .model import BIAS, ROT, PairCalibration
+from .model import BIAS, ROT, PairCalibration, mark_undetermined
 from .moments import Moments
 from .observability import (A_of, check_excitation, classify, dA_dp, fisher_information, per_axis_snr,
                             residual_weight, signal_scatter)
@@ -189,13 +189,7 @@ def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_p
                      f"or a wrong noise_std?); covariance inflated by {ratio:.2f}")
     cov = _assemble_covariance(P9, R, s1, s2, A, moments, noise)
     if scale_prior_std is None:
-        obs = config.scale_observable
-        for g in range(2):
-            for a in range(3):
-                if not obs[g, a]:
-                    k = 3 + 3 * g + a
-                    cov[k, :], cov[:, k] = 0.0, 0.0
-                    cov[k, k] = np.inf
+        mark_undetermined(cov, config.scale_observable)
     sk = np.broadcast_to(np.asarray(skew_std, dtype=float), (2,))
     skew_cov = 0.25 * (sk[0] ** 2 + sk[1] ** 2) * np.eye(3)  # Appendix D: theta ~ (w_1 - C w_2) / 2
     cov[ROT, ROT] += skew_cov

@@ -45,6 +45,19 @@ _ARRAY_SHAPES = {
 }
 
 
+def mark_undetermined(cov: np.ndarray, scale_observable) -> np.ndarray:
+    """Give the scale factors the data do not determine an infinite variance and no correlations.
+
+    ``cov`` is a (12, 12) covariance in the order of :data:`PARAMETER_NAMES` (modified in place and
+    returned); ``scale_observable`` is the (2, 3) flag array.
+    """
+    for g, a in zip(*np.nonzero(~np.asarray(scale_observable, dtype=bool))):
+        k = 3 + 3 * int(g) + int(a)
+        cov[k, :], cov[:, k] = 0.0, 0.0
+        cov[k, k] = np.inf
+    return cov
+
+
 def _frozen(a, shape, dtype=np.float64):
     arr = np.array(a, dtype=dtype)
     if arr.shape != shape:

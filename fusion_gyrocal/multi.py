@@ -44,7 +44,7 @@ from scipy.spatial.transform import Rotation
 
 from .calibrate import solve
 from .errors import ConfigurationError, GyroCalError, InputError
-from .model import BIAS, PairCalibration
+from .model import BIAS, PairCalibration, mark_undetermined
 from .moments import Moments, as_rates, window_moments
 from .observability import A_of, classify, dA_dp, per_axis_snr, skew
 
@@ -381,12 +381,7 @@ class ArrayCalibration:
         P9 = J @ _log_parameter_covariance(self) @ J.T
         cov = _pair_covariance(P9, R, s1, s2, A, m, noise)
         obs = np.stack([self.scale_observable[i], self.scale_observable[j]])
-        for g in range(2):
-            for a in range(3):
-                if not obs[g, a]:
-                    k = 3 + 3 * g + a
-                    cov[k, :], cov[:, k] = 0.0, 0.0
-                    cov[k, k] = np.inf
+        mark_undetermined(cov, obs)
         M = _pair_residual_scatter(A, m.scatter)
         return PairCalibration(
             R_1_2=R, scale_1=s1, scale_2=s2, bias=m.mean_1 - A @ m.mean_2,
