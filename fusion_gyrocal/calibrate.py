@@ -17,7 +17,7 @@ from .model import BIAS, ROT, PairCalibration, mark_undetermined
 from .moments import Moments
 from .observability import (A_of, check_excitation, classify, dA_dp, fisher_information, per_axis_snr,
                             residual_weight, signal_scatter)
-from .refine import _residual_scatter, refine_ml
+from .refine import residual_scatter, refine_ml
 
 METHODS = ("ml", "direct")
 
@@ -47,7 +47,7 @@ def difference_noise_std(omega, max_samples: int = 200000) -> float:
 
 def _residual_noise(moments: Moments, A, ratio: float = 1.0) -> tuple[float, float]:
     """Noise per gyro from the least-squares residual, split in the ratio ``sigma_1 / sigma_2``."""
-    M = _residual_scatter(A, moments.scatter)
+    M = residual_scatter(A, moments.scatter)
     dof = max(moments.dof - 3.0, 1.0)
     total = float(np.trace(M)) / (3.0 * dof)
     floor = 1e-24 * float(np.trace(moments.S11)) / (3.0 * dof)  # noise-free input: keep weights finite
@@ -133,7 +133,7 @@ def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_p
     noise = _noise_pair(noise_std)
     check_excitation(moments, (1e-300, 1e-300), min_snr=0.0)  # sample count and constant input only
     A_ls, _ = solve_A(moments)
-    unexplained = float(np.trace(_residual_scatter(A_ls, moments.scatter)) / np.trace(moments.S11))
+    unexplained = float(np.trace(residual_scatter(A_ls, moments.scatter)) / np.trace(moments.S11))
     rigid = unexplained <= max_unexplained
     if not rigid and on_not_rigid == "raise":
         raise NotRigidError(
@@ -177,7 +177,7 @@ def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_p
         P9 = _direct_covariance(moments, A_ls, noise, config, gauge)
     # residual consistency: inflate when the data scatter more than the stated noise explains
     W = residual_weight(A, noise)
-    M = _residual_scatter(A, moments.scatter)
+    M = residual_scatter(A, moments.scatter)
     chi2 = float(np.trace(W @ M))
     dof = max(3.0 * moments.dof - 8.0, 1.0)
     ratio = chi2 / dof
@@ -187,7 +187,7 @@ def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_p
         P9 = P9 * ratio
         notes.append(f"residuals are {np.sqrt(ratio):.2f}x larger than noise_std explains (flex, skew, time offset "
                      f"or a wrong noise_std?); covariance inflated by {ratio:.2f}")
-    cov = _assemble_covariance(P9, R, s1, s2, A, moments, noise)
+    cov = pair_covariance(P9, R, s1, s2, A, moments, noise)
     if scale_prior_std is None:
         mark_undetermined(cov, config.scale_observable)
     sk = np.broadcast_to(np.asarray(skew_std, dtype=float), (2,))
@@ -249,7 +249,7 @@ def _direct_covariance(moments, A_ls, noise, config, gauge):
     return J @ cov_A @ J.T
 
 
-def _assemble_covariance(P9, R, s1, s2, A, moments, noise):
+def pair_covariance(P9, R, s1, s2, A, moments, noise):
     """12x12 covariance of ``[dtheta, scale_1, scale_2, bias]`` from that of ``[dtheta, log s]``."""
     Jl = np.diag(np.concatenate([np.ones(3), s1, s2]))
     D = dA_dp(R, s1, s2)

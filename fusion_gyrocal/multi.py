@@ -42,11 +42,12 @@ from scipy.linalg import null_space
 from scipy.optimize import nnls
 from scipy.spatial.transform import Rotation
 
-from .calibrate import solve
+from .calibrate import pair_covariance, solve
 from .errors import ConfigurationError, GyroCalError, InputError
-from .model import BIAS, PairCalibration, mark_undetermined
+from .model import PairCalibration, mark_undetermined
 from .moments import Moments, as_rates, window_moments
 from .observability import A_of, classify, dA_dp, per_axis_snr, skew
+from .refine import residual_scatter
 
 GAUGES = ("unit_prior", "fixed")
 
@@ -379,10 +380,10 @@ class ArrayCalibration:
         J[3:6, 3 * n + 3 * i:3 * n + 3 * i + 3] = np.eye(3)
         J[6:9, 3 * n + 3 * j:3 * n + 3 * j + 3] = np.eye(3)
         P9 = J @ _log_parameter_covariance(self) @ J.T
-        cov = _pair_covariance(P9, R, s1, s2, A, m, noise)
+        cov = pair_covariance(P9, R, s1, s2, A, m, noise)
         obs = np.stack([self.scale_observable[i], self.scale_observable[j]])
         mark_undetermined(cov, obs)
-        M = _pair_residual_scatter(A, m.scatter)
+        M = residual_scatter(A, m.scatter)
         return PairCalibration(
             R_1_2=R, scale_1=s1, scale_2=s2, bias=m.mean_1 - A @ m.mean_2,
             configuration=self.configurations[i][j], scale_observable=obs, covariance=cov,
@@ -401,29 +402,6 @@ def _log_parameter_covariance(cal: ArrayCalibration) -> np.ndarray:
     return cal.covariance[:6 * n, :6 * n] * np.outer(d, d)
 
 
-def _pair_residual_scatter(A, Sc):
-    K = np.hstack([np.eye(3), -A])
-    return K @ Sc @ K.T
-
-
-def _pair_covariance(P9, R, s1, s2, A, m: Moments, noise):
-    """12x12 pair covariance ``[dtheta, scale_1, scale_2, bias]`` from ``[dtheta, log s_1, log s_2]``.
-
-    The bias ``mean_1 - A mean_2`` (Eq. 12) carries the noise of the means and the propagated
-    uncertainty of A (as in :func:`fusion_gyrocal.solve`).
-    """
-    Jl = np.diag(np.concatenate([np.ones(3), s1, s2]))
-    G = np.einsum("pij,j->ip", dA_dp(R, s1, s2), m.mean_2)  # d(A m_2)/dp
-    Sigma_r = noise[0] ** 2 * np.eye(3) + noise[1] ** 2 * A @ A.T
-    cov = np.zeros((12, 12))
-    cov[:9, :9] = Jl @ P9 @ Jl.T
-    cov[BIAS, BIAS] = Sigma_r / m.count + G @ P9 @ G.T
-    cov[BIAS, :9] = -G @ P9 @ Jl.T
-    cov[:9, BIAS] = cov[BIAS, :9].T
-    return cov
-
-
-# ---------------------------------------------------------------------------------------- the joint model
 def _H_of(R, s):
     """Stacked design ``H = [S_k R_ref_k^T]_k`` (3N, 3)."""
     return np.concatenate([s[k][:, None] * R[k].T for k in range(len(s))])
@@ -639,7 +617,7 @@ def _noise_from_pairs(moments: ArrayMoments, R, s):
         row[i] += 3.0
         row[j] += float(np.trace(A @ A.T))
         X.append(row)
-        y.append(float(np.trace(_pair_residual_scatter(A, m.scatter))) / max(m.dof - 3.0, 1.0))
+        y.append(float(np.trace(residual_scatter(A, m.scatter))) / max(m.dof - 3.0, 1.0))
     X, y = np.array(X), np.array(y)
     if n == 2:
         v = np.full(2, y[0] / X[0].sum())

@@ -27,7 +27,8 @@ from .observability import A_of, dA_dp, fisher_information, residual_weight, sig
 _E = np.eye(3)
 
 
-def _residual_scatter(A, Sc):
+def residual_scatter(A, Sc):
+    """``[I, -A] S_c [I, -A]^T``: the scatter of the residual ``omega_1 - A omega_2`` (Eq. 13)."""
     K = np.hstack([_E, -A])
     return K @ Sc @ K.T
 
@@ -35,7 +36,7 @@ def _residual_scatter(A, Sc):
 def ml_cost(R, s1, s2, moments: Moments, noise_std, scale_prior_std=None) -> float:
     """Negative log-likelihood (times 2, up to a constant) of the calibration given the moments."""
     A = A_of(R, s1, s2)
-    c = float(np.trace(residual_weight(A, noise_std) @ _residual_scatter(A, moments.scatter)))
+    c = float(np.trace(residual_weight(A, noise_std) @ residual_scatter(A, moments.scatter)))
     if scale_prior_std is not None:
         c += float((((np.concatenate([s1, s2]) - 1.0) / scale_prior_std) ** 2).sum())
     return c
@@ -47,7 +48,7 @@ def ml_gradient(R, s1, s2, moments: Moments, noise_std, scale_prior_std=None) ->
     D = dA_dp(R, s1, s2)
     W = residual_weight(A, noise_std)
     Sc = moments.scatter
-    M = _residual_scatter(A, Sc)
+    M = residual_scatter(A, Sc)
     S12, S22 = Sc[:3, 3:], Sc[3:, 3:]
     left = S22 @ A.T - S12.T          # dM = D (S22 A^T - S21) + (A S22 - S12) D^T
     WMW = W @ M @ W
