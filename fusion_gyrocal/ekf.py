@@ -82,6 +82,7 @@ from .errors import ConfigurationError, GyroCalError, InputError
 from .model import BIAS, ROT, S1, S2, PairCalibration
 from .moments import Moments, as_rates
 from .observability import classify, skew
+from .preprocess import check_timestamps
 
 __all__ = ["DriftNoise", "GyroPairTracker", "PairTruth", "ReseedEvent", "StepPrior", "TrackHistory",
            "plot_history", "simulate_drifting_pair", "track_figure_for_report"]
@@ -332,20 +333,12 @@ def _jacobian1(R, s1, s2, w2):
     return H, Aw
 
 
-def _batch_skew(u):
-    out = np.zeros(u.shape[:-1] + (3, 3))
-    out[..., 0, 1], out[..., 0, 2] = -u[..., 2], u[..., 1]
-    out[..., 1, 0], out[..., 1, 2] = u[..., 2], -u[..., 0]
-    out[..., 2, 0], out[..., 2, 1] = -u[..., 1], u[..., 0]
-    return out
-
-
 def _jacobian(R, s1, s2, w2):
     """Measurement Jacobians ``dh/dx`` (B, 3, 12) at zero error for gyro-2 samples ``w2`` (B, 3)."""
     u = (w2 / s2) @ R.T                      # R diag(1/s2) omega_2: gyro 2's rate in gyro 1's frame
     A = (s1[:, None] * R) / s2[None, :]
     H = np.zeros((w2.shape[0], 3, _DIM))
-    H[:, :, 0:3] = -s1[None, :, None] * _batch_skew(u)           # d(diag(s1) Exp(th) u)/dth
+    H[:, :, 0:3] = -s1[None, :, None] * skew(u)           # d(diag(s1) Exp(th) u)/dth
     idx = np.arange(3)
     H[:, idx, 3 + idx] = s1 * u                                  # d/d delta_1 = diag(A omega_2)
     H[:, :, 6:9] = -A[None, :, :] * w2[:, None, :]               # d/d delta_2 = -A diag(omega_2)
@@ -367,21 +360,6 @@ def _log_so3(R) -> np.ndarray:
         s = np.linalg.norm(v)
         return v if s < 1e-12 else v * (np.arcsin(min(s, 1.0)) / s)
     return Rotation.from_matrix(R).as_rotvec()
-
-
-def _check_times(name, t):
-    t = np.asarray(t, dtype=np.float64)
-    if t.ndim != 1:
-        raise InputError(f"{name}: expected a 1-D array of timestamps in seconds, got shape {t.shape}")
-    if not np.isfinite(t).all():
-        bad = int(np.flatnonzero(~np.isfinite(t))[0])
-        raise InputError(f"{name}: expected finite timestamps, got {t[bad]} at sample {bad}")
-    d = np.diff(t)
-    if d.size and d.min() <= 0:
-        k = int(np.argmin(d))
-        raise InputError(f"{name}: expected strictly increasing timestamps, got a step of {d[k]:.6g} s at "
-                         f"sample {k + 1}")
-    return t
 
 
 class _Ring:
@@ -552,7 +530,7 @@ class GyroPairTracker:
         ``t[-1]`` with the seed inflated for the drift over the window (``seed_span_s``).
         Further keyword arguments go to the constructor.
         """
-        t = _check_times("t", t)
+        t = check_timestamps("t", t)
         w1 = as_rates("omega_1", omega_1, length=t.shape[0])
         w2 = as_rates("omega_2", omega_2, length=t.shape[0])
         cal = _batch(w1, w2, noise_std, gauge)
@@ -928,7 +906,7 @@ class GyroPairTracker:
         centred scatter), ``Lambda = sum_mn Y_mn G_m^T W G_n`` and
         ``eta = sum_m G_m^T W L Y[:, m]`` where ``r_k = L y_k``, ``L = [I, -A, -b]``.
         """
-        t = _check_times("t", t)
+        t = check_timestamps("t", t)
         w1 = as_rates("omega_1", omega_1, length=t.shape[0])
         w2 = as_rates("omega_2", omega_2, length=t.shape[0])
         B = t.shape[0]
@@ -1136,7 +1114,7 @@ class GyroPairTracker:
             raise InputError(f"mode: expected 'fast' or 'sample', got {mode!r}")
         if int(block_size) < 1:
             raise InputError(f"block_size: expected >= 1, got {block_size}")
-        t = _check_times("t", t)
+        t = check_timestamps("t", t)
         w1 = as_rates("omega_1", omega_1, length=t.shape[0])
         w2 = as_rates("omega_2", omega_2, length=t.shape[0])
         if truth is not None and len(truth) != t.shape[0]:
@@ -1195,8 +1173,8 @@ class GyroPairTracker:
         """
         from scipy.interpolate import CubicSpline
 
-        t1 = _check_times("t_1", t_1)
-        t2 = _check_times("t_2", t_2) + self.time_offset_s
+        t1 = check_timestamps("t_1", t_1)
+        t2 = check_timestamps("t_2", t_2) + self.time_offset_s
         w1 = as_rates("omega_1", omega_1, length=t1.shape[0])
         w2 = as_rates("omega_2", omega_2, length=t2.shape[0])
         gap2 = max_gap_s if max_gap_s is not None else (5.0 * float(np.median(np.diff(t2))) if t2.size > 1 else 0)

@@ -67,7 +67,7 @@ from .direct import Gauge
 from .errors import ConfigurationError, InputError
 from .model import BIAS, ROT, PairCalibration
 from .moments import Moments, as_rates
-from .observability import classify, per_axis_snr
+from .observability import classify, per_axis_snr, skew
 
 __all__ = [
     "GraphKeys", "WindowStatistics", "RotationIncrements", "PreintegratedRotations", "GraphEstimate",
@@ -113,16 +113,6 @@ class GraphKeys:
 
 
 # ---------------------------------------------------------------------------------------------- SO(3)
-def _skew(v) -> np.ndarray:
-    """``[v x]`` for ``v`` of shape (..., 3) -> (..., 3, 3)."""
-    v = np.asarray(v, dtype=float)
-    out = np.zeros(v.shape[:-1] + (3, 3))
-    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
-    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
-    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
-    return out
-
-
 def _so3_coefficients(theta):
     """``sin(t)/t``, ``(1-cos t)/t^2``, ``(t-sin t)/t^3`` for the rows of ``theta`` (..., 3)."""
     t2 = np.einsum("...i,...i->...", theta, theta)
@@ -138,7 +128,7 @@ def _so3_coefficients(theta):
 def _so3_exp_and_right_jacobian(theta):
     """``Exp(theta)`` and the right Jacobian ``J_r(theta)`` (``Exp(t + d) ~ Exp(t) Exp(J_r d)``)."""
     a, b, c = _so3_coefficients(theta)
-    K = _skew(theta)
+    K = skew(theta)
     K2 = K @ K
     eye = np.eye(3)
     R = eye + a[..., None, None] * K + b[..., None, None] * K2
@@ -201,7 +191,7 @@ def _pair_residual(R, log_scale, bias, stats: WindowStatistics, noise_std, jacob
     if not jacobians:
         return e, None
     dA = np.empty((9, 3, 3))
-    dA[:3] = (s1[None, :, None] * (R[None] @ _skew(np.eye(3)))) / s2[None, None, :]
+    dA[:3] = (s1[None, :, None] * (R[None] @ skew(np.eye(3)))) / s2[None, None, :]
     dA[3:6] = np.eye(3)[:, :, None] * A[None, :, :]              # row i of A
     dA[6:] = -np.eye(3)[:, None, :] * A[None, :, :]              # column i of A
     dAAt = dA @ A.T

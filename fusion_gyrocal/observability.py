@@ -28,9 +28,13 @@ CONFIG_GENERAL, CONFIG_ONE_PAIR, CONFIG_ALL = "general", "one_axis_pair_parallel
 
 
 def skew(v) -> np.ndarray:
-    """``[v x]``: the matrix of the cross product with ``v``."""
-    x, y, z = v
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    """``[v x]``: the matrix of the cross product with ``v``; (..., 3) -> (..., 3, 3)."""
+    v = np.asarray(v, dtype=float)
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
+    return out
 
 
 def nearest_rotation(M) -> np.ndarray:
