@@ -81,8 +81,8 @@ def _accumulate(w1, w2, mask, lo, hi, chunk_size):
     for start in range(lo, hi, chunk_size):
         stop = min(start + chunk_size, hi)
         x = buf[: stop - start]
-        x[:, :3] = w1[start:stop]
-        x[:, 3:6] = w2[start:stop]
+        np.copyto(x[:, :3], w1[start:stop])
+        np.copyto(x[:, 3:6], w2[start:stop])
         if mask is not None:
             keep = mask[start:stop]
             if not keep.all():
@@ -90,7 +90,7 @@ def _accumulate(w1, w2, mask, lo, hi, chunk_size):
         m = x.shape[0]
         if m == 0:
             continue
-        G = x.T @ x
+        G = np.dot(x.T, x)  # one BLAS call for sums and products (np.dot measured faster than @ here)
         s = G[6, :6]
         if not np.isfinite(s).all():
             name, arr = ("omega_1", w1) if not np.isfinite(s[:3]).all() else ("omega_2", w2)
