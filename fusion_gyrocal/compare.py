@@ -4,10 +4,11 @@ Estimators (:data:`ESTIMATORS`)
 -------------------------------
 ``direct``
     The paper's direct solution: least squares for A (Eq. 16), decomposition (Lemmas 2-4),
-    unit-scale prior (Eq. 31-32): ``calibrate_pair(method="direct")``.
+    unit-scale prior (Eq. 31-32), with the paper's residual-based flex rejection where it finds
+    outliers: ``calibrate_pair(method="direct")``.
 ``default``
     What :func:`fusion_gyrocal.calibrate_pair` does by default (maximum likelihood from the
-    direct solution).
+    direct solution, same flex rejection).
 ``appendix_c``
     The paper's iterative Gauss-Newton solver of Appendix C (:func:`solve_appendix_c`), started from
     the direct solution as in the paper's comparison ("a properly initialized iterative solver").
@@ -53,6 +54,7 @@ import os
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -71,8 +73,8 @@ __all__ = [
 
 #: Every estimator name and what it is.
 ESTIMATORS = {
-    "direct": "paper's direct solution (Eq. 16, Lemmas 2-4, Eq. 31-32)",
-    "default": "calibrate_pair() default: maximum likelihood from the direct solution",
+    "direct": "paper's direct solution (Eq. 16, Lemmas 2-4, Eq. 31-32) with its flex rejection",
+    "default": "calibrate_pair() default: maximum likelihood from the direct solution, flex rejection",
     "appendix_c": "paper's iterative Gauss-Newton (Appendix C) from the direct solution",
     "appendix_c_identity": "paper's iterative Gauss-Newton (Appendix C) from identity",
     "rotation_only": "Kabsch alignment of bias-removed rates (rotation-only tools); no scales",
@@ -583,7 +585,7 @@ class Comparison:
         """Mean SNR (Eq. 33) over the runs (NaN for a recording)."""
         return float(np.mean([r.snr for r in self.records]))
 
-    @property
+    @cached_property
     def rows(self) -> tuple:
         """One :class:`Row` per estimator."""
         return tuple(_row(k, name, self.records) for k, name in enumerate(self.estimators))
@@ -901,7 +903,8 @@ def plot_rmse_vs_snr(sweeps, path=None, *, metrics=("rotation", "scale"), estima
 
     sweeps = [sweeps] if isinstance(sweeps, SnrSweep) else list(sweeps)
     many = len(sweeps) > 1
-    fig, axes = plt.subplots(1, len(metrics), figsize=((6.2 + 2.6 * many) * len(metrics), 5.0), squeeze=False)
+    outside = many and len(metrics) == 1  # legend right of a single panel; inside (lower left) otherwise
+    fig, axes = plt.subplots(1, len(metrics), figsize=((6.2 + 2.8 * outside) * len(metrics), 5.0), squeeze=False)
     unit = {"rotation": (np.rad2deg(1.0) * 1e3, "rotation RMSE [mdeg]  (Eq. 34)"),
             "scale": (100.0, "scale-factor RMSE [%]  (Eq. 35)")}
     names = sweeps[0].estimators if estimators is None else tuple(estimators)
@@ -945,8 +948,9 @@ def plot_rmse_vs_snr(sweeps, path=None, *, metrics=("rotation", "scale"), estima
         ax.set_ylabel(ylabel)
         ax.grid(True, which="both", alpha=0.3)
         if many:
-            ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), title="slopes: " + " / ".join(
-                _LINESTYLES[j % len(_LINESTYLES)] for j in range(len(sweeps))), title_fontsize=8)
+            where = dict(loc="upper left", bbox_to_anchor=(1.01, 1.0)) if outside else dict(loc="lower left")
+            ax.legend(fontsize=7.5 if outside else 7, title="slopes: " + " / ".join(
+                _LINESTYLES[j % len(_LINESTYLES)] for j in range(len(sweeps))), title_fontsize=7.5, **where)
         else:
             ax.legend(fontsize=8, loc="best")
     runs = len(sweeps[0].comparisons[0].records)
@@ -1013,15 +1017,21 @@ def add_compare_parser(subparsers):
                     "Carlo runs of a simulated scenario; print a table (errors against the truth, error / "
                     "Cramer-Rao bound, time per solve) and optionally write Markdown, CSV and a figure.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    src = p.add_mutually_exclusive_group()
-    src.add_argument("--scenario", default="nominal",
-                     help="simulated scenario: " + ", ".join(SCENARIOS) + ", or snr_x<f>[_rate|_noise|_samples]")
-    src.add_argument("--recording", nargs=2, metavar=("GYRO_1", "GYRO_2"),
-                     help="two gyro files (any format fusion_gyrocal.io.read_imu reads); aligned on gyro 1's clock")
-    p.add_argument("--unit", default=None, help="rate unit of the recording files (rad/s or deg/s), if the reader "
-                                                "cannot tell")
-    p.add_argument("--time-offset", type=float, default=None,
-                   help="known offset (s) added to gyro 2's timestamps; default: estimated")
+    p.add_argument("gyro1", nargs="?", help="recording of gyro 1, as `gyrocal calibrate` takes it (CSV, EuRoC, "
+                                            "Xsens, .npz, ROS bag); omit to simulate --scenario")
+    p.add_argument("gyro2", nargs="?", help="recording of gyro 2 (omit when gyro1 holds both: --topic1/--topic2 "
+                                            "in a bag, --imu1/--imu2 in an npz)")
+    for k in ("1", "2"):
+        p.add_argument(f"--topic{k}", help=f"sensor_msgs/Imu topic of gyro {k} in a bag")
+        p.add_argument(f"--imu{k}", type=int, help=f"IMU index (from 0) of gyro {k} in a multi-IMU npz")
+        p.add_argument(f"--unit{k}", choices=("rad/s", "deg/s"), help=f"rate unit of gyro {k} (CSV, npz, Xsens)")
+    p.add_argument("--offset", type=float, default=None,
+                   help="known time offset (s) added to gyro 2's timestamps; default: estimated")
+    p.add_argument("--max-offset", type=float, default=1.0, help="offset search range (s)")
+    p.add_argument("--rate", type=float, default=None, help="resample both onto a uniform grid at this rate (Hz)")
+    p.add_argument("--scenario", default="nominal",
+                   help="simulated scenario (without recordings): " + ", ".join(SCENARIOS)
+                        + ", or snr_x<f>[_rate|_noise|_samples]")
     p.add_argument("--estimators", default=",".join(DEFAULT_ESTIMATORS), help="comma-separated estimator names")
     p.add_argument("--runs", type=int, default=1, help="Monte Carlo runs of the scenario")
     p.add_argument("--seed", type=int, default=0)
@@ -1040,15 +1050,25 @@ def add_compare_parser(subparsers):
 
 
 def _load_recording(args):
-    from .io import read_imu
+    """Read and align the recording pair: ``(omega_1, omega_2, rate_hz)`` of the valid aligned samples."""
+    from .io import detect_format, read_imu
     from .preprocess import align_streams
 
-    opts = {} if args.unit is None else {"unit": args.unit}
-    s1, s2 = (read_imu(p, **opts) for p in args.recording)
-    pair = align_streams(s1.t, s1.omega, s2.t, s2.omega, time_offset_s=args.time_offset,
-                         valid_1=s1.valid, valid_2=s2.valid)
+    if args.gyro2 is None and args.topic2 is None and args.imu2 is None:
+        raise InputError("gyro2: expected a second recording, or --topic1/--topic2 (bag) or --imu1/--imu2 (npz) "
+                         "to take both gyros from one file")
+    streams = []
+    for k, path in (("1", args.gyro1), ("2", args.gyro2 or args.gyro1)):
+        fmt = detect_format(path)
+        opts = {"topic": getattr(args, f"topic{k}"), "imu": getattr(args, f"imu{k}"),
+                "unit": getattr(args, f"unit{k}")}
+        allowed = {"bag": ("topic",), "npz": ("imu", "unit")}.get(fmt, ("unit",))
+        streams.append(read_imu(path, **{o: v for o, v in opts.items() if v is not None and o in allowed}))
+    s1, s2 = streams
+    pair = align_streams(s1.t, s1.omega, s2.t, s2.omega, time_offset_s=args.offset, max_offset_s=args.max_offset,
+                         rate_hz=args.rate, valid_1=s1.valid, valid_2=s2.valid)
     keep = pair.valid
-    return pair.omega_1[keep], pair.omega_2[keep], s1.rate_hz
+    return pair.omega_1[keep], pair.omega_2[keep], float(args.rate or s1.rate_hz)
 
 
 def compare_main(args) -> int:
@@ -1061,7 +1081,7 @@ def compare_main(args) -> int:
     try:
         names = tuple(n.strip() for n in args.estimators.split(",") if n.strip())
         progress = not args.no_progress
-        if args.recording:
+        if args.gyro1:
             w1, w2, rate = _load_recording(args)
             tables = [compare((w1, w2), estimators=names, rate_hz=rate, progress=progress)]
             sweep = None

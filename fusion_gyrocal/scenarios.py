@@ -98,6 +98,12 @@ class Scenario:
     skew_std: float = 0.0
     flex_angle: np.ndarray | None = field(default=None, repr=False)
 
+    def __post_init__(self):
+        if self.flex_angle is not None:
+            angle = np.array(self.flex_angle, dtype=np.float64)
+            angle.flags.writeable = False
+            object.__setattr__(self, "flex_angle", angle)
+
     @property
     def omega_1(self) -> np.ndarray:
         return self.data.omega_1

@@ -267,6 +267,34 @@ def test_compare_main_writes_markdown_and_csv(tmp_path):
     assert md.read_text().startswith("**skew:")
 
 
+def test_compare_main_recording_files_match_calibrate_pair(tmp_path):
+    from fusion_gyrocal.io import ImuStream, write_csv
+
+    sim = simulate_pair(rng=12, scale_1=S1, scale_2=S2, n=3000)
+    write_csv(ImuStream(sim.t, sim.omega_1), tmp_path / "a.csv")
+    write_csv(ImuStream(sim.t, sim.omega_2), tmp_path / "b.csv")
+    table = tmp_path / "t.csv"
+    args = _cli(["compare", str(tmp_path / "a.csv"), str(tmp_path / "b.csv"), "--offset", "0", "--estimators",
+                 "direct", "--no-progress", "--csv", str(table)])
+    assert args.func(args) == 0
+    row = next(csv.DictReader(table.open()))
+    cal = calibrate_pair(sim.omega_1, sim.omega_2, method="direct")
+    got = np.array([float(row[f"rotvec_{a}_deg"]) for a in "xyz"])
+    np.testing.assert_allclose(got, np.rad2deg(Rotation.from_matrix(cal.R_1_2).as_rotvec()), atol=1e-9)
+    assert row["rotation_rmse_rad"] == "nan"  # no truth for a recording
+
+
+def test_compare_main_sweep_writes_figure_and_slopes(tmp_path, capsys):
+    fig = tmp_path / "sweep.png"
+    args = _cli(["compare", "--scenario", "nominal", "--sweep", "--runs", "2", "--estimators", "direct",
+                 "--workers", "1", "--no-progress", "--figure", str(fig), "--csv", str(tmp_path / "s.csv")])
+    assert args.func(args) == 0
+    assert fig.stat().st_size > 10_000
+    rows = list(csv.DictReader((tmp_path / "s.csv").open()))
+    assert len(rows) == 4 and float(rows[3]["snr"]) == pytest.approx(8 * float(rows[0]["snr"]), rel=1e-12)
+    assert "direct: rotation -1.000" in capsys.readouterr().out
+
+
 def test_compare_main_unknown_scenario_exits_1(capsys):
     args = _cli(["compare", "--scenario", "nope", "--no-progress"])
     assert compare_main(args) == 1
