@@ -105,8 +105,8 @@ def main(argv=None):
     nominal = sweeps[("nominal", "rate")]
     plot_rmse_vs_snr(nominal, out / "rmse_vs_snr.png",
                      title=f"RMSE versus SNR (SNR through the rate norm), {args.runs} runs per point")
-    plot_rmse_vs_snr([sweeps[("nominal", "noise")], sweeps[("nominal", "samples")]], out / "rmse_vs_snr_noise_samples.png",
-                     estimators=PAPER, title="RMSE versus SNR with the SNR scaled through the noise (solid) "
+    plot_rmse_vs_snr([sweeps[("nominal", "noise")], sweeps[("nominal", "samples")]],
+                     out / "rmse_vs_snr_noise_samples.png", estimators=PAPER, title="RMSE versus SNR with the SNR scaled through the noise (solid) "
                                              f"and the sample count (dashed), {args.runs} runs per point")
     plot_rmse_vs_snr([nominal, sweeps[("weak_axis", "rate")]], out / "weak_axis.png", metrics=("rotation",),
                      estimators=tuple(n for n in everyone if n != "rotation_only"),
