@@ -33,6 +33,7 @@ def main(argv=None):
                   progress=False)
     rec.print()
     print(rec.to_markdown())
+    return mc, rec
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 import argparse
 import csv
+import importlib.util
 import io
-import runpy
 import sys
 from pathlib import Path
 
@@ -302,12 +302,11 @@ def test_compare_main_unknown_scenario_exits_1(capsys):
 
 
 def test_example_compare_estimators_runs(capsys):
-    sys_argv = sys.argv
-    sys.argv = [str(EXAMPLE), "--runs", "2", "--workers", "1"]
-    try:
-        runpy.run_path(str(EXAMPLE), run_name="__main__")
-    finally:
-        sys.argv = sys_argv
-    out = capsys.readouterr().out
-    assert "rot / bound" in out and "appendix_c" in out
-
+    spec = importlib.util.spec_from_file_location("compare_estimators", EXAMPLE)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    mc, rec = mod.main(["--runs", "2", "--workers", "1"])
+    # the batch estimators reach the bound on the nominal scenario; a recording has estimates, no errors
+    assert mc.row("default").rotation_ratio < 3 and mc.row("direct").scale_ratio < 3
+    assert not rec.has_truth and np.isfinite(rec.row("appendix_c").rotvec_deg).all()
+    assert "rot / bound" in capsys.readouterr().out
