@@ -2,7 +2,7 @@
 
 The paper's protocol (100 Hz, noise 0.1 deg/s per gyro, bias random walk 57.3 micro-deg/s per
 step, 60 s of human-like motion); the SNR is scaled through the rate norm. For each SNR and
-estimator: RMSE of the rotation error ||Log(R_hat R^T)|| (Eq. 34) and of the scale error (Eq. 35),
+estimator: RMSE of the rotation error ||Log(R_hat R^T)|| (Eq. 37) and of the scale error (Eq. 38),
 and their ratio to the bound (inverse Fisher information at the truth, bias profiled out).
 
     python benchmarks/accuracy.py [--runs 100]

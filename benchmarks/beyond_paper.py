@@ -84,7 +84,7 @@ def main(argv=None):
     names = ["nominal", "weak_axis", "slow_motion", "slow_motion_estimated_noise", "drifting_bias", "skew",
              "near_parallel"]
     print(f"{a.runs} Monte Carlo runs per case; ratios are RMSE / Cramer-Rao bound (rotation: ||Log(R_hat R^T)||, "
-          f"scales: the paper's Eq. 35)")
+          f"scales: the paper's Eq. 38)")
     print(f"{'case':>28} {'method':>8} {'rot RMSE mdeg':>14} {'rot/bound':>10} {'scale RMSE %':>13} {'scale/bound':>12} "
           f"{'iters':>6} {'ms/solve':>9}")
     with ProcessPoolExecutor(a.workers) as pool:

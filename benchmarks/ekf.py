@@ -4,7 +4,7 @@
    configurations): the tracker is seeded by ``calibrate_pair`` on the first 10 s and tracks the
    rest with ``DriftNoise.constant()``; its final estimate is compared with the closed-form batch
    estimate (``method="direct"``) and the default ML batch estimate over ALL the data. Printed:
-   RMSE of the rotation (Eq. 34) and scale (Eq. 35) errors and the ratios EKF / batch, per mode.
+   RMSE of the rotation (Eq. 37) and scale (Eq. 38) errors and the ratios EKF / batch, per mode.
 2. Throughput: samples per second of ``run`` in each mode (per-sample, fast with several block
    sizes) on one core: BLAS/OpenMP pinned to one thread, timed by this process's CPU time (robust
    to other load on the machine) and by the wall clock (best of 3).

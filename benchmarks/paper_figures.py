@@ -9,7 +9,7 @@ Monte Carlo sweeps of :mod:`fusion_gyrocal.scenarios` over the paper's SNR facto
 4. ``skew`` (skew 2.357e-4; the rotation error levels off at Appendix D's prediction);
 
 and one realisation of ``nominal`` and ``flex`` for the residual-versus-rate-norm figure
-(Fig. residual_gyro). For every sweep it prints, per estimator and SNR point, the RMSE (Eq. 34-35),
+(Fig. residual_gyro). For every sweep it prints, per estimator and SNR point, the RMSE (Eq. 37-38),
 its ratio to the bound and the fitted log-log slope of RMSE versus SNR (the paper finds -1), and it
 writes the figures to ``docs/figures/``:
 

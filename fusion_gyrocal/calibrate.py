@@ -1,7 +1,7 @@
 """Calibrate a gyroscope pair: from samples (:func:`calibrate_pair`) or moments (:func:`solve`).
 
-Pipeline: moments -> direct least squares for A (Eq. 16) -> configuration class (Lemmas 2-4)
--> decomposition -> gauge (Theorem 2, Eq. 31-32) -> maximum-likelihood refinement (Appendix C
+Pipeline: moments -> direct least squares for A (Eq. 17) -> configuration class (Lemmas 2-4)
+-> decomposition -> gauge (Theorem 2, Eq. 32-34) -> maximum-likelihood refinement (Appendix C
 generalised, default) -> covariance from the Fisher information (Appendix B generalised).
 """
 
@@ -86,7 +86,7 @@ def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_p
         Statistics of sample-aligned ``[omega_1; omega_2]`` (pooled per segment for a
         piecewise-constant bias).
     method : {"ml", "direct"}
-        ``"direct"``: the paper's closed form (Eq. 16, Lemmas 2-4, Eq. 31-32), covariance by first-
+        ``"direct"``: the paper's closed form (Eq. 17, Lemmas 2-4, Eq. 32-34), covariance by first-
         order propagation of the least-squares covariance of A. ``"ml"`` (default): the direct
         solution refined to the maximum-likelihood estimate of the errors-in-variables model;
         covariance = inverse Fisher information (the Cramer-Rao bound at the estimate).
@@ -105,7 +105,7 @@ def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_p
         solve; the scale factors are then estimated.
     skew_std : float or (float, float)
         Standard deviation of the remaining skew error of each gyro; its rotation error
-        (Appendix D, Eq. 36-37) is reported in ``skew_rotation_covariance`` and added to the
+        (Appendix D, Eq. 40-41) is reported in ``skew_rotation_covariance`` and added to the
         covariance.
     min_snr : float
         Smallest SNR of any principal motion direction accepted (Lemma 1).
@@ -304,7 +304,7 @@ def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s: float
         Gaussian prior N(1, std^2) on the scale factors.
     bias_window : int, optional
         Model the bias as piecewise constant over windows of this many samples (for drifting
-        biases); default: one constant bias (Eq. 11).
+        biases); default: one constant bias (Eq. 8).
     bias_walk_std : float or (float, float), optional
         Model the bias of each gyro as a random walk with this step std per sample (rad/s); the
         streams are whitened by the Kalman innovations filter of that model

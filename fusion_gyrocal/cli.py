@@ -219,7 +219,7 @@ def cmd_demo(args) -> int:
     w2 = (motion(t2 + offset) @ R) * s2 + b2 + rng.normal(0, PAPER_NOISE_STD, (t2.size, 3))
     run = run_pipeline(w1, w2, t_1=t1, t_2=t2, noise_std=PAPER_NOISE_STD)
     cal = run.calibration
-    lam = s1[0] / s2[0]  # the unit-prior gauge (Eq. 32) applied to the truth, for a like-for-like comparison
+    lam = s1[0] / s2[0]  # the unit-prior gauge (Eq. 34) applied to the truth, for a like-for-like comparison
     c = (lam + 1) / (lam**2 + 1) / s2[0]
     A = (s1[:, None] * R) / s2[None, :]
     truth = {"rotvec": __import__("scipy.spatial.transform", fromlist=["Rotation"]).Rotation.from_matrix(R).as_rotvec(),

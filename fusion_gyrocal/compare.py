@@ -3,8 +3,8 @@
 Estimators (:data:`ESTIMATORS`)
 -------------------------------
 ``direct``
-    The paper's direct solution: least squares for A (Eq. 16), decomposition (Lemmas 2-4),
-    unit-scale prior (Eq. 31-32), with the paper's residual-based flex rejection where it finds
+    The paper's direct solution: least squares for A (Eq. 17), decomposition (Lemmas 2-4),
+    unit-scale prior (Eq. 32-34), with the paper's residual-based flex rejection where it finds
     outliers: ``calibrate_pair(method="direct")``.
 ``default``
     What :func:`fusion_gyrocal.calibrate_pair` does by default (maximum likelihood from the
@@ -33,7 +33,7 @@ Outputs
 :func:`compare` runs every estimator on one recording, one :class:`~fusion_gyrocal.scenarios.Scenario`
 or ``runs`` Monte Carlo realisations of a named scenario (:mod:`fusion_gyrocal.scenarios`), spread
 over the machine's cores with a progress bar, and returns a :class:`Comparison`: per estimator the
-estimate, the errors against the truth (the paper's metrics, Eq. 34-35), their ratio to the
+estimate, the errors against the truth (the paper's metrics, Eq. 37-38), their ratio to the
 Cramer-Rao bound (:func:`fusion_gyrocal.scenarios.scenario_bound`) and the time per solve, as a
 terminal table (:meth:`Comparison.print`), Markdown (:meth:`Comparison.to_markdown`) and CSV
 (:meth:`Comparison.to_csv`). :func:`snr_sweep` repeats this over the paper's SNR factors and fits the
@@ -73,7 +73,7 @@ __all__ = [
 
 #: Every estimator name and what it is.
 ESTIMATORS = {
-    "direct": "paper's direct solution (Eq. 16, Lemmas 2-4, Eq. 31-32) with its flex rejection",
+    "direct": "paper's direct solution (Eq. 17, Lemmas 2-4, Eq. 32-34) with its flex rejection",
     "default": "calibrate_pair() default: maximum likelihood from the direct solution, flex rejection",
     "appendix_c": "paper's iterative Gauss-Newton (Appendix C) from the direct solution",
     "appendix_c_identity": "paper's iterative Gauss-Newton (Appendix C) from identity",
@@ -389,13 +389,13 @@ class RunRecord:
         Seed of the realisation (``make_scenario(name, rng=list(seed))`` reproduces it); ``()``
         for a recording.
     snr : float
-        SNR of the realisation (Eq. 33), NaN without truth.
+        SNR of the realisation (Eq. 36), NaN without truth.
     bound : ScenarioBound or None
         Cramer-Rao bound of the realisation (None without truth).
     estimates : tuple of Estimate
         One per estimator, in the comparison's order.
     rotation_error, scale_error : ndarray (n_estimators,)
-        The paper's errors (Eq. 34-35) against the truth (rad, fraction); NaN without truth, for a
+        The paper's errors (Eq. 37-38) against the truth (rad, fraction); NaN without truth, for a
         failed estimator, or (scales) for an estimator without scale factors.
     """
 
@@ -485,7 +485,7 @@ _THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 class Row:
     """One estimator's line of a :class:`Comparison` table.
 
-    Errors are RMSE over the successful runs (rad for rotation, fraction for scales, Eq. 34-35);
+    Errors are RMSE over the successful runs (rad for rotation, fraction for scales, Eq. 37-38);
     bounds are the root mean square of the per-run Cramer-Rao bounds over the same runs (rotation:
     including the skew prediction of Appendix D); ``seconds`` is the median time per solve.
     The estimate columns are those of the first run.
@@ -582,7 +582,7 @@ class Comparison:
 
     @property
     def snr(self) -> float:
-        """Mean SNR (Eq. 33) over the runs (NaN for a recording)."""
+        """Mean SNR (Eq. 36) over the runs (NaN for a recording)."""
         return float(np.mean([r.snr for r in self.records]))
 
     @cached_property
@@ -625,7 +625,7 @@ class Comparison:
                           f(r.seconds * 1e3, ".3g")] for r in rows]))
         if self.has_truth:
             err = "error" if len(self.records) == 1 else "RMSE"
-            out.append(("errors against the truth (Eq. 34-35) and their ratio to the Cramer-Rao bound",
+            out.append(("errors against the truth (Eq. 37-38) and their ratio to the Cramer-Rao bound",
                         ["estimator", f"rot {err} [mdeg]", "rot / bound", f"scale {err} [%]", "scale / bound",
                          "ms / solve", "failed"],
                         [[r.estimator, f(np.rad2deg(r.rotation_rmse) * 1e3, ".4g"), f(r.rotation_ratio, ".3f"),
@@ -905,8 +905,8 @@ def plot_rmse_vs_snr(sweeps, path=None, *, metrics=("rotation", "scale"), estima
     many = len(sweeps) > 1
     outside = many and len(metrics) == 1  # legend right of a single panel; inside (lower left) otherwise
     fig, axes = plt.subplots(1, len(metrics), figsize=((6.2 + 2.8 * outside) * len(metrics), 5.0), squeeze=False)
-    unit = {"rotation": (np.rad2deg(1.0) * 1e3, "rotation RMSE [mdeg]  (Eq. 34)"),
-            "scale": (100.0, "scale-factor RMSE [%]  (Eq. 35)")}
+    unit = {"rotation": (np.rad2deg(1.0) * 1e3, "rotation RMSE [mdeg]  (Eq. 37)"),
+            "scale": (100.0, "scale-factor RMSE [%]  (Eq. 38)")}
     names = sweeps[0].estimators if estimators is None else tuple(estimators)
     for ax, metric in zip(axes[0], metrics):
         k, ylabel = unit[metric]
@@ -944,7 +944,7 @@ def plot_rmse_vs_snr(sweeps, path=None, *, metrics=("rotation", "scale"), estima
         ax.yaxis.set_minor_formatter(minor)
         ax.xaxis.set_major_formatter(plain)
         ax.xaxis.set_minor_formatter(minor)
-        ax.set_xlabel("SNR  (Eq. 33)")
+        ax.set_xlabel("SNR  (Eq. 36)")
         ax.set_ylabel(ylabel)
         ax.grid(True, which="both", alpha=0.3)
         if many:

@@ -1,12 +1,12 @@
 """The paper's direct solution: least squares for A and b, decomposition, global scale.
 
-* :func:`solve_A`: Eq. (11)-(16), from the sufficient statistics (the centred scatter).
+* :func:`solve_A`: Eq. (12)-(17), from the sufficient statistics (the centred scatter).
 * :func:`decompose`: A into R_1_2, scale_1, scale_2 for every configuration class:
-  general (Lemma 4, smallest eigenvector of A_0^T A_0, Eq. 27-30), one pair of axes parallel
-  (Lemma 3, any pair and any signs, Eq. 22-26) and all axes parallel (Lemma 2, any signed
+  general (Lemma 4, smallest eigenvector of A_0^T A_0, Eq. 30-31), one pair of axes parallel
+  (Lemma 3, any pair and any signs, Eq. 26-29) and all axes parallel (Lemma 2, any signed
   permutation).
 * :class:`Gauge`: how the global scale (Theorem 2) is fixed: a fixed scale factor, the paper's
-  unit-scale prior on one axis of both gyros (Eq. 31-32), or a user-supplied known scale.
+  unit-scale prior on one axis of both gyros (Eq. 32-34), or a user-supplied known scale.
 """
 
 from __future__ import annotations
@@ -23,9 +23,9 @@ GYRO_NAMES = ("scale_1", "scale_2")
 
 
 def solve_A(moments: Moments) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares ``A`` and combined bias ``b`` from the moments (Eq. 12-16).
+    """Least-squares ``A`` and combined bias ``b`` from the moments (Eq. 12-17).
 
-    ``A = S_12 S_22^-1`` from the centred scatters (the normal equations of Eq. 16 written
+    ``A = S_12 S_22^-1`` from the centred scatters (the normal equations of Eq. 17 written
     with A on the left), and ``b = mean_1 - A mean_2`` (Eq. 12).
     """
     S22 = moments.S22
@@ -39,11 +39,11 @@ def solve_A(moments: Moments) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _A_I(A):
-    return A**2  # Eq. (20)
+    return A**2  # Eq. (23)
 
 
 def _A_0(A):
-    return np.stack([A[0] * A[1], A[1] * A[2], A[2] * A[0]])  # Eq. (21)
+    return np.stack([A[0] * A[1], A[1] * A[2], A[2] * A[0]])  # Eq. (24)
 
 
 def _positive(v, what):
@@ -68,23 +68,23 @@ def decompose(A, config: Configuration) -> tuple[np.ndarray, np.ndarray, np.ndar
         A0 = _A_0(A)
         w, V = np.linalg.eigh(A0.T @ A0)  # Lemma 4: s2 = null(A_0), smallest eigenvector (footnote 3)
         sq2 = _positive(V[:, 0], "gyro 2")
-        sq1 = _positive(_A_I(A) @ sq2, "gyro 1")  # s1 = A_I s2 (Eq. 29)
+        sq1 = _positive(_A_I(A) @ sq2, "gyro 1")  # s1 = A_I s2 (Eq. 30)
         s1, s2 = np.sqrt(sq1), np.sqrt(sq2)
     elif config.name == CONFIG_ONE_PAIR:
         i, j, _ = config.parallel_pairs[0]
         r = [k for k in range(3) if k != i]
         c = [k for k in range(3) if k != j]
         B = A[np.ix_(r, c)]
-        # Lemma 3 (Eq. 24-25) for any pair (i, j) and any signs: the 2x2 block B of the other axes
+        # Lemma 3 (Eq. 27) for any pair (i, j) and any signs: the 2x2 block B of the other axes
         # gives B_I s2 = s1 and (B[0] * B[1]) . s2 = 0.
         sq2 = _positive(np.array([B[0, 1] * B[1, 1], -B[0, 0] * B[1, 0]]), "gyro 2")
         sq1 = _positive((B**2) @ sq2, "gyro 1")
         s2[c], s1[r] = np.sqrt(sq2), np.sqrt(sq1)
-        s1[i], s2[j] = abs(A[i, j]), 1.0  # Eq. (23): only s1_i / s2_j = |a_ij| is determined
+        s1[i], s2[j] = abs(A[i, j]), 1.0  # Eq. (26): only s1_i / s2_j = |a_ij| is determined
     elif config.name == CONFIG_ALL:
         for i, j, _ in config.parallel_pairs:  # Lemma 2: A_I s2 = s1 on the signed permutation
             s1[i], s2[j] = abs(A[i, j]), 1.0
-    R = nearest_rotation((A * s2[None, :]) / s1[:, None])  # Eq. (30) and its projection onto SO(3)
+    R = nearest_rotation((A * s2[None, :]) / s1[:, None])  # Eq. (31) and its projection onto SO(3)
     return R, s1, s2
 
 
@@ -98,7 +98,7 @@ class Gauge:
         Scale factors the gauge acts on; gyro 0 is gyro 1 (``scale_1``), gyro 1 is gyro 2.
     value : float or None
         ``None``: the paper's unit-scale prior, the members' scale factors are as close to 1 as
-        their determined ratios allow (Eq. 31-32). A float: the single member's scale factor is
+        their determined ratios allow (Eq. 32-34). A float: the single member's scale factor is
         known and equal to ``value``.
     """
 
@@ -107,7 +107,7 @@ class Gauge:
 
     @classmethod
     def unit_prior(cls, axis: int = 0) -> "Gauge":
-        """The paper's prior that the ``axis`` scale factors of both gyros are close to 1 (Eq. 31)."""
+        """The paper's prior that the ``axis`` scale factors of both gyros are close to 1 (Eq. 32)."""
         return cls(((0, axis), (1, axis)), None)
 
     @classmethod
@@ -137,7 +137,7 @@ class Gauge:
     def describe(self) -> str:
         names = ", ".join(f"{GYRO_NAMES[g]}[{a}]" for g, a in self.members)
         if self.value is None:
-            return f"unit prior on {names} (Eq. 31-32)"
+            return f"unit prior on {names} (Eq. 32-34)"
         return f"{names} == {self.value:g}"
 
     def members_in(self, group) -> list:
@@ -158,7 +158,7 @@ class Gauge:
             if self.value is not None and self.members_in(group):
                 c = self.value / r[0]
             else:
-                c = r.sum() / (r**2).sum()  # argmin_c sum (c r - 1)^2 (Eq. 31-32 for two members)
+                c = r.sum() / (r**2).sum()  # argmin_c sum (c r - 1)^2 (Eq. 32-34 for two members)
             for g, a in group:
                 s[g, a] *= c
         return s[0], s[1]

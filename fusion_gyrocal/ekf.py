@@ -29,7 +29,7 @@ ones (Lemmas 2-3). Scaling every member of a group by the same factor leaves ``A
 so the data never inform the group's common factor. The tracker holds each such direction:
 
 * the group containing the gauge's members follows the :class:`~fusion_gyrocal.direct.Gauge`
-  (default the library's unit prior on both x axes, Eq. 31-32), as in
+  (default the library's unit prior on both x axes, Eq. 32-34), as in
   :func:`fusion_gyrocal.calibrate_pair`; its common factor has no variance *in the gauge*;
 * every other group (a parallel axis pair) keeps the log-mean of its scale factors at the seed's
   value with a prior standard deviation ``scale_prior_std``: the reported 1-sigma of those scale

@@ -1,10 +1,10 @@
 """Flex and outlier rejection (the paper's Section VI.C), in bounded memory.
 
-The paper runs the calibration once, computes the residuals ``r(k)`` (Eq. 49), removes samples
+The paper runs the calibration once, computes the residuals ``r(k)`` (Eq. 42), removes samples
 whose residual exceeds three standard deviations together with their neighbours (hysteresis of
 the flex onset), and runs the calibration again. Here:
 
-* the residual is that of the unconstrained least-squares A (Eq. 16), which absorbs any linear
+* the residual is that of the unconstrained least-squares A (Eq. 17), which absorbs any linear
   model error (skew, misalignment), so the gate sees noise plus non-linear, time-varying effects;
 * the gate is the 3-sigma gate in its 3-D form (chi-square with 3 dof at the same 0.27% false-alarm
   rate) with a robust covariance (median of the squared Mahalanobis distances), iterated;

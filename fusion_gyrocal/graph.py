@@ -254,7 +254,7 @@ def _gauge_error(indices, value, this, values, H):
     if value is not None:                 # a known scale factor: log s_m - log value
         h = l[indices[0]] - value
         J[0, indices[0]] = 1.0
-    else:                                 # unit convention: sum_m s_m (s_m - 1) = 0 (Eq. 31-32)
+    else:                                 # unit convention: sum_m s_m (s_m - 1) = 0 (Eq. 32-34)
         s = np.exp(l[indices])
         h = float(np.sum(s * (s - 1.0)))
         J[0, indices] = s * (2.0 * s - 1.0)

@@ -89,7 +89,7 @@ class PairCalibration:
         How the global scale was fixed.
     snr : ndarray (3,)
         Per-axis SNR, ``sqrt(sum_k omega_1,i(k)^2) / sigma`` over the centred signal of gyro 1 with
-        ``sigma^2 = sigma_1^2 + sigma_2^2`` (Eq. 33 split per axis).
+        ``sigma^2 = sigma_1^2 + sigma_2^2`` (Eq. 36 split per axis).
     n_samples : int
         Samples used.
     noise_std : ndarray (2,)
@@ -106,7 +106,7 @@ class PairCalibration:
     time_offset_s, time_offset_std_s : float
         Offset added to gyro 2's timestamps, and its standard deviation (0 when given aligned).
     skew_rotation_covariance : ndarray (3, 3)
-        Rotation error covariance implied by the stated skew uncertainty (Appendix D, Eq. 37);
+        Rotation error covariance implied by the stated skew uncertainty (Appendix D, Eq. 40-41);
         already included in ``covariance``'s rotation block.
     bias_segments : int
         Number of independent bias segments (1 for a constant bias).

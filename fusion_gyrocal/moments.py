@@ -12,7 +12,7 @@ logs with large biases lose no precision (no raw sums of squares are ever formed
 Two ways to combine moments:
 
 * :meth:`Moments.merge` (also ``a + b``): the samples share one constant bias; the
-  between-chunk spread enters the scatter (Eq. 12-14 of the paper are then exact).
+  between-chunk spread enters the scatter (Eq. 12-17 of the paper are then exact).
 * :meth:`Moments.pool`: each part has its own bias (piecewise-constant bias); only the
   within-part scatters add and ``segments`` counts the bias segments.
 """
@@ -314,7 +314,7 @@ def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask
     linear and the same for both gyros, ``G r = G omega_1 - A G omega_2``: the exact likelihood of
     A with the drifting bias profiled out is the constant-bias cost of the *filtered* streams,
     so the direct solver and its refinement apply unchanged to these moments (a direct,
-    non-iterative core; Eq. 11 with ``b(k)`` no longer constant).
+    non-iterative core; Eq. 8 with ``b(k)`` no longer constant).
 
     Parameters
     ----------

@@ -23,7 +23,7 @@ Unknowns are the rotations of every non-reference gyro and the log scale factors
 the scale factors are determined only up to one common factor per group of linked axes
 (Theorem 2; for axis-parallel gyros, Lemma 2, one group per axis). The minimisation is Fisher
 scoring (Gauss-Newton on the expected Hessian, the Appendix B information generalised to N gyros)
-with an analytic gradient, seeded from the pairwise direct solutions (Eq. 16, Lemmas 2-4) of every
+with an analytic gradient, seeded from the pairwise direct solutions (Eq. 17, Lemmas 2-4) of every
 gyro to the reference. The covariance is the inverse Fisher information in the gauge.
 
 The one O(N) pass over the samples is :meth:`ArrayMoments.from_samples`: the
@@ -498,7 +498,7 @@ def _gauge_apply(groups, members, value, s):
         own = [m for m in members if m in group]
         use = own or list(group)
         r = np.array([s[g, a] for g, a in use])
-        c = value / r[0] if (value is not None and own) else r.sum() / (r**2).sum()  # Eq. 31-32
+        c = value / r[0] if (value is not None and own) else r.sum() / (r**2).sum()  # Eq. 32-34
         for g, a in group:
             s[g, a] *= c
     return s
@@ -525,7 +525,7 @@ def _describe_gauge(gauge, reference, n_groups):
     if gauge == "fixed":
         text = f"scale[{reference}][0] == 1"
     else:
-        text = "unit prior on the x-axis scale factors of every gyro (Eq. 31-32 generalised)"
+        text = "unit prior on the x-axis scale factors of every gyro (Eq. 32-34 generalised)"
     if n_groups > 1:
         text += f"; {n_groups} groups of linked axes, each other group at its members' unit prior"
     return text
@@ -681,7 +681,7 @@ def solve_array(moments: ArrayMoments, *, reference: int = 0, noise_std=None, ga
         (three-cornered hat for N >= 3; equal split for N = 2, where only the sum is observable).
     gauge : {"unit_prior", "fixed"}
         ``"unit_prior"``: the x-axis scale factors of all gyros as close to 1 as their determined
-        ratios allow (Eq. 31-32 generalised); ``"fixed"``: ``scale[reference][0] == 1``. Groups of
+        ratios allow (Eq. 32-34 generalised); ``"fixed"``: ``scale[reference][0] == 1``. Groups of
         linked axes that hold no gauge member follow the unit prior over their own members.
     parallel_tol_deg : float
         Axes closer than this to (anti)parallel are treated as parallel (see :func:`classify`).

@@ -8,7 +8,7 @@ gives, per sample, the residual ``y_1 - A y_2 - b`` with covariance
 
     I_pq = tr(D_p^T W D_q Xi_c),   W = Sigma_r^-1,   D_p = dA/dp,
 
-where ``Xi_c`` is the centred scatter of the gyro-2 signal (Eq. 17-18 of Appendix B with
+where ``Xi_c`` is the centred scatter of the gyro-2 signal (Eq. 52-53 of Appendix B with
 the scale factors added). The parameters ``p`` are ``[dtheta (3), log scale_1 (3), log scale_2 (3)]``
 with ``A = diag(s_1) Exp(dtheta) R diag(1/s_2)``. The global scale (all six log-scales together)
 is always a null direction (Theorem 2).
@@ -38,7 +38,7 @@ def skew(v) -> np.ndarray:
 
 
 def nearest_rotation(M) -> np.ndarray:
-    """Nearest rotation matrix to ``M`` in the Frobenius norm (Horn et al., used after Eq. 30)."""
+    """Nearest rotation matrix to ``M`` in the Frobenius norm (Horn et al., used after Eq. 31)."""
     U, _, Vt = np.linalg.svd(M)
     D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
     return U @ D @ Vt
@@ -150,7 +150,7 @@ def classify(R, parallel_tol_deg: float = 5.0) -> Configuration:
 
 
 def per_axis_snr(moments: Moments, noise_std) -> np.ndarray:
-    """Per-axis SNR of gyro 1's centred signal: ``sqrt(sum omega_i^2) / sigma`` (Eq. 33 per axis)."""
+    """Per-axis SNR of gyro 1's centred signal: ``sqrt(sum omega_i^2) / sigma`` (Eq. 36 per axis)."""
     X1, _ = signal_scatter(moments, noise_std)
     sigma = float(np.hypot(*noise_std))
     return np.sqrt(np.clip(np.diag(X1), 0.0, None)) / sigma
@@ -192,14 +192,14 @@ def check_excitation(moments: Moments, noise_std, min_snr: float = 10.0) -> None
 
 @dataclass(frozen=True)
 class Bound:
-    """Cramer-Rao bound of a calibration problem in the paper's error metrics (Eq. 34-35).
+    """Cramer-Rao bound of a calibration problem in the paper's error metrics (Eq. 37-38).
 
     Attributes
     ----------
     rotation_rmse : float
         ``sqrt(trace(P_rot))``: the bound on the RMSE of ``||Log(R_hat R^T)||`` (rad).
     scale_rmse : float
-        Bound on the RMSE of the paper's scale error (Eq. 35), gauge invariant.
+        Bound on the RMSE of the paper's scale error (Eq. 38), gauge invariant.
     covariance : ndarray (9, 9)
         Bound on the covariance of ``[dtheta, log s_1, log s_2]`` in the gauge ``log s_1[0] = 0``
         (or with the prior, when one is given).
@@ -239,7 +239,7 @@ def cramer_rao_bound(R, s1, s2, noise_std, signal_2, *, scale_prior_std=None) ->
         P = np.zeros((9, 9))
         P[np.ix_(keep, keep)] = np.linalg.inv(F[np.ix_(keep, keep)])
     s = np.concatenate([s1, s2])
-    J = np.zeros((6, 9))  # e_k = (s_k / s_1x)(dlog s_k - dlog s_1x), Eq. (35) linearised
+    J = np.zeros((6, 9))  # e_k = (s_k / s_1x)(dlog s_k - dlog s_1x), Eq. (38) linearised
     for k in range(6):
         J[k, 3 + k] += s[k] / s[0]
         J[k, 3] -= s[k] / s[0]

@@ -10,12 +10,12 @@ exactly that, on plain arrays, with masks for the samples that must not be used:
 * :func:`estimate_time_offset`: coarse offset from the FFT cross-correlation of the rate
   norms (rotation invariant), refined below one sample by minimising the misfit of the
   rigid-pair model ``omega_1(t) = A omega_2(t - offset) + b`` (Eq. 3-5) over the offset, with
-  ``A`` and ``b`` profiled out by least squares (the direct solution, Eq. 14-16) at every trial
+  ``A`` and ``b`` profiled out by least squares (the direct solution, Eq. 16-17) at every trial
   offset, and both gyros evaluated with cubic splines.
 * :func:`resample`: cubic splines per contiguous run of valid samples, never across a gap.
 * :func:`align_streams`: both of the above, giving an :class:`AlignedPair` on gyro 1's clock.
 * :func:`informative_mask` and :func:`excitation_report`: sample selection (Section III,
-  remark after Eq. 11) and per-axis SNR accumulation (Eq. 33 per axis; Section VI
+  remark after Eq. 8) and per-axis SNR accumulation (Eq. 36 per axis; Section VI
   accumulates to an SNR of 4e3 per axis).
 
 Time convention (ARCHITECTURE.md): ``offset_s`` is what must be ADDED to gyro 2's timestamps
@@ -474,7 +474,7 @@ def _norm_on_grid(t, w, ok, grid, gap):
 
 
 def _profile_cost(w1, w2):
-    """Residual sum of squares of ``w1 = A w2 + b`` with A and b at their least-squares values (Eq. 14-16).
+    """Residual sum of squares of ``w1 = A w2 + b`` with A and b at their least-squares values (Eq. 16-17).
 
     Returns (cost, A). Uses the centred scatter: cost = tr(S11 - S12 S22^+ S12^T).
     """
@@ -579,7 +579,7 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.
     2. Fine: the offset minimises the residual sum of squares of the rigid-pair model
        ``omega_1(x) = A omega_2(x - offset) + b`` (Eq. 3-5 with ``A = S_1 C S_2^-1``), both gyros
        evaluated with cubic splines at instants ``x`` spaced 0.618 grid steps apart. ``A`` and
-       ``b`` are profiled out by least squares (Eq. 14-16) at every trial offset, so the unknown
+       ``b`` are profiled out by least squares (Eq. 16-17) at every trial offset, so the unknown
        rotation, scale factors and biases cannot bias the offset (matching norms alone would be
        biased by unequal scale factors and biases: see ``benchmarks/alignment.py``). The
        golden-ratio spacing keeps the instants' phases relative to gyro 2's samples uniformly
@@ -834,7 +834,7 @@ def informative_mask(omega_1, omega_2, valid, noise_std, *, min_rate: float | No
                      max_rate: float | None = None) -> np.ndarray:
     """Samples whose rate is well above the noise and below a flex / saturation limit.
 
-    The paper (remark after Eq. 11) recommends samples with a large rate norm (high SNR) but
+    The paper (remark after Eq. 8) recommends samples with a large rate norm (high SNR) but
     not the fastest motion, where the device may flex (Section VI.C). A sample is kept when it
     is valid and the rate norm of BOTH gyros is in ``[min_rate, max_rate]``.
 
@@ -878,7 +878,7 @@ def informative_mask(omega_1, omega_2, valid, noise_std, *, min_rate: float | No
 
 @dataclass(frozen=True)
 class ExcitationReport:
-    """Per-axis accumulation of the signal-to-noise ratio (Eq. 33 per axis).
+    """Per-axis accumulation of the signal-to-noise ratio (Eq. 36 per axis).
 
     Attributes
     ----------
@@ -922,9 +922,9 @@ class ExcitationReport:
 def excitation_report(omega, noise_std: float, *, valid=None, target_snr: float = PAPER_TARGET_SNR) -> ExcitationReport:
     """Accumulate the per-axis SNR of one gyro's rates and find when it reaches a target.
 
-    The paper's SNR (Eq. 33) is ``sqrt(sum_k |omega_k|^2) / sigma`` of the true rate; here it is
+    The paper's SNR (Eq. 36) is ``sqrt(sum_k |omega_k|^2) / sigma`` of the true rate; here it is
     taken per axis over the *centred* signal (the bias is unknown, and only the motion about
-    the mean informs A, Eq. 14), with the expected noise contribution removed:
+    the mean informs A, Eq. 16), with the expected noise contribution removed:
     ``SNR_i(k) = sqrt(max(C_ii(k) - (n(k) - 1) sigma^2, 0)) / sigma`` where ``C(k)`` is the centred
     scatter of the first ``k + 1`` samples (running mean) and ``n(k)`` their count. Section VI
     accumulates samples until every axis reaches 4e3.

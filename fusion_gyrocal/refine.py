@@ -1,6 +1,6 @@
 """Maximum-likelihood refinement of the direct solution (the paper's Appendix C, generalised).
 
-The paper's iterative solver linearises the residual ``omega_1 - C omega_2`` (Eq. 38-47) with
+The paper's iterative solver linearises the residual ``omega_1 - C omega_2`` (Eq. 59-67) with
 the noise of gyro 2 ignored in the regressor. Here the cost is the exact negative log-likelihood
 of the errors-in-variables model with the true rates profiled out,
 
@@ -28,7 +28,7 @@ _E = np.eye(3)
 
 
 def residual_scatter(A, Sc):
-    """``[I, -A] S_c [I, -A]^T``: the scatter of the residual ``omega_1 - A omega_2`` (Eq. 13)."""
+    """``[I, -A] S_c [I, -A]^T``: the scatter of the residual ``omega_1 - A omega_2`` (Eq. 15)."""
     K = np.hstack([_E, -A])
     return K @ Sc @ K.T
 

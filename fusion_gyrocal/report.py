@@ -50,7 +50,7 @@ def residual_vs_rate(run: PipelineRun, max_points: int = 20000):
 
 
 def snr_accumulation(run: PipelineRun, target_snr: float = 4e3):
-    """Per-axis SNR of gyro 1 as samples accumulate (Eq. 33 per axis), with the paper's target."""
+    """Per-axis SNR of gyro 1 as samples accumulate (Eq. 36 per axis), with the paper's target."""
     from .preprocess import excitation_report
 
     cal = run.calibration

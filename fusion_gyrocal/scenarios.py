@@ -8,7 +8,7 @@ motion from :class:`fusion_gyrocal.sim.HumanMotion`) and changes one thing:
 name               what changes
 =================  ===================================================================================
 ``nominal``        nothing (0.5 rad/s RMS per axis, random well-conditioned ``R_1_2``, scales 1 +- 1 %)
-``snr_x<f>``       SNR (Eq. 33) scaled by ``f`` through the rate norm; ``snr_x<f>_noise`` through the
+``snr_x<f>``       SNR (Eq. 36) scaled by ``f`` through the rate norm; ``snr_x<f>_noise`` through the
                    noise (``sigma / f``), ``snr_x<f>_samples`` through the sample count (``N f^2``)
 ``weak_axis``      x rates 10x smaller, y and z amplified so that the total SNR stays the same
 ``skew``           upper-triangular intrinsics with skew ~ N(0, 2.357e-4^2) (Appendix D)
@@ -24,7 +24,7 @@ its target), so that Monte Carlo runs at one SNR point share one abscissa.
 (``make_scenario("weak_axis", snr_factor=2)``).
 
 :func:`scenario_bound` gives the Cramer-Rao bound of a realisation in the paper's metrics
-(Eq. 34-35), from the true signal (:func:`fusion_gyrocal.observability.cramer_rao_bound`), plus the
+(Eq. 37-38), from the true signal (:func:`fusion_gyrocal.observability.cramer_rao_bound`), plus the
 rotation error that Appendix D predicts from the realised skew.
 """
 
@@ -129,7 +129,7 @@ class Scenario:
 
     @property
     def snr(self) -> float:
-        """``sqrt(sum_k ||omega_1(k)||^2) / sigma`` with ``sigma^2 = sigma_1^2 + sigma_2^2`` (Eq. 33)."""
+        """``sqrt(sum_k ||omega_1(k)||^2) / sigma`` with ``sigma^2 = sigma_1^2 + sigma_2^2`` (Eq. 36)."""
         s1, s2 = self.noise_std
         return float(np.sqrt(np.sum(self.data.omega_true_1**2)) / np.hypot(s1, s2))
 
@@ -141,9 +141,9 @@ class ScenarioBound:
     Attributes
     ----------
     rotation : float
-        Cramer-Rao bound on the RMSE of ``||Log(R_hat R^T)||`` (rad, Eq. 34).
+        Cramer-Rao bound on the RMSE of ``||Log(R_hat R^T)||`` (rad, Eq. 37).
     scale : float
-        Cramer-Rao bound on the RMSE of the paper's scale error (Eq. 35, a fraction).
+        Cramer-Rao bound on the RMSE of the paper's scale error (Eq. 38, a fraction).
     rotation_skew : float
         ``||(w_1 - C w_2) / 2||``: the rotation error Appendix D predicts from the realised skew
         (rad; 0 without skew). It is a bias, not noise, so it adds to the bound in quadrature.
@@ -188,7 +188,7 @@ def _near_parallel_rotation(rng, angle_deg: float = NEAR_PARALLEL_DEG) -> np.nda
 
 def _motion(rng, n: int, rms, total_rms: float) -> np.ndarray:
     """Human-like motion with per-axis RMS shape ``rms``, rescaled so that the mean squared rate norm
-    is exactly ``3 * total_rms^2`` (fixes the SNR of Eq. 33)."""
+    is exactly ``3 * total_rms^2`` (fixes the SNR of Eq. 36)."""
     w = HumanMotion(rms, rng=rng)(np.arange(n) / PAPER_RATE_HZ)
     return w * np.sqrt(3.0 * total_rms**2 * n / np.sum(w**2))
 
@@ -243,7 +243,7 @@ def make_scenario(name: str = "nominal", *, rng=None, snr_factor: float | None =
         Scale the scenario's SNR by this factor (multiplies a factor given in the name).
     snr_via : {"rate", "noise", "samples"}, optional
         How to scale the SNR: the rate norm, the noise standard deviation (``sigma / f``) or the
-        sample count (``N f^2``, Eq. 33). Default: from the name, else ``"rate"``.
+        sample count (``N f^2``, Eq. 36). Default: from the name, else ``"rate"``.
     n : int
         Samples of the base scenario at 100 Hz (before scaling through the sample count).
 
@@ -312,7 +312,7 @@ def _bend(data: SimulatedPair, rng, angle: np.ndarray) -> SimulatedPair:
 
 
 def scenario_bound(scenario: Scenario) -> ScenarioBound:
-    """Cramer-Rao bound of one realisation in the paper's metrics (Eq. 34-35).
+    """Cramer-Rao bound of one realisation in the paper's metrics (Eq. 37-38).
 
     The Fisher information (Appendix B, generalised to the scale factors, bias profiled out) is
     evaluated at the truth with the true, noise-free signal scatter of gyro 2

@@ -4,11 +4,11 @@
   evaluated at any instant (so streams at different rates and clocks can be drawn from it).
 * :func:`simulate_pair`: gyro 1 and gyro 2 measurements from a true rate history following
   Eq. (1): ``omega_i_meas = S_i omega_i + b_i + n_i`` with white noise (0.1 deg/s), a bias
-  random walk (57.3 micro-deg/s per step, Eq. 32) and optional skew (upper-triangular
+  random walk (57.3 micro-deg/s per step, Eq. 35) and optional skew (upper-triangular
   ``S_i`` with off-diagonals drawn from N(0, 2.357e-4^2)).
 * :func:`load_broad_rates`: real hand-held gyro motion from the BROAD dataset to drive the
   simulation with recorded motion (as the paper did with its own human motion).
-* :func:`rotation_error` and :func:`scale_error`: the paper's two error metrics (Eq. 34-35).
+* :func:`rotation_error` and :func:`scale_error`: the paper's two error metrics (Eq. 37-38).
 """
 
 from __future__ import annotations
@@ -114,11 +114,11 @@ def simulate_pair(omega_true_1=None, *, n: int = 6000, rate_hz: float = PAPER_RA
     R_1_2 : array_like (3, 3), optional
         True rotation (the paper's C, Eq. 2). Default: a random rotation.
     scale_1, scale_2 : array_like (3,)
-        True scale factors (diagonals of S_i, Eq. 10).
+        True scale factors (diagonals of S_i, Eq. 9).
     noise_std : float or (float, float)
         White noise standard deviation per sample (rad/s) for gyro 1 and 2.
     bias_walk_std : float
-        Bias random-walk step standard deviation (rad/s per step, Eq. 32).
+        Bias random-walk step standard deviation (rad/s per step, Eq. 35).
     bias_1, bias_2 : array_like (3,), optional
         Initial biases (rad/s). Default: drawn from N(0, (0.5 deg/s)^2).
     skew_std : float
@@ -205,12 +205,12 @@ def simulate_streams(rng=None, *, rate_1: float = 100.0, rate_2: float = 200.0, 
 
 
 def rotation_error(R_hat, R_true) -> float:
-    """``||Log(R_hat R_true^T)||`` in rad (Eq. 34)."""
+    """``||Log(R_hat R_true^T)||`` in rad (Eq. 37)."""
     return float(np.linalg.norm(Rotation.from_matrix(np.asarray(R_hat) @ np.asarray(R_true).T).as_rotvec()))
 
 
 def scale_error(scale_1_hat, scale_2_hat, scale_1, scale_2) -> float:
-    """The paper's scale error (Eq. 35): both gyros' scales normalised by gyro 1's x scale,
+    """The paper's scale error (Eq. 38): both gyros' scales normalised by gyro 1's x scale,
     difference norm divided by sqrt(5)."""
     est = np.concatenate([scale_1_hat, scale_2_hat]) / scale_1_hat[0]
     tru = np.concatenate([scale_1, scale_2]) / scale_1[0]
