@@ -377,7 +377,7 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s=None, ma
                  saturation_limit=None, method="ml", noise_std=None, gauge="unit_prior", scale_prior_std=None,
                  bias_window=None, bias_walk_std=None, mask=None, flex_rejection="auto", flex_margin=2, parallel_tol_deg=5.0,
                  intrinsics_1=None, intrinsics_2=None, skew_std=0.0, min_snr=10.0, max_unexplained=0.05,
-                 on_not_rigid="raise", min_kept_energy=0.5) -> PipelineRun:
+                 on_not_rigid="raise", min_kept_energy=0.05) -> PipelineRun:
     """:func:`calibrate_pair` returning its intermediate products too (same parameters).
 
     ``min_kept_energy``: flex rejection is applied only when the kept samples retain at least this
