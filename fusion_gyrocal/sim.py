@@ -218,8 +218,20 @@ def scale_error(scale_1_hat, scale_2_hat, scale_1, scale_2) -> float:
 
 
 def shared_data_dir() -> Path:
-    """``../shared/data`` next to the repository (may not exist in a user's clone)."""
-    return Path(__file__).resolve().parents[2] / "shared" / "data"
+    """Where the real recordings live: ``$FUSION_GYROCAL_DATA``, else ``../shared/data`` beside the
+    repository (found from the working directory or from a source checkout of the package).
+
+    The folder may not exist (a user's own clone); callers check ``.exists()``.
+    """
+    import os
+
+    env = os.environ.get("FUSION_GYROCAL_DATA")
+    if env:
+        return Path(env)
+    here = Path(__file__).resolve()
+    candidates = [Path.cwd().resolve().parent / "shared" / "data", Path.cwd().resolve() / "shared" / "data",
+                  here.parents[2] / "shared" / "data"]
+    return next((c for c in candidates if c.exists()), candidates[-1])
 
 
 def load_broad_rates(trial: str = "06_undisturbed_fast_rotation_A", *, data_dir=None,

@@ -17,9 +17,9 @@ from fusion_gyrocal.io import (ImuNoise, ImuStream, detect_format, list_imu_topi
                                write_kalibr_imu_yaml, write_npz, write_openvins_imu_chain)
 from fusion_gyrocal.io import writers as writers_mod
 from fusion_gyrocal.model import PairCalibration
-from fusion_gyrocal.sim import DEG
+from fusion_gyrocal.sim import DEG, shared_data_dir
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+DATA = shared_data_dir()
 NO_DATA = "../shared/data not present (real recordings are only in the project checkout)"
 
 
