@@ -76,8 +76,8 @@ def _transform(moments: Moments, T1, T2) -> Moments:
 def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_prior",
           scale_prior_std: float | None = None, parallel_tol_deg: float = 5.0,
           intrinsics_1=None, intrinsics_2=None, skew_std=0.0, min_snr: float = 10.0,
-          max_unexplained: float = 0.05, on_not_rigid: str = "raise", noise_ratio: float | None = None
-          ) -> PairCalibration:
+          max_unexplained: float = 0.05, on_not_rigid: str = "raise", noise_ratio: float | None = None,
+          target_snr: float = 4e3) -> PairCalibration:
     """Calibrate a pair from its sufficient statistics.
 
     Parameters
@@ -118,6 +118,9 @@ def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_p
     noise_ratio : float, optional
         ``sigma_1 / sigma_2`` used to split the residual variance when ``noise_std`` is not given
         (only the sum ``sigma_1^2 + sigma_2^2`` is observable from the residual); default 1.
+    target_snr : float
+        Per-axis SNR the data should reach (Section VI accumulates to 4e3); a note names the axes
+        below it.
     """
     if on_not_rigid not in ("raise", "flag"):
         raise InputError(f"on_not_rigid: expected 'raise' or 'flag', got {on_not_rigid!r}")
@@ -194,6 +197,10 @@ def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_p
     skew_cov = 0.25 * (sk[0] ** 2 + sk[1] ** 2) * np.eye(3)  # Appendix D: theta ~ (w_1 - C w_2) / 2
     cov[ROT, ROT] += skew_cov
     snr = per_axis_snr(moments, noise)
+    weak = [f"{'xyz'[i]} ({snr[i]:.3g})" for i in range(3) if snr[i] < target_snr]
+    if weak:
+        notes.append(f"per-axis SNR below the target {target_snr:g} (the paper accumulates to 4e3) on axis "
+                     f"{', '.join(weak)}: rotate more about those axes of gyro 1, or record longer")
     if config.name != "general" and scale_prior_std is None:
         pairs = ", ".join(f"gyro 1 {'xyz'[i]} ~ gyro 2 {'xyz'[j]} ({ang:.2f} deg)" for i, j, ang in config.parallel_pairs)
         notes.append(f"{config.name}: {pairs}; only the ratio of those scale factors is determined (Lemma "
@@ -269,8 +276,8 @@ def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s: float
                    bias_window: int | None = None, bias_walk_std=None, mask=None, flex_rejection="auto",
                    flex_margin: int = 2,
                    parallel_tol_deg: float = 5.0, intrinsics_1=None, intrinsics_2=None, skew_std=0.0,
-                   min_snr: float = 10.0, max_unexplained: float = 0.05, on_not_rigid: str = "raise"
-                   ) -> PairCalibration:
+                   min_snr: float = 10.0, max_unexplained: float = 0.05, on_not_rigid: str = "raise",
+                   max_rate: float | None = None) -> PairCalibration:
     """Calibrate two rigidly mounted gyroscopes from their angular rates.
 
     Parameters
@@ -317,6 +324,10 @@ def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s: float
         form, chi-square with the same 0.27% false-alarm rate) and ``flex_margin`` samples on each
         side are removed and the pair is solved again. ``"auto"`` applies it only when more than
         1% of the samples exceed the gate (four times what white noise explains).
+    max_rate : float, optional
+        Drop samples where either gyro's rate norm exceeds this (rad/s): a known flex or saturation
+        limit (the paper's advice to avoid the fastest motion). Slow samples are kept: they cost
+        nothing in accuracy, and selecting on gyro 1's noisy measurement would bias the fit.
     parallel_tol_deg, intrinsics_1, intrinsics_2, skew_std, min_snr, max_unexplained, on_not_rigid
         See :func:`solve`.
 
@@ -351,7 +362,8 @@ def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s: float
                         gauge=gauge, scale_prior_std=scale_prior_std, bias_window=bias_window, bias_walk_std=bias_walk_std, mask=mask,
                         flex_rejection=flex_rejection, flex_margin=flex_margin, parallel_tol_deg=parallel_tol_deg,
                         intrinsics_1=intrinsics_1, intrinsics_2=intrinsics_2, skew_std=skew_std, min_snr=min_snr,
-                        max_unexplained=max_unexplained, on_not_rigid=on_not_rigid).calibration
+                        max_unexplained=max_unexplained, on_not_rigid=on_not_rigid,
+                        max_rate=max_rate).calibration
 
 
 @dataclass(frozen=True)
@@ -377,7 +389,7 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s=None, ma
                  saturation_limit=None, method="ml", noise_std=None, gauge="unit_prior", scale_prior_std=None,
                  bias_window=None, bias_walk_std=None, mask=None, flex_rejection="auto", flex_margin=2, parallel_tol_deg=5.0,
                  intrinsics_1=None, intrinsics_2=None, skew_std=0.0, min_snr=10.0, max_unexplained=0.05,
-                 on_not_rigid="raise", min_kept_energy=0.05) -> PipelineRun:
+                 on_not_rigid="raise", min_kept_energy=0.05, max_rate=None) -> PipelineRun:
     """:func:`calibrate_pair` returning its intermediate products too (same parameters).
 
     ``min_kept_energy``: flex rejection is applied only when the kept samples retain at least this
@@ -409,6 +421,10 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s=None, ma
         w1, w2 = omega_1, omega_2
         if mask is not None:
             mask = np.asarray(mask, dtype=bool)
+    if max_rate is not None:
+        from .preprocess import informative_mask
+        keep = informative_mask(w1, w2, mask, 1.0, min_rate=0.0, max_rate=max_rate)
+        mask = keep if mask is None else (mask & keep)
     kw = dict(method=method, noise_std=noise_std, gauge=gauge, scale_prior_std=scale_prior_std,
               parallel_tol_deg=parallel_tol_deg, intrinsics_1=intrinsics_1, intrinsics_2=intrinsics_2,
               skew_std=skew_std, min_snr=min_snr, max_unexplained=max_unexplained, on_not_rigid=on_not_rigid)

@@ -48,6 +48,8 @@ def _add_input_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bias-window", type=float, metavar="SECONDS",
                    help="piecewise-constant bias over windows of this length (drifting biases)")
     p.add_argument("--no-flex-rejection", action="store_true", help="keep every sample (no flex/outlier gate)")
+    p.add_argument("--max-rate", type=float, metavar="RAD_S",
+                   help="drop samples faster than this rate norm (a known flex or saturation limit)")
     p.add_argument("--skew-std", type=float, default=0.0, help="remaining skew uncertainty for the error budget")
     p.add_argument("--allow-not-rigid", action="store_true",
                    help="report a non-rigid pair (flagged) instead of failing with exit code 3")
@@ -112,6 +114,7 @@ def _pipeline(args, s1, s2):
                         rate_hz=args.rate, method=args.method, noise_std=noise, gauge=args.gauge,
                         scale_prior_std=args.scale_prior, bias_window=window,
                         flex_rejection=False if args.no_flex_rejection else "auto", skew_std=args.skew_std,
+                        max_rate=args.max_rate,
                         on_not_rigid="flag" if args.allow_not_rigid else "raise")
 
 

@@ -237,3 +237,17 @@ def test_pair_calibration_is_frozen():
         cal.R_1_2 = np.eye(3)
     with pytest.raises(ValueError):
         cal.R_1_2[0, 0] = 2.0
+
+
+def test_calibrate_pair_max_rate_drops_fast_samples():
+    sim = simulate_pair(rng=1, n=3000)
+    fast = (np.linalg.norm(sim.omega_1, axis=1) > 2.0) | (np.linalg.norm(sim.omega_2, axis=1) > 2.0)
+    cal = calibrate_pair(sim.omega_1, sim.omega_2, noise_std=PAPER_NOISE_STD, max_rate=2.0, flex_rejection=False)
+    assert cal.n_samples == 3000 - fast.sum() and fast.any()
+
+
+def test_calibrate_pair_notes_axes_below_target_snr():
+    sim = simulate_pair(rng=1, n=300, rms=(0.05, 1.0, 1.0))
+    cal = calibrate_pair(sim.omega_1, sim.omega_2, noise_std=PAPER_NOISE_STD)
+    assert cal.snr[0] < 4e3 < cal.snr[1]
+    assert any("below the target 4000" in n and "axis x" in n for n in cal.notes)
