@@ -22,9 +22,11 @@ EXAMPLES = """examples:
 EXIT_ERROR, EXIT_NOT_RIGID, EXIT_INTERNAL = 1, 3, 70
 
 
-def _add_input_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("gyro1", help="recording of gyro 1 (the reference): CSV, EuRoC imu0 folder or data.csv, "
-                                 "Xsens export, .npz, ROS1 .bag or ROS2 bag folder")
+def add_recording_args(p: argparse.ArgumentParser, *, optional: bool = False) -> None:
+    """Arguments naming a recording pair and how to read and align it (shared by calibrate, report, compare)."""
+    p.add_argument("gyro1", nargs="?" if optional else None,
+                   help="recording of gyro 1 (the reference): CSV, EuRoC imu0 folder or data.csv, Xsens export, "
+                        ".npz, ROS1 .bag or ROS2 bag folder" + ("; omit to simulate --scenario" if optional else ""))
     p.add_argument("gyro2", nargs="?", help="recording of gyro 2 (omit when gyro1 holds both, e.g. a bag with "
                                             "--topic1/--topic2 or an npz with --imu1/--imu2)")
     for k in ("1", "2"):
@@ -39,6 +41,11 @@ def _add_input_args(p: argparse.ArgumentParser) -> None:
                                                 "default: estimated")
     p.add_argument("--max-offset", type=float, default=1.0, help="offset search range in s (default 1.0)")
     p.add_argument("--rate", type=float, help="resample both onto a uniform grid at this rate (Hz)")
+
+
+def _add_calibrate_args(p: argparse.ArgumentParser) -> None:
+    """Recording arguments plus the estimator options of calibrate and report."""
+    add_recording_args(p)
     p.add_argument("--method", choices=("ml", "direct"), default="ml", help="estimator (default ml)")
     p.add_argument("--noise-std", type=float, nargs="+", metavar="RAD_S",
                    help="white-noise std per sample (rad/s), one value or one per gyro; default: from residuals")
@@ -47,6 +54,9 @@ def _add_input_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scale-prior", type=float, metavar="STD", help="Gaussian prior N(1, STD^2) on the scale factors")
     p.add_argument("--bias-window", type=float, metavar="SECONDS",
                    help="piecewise-constant bias over windows of this length (drifting biases)")
+    p.add_argument("--bias-walk", type=float, nargs="+", metavar="RAD_S",
+                   help="bias random-walk step std per sample (rad/s), one value or one per gyro: the exact "
+                        "drifting-bias model (needs --noise-std)")
     p.add_argument("--no-flex-rejection", action="store_true", help="keep every sample (no flex/outlier gate)")
     p.add_argument("--max-rate", type=float, metavar="RAD_S",
                    help="drop samples faster than this rate norm (a known flex or saturation limit)")
@@ -71,7 +81,8 @@ def _stream_options(args, k: str) -> dict:
     return opts
 
 
-def _read_streams(args, progress=None):
+def read_streams(args, progress=None):
+    """Read the two gyro streams named by :func:`add_recording_args` arguments."""
     from .errors import InputError
     from .io import read_imu
 
@@ -113,6 +124,7 @@ def _pipeline(args, s1, s2):
     return run_pipeline(w1, w2, t_1=s1.t, t_2=s2.t, time_offset_s=args.offset, max_offset_s=args.max_offset,
                         rate_hz=args.rate, method=args.method, noise_std=noise, gauge=args.gauge,
                         scale_prior_std=args.scale_prior, bias_window=window,
+                        bias_walk_std=None if not args.bias_walk else np.asarray(args.bias_walk, float),
                         flex_rejection=False if args.no_flex_rejection else "auto", skew_std=args.skew_std,
                         max_rate=args.max_rate,
                         on_not_rigid="flag" if args.allow_not_rigid else "raise")
@@ -166,7 +178,7 @@ def cmd_calibrate(args) -> int:
     console = _console()
     with Progress(transient=True, disable=not sys.stderr.isatty()) as progress:
         task = progress.add_task("reading", total=3)
-        s1, s2 = _read_streams(args, lambda: progress.advance(task))
+        s1, s2 = read_streams(args, lambda: progress.advance(task))
         progress.update(task, description="aligning and solving")
         run = _pipeline(args, s1, s2)
         progress.advance(task)
@@ -188,7 +200,7 @@ def cmd_calibrate(args) -> int:
 def cmd_report(args) -> int:
     from .report import write_report
 
-    s1, s2 = _read_streams(args)
+    s1, s2 = read_streams(args)
     run = _pipeline(args, s1, s2)
     extra = {}
     if args.track:
@@ -247,14 +259,14 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("calibrate", help="two recordings in, calibration out", epilog=EXAMPLES,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    _add_input_args(p)
+    _add_calibrate_args(p)
     p.add_argument("--output", "-o", help="write the full result as JSON")
     p.add_argument("--kalibr", help="write a Kalibr-style imu.yaml")
     p.add_argument("--openvins", help="write an OpenVINS kalibr_imu_chain.yaml")
     p.set_defaults(func=cmd_calibrate)
     p = sub.add_parser("report", help="plots a person can read (PNG + Markdown)", epilog=EXAMPLES,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    _add_input_args(p)
+    _add_calibrate_args(p)
     p.add_argument("--out", default="gyrocal_report", help="output folder (default gyrocal_report)")
     p.add_argument("--track", action="store_true", help="also track drift with the EKF and plot it")
     p.set_defaults(func=cmd_report)

@@ -1022,18 +1022,9 @@ def add_compare_parser(subparsers):
                     "Carlo runs of a simulated scenario; print a table (errors against the truth, error / "
                     "Cramer-Rao bound, time per solve) and optionally write Markdown, CSV and a figure.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("gyro1", nargs="?", help="recording of gyro 1, as `gyrocal calibrate` takes it (CSV, EuRoC, "
-                                            "Xsens, .npz, ROS bag); omit to simulate --scenario")
-    p.add_argument("gyro2", nargs="?", help="recording of gyro 2 (omit when gyro1 holds both: --topic1/--topic2 "
-                                            "in a bag, --imu1/--imu2 in an npz)")
-    for k in ("1", "2"):
-        p.add_argument(f"--topic{k}", help=f"sensor_msgs/Imu topic of gyro {k} in a bag")
-        p.add_argument(f"--imu{k}", type=int, help=f"IMU index (from 0) of gyro {k} in a multi-IMU npz")
-        p.add_argument(f"--unit{k}", choices=("rad/s", "deg/s"), help=f"rate unit of gyro {k} (CSV, npz, Xsens)")
-    p.add_argument("--offset", type=float, default=None,
-                   help="known time offset (s) added to gyro 2's timestamps; default: estimated")
-    p.add_argument("--max-offset", type=float, default=1.0, help="offset search range (s)")
-    p.add_argument("--rate", type=float, default=None, help="resample both onto a uniform grid at this rate (Hz)")
+    from .cli import add_recording_args
+
+    add_recording_args(p, optional=True)
     p.add_argument("--scenario", default="nominal",
                    help="simulated scenario (without recordings): " + ", ".join(SCENARIOS)
                         + ", or snr_x<f>[_rate|_noise|_samples]")
@@ -1056,20 +1047,10 @@ def add_compare_parser(subparsers):
 
 def _load_recording(args):
     """Read and align the recording pair: ``(omega_1, omega_2, rate_hz)`` of the valid aligned samples."""
-    from .io import detect_format, read_imu
+    from .cli import read_streams
     from .preprocess import align_streams
 
-    if args.gyro2 is None and args.topic2 is None and args.imu2 is None:
-        raise InputError("gyro2: expected a second recording, or --topic1/--topic2 (bag) or --imu1/--imu2 (npz) "
-                         "to take both gyros from one file")
-    streams = []
-    for k, path in (("1", args.gyro1), ("2", args.gyro2 or args.gyro1)):
-        fmt = detect_format(path)
-        opts = {"topic": getattr(args, f"topic{k}"), "imu": getattr(args, f"imu{k}"),
-                "unit": getattr(args, f"unit{k}")}
-        allowed = {"bag": ("topic",), "npz": ("imu", "unit")}.get(fmt, ("unit",))
-        streams.append(read_imu(path, **{o: v for o, v in opts.items() if v is not None and o in allowed}))
-    s1, s2 = streams
+    s1, s2 = read_streams(args)
     pair = align_streams(s1.t, s1.omega, s2.t, s2.omega, time_offset_s=args.offset, max_offset_s=args.max_offset,
                          rate_hz=args.rate, valid_1=s1.valid, valid_2=s2.valid)
     keep = pair.valid
