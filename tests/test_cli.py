@@ -88,3 +88,12 @@ def test_cli_help_shows_examples():
     r = subprocess.run([sys.executable, "-m", "fusion_gyrocal.cli", "calibrate", "--help"], capture_output=True,
                        text=True, timeout=60)
     assert r.returncode == 0 and "examples:" in r.stdout and "gyrocal calibrate" in r.stdout
+
+
+def test_cli_bias_walk_needs_noise_std(tmp_path, capsys):
+    p1, p2, _, _ = _write_pair(tmp_path, seed=3)
+    assert main(["calibrate", str(p1), str(p2), "--unit2", "deg/s", "--bias-walk", "1e-5"]) == 1
+    assert "needs noise_std" in capsys.readouterr().err
+    code = main(["calibrate", str(p1), str(p2), "--unit2", "deg/s", "--bias-walk", "1e-5", "--noise-std", "0.0017",
+                 "--output", str(tmp_path / "c.json")])
+    assert code == 0 and json.loads((tmp_path / "c.json").read_text())["rigid"] is True
