@@ -15,8 +15,8 @@ from .direct import Gauge, decompose, solve_A
 from .errors import ConfigurationError, InputError, NotRigidError
 from .model import BIAS, ROT, PairCalibration, mark_undetermined
 from .moments import Moments
-from .observability import (A_of, check_excitation, classify, dA_dp, fisher_information, per_axis_snr,
-                            residual_weight, signal_scatter)
+from .observability import (A_of, check_excitation, check_samples, classify, dA_dp, fisher_information,
+                            nearest_rotation, per_axis_snr, residual_weight, signal_scatter)
 from .refine import residual_scatter, refine_ml
 
 METHODS = ("ml", "direct")
@@ -92,7 +92,8 @@ def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_p
         covariance = inverse Fisher information (the Cramer-Rao bound at the estimate).
     noise_std : float or (float, float), optional
         White-noise std per sample of gyro 1 and gyro 2 (rad/s). Default: from the
-        least-squares residual, split equally between the gyros (only their sum is observable).
+        least-squares residual, split between the gyros by ``noise_ratio`` (only the sum of the
+        variances is observable there; :func:`calibrate_pair` estimates the ratio from the data).
     gauge : "unit_prior", "fixed" or Gauge
         How the global scale is fixed (ignored when ``scale_prior_std`` is given).
     scale_prior_std : float, optional
@@ -129,12 +130,10 @@ def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_p
     if scale_prior_std is not None and (method != "ml" or not scale_prior_std > 0):
         raise ConfigurationError("scale_prior_std: expected a positive value with method='ml'")
     gauge = Gauge.parse(gauge)
-    if moments.count < 4:
-        raise InputError(f"expected at least 4 samples (Lemma 1), got {int(moments.count)}")
     T1, T2 = _skew_compensation(intrinsics_1, "intrinsics_1"), _skew_compensation(intrinsics_2, "intrinsics_2")
     moments = _transform(moments, T1, T2) if (intrinsics_1 is not None or intrinsics_2 is not None) else moments
     noise = _noise_pair(noise_std)
-    check_excitation(moments, (1e-300, 1e-300), min_snr=0.0)  # sample count and constant input only
+    check_samples(moments)
     A_ls, _ = solve_A(moments)
     unexplained = float(np.trace(residual_scatter(A_ls, moments.scatter)) / np.trace(moments.S11))
     rigid = unexplained <= max_unexplained
@@ -152,7 +151,8 @@ def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_p
         noise_source = "user"
     if rigid:
         check_excitation(moments, noise, min_snr=min_snr)
-    config = classify(_polar(A_ls), parallel_tol_deg)
+    # classify from the polar factor of A (scales ~1), then again from the decomposed rotation
+    config = classify(nearest_rotation(A_ls), parallel_tol_deg)
     notes = []
     iterations = 0
     if rigid:
@@ -160,7 +160,7 @@ def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_p
         config = classify(R, parallel_tol_deg)
         R, s1, s2 = decompose(A_ls, config)
     else:  # no rigid model fits: report the nearest rotation with unit scales, flagged, never refined
-        R, s1, s2 = _polar(A_ls), np.ones(3), np.ones(3)
+        R, s1, s2 = nearest_rotation(A_ls), np.ones(3), np.ones(3)
     s1, s2 = gauge.apply(config.groups, s1, s2)
     if method == "ml" and rigid:
         use_prior = scale_prior_std is not None
@@ -214,11 +214,6 @@ def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_p
         residual_rms=float(np.sqrt(max(np.trace(M), 0.0) / (3.0 * max(moments.dof, 1.0)))), method=method,
         iterations=iterations, skew_rotation_covariance=skew_cov, bias_segments=moments.segments,
         rigid=rigid, unexplained_fraction=unexplained, notes=tuple(notes))
-
-
-def _polar(A):
-    from .observability import nearest_rotation
-    return nearest_rotation(A)
 
 
 def _ml_covariance(F, s1, s2, config, gauge, scale_prior_std):

@@ -156,6 +156,16 @@ def per_axis_snr(moments: Moments, noise_std) -> np.ndarray:
     return np.sqrt(np.clip(np.diag(X1), 0.0, None)) / sigma
 
 
+def check_samples(moments: Moments) -> None:
+    """Raise :class:`InputError` for fewer than 4 samples or a constant stream (Lemma 1)."""
+    if moments.count < 4:
+        raise InputError(f"expected at least 4 samples (Lemma 1), got {int(moments.count)}")
+    for name, block in (("omega_1", moments.S11), ("omega_2", moments.S22)):
+        if np.trace(block) == 0.0:
+            raise InputError(f"{name}: constant input (every sample identical); the calibration needs rotation "
+                             "about all three axes")
+
+
 def check_excitation(moments: Moments, noise_std, min_snr: float = 10.0) -> None:
     """Raise :class:`ExcitationError` unless the motion spans all three axes (Lemma 1).
 
@@ -163,12 +173,7 @@ def check_excitation(moments: Moments, noise_std, min_snr: float = 10.0) -> None
     direction whose SNR (``sqrt(eigenvalue) / sigma``) is below ``min_snr`` makes A (and the
     rotation about the other axes' cross products) undetermined.
     """
-    if moments.count < 4:
-        raise InputError(f"expected at least 4 samples (Lemma 1), got {int(moments.count)}")
-    for name, block in (("omega_1", moments.S11), ("omega_2", moments.S22)):
-        if np.trace(block) == 0.0:
-            raise InputError(f"{name}: constant input (every sample identical); the calibration needs rotation "
-                             "about all three axes")
+    check_samples(moments)
     X1, _ = signal_scatter(moments, noise_std)
     w, V = np.linalg.eigh(X1)
     sigma = float(np.hypot(*noise_std))
