@@ -202,7 +202,8 @@ def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_p
         notes.append(f"per-axis SNR below the target {target_snr:g} (the paper accumulates to 4e3) on axis "
                      f"{', '.join(weak)}: rotate more about those axes of gyro 1, or record longer")
     if config.name != "general" and scale_prior_std is None:
-        pairs = ", ".join(f"gyro 1 {'xyz'[i]} ~ gyro 2 {'xyz'[j]} ({ang:.2f} deg)" for i, j, ang in config.parallel_pairs)
+        pairs = ", ".join(f"gyro 1 {'xyz'[i]} ~ gyro 2 {'xyz'[j]} ({ang:.2f} deg)"
+                          for i, j, ang in config.parallel_pairs)
         notes.append(f"{config.name}: {pairs}; only the ratio of those scale factors is determined (Lemma "
                      f"{'2' if config.name == 'all_axes_parallel' else '3'})")
     gauge_text = (f"Gaussian prior N(1, {scale_prior_std:g}^2) on every scale factor" if scale_prior_std is not None
@@ -354,8 +355,9 @@ def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s: float
     """
     return run_pipeline(omega_1, omega_2, t_1=t_1, t_2=t_2, time_offset_s=time_offset_s, max_offset_s=max_offset_s,
                         rate_hz=rate_hz, saturation_limit=saturation_limit, method=method, noise_std=noise_std,
-                        gauge=gauge, scale_prior_std=scale_prior_std, bias_window=bias_window, bias_walk_std=bias_walk_std, mask=mask,
-                        flex_rejection=flex_rejection, flex_margin=flex_margin, parallel_tol_deg=parallel_tol_deg,
+                        gauge=gauge, scale_prior_std=scale_prior_std, bias_window=bias_window,
+                        bias_walk_std=bias_walk_std, mask=mask, flex_rejection=flex_rejection,
+                        flex_margin=flex_margin, parallel_tol_deg=parallel_tol_deg,
                         intrinsics_1=intrinsics_1, intrinsics_2=intrinsics_2, skew_std=skew_std, min_snr=min_snr,
                         max_unexplained=max_unexplained, on_not_rigid=on_not_rigid,
                         max_rate=max_rate).calibration
@@ -382,8 +384,9 @@ class PipelineRun:
 
 def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s=None, max_offset_s=1.0, rate_hz=None,
                  saturation_limit=None, method="ml", noise_std=None, gauge="unit_prior", scale_prior_std=None,
-                 bias_window=None, bias_walk_std=None, mask=None, flex_rejection="auto", flex_margin=2, parallel_tol_deg=5.0,
-                 intrinsics_1=None, intrinsics_2=None, skew_std=0.0, min_snr=10.0, max_unexplained=0.05,
+                 bias_window=None, bias_walk_std=None, mask=None, flex_rejection="auto", flex_margin=2,
+                 parallel_tol_deg=5.0, intrinsics_1=None, intrinsics_2=None, skew_std=0.0, min_snr=10.0,
+                 max_unexplained=0.05,
                  on_not_rigid="raise", min_kept_energy=0.05, max_rate=None) -> PipelineRun:
     """:func:`calibrate_pair` returning its intermediate products too (same parameters).
 

@@ -112,7 +112,8 @@ def summary_markdown(cal: PairCalibration) -> str:
     lines = [
         "# Gyroscope pair calibration", "",
         f"- configuration: **{cal.configuration}**; rigid: **{cal.rigid}**; method: {cal.method}",
-        f"- R_1_2 rotation vector: {np.array2string(rv, precision=4)} deg (1-sigma {np.array2string(rs, precision=2)} mdeg)",
+        f"- R_1_2 rotation vector: {np.array2string(rv, precision=4)} deg "
+        f"(1-sigma {np.array2string(rs, precision=2)} mdeg)",
         f"- scale_1: {np.array2string(cal.scale_1, precision=6)}; scale_2: {np.array2string(cal.scale_2, precision=6)}",
         f"- scale observable: {cal.scale_observable.tolist()}; gauge: {cal.gauge}",
         f"- bias: {np.array2string(np.rad2deg(cal.bias), precision=4)} deg/s",
