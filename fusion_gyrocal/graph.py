@@ -65,7 +65,7 @@ import numpy as np
 from .calibrate import solve
 from .direct import Gauge
 from .errors import ConfigurationError, InputError
-from .model import BIAS, ROT, PairCalibration
+from .model import BIAS, ROT, PairCalibration, mark_undetermined
 from .moments import Moments, as_rates
 from .observability import classify, per_axis_snr, skew
 
@@ -954,14 +954,7 @@ class GyroPairGraph:
             scale_observable = self.configuration.scale_observable
         J = np.eye(12)                                         # log-scale -> scale
         J[3:9, 3:9] = np.diag(np.concatenate([s1, s2]))
-        C = J @ C @ J.T
-        for gyro in range(2):
-            for axis in range(3):
-                if not scale_observable[gyro, axis]:
-                    i = 3 + 3 * gyro + axis
-                    C[i, :] = 0.0
-                    C[:, i] = 0.0
-                    C[i, i] = np.inf
+        C = mark_undetermined(J @ C @ J.T, scale_observable)
         bias_values = np.array([values.atVector(b) for b in self._bias_keys])
         bias = weights @ bias_values
         A = (s1[:, None] * R) / s2[None, :]
