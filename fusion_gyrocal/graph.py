@@ -67,7 +67,7 @@ from .direct import Gauge
 from .errors import ConfigurationError, InputError
 from .model import BIAS, ROT, PairCalibration, mark_undetermined
 from .moments import Moments, as_rates
-from .observability import classify, per_axis_snr, skew
+from .observability import A_of, classify, dA_dp, per_axis_snr, skew
 
 __all__ = [
     "GraphKeys", "WindowStatistics", "RotationIncrements", "PreintegratedRotations", "GraphEstimate",
@@ -181,7 +181,7 @@ def _pair_residual(R, log_scale, bias, stats: WindowStatistics, noise_std, jacob
     """
     s1, s2 = np.exp(log_scale[:3]), np.exp(log_scale[3:])
     sig1, sig2 = noise_std
-    A = (s1[:, None] * R) / s2[None, :]
+    A = A_of(R, s1, s2)
     Sigma = sig1**2 * np.eye(3) + sig2**2 * (A @ A.T)
     V = np.linalg.inv(np.linalg.cholesky(Sigma))
     E = V @ (stats.L_1 - A @ stats.L_2)                         # (3, 6)
@@ -190,10 +190,8 @@ def _pair_residual(R, log_scale, bias, stats: WindowStatistics, noise_std, jacob
     e = np.concatenate([E.T.reshape(-1), em])
     if not jacobians:
         return e, None
-    dA = np.empty((9, 3, 3))
-    dA[:3] = (s1[None, :, None] * (R[None] @ skew(np.eye(3)))) / s2[None, None, :]
-    dA[3:6] = np.eye(3)[:, :, None] * A[None, :, :]              # row i of A
-    dA[6:] = -np.eye(3)[:, None, :] * A[None, :, :]              # column i of A
+    dA = dA_dp(R, s1, s2)                                        # left perturbation Exp(dtheta) R
+    dA[:3] = np.einsum("nm,nij->mij", R, dA[:3])                 # right: R [d x] = [R d x] R, dtheta = R d
     dAAt = dA @ A.T
     X = V @ (sig2**2 * (dAAt + np.swapaxes(dAAt, 1, 2))) @ V.T
     Phi = np.tril(X)
@@ -271,11 +269,11 @@ def _gauge_factor(key, gauge: Gauge, group, sigma: float, log_value=None) -> gts
     gauge members (all its members when the gauge has none in it). ``log_value`` overrides with a
     fixed log-scale of the group's first gauge member.
     """
-    members = [m for m in gauge.members if m in group] or list(group)
-    indices = np.array([3 * g + a for g, a in members])
+    own = gauge.members_in(group)
+    indices = np.array([3 * g + a for g, a in own or group])
     if log_value is not None:
         value = float(log_value)
-    elif gauge.value is not None and gauge.members[0] in group:
+    elif gauge.value is not None and own:
         value = float(np.log(gauge.value))
     else:
         value = None
@@ -957,7 +955,7 @@ class GyroPairGraph:
         C = mark_undetermined(J @ C @ J.T, scale_observable)
         bias_values = np.array([values.atVector(b) for b in self._bias_keys])
         bias = weights @ bias_values
-        A = (s1[:, None] * R) / s2[None, :]
+        A = A_of(R, s1, s2)
         ssr = sum(stats.cost(A, values.atVector(b)) for stats, b, _ in self._pair)
         n = self._moments.count
         notes = []
