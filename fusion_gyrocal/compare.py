@@ -64,6 +64,7 @@ from scipy.spatial.transform import Rotation
 
 from .errors import GyroCalError, InputError
 from .moments import Moments, as_rates
+from .observability import A_of, skew
 from .scenarios import SNR_FACTORS, Scenario, ScenarioBound, make_scenario, scenario_bound
 from .sim import rotation_error, scale_error
 
@@ -174,10 +175,7 @@ def _appendix_c_basis() -> np.ndarray:
     ``Gamma`` (Eq. Gamma).
     """
     B = np.zeros((9, 3, 3))
-    for m in range(3):
-        e = np.zeros(3)
-        e[m] = 1.0
-        B[m] = -np.cross(np.eye(3), e)          # -[e_m x]:  [omega x] e_m = -[e_m x] omega
+    B[:3] = -skew(np.eye(3))                    # -[e_m x]:  [omega x] e_m = -[e_m x] omega
     for p, (i, j) in enumerate(_GAMMA_INDEX):
         B[3 + p, i, j] = B[3 + p, j, i] = 1.0
     return B
@@ -254,8 +252,7 @@ def solve_appendix_c(moments: Moments, R_1_2=None, scale_1=None, scale_2=None, *
         if max(np.abs(theta).max(), np.abs(s_err).max()) < tol:
             converged = True
             break
-    A = (s1[:, None] * C) / s2[None, :]
-    bias = moments.mean_1 - A @ moments.mean_2
+    bias = moments.mean_1 - A_of(C, s1, s2) @ moments.mean_2
     return AppendixCResult(C, s1, s2, bias, it, converged)
 
 
@@ -984,7 +981,7 @@ def plot_residual_vs_rate(scenarios, path=None, *, estimator: str = "direct", ma
         est = run_estimator(estimator, sc.omega_1, sc.omega_2)
         if not est.ok:
             raise InputError(f"{estimator} failed on {sc.name}: {est.error}")
-        A = (est.scale_1[:, None] * est.R_1_2) / est.scale_2[None, :] if est.has_scales else est.R_1_2
+        A = A_of(est.R_1_2, est.scale_1, est.scale_2) if est.has_scales else est.R_1_2
         m = Moments.from_samples(sc.omega_1, sc.omega_2)
         r = (sc.omega_1 - m.mean_1) - (sc.omega_2 - m.mean_2) @ A.T
         rn = np.rad2deg(np.linalg.norm(r, axis=1))
