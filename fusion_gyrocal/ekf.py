@@ -843,10 +843,10 @@ class GyroPairTracker:
         w2 = np.asarray(omega_2, dtype=float).reshape(3)
         if not (np.isfinite(w1).all() and np.isfinite(w2).all()):
             raise InputError(f"omega_1/omega_2: expected finite rates, got {w1} and {w2} at t = {t}")
-        self._modes.add("sample")
         t = float(t)
         self._predict_to(t)
         if not self._replaying:
+            self._modes.add("sample")
             self._buffer.push(t, w1, w2)
             self.n_samples += 1
         H, Aw = _jacobian1(self._R, self._s1, self._s2, w2)
@@ -887,7 +887,7 @@ class GyroPairTracker:
         Parameters
         ----------
         t : array_like (B,)
-            Strictly increasing sample times (s), none before the current time.
+            Strictly increasing sample times (s), none before the current time; ``B >= 1``.
         omega_1, omega_2 : array_like (B, 3)
             Sample-aligned rates (rad/s).
 
@@ -906,22 +906,24 @@ class GyroPairTracker:
         centred scatter), ``Lambda = sum_mn Y_mn G_m^T W G_n`` and
         ``eta = sum_m G_m^T W L Y[:, m]`` where ``r_k = L y_k``, ``L = [I, -A, -b]``.
         """
-        t = check_timestamps("t", t)
+        t = np.asarray(t)
+        if t.shape == (1,) and t.dtype.kind in "fiu" and np.isfinite(t[0]):
+            t = t.astype(np.float64)            # one sample is a block too (check_timestamps asks for two)
+        else:
+            t = check_timestamps("t", t)
         w1 = as_rates("omega_1", omega_1, length=t.shape[0])
         w2 = as_rates("omega_2", omega_2, length=t.shape[0])
         B = t.shape[0]
-        if B == 0:
-            return 0
         if not (np.isfinite(w1).all() and np.isfinite(w2).all()):
             bad = int(np.flatnonzero(~(np.isfinite(w1).all(1) & np.isfinite(w2).all(1)))[0])
             raise InputError(f"omega_1/omega_2: expected finite rates, got a non-finite value at sample {bad} "
                              "of the block; mask or drop it first")
-        self._modes.add("fast")
         t_mid = float(t.mean())
         if t[0] < self._t:
             raise InputError(f"t: expected block times at or after the current time {self._t!r}, got {t[0]!r}")
         self._predict_to(t_mid)
-        if not self._replaying:
+        if not self._replaying:                # a replay adds no rows, so it does not set the mode
+            self._modes.add("fast")
             self._buffer.push(t, w1, w2)
             self.n_samples += B
 

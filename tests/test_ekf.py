@@ -250,6 +250,7 @@ def test_run_false_alarm_restores_filter(mode):
     h = tr.run(t[n0:], w1[n0:], w2f[n0:], mode=mode, truth=part(truth, slice(n0, None)))
     assert len(h.reseeds) == 1 and not h.reseeds[0].accepted
     assert 30.0 <= h.reseeds[0].t_detected <= 30.5
+    assert h.mode == mode                               # the replay (in blocks) adds no rows of its own
     # after restore and replay, the filter is where the undisturbed one is
     assert rotation_error(tr.R_1_2, ref.R_1_2) <= 0.5 * np.linalg.norm(np.sqrt(np.diag(ref.error_covariance))[:3])
     np.testing.assert_allclose(np.diag(tr.error_covariance), np.diag(ref.error_covariance), rtol=0.1)
@@ -320,6 +321,23 @@ def test_run_gap_grows_covariance_by_the_random_walk():
     assert np.all(after > before)
     assert np.all(after < grown)                          # the first block after the gap pulls it back in
     assert np.mean(np.abs(normalised_errors(h)) <= 2.0) >= 0.95
+
+
+def test_run_fast_mode_folds_one_sample_blocks():
+    """A lone sample between two gaps, or block_size=1, is a block of one sample."""
+    rng = np.random.default_rng(19)
+    t, w1, w2, _ = scenario(rng, 20.0)
+    keep = (t < 14.0) | (t >= 16.0)
+    lone = int(np.searchsorted(t, 15.0))
+    keep[lone] = True                                    # 1 s gaps on both sides
+    tr = GyroPairTracker.from_samples(t[:1000], w1[:1000], w2[:1000])
+    h = tr.run(t[keep][1000:], w1[keep][1000:], w2[keep][1000:])
+    row = int(np.flatnonzero(h.t == t[lone])[0])
+    assert h.n_used[row] == 1 and h.n_used.sum() + h.n_rejected == h.n_samples
+    tr = GyroPairTracker.from_samples(t[:1000], w1[:1000], w2[:1000])
+    h = tr.run(t[1000:1050], w1[1000:1050], w2[1000:1050], block_size=1)
+    np.testing.assert_array_equal(h.t, t[1000:1050])
+    assert h.mode == "fast" and h.n_used.sum() + h.n_rejected == 50
 
 
 def test_run_streams_unsynchronised_with_offset_and_gap():
