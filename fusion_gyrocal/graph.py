@@ -62,7 +62,7 @@ from functools import partial
 import gtsam
 import numpy as np
 
-from .calibrate import solve
+from .calibrate import _noise_pair, solve
 from .direct import Gauge
 from .errors import ConfigurationError, InputError
 from .model import BIAS, ROT, PairCalibration, mark_undetermined
@@ -593,10 +593,7 @@ class GyroPairGraph:
         if not isinstance(seed, PairCalibration):
             raise InputError(f"seed: expected a PairCalibration, got {type(seed).__name__}")
         self.seed = seed
-        sig = np.broadcast_to(np.asarray(seed.noise_std if noise_std is None else noise_std, float), (2,))
-        if not np.all(np.isfinite(sig)) or np.any(sig <= 0):
-            raise InputError(f"noise_std: expected two positive finite standard deviations (rad/s), got {sig}")
-        self.noise_std = sig.copy()
+        self.noise_std = np.array(_noise_pair(seed.noise_std if noise_std is None else noise_std))
         self._noise_source = seed.noise_source if noise_std is None else "user"
         for name, v in (("bias_walk_std", bias_walk_std), ("bias_1_walk_std", bias_1_walk_std)):
             if v is not None and not v > 0:
@@ -1111,8 +1108,7 @@ def calibrate_pair_graph(omega_1, omega_2, *, noise_std=None, window: int = 1000
     if seed is None:
         parts = [m for _, m in windows]
         total = Moments.pool_all(parts) if bias_walk_std is not None else Moments.merge_all(parts)
-        sig = None if noise_std is None else np.broadcast_to(np.asarray(noise_std, float), (2,))
-        seed = solve(total, noise_std=sig, method="direct", gauge=gauge, parallel_tol_deg=parallel_tol_deg)
+        seed = solve(total, noise_std=noise_std, method="direct", gauge=gauge, parallel_tol_deg=parallel_tol_deg)
     glob = rotation_increments is not None
     g = GyroPairGraph(seed, noise_std=noise_std, bias_walk_std=bias_walk_std, gauge=gauge, global_scale=glob,
                       parallel_tol_deg=parallel_tol_deg,
