@@ -409,25 +409,18 @@ class RunRecord:
     scale_error: np.ndarray
 
 
-def _errors(estimates, scenario: Scenario | None):
-    k = len(estimates)
-    rot, sca = np.full(k, np.nan), np.full(k, np.nan)
+def _evaluate(scenario: Scenario | None, omega_1, omega_2, estimators, seed=(), rate_hz: float = 100.0) -> RunRecord:
+    """Every estimator on one data set; errors against the truth of ``scenario`` (NaN without one)."""
+    estimates = tuple(run_estimator(name, omega_1, omega_2, rate_hz=rate_hz) for name in estimators)
+    rot, sca = np.full(len(estimates), np.nan), np.full(len(estimates), np.nan)
     if scenario is None:
-        return rot, sca
+        return RunRecord(tuple(seed), float("nan"), None, estimates, rot, sca)
     d = scenario.data
     for i, e in enumerate(estimates):
         if e.ok:
             rot[i] = rotation_error(e.R_1_2, d.R_1_2)
             if e.has_scales:
                 sca[i] = scale_error(e.scale_1, e.scale_2, d.scale_1, d.scale_2)
-    return rot, sca
-
-
-def _evaluate(scenario: Scenario | None, omega_1, omega_2, estimators, seed=()) -> RunRecord:
-    estimates = tuple(run_estimator(name, omega_1, omega_2) for name in estimators)
-    rot, sca = _errors(estimates, scenario)
-    if scenario is None:
-        return RunRecord(tuple(seed), float("nan"), None, estimates, rot, sca)
     return RunRecord(tuple(seed), scenario.snr, scenario_bound(scenario), estimates, rot, sca)
 
 
@@ -592,6 +585,15 @@ class Comparison:
         """One :class:`Row` per estimator."""
         return tuple(_row(k, name, self.records) for k, name in enumerate(self.estimators))
 
+    def bound(self, metric: str) -> float:
+        """Root-mean-square Cramer-Rao bound over all runs: ``"rotation"`` (rad, with the skew
+        prediction of Appendix D) or ``"scale"`` (fraction); NaN without truth."""
+        if not self.has_truth:
+            return float("nan")
+        if metric == "rotation":
+            return _rms([r.bound.rotation_expected for r in self.records])
+        return _rms([r.bound.scale for r in self.records])
+
     def row(self, estimator: str) -> Row:
         for r in self.rows:
             if r.estimator == estimator:
@@ -638,8 +640,7 @@ class Comparison:
     def _footer(self) -> list[str]:
         lines = []
         if self.has_truth:
-            rb = _rms([r.bound.rotation_expected for r in self.records])
-            sb = _rms([r.bound.scale for r in self.records])
+            rb, sb = self.bound("rotation"), self.bound("scale")
             lines.append(f"Cramer-Rao bound (at the truth, true signal): rotation {np.rad2deg(rb) * 1e3:.4g} mdeg, "
                          f"scales {sb * 100:.4g} %")
         lines += [f"{r.estimator}: {r.note}" for r in self.rows if r.note]
@@ -764,9 +765,7 @@ def compare(source="nominal", *, estimators=None, runs: int = 1, seed: int = 0, 
                          f"{type(source).__name__}") from None
     w1 = as_rates("omega_1", omega_1)
     w2 = as_rates("omega_2", omega_2, length=w1.shape[0])
-    estimates = tuple(run_estimator(n, w1, w2, rate_hz=rate_hz) for n in names)
-    rot, sca = _errors(estimates, None)
-    rec = RunRecord((), float("nan"), None, estimates, rot, sca)
+    rec = _evaluate(None, w1, w2, names, rate_hz=rate_hz)
     return Comparison("recording", f"{w1.shape[0]} sample-aligned samples", names, (rec,))
 
 
@@ -814,10 +813,8 @@ class SnrSweep:
         return np.array([getattr(c.row(estimator), attr) for c in self.comparisons])
 
     def bound(self, metric: str) -> np.ndarray:
-        """Root-mean-square Cramer-Rao bound per SNR point (all runs)."""
-        if metric == "rotation":
-            return np.array([_rms([r.bound.rotation_expected for r in c.records]) for c in self.comparisons])
-        return np.array([_rms([r.bound.scale for r in c.records]) for c in self.comparisons])
+        """Root-mean-square Cramer-Rao bound per SNR point (all runs, :meth:`Comparison.bound`)."""
+        return np.array([c.bound(metric) for c in self.comparisons])
 
     def slopes(self) -> tuple:
         """Least-squares slope of ``log RMSE`` against ``log SNR`` per estimator (-1 is the paper's finding)."""
