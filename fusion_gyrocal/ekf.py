@@ -82,7 +82,7 @@ from .errors import ConfigurationError, GyroCalError, InputError
 from .model import BIAS, ROT, S1, S2, PairCalibration
 from .moments import Moments, as_rates
 from .observability import classify, skew
-from .preprocess import check_timestamps
+from .preprocess import check_timestamps, resample
 
 __all__ = ["DriftNoise", "GyroPairTracker", "PairTruth", "ReseedEvent", "StepPrior", "TrackHistory",
            "plot_history", "simulate_drifting_pair", "track_figure_for_report"]
@@ -1168,28 +1168,18 @@ class GyroPairTracker:
         """Track unsynchronised streams: gyro 2 is resampled onto gyro 1's timestamps.
 
         ``time_offset_s`` of the seed is added to ``t_2`` (ARCHITECTURE convention). Gyro 2 is
-        interpolated with a cubic spline (the paper's footnote 1) separately inside each of its
-        contiguous segments (a step larger than ``max_gap_s``, default 5 median intervals, is a
-        gap); gyro 1's samples outside gyro 2's segments are dropped. Interpolation averages
-        gyro 2's noise, so its stated variance is an upper bound there.
+        interpolated with :func:`fusion_gyrocal.preprocess.resample` (a cubic spline, the paper's
+        footnote 1) separately inside each of its contiguous segments (a step larger than
+        ``max_gap_s``, default 5 median intervals, is a gap); gyro 1's samples outside gyro 2's
+        segments are dropped. Interpolation averages gyro 2's noise, so its stated variance is an
+        upper bound there.
         """
-        from scipy.interpolate import CubicSpline
-
         t1 = check_timestamps("t_1", t_1)
         t2 = check_timestamps("t_2", t_2) + self.time_offset_s
         w1 = as_rates("omega_1", omega_1, length=t1.shape[0])
         w2 = as_rates("omega_2", omega_2, length=t2.shape[0])
-        gap2 = max_gap_s if max_gap_s is not None else (5.0 * float(np.median(np.diff(t2))) if t2.size > 1 else 0)
-        cuts = np.flatnonzero(np.diff(t2) > gap2) + 1
-        bounds = np.concatenate([[0], cuts, [t2.shape[0]]])
-        w2i = np.full((t1.shape[0], 3), np.nan)
-        for lo, hi in zip(bounds[:-1], bounds[1:]):
-            if hi - lo < 4:
-                continue
-            inside = (t1 >= t2[lo]) & (t1 <= t2[hi - 1])
-            if inside.any():
-                w2i[inside] = CubicSpline(t2[lo:hi], w2[lo:hi], axis=0)(t1[inside])
-        keep = np.isfinite(w2i).all(axis=1)
+        gap2 = 5.0 * float(np.median(np.diff(t2))) if max_gap_s is None else max_gap_s
+        w2i, keep = resample(t2, w2, t1, max_gap_s=gap2)
         if not keep.any():
             raise InputError("t_1/t_2: the streams do not overlap in time (after adding time_offset_s = "
                              f"{self.time_offset_s} s to t_2)")
