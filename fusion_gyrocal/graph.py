@@ -847,8 +847,7 @@ class GyroPairGraph:
             iterations += opt.iterations()
             if not self._camera or self._repreintegrate(values) < 1e-7:
                 break
-        graph = self.graph
-        return self._result(values, gtsam.Marginals(graph, values), "graph_lm", iterations)
+        return self._result(values, lambda: gtsam.Marginals(self.graph, values), "graph_lm", iterations)
 
     def update(self) -> GraphEstimate:
         """Push the factors and variables added since the last call into iSAM2; return the estimate.
@@ -890,21 +889,21 @@ class GyroPairGraph:
         if self._pending.size() or self._pending_values.size() or self._pair_dirty:
             self.update()
         values = self._isam.calculateEstimate()
-        return self._result(values, self._isam, "graph_isam2", 0)
+        return self._result(values, lambda: self._isam, "graph_isam2", 0)
 
     # ------------------------------------------------------------------ result
     def _joint_covariance(self, values, marginals, x_keys, weights) -> np.ndarray:
         """Covariance of ``[x_keys..., sum_i weights_i b_i]`` (tangent spaces of the keys).
 
-        Up to :data:`MARGINALS_MAX_SEGMENTS` bias segments: ``jointMarginalCovariance`` of
-        ``gtsam.Marginals`` (or of iSAM2) over every key. Beyond, that dense joint marginal grows
+        Up to :data:`MARGINALS_MAX_SEGMENTS` bias segments: ``jointMarginalCovariance`` over every key
+        of what ``marginals()`` returns (``gtsam.Marginals`` or iSAM2; built only then). Beyond, that dense joint marginal grows
         cubically, so the same Gauss-Newton information ``J^T J`` of the graph linearised at
         ``values`` is factorised sparsely and solved for the few columns needed.
         """
         nb = len(self._bias_keys)
         dx = 10 if self.global_scale else 9
         if nb <= MARGINALS_MAX_SEGMENTS:
-            P = np.asarray(marginals.jointMarginalCovariance(x_keys + self._bias_keys).fullMatrix())
+            P = np.asarray(marginals().jointMarginalCovariance(x_keys + self._bias_keys).fullMatrix())
             T = np.zeros((dx + 3, dx + 3 * nb))
             T[:dx, :dx] = np.eye(dx)
             T[dx:, dx:] = np.kron(weights[None, :], np.eye(3))
