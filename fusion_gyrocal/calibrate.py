@@ -432,11 +432,10 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s=None, ma
             raise ConfigurationError("bias_walk_std: the drifting-bias filter needs noise_std too (rad/s per sample)")
         if bias_window is not None:
             raise ConfigurationError("bias_window and bias_walk_std: expected one bias model, got both")
-        from .moments import random_walk_bias_moments
-        _, noise_scale = random_walk_bias_moments(np.zeros((10, 3)), np.zeros((10, 3)), bias_walk_std, noise_std,
-                                                  settle=0)
+        from .moments import random_walk_bias_moments, random_walk_gain
+        gain, noise_scale = random_walk_gain(bias_walk_std, noise_std)
         kw["noise_std"] = np.broadcast_to(np.asarray(noise_std, float), (2,)) * noise_scale
-        gate_window = max(20, int(round(1.0 / (1.0 - noise_scale**-2))))  # the filter time constant 1/K
+        gate_window = max(20, int(round(1.0 / gain)))  # residual windows of the filter's time constant
     else:
         gate_window = bias_window
 

@@ -303,6 +303,21 @@ def window_moments(omega_1, omega_2, window: int, *, mask=None) -> list[Moments]
     return out
 
 
+def random_walk_gain(bias_walk_std, noise_std) -> tuple[float, float]:
+    """Steady-state Kalman gain ``K`` of a random-walk bias seen in white noise, and ``sqrt((P + R) / R)``.
+
+    ``q = sum(bias_walk_std^2)`` and ``R = sum(noise_std^2)`` combine both gyros (``A A^T ~ I``);
+    ``P = (q + sqrt(q^2 + 4 q R)) / 2`` is the steady-state prior variance of the bias.
+    """
+    qs = np.broadcast_to(np.asarray(bias_walk_std, float), (2,))
+    rs = np.broadcast_to(np.asarray(noise_std, float), (2,))
+    if np.any(~np.isfinite(qs)) or np.any(qs <= 0) or np.any(~np.isfinite(rs)) or np.any(rs <= 0):
+        raise InputError(f"bias_walk_std and noise_std: expected positive rad/s per sample, got {qs} and {rs}")
+    q, R = float((qs**2).sum()), float((rs**2).sum())
+    P = 0.5 * (q + np.sqrt(q * q + 4.0 * q * R))
+    return P / (P + R), float(np.sqrt((P + R) / R))
+
+
 def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask=None,
                              chunk_size: int = CHUNK_SIZE, settle: int | None = None) -> tuple[Moments, float]:
     """Moments for a bias that drifts as a random walk, by the Kalman innovations filter.
@@ -338,13 +353,7 @@ def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask
 
     w1 = as_rates("omega_1", omega_1)
     w2 = as_rates("omega_2", omega_2, length=w1.shape[0])
-    qs = np.broadcast_to(np.asarray(bias_walk_std, float), (2,))
-    rs = np.broadcast_to(np.asarray(noise_std, float), (2,))
-    if np.any(qs <= 0) or np.any(rs <= 0):
-        raise InputError(f"bias_walk_std and noise_std: expected positive rad/s per sample, got {qs} and {rs}")
-    q, R = float((qs**2).sum()), float((rs**2).sum())
-    P = 0.5 * (q + np.sqrt(q * q + 4.0 * q * R))  # steady-state prior variance of the bias
-    K = P / (P + R)
+    K, noise_scale = random_walk_gain(bias_walk_std, noise_std)
     settle = int(np.ceil(5.0 / K)) if settle is None else int(settle)
     keep = np.ones(w1.shape[0], bool) if mask is None else np.asarray(mask, bool)
     idx = np.flatnonzero(keep)
@@ -365,4 +374,4 @@ def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask
             out = out.merge(Moments.from_samples(y[lo:, :3], y[lo:, 3:]))
     if out.count < 4:
         raise InputError(f"expected more than {settle} samples for the drifting-bias filter to settle, got {idx.size}")
-    return Moments(out.count, raw.mean, out.scatter, 1), float(np.sqrt((P + R) / R))
+    return Moments(out.count, raw.mean, out.scatter, 1), noise_scale
