@@ -325,10 +325,6 @@ class ArrayCalibration:
     def n_gyros(self) -> int:
         return self.scale.shape[0]
 
-    def _idx(self, part: str, k: int) -> slice:
-        off = {"rot": 0, "scale": 3, "bias": 6}[part] * self.n_gyros
-        return slice(off + 3 * k, off + 3 * k + 3)
-
     @property
     def rotation_std_rad(self) -> np.ndarray:
         """(N, 3) 1-sigma rotation uncertainty per axis of the reference frame (rad)."""
@@ -364,13 +360,11 @@ class ArrayCalibration:
         from the joint one (undetermined scale factors: infinite variance, as in
         :class:`PairCalibration`).
         """
+        m = self.moments.pair(i, j)  # checks the indices
         n = self.n_gyros
-        if not (0 <= i < n and 0 <= j < n) or i == j:
-            raise InputError(f"pair: expected two different gyro indices in [0, {n}), got ({i}, {j})")
         Ri, Rj = self.R_ref_k[i], self.R_ref_k[j]
         R = Ri.T @ Rj
         s1, s2 = self.scale[i], self.scale[j]
-        m = self.moments.pair(i, j)
         A = A_of(R, s1, s2)
         noise = (float(self.noise_std[i]), float(self.noise_std[j]))
         # [dtheta_ij, log s_i, log s_j] = J [dtheta_all, log s_all]; dtheta_ij = R_i^T (dtheta_j - dtheta_i)
