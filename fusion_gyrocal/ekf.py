@@ -548,16 +548,7 @@ class GyroPairTracker:
         self._gauge_groups = [g for g in config.groups if len(g) >= 4 and self.gauge.members_in(g)]
         self._prior_groups = [g for g in config.groups if g not in self._gauge_groups]
 
-        # covariance in [dtheta, log s1, log s2, b]; undetermined scale factors get the prior
-        cov = np.array(cal.covariance, dtype=float)
-        bad_any = ~np.isfinite(cov).all(axis=1)
-        cov[bad_any, :] = 0.0
-        cov[:, bad_any] = 0.0
-        J = np.ones(_DIM)
-        J[S1], J[S2] = 1.0 / s1, 1.0 / s2
-        P = cov * np.outer(J, J)
-        for k in np.flatnonzero(bad_any):
-            P[k, k] = self.scale_prior_std**2
+        P = self._log_covariance(cal)
         # held values: the prior groups keep the seed's log-mean (or the current one on a re-seed)
         old_hold = getattr(self, "_hold", None)
         self._R, self._s1, self._s2 = R, s1, s2
@@ -577,6 +568,17 @@ class GyroPairTracker:
         self.kf.P = 0.5 * (P + P.T)
         self.kf.R = self._measurement_cov()
         self._G_cache = None
+
+    def _log_covariance(self, cal: PairCalibration) -> np.ndarray:
+        """``cal``'s covariance in ``[dtheta, log s1, log s2, b]``; undetermined scale factors get the prior."""
+        cov = np.array(cal.covariance, dtype=float)
+        bad = ~np.isfinite(cov).all(axis=1)
+        cov[bad, :], cov[:, bad] = 0.0, 0.0
+        J = np.ones(_DIM)
+        J[S1], J[S2] = 1.0 / np.asarray(cal.scale_1), 1.0 / np.asarray(cal.scale_2)
+        P = cov * np.outer(J, J)
+        P[bad, bad] = self.scale_prior_std**2
+        return P
 
     @staticmethod
     def _config_like(R, name):
@@ -1047,15 +1049,7 @@ class GyroPairTracker:
         s1, s2 = self.express_in_gauge(cal.scale_1, cal.scale_2)
         e = np.concatenate([Rotation.from_matrix(cal.R_1_2 @ R.T).as_rotvec(), np.log(s1 / s1_ref),
                             np.log(s2 / s2_ref), cal.bias - b])
-        cov = np.array(cal.covariance, dtype=float)
-        fin = np.isfinite(cov).all(axis=1)
-        cov[~fin, :], cov[:, ~fin] = 0.0, 0.0
-        J = np.ones(_DIM)
-        J[S1], J[S2] = 1.0 / np.asarray(cal.scale_1), 1.0 / np.asarray(cal.scale_2)
-        Pb = cov * np.outer(J, J)
-        for k in np.flatnonzero(~fin):
-            Pb[k, k] = self.scale_prior_std**2
-        Pb = self._project_cov(Pb)
+        Pb = self._project_cov(self._log_covariance(cal))
         C = self._W_obs_T @ (Pb + P) @ self._obs_basis
         eo = self._W_obs_T @ e
         return float(eo @ np.linalg.solve(C, eo))
