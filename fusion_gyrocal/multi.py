@@ -113,9 +113,7 @@ class ArrayMoments:
         mask : array_like of bool (n_samples,), optional
             Samples to use (True = keep); a sample is used for all gyros or for none.
         """
-        rates = as_array_rates(omegas)
-        mask = _check_mask(mask, rates[0].shape[0])
-        _check_finite(rates, mask)
+        rates, mask = _checked_rates(omegas, mask)
         n = len(rates)
         return cls(n, tuple(Moments.from_samples(rates[i], rates[j], mask=mask)
                             for i, j in itertools.combinations(range(n), 2)))
@@ -123,9 +121,7 @@ class ArrayMoments:
     @classmethod
     def from_windows(cls, omegas, window: int, *, mask=None) -> "ArrayMoments":
         """Pooled moments of consecutive windows of ``window`` samples (piecewise-constant biases)."""
-        rates = as_array_rates(omegas)
-        mask = _check_mask(mask, rates[0].shape[0])
-        _check_finite(rates, mask)
+        rates, mask = _checked_rates(omegas, mask)
         n = len(rates)
         return cls(n, tuple(Moments.pool_all(window_moments(rates[i], rates[j], int(window), mask=mask))
                             for i, j in itertools.combinations(range(n), 2)))
@@ -223,16 +219,14 @@ def as_array_rates(omegas) -> list[np.ndarray]:
     return rates
 
 
-def _check_mask(mask, n):
-    if mask is None:
-        return None
-    mask = np.asarray(mask, dtype=bool)
-    if mask.shape != (n,):
-        raise InputError(f"mask: expected shape ({n},), got {mask.shape}")
-    return mask
-
-
-def _check_finite(rates, mask):
+def _checked_rates(omegas, mask):
+    """The rates of :func:`as_array_rates` and the mask as bool, checked: finite wherever the mask keeps."""
+    rates = as_array_rates(omegas)
+    if mask is not None:
+        mask = np.asarray(mask, dtype=bool)
+        n = rates[0].shape[0]
+        if mask.shape != (n,):
+            raise InputError(f"mask: expected shape ({n},), got {mask.shape}")
     for k, w in enumerate(rates):
         bad = ~np.isfinite(w).all(axis=1)
         if mask is not None:
@@ -241,6 +235,7 @@ def _check_finite(rates, mask):
             idx = np.flatnonzero(bad)
             raise InputError(f"gyro {k}: expected finite rates, got a non-finite value at sample {idx[0]} "
                              f"({idx.size} such sample(s)); mask or drop those samples first")
+    return rates, mask
 
 
 # ---------------------------------------------------------------------------------------- result
