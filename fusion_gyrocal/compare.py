@@ -65,7 +65,7 @@ from scipy.spatial.transform import Rotation
 from .errors import GyroCalError, InputError
 from .moments import Moments, as_rates
 from .observability import A_of, skew
-from .scenarios import SNR_FACTORS, Scenario, ScenarioBound, make_scenario, scenario_bound
+from .scenarios import SNR_FACTORS, Scenario, ScenarioBound, describe_scenario, make_scenario, scenario_bound
 from .sim import rotation_error, scale_error
 
 __all__ = [
@@ -751,10 +751,9 @@ def compare(source="nominal", *, estimators=None, runs: int = 1, seed: int = 0, 
     if isinstance(source, str):
         if int(runs) < 1:
             raise InputError(f"runs: expected >= 1, got {runs}")
-        probe = make_scenario(source, rng=[int(seed), 0], snr_factor=snr_factor, snr_via=snr_via)
-        spec = (source, snr_factor, snr_via)
-        records = _monte_carlo([spec], int(runs), names, seed, workers, progress)[0]
-        return Comparison(probe.name, probe.description, names, tuple(records))
+        description = describe_scenario(source, snr_factor=snr_factor, snr_via=snr_via)  # checks the name first
+        records = _monte_carlo([(source, snr_factor, snr_via)], int(runs), names, seed, workers, progress)[0]
+        return Comparison(source, description, names, tuple(records))
     if isinstance(source, Scenario):
         rec = _evaluate(source, source.omega_1, source.omega_2, names)
         return Comparison(source.name, source.description, names, (rec,))
@@ -848,14 +847,11 @@ def snr_sweep(scenario: str = "nominal", *, factors=SNR_FACTORS, via: str = "rat
     """
     names = _estimator_list(estimators)
     factors = tuple(float(f) for f in factors)
-    specs = [(scenario, f, via) for f in factors]
-    recs = _monte_carlo(specs, int(runs), names, seed, workers, progress, paired)
-    comps = []
-    for f, records in zip(factors, recs):
-        probe = make_scenario(scenario, rng=list(records[0].seed), snr_factor=f, snr_via=via)
-        comps.append(Comparison(probe.name if f == 1 else f"{scenario} (SNR x{f:g} via {via})", probe.description,
-                                names, tuple(records)))
-    return SnrSweep(scenario, via, factors, tuple(comps))
+    descriptions = [describe_scenario(scenario, snr_factor=f, snr_via=via) for f in factors]  # checks first
+    recs = _monte_carlo([(scenario, f, via) for f in factors], int(runs), names, seed, workers, progress, paired)
+    comps = tuple(Comparison(scenario if f == 1 else f"{scenario} (SNR x{f:g} via {via})", desc, names, tuple(records))
+                  for f, desc, records in zip(factors, descriptions, recs))
+    return SnrSweep(scenario, via, factors, comps)
 
 
 # ============================================================================================ figures

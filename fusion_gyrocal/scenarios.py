@@ -41,8 +41,8 @@ from .observability import cramer_rao_bound
 from .sim import (DEG, PAPER_BIAS_WALK_STD, PAPER_NOISE_STD, PAPER_RATE_HZ, PAPER_SKEW_STD, HumanMotion,
                   SimulatedPair, random_rotation, simulate_pair)
 
-__all__ = ["Scenario", "ScenarioBound", "SCENARIOS", "SNR_FACTORS", "SNR_VIA", "make_scenario", "scenario_bound",
-           "list_scenarios"]
+__all__ = ["Scenario", "ScenarioBound", "SCENARIOS", "SNR_FACTORS", "SNR_VIA", "make_scenario", "describe_scenario",
+           "scenario_bound", "list_scenarios"]
 
 NOMINAL_N = 6000                 # 60 s at the paper's 100 Hz
 NOMINAL_RMS = 0.5                # rad/s per axis (about 29 deg/s, hand-held motion)
@@ -228,6 +228,34 @@ def _parse(name: str) -> tuple[str, float, str]:
     return "nominal", float(m.group("f")), m.group("via") or "rate"
 
 
+def _resolve(name: str, snr_factor, snr_via, n: int) -> tuple[str, float, str, int]:
+    """Base scenario, SNR factor, SNR route and sample count of ``name`` with the overrides (checked)."""
+    base, factor, via = _parse(name)
+    if snr_factor is not None:
+        factor *= float(snr_factor)
+    if snr_via is not None:
+        via = snr_via
+    if via not in SNR_VIA:
+        raise InputError(f"snr_via: expected one of {SNR_VIA}, got {via!r}")
+    if not (np.isfinite(factor) and factor > 0):
+        raise InputError(f"snr_factor: expected a positive factor, got {factor!r}")
+    n_s = int(round(n * factor**2)) if via == "samples" else int(n)
+    if n_s < 10:
+        raise InputError(f"snr_factor {factor:g} through the sample count leaves {n_s} samples; expected >= 10")
+    return base, factor, via, n_s
+
+
+def describe_scenario(name: str = "nominal", *, snr_factor: float | None = None, snr_via: str | None = None,
+                      n: int = NOMINAL_N) -> str:
+    """The ``description`` of :func:`make_scenario` with the same arguments, checked the same way,
+    without simulating anything."""
+    base, factor, via, _ = _resolve(name, snr_factor, snr_via, n)
+    desc = SCENARIOS[base]
+    if factor != 1.0:
+        desc += f"; SNR x{factor:g} through the {'rate norm' if via == 'rate' else via}"
+    return desc
+
+
 def make_scenario(name: str = "nominal", *, rng=None, snr_factor: float | None = None,
                   snr_via: str | None = None, n: int = NOMINAL_N) -> Scenario:
     """Simulate one realisation of a named scenario.
@@ -263,21 +291,10 @@ def make_scenario(name: str = "nominal", *, rng=None, snr_factor: float | None =
     >>> round(sc.snr / make_scenario("nominal", rng=0).snr, 6)
     2.0
     """
-    base, factor, via = _parse(name)
-    if snr_factor is not None:
-        factor *= float(snr_factor)
-    if snr_via is not None:
-        via = snr_via
-    if via not in SNR_VIA:
-        raise InputError(f"snr_via: expected one of {SNR_VIA}, got {via!r}")
-    if not (np.isfinite(factor) and factor > 0):
-        raise InputError(f"snr_factor: expected a positive factor, got {factor!r}")
+    base, factor, via, n_s = _resolve(name, snr_factor, snr_via, n)
     rng = np.random.default_rng(rng)
     rate_f = factor if via == "rate" else 1.0
     noise = PAPER_NOISE_STD / (factor if via == "noise" else 1.0)
-    n_s = int(round(n * factor**2)) if via == "samples" else int(n)
-    if n_s < 10:
-        raise InputError(f"snr_factor {factor:g} through the sample count leaves {n_s} samples; expected >= 10")
 
     R = _near_parallel_rotation(rng) if base == "near_parallel" else _general_rotation(rng)
     s1, s2 = rng.normal(1.0, SCALE_STD, 3), rng.normal(1.0, SCALE_STD, 3)
@@ -293,9 +310,7 @@ def make_scenario(name: str = "nominal", *, rng=None, snr_factor: float | None =
                          rng=rng)
     if angle is not None:
         data = _bend(data, rng, angle)
-    desc = SCENARIOS[base]
-    if factor != 1.0:
-        desc += f"; SNR x{factor:g} through the {'rate norm' if via == 'rate' else via}"
+    desc = describe_scenario(name, snr_factor=snr_factor, snr_via=snr_via, n=n)
     return Scenario(name, desc, data, factor, via, skew, angle)
 
 

@@ -14,7 +14,7 @@ from fusion_gyrocal.compare import (add_compare_parser, compare, compare_main,
                                     plot_rmse_vs_snr, rotation_only, run_estimator, snr_sweep, solve_appendix_c)
 from fusion_gyrocal.moments import Moments
 from fusion_gyrocal.observability import cramer_rao_bound
-from fusion_gyrocal.scenarios import SCENARIOS, list_scenarios, make_scenario, scenario_bound
+from fusion_gyrocal.scenarios import SCENARIOS, describe_scenario, list_scenarios, make_scenario, scenario_bound
 from fusion_gyrocal.sim import (PAPER_NOISE_STD, PAPER_SKEW_STD, random_rotation, rotation_error, scale_error,
                                 simulate_pair)
 
@@ -190,6 +190,13 @@ def test_make_scenario_flex_bends_only_during_bursts():
 def test_make_scenario_unknown_name_lists_choices():
     with pytest.raises(InputError, match="expected one of nominal, weak_axis"):
         make_scenario("nominl")
+
+
+def test_describe_scenario_is_make_scenario_description_and_checks_the_same():
+    for name, kw in (("nominal", {}), ("snr_x2_noise", {}), ("weak_axis", dict(snr_factor=0.5, snr_via="samples"))):
+        assert describe_scenario(name, **kw) == make_scenario(name, rng=0, **kw).description
+    with pytest.raises(InputError, match="leaves 5 samples"):
+        describe_scenario("nominal", snr_factor=0.03, snr_via="samples")
 
 
 def test_list_scenarios_every_name_builds():
