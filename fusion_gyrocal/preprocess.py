@@ -204,18 +204,21 @@ def valid_mask(omega, *, limit: float | None = None, saturation: bool = True) ->
     return ok
 
 
+def _and_valid(keep: np.ndarray, valid, name: str) -> np.ndarray:
+    """``keep & valid`` with the caller's ``valid`` checked to be a bool mask of the same shape (None: all)."""
+    if valid is None:
+        return keep
+    v = np.asarray(valid)
+    if v.dtype != bool or v.shape != keep.shape:
+        raise InputError(f"{name}: expected a bool array of shape {keep.shape}, got {v.dtype} {v.shape}")
+    return keep & v
+
+
 def _stream(name_t, t, name_w, omega, valid) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Checked (t, omega, valid) of one stream; ``valid`` also excludes non-finite samples."""
     w = as_rates(name_w, omega)
     tt = check_timestamps(name_t, t, length=w.shape[0])
-    ok = np.isfinite(w).all(axis=1)
-    if valid is not None:
-        v = np.asarray(valid)
-        if v.dtype != bool or v.shape != ok.shape:
-            raise InputError(f"valid mask for {name_w}: expected a bool array of shape {ok.shape}, got "
-                             f"{v.dtype} {v.shape}")
-        ok &= v
-    return tt, w, ok
+    return tt, w, _and_valid(np.isfinite(w).all(axis=1), valid, f"valid mask for {name_w}")
 
 
 def _nominal_period(t: np.ndarray) -> float:
@@ -864,12 +867,7 @@ def informative_mask(omega_1, omega_2, valid, noise_std, *, min_rate: float | No
     hi = np.inf if max_rate is None else float(max_rate)
     if not (lo >= 0 and hi > lo):
         raise InputError(f"min_rate/max_rate: expected 0 <= min_rate < max_rate, got {lo!r} and {hi!r}")
-    keep = np.isfinite(w1).all(axis=1) & np.isfinite(w2).all(axis=1)
-    if valid is not None:
-        v = np.asarray(valid)
-        if v.dtype != bool or v.shape != keep.shape:
-            raise InputError(f"valid: expected a bool array of shape {keep.shape}, got {v.dtype} {v.shape}")
-        keep &= v
+    keep = _and_valid(np.isfinite(w1).all(axis=1) & np.isfinite(w2).all(axis=1), valid, "valid")
     with np.errstate(invalid="ignore"):
         n1, n2 = np.linalg.norm(w1, axis=1), np.linalg.norm(w2, axis=1)
         keep &= (n1 >= lo) & (n2 >= lo) & (n1 <= hi) & (n2 <= hi)
@@ -950,12 +948,7 @@ def excitation_report(omega, noise_std: float, *, valid=None, target_snr: float 
         raise InputError(f"noise_std: expected a positive rad/s per sample, got {noise_std!r}")
     if not (np.isfinite(target_snr) and target_snr > 0):
         raise InputError(f"target_snr: expected a positive value, got {target_snr!r}")
-    keep = np.isfinite(w).all(axis=1)
-    if valid is not None:
-        v = np.asarray(valid)
-        if v.dtype != bool or v.shape != keep.shape:
-            raise InputError(f"valid: expected a bool array of shape {keep.shape}, got {v.dtype} {v.shape}")
-        keep &= v
+    keep = _and_valid(np.isfinite(w).all(axis=1), valid, "valid")
     n = w.shape[0]
     cum = np.zeros((n, 3))
     if keep.any():
