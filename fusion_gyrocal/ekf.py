@@ -566,7 +566,6 @@ class GyroPairTracker:
             P = P + self._Q(span_s / 3.0)
         self.kf.x = np.zeros((_DIM, 1))
         self.kf.P = 0.5 * (P + P.T)
-        self.kf.R = self._measurement_cov()
         self._G_cache = None
 
     def _log_covariance(self, cal: PairCalibration) -> np.ndarray:
@@ -637,18 +636,17 @@ class GyroPairTracker:
         Pi = np.eye(_DIM)
         Pi[_LOG, _LOG] = T
         self._T, self._Pi = T, Pi
-        d = self.drift
-        q = np.zeros((_DIM, _DIM))                       # process noise per second
-        q[ROT, ROT] = d.rotation**2 * np.eye(3)
-        q[_LOG, _LOG] = d.log_scale**2 * (T @ T.T)
-        q[BIAS, BIAS] = d.bias**2 * np.eye(3)
-        self._q = q
-        sp = self.step_prior
-        shock = np.zeros((_DIM, _DIM))
-        shock[ROT, ROT] = sp.rotation**2 * np.eye(3)
-        shock[_LOG, _LOG] = sp.log_scale**2 * (T @ T.T)
-        shock[BIAS, BIAS] = sp.bias**2 * np.eye(3)
-        self._shock = shock
+        TT = T @ T.T
+
+        def projected_cov(std):     # independent per-parameter std (DriftNoise, StepPrior), off the held directions
+            C = np.zeros((_DIM, _DIM))
+            C[ROT, ROT] = std.rotation**2 * np.eye(3)
+            C[_LOG, _LOG] = std.log_scale**2 * TT
+            C[BIAS, BIAS] = std.bias**2 * np.eye(3)
+            return C
+
+        self._q = projected_cov(self.drift)                   # process noise per second
+        self._shock = projected_cov(self.step_prior)
         self.kf.R = self._measurement_cov()
         self._folds = 0
 
