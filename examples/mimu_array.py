@@ -36,6 +36,8 @@ def source_gains(folder) -> np.ndarray:
     text = (folder / "SOURCE.md").read_text(encoding="utf-8")
     rows = re.findall(r"^\|\s*(\d)\s*\|\s*[CI]\s*\|.*\|\s*([0-9.]+)\s*±\s*[0-9.]+\s*\|\s*$", text, flags=re.M)
     gains = {int(k): float(g) for k, g in rows}
+    if sorted(gains) != list(range(2, 9)):
+        raise ValueError(f"SOURCE.md: expected gain rows for IMU 2..8, got IMU {sorted(gains)}")
     return np.array([gains[k] for k in range(2, 9)])
 
 

@@ -1,5 +1,6 @@
+import importlib.util
 import itertools
-import re
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -8,7 +9,6 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from fusion_gyrocal import ConfigurationError, ExcitationError, InputError, Moments, NotRigidError, solve
-from fusion_gyrocal.io import read_npz
 from fusion_gyrocal.multi import (ArrayCalibration, ArrayMoments, _retract, calibrate_array, joint_cost,
                                   joint_gradient, solve_array)
 from fusion_gyrocal.refine import ml_cost
@@ -302,7 +302,18 @@ def test_calibrate_array_bad_options_raise(kwargs, exc):
 
 
 # ------------------------------------------------------------------------------------------- real data
-MIMU_C = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # SOURCE.md: bottom-side IMUs
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "mimu_array.py"
+
+
+def _example():
+    """The example script as a module: its session loop and SOURCE.md reader are what the tests check."""
+    name = "mimu_array_example"
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, EXAMPLE)
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules[name] = mod
+        spec.loader.exec_module(mod)
+    return sys.modules[name]
 
 
 def _mimu_dir() -> Path:
@@ -312,50 +323,25 @@ def _mimu_dir() -> Path:
     return d
 
 
-def _source_gains(d: Path) -> np.ndarray:
-    """The "gain mean" column of the consensus table in SOURCE.md, IMU 2..8."""
-    rows = re.findall(r"^\|\s*(\d)\s*\|\s*[CI]\s*\|.*\|\s*([0-9.]+)\s*±\s*([0-9.]+)\s*\|\s*$",
-                      (d / "SOURCE.md").read_text(encoding="utf-8"), flags=re.M)
-    gains = {int(k): float(g) for k, g, _ in rows}
-    assert sorted(gains) == list(range(2, 9))
-    return np.array([gains[k] for k in range(2, 9)])
-
-
 @pytest.fixture(scope="module")
 def mimu_runs():
-    """Joint and pairwise estimates for the 9 sessions: (rotation deviation deg (9, 7, 3), per-axis ratios (9, 7, 3))."""
-    d = _mimu_dir()
-    out = {"joint": ([], []), "pairwise": ([], [])}
-    for e in range(1, 10):
-        streams = read_npz(d / "npz" / f"exp_{e}.npz")  # 8 IMUs; samples at the +-1998 deg/s clip are invalid
-        rates = np.stack([s.omega for s in streams], axis=1)
-        mask = np.all([s.valid for s in streams], axis=0)
-        cal = calibrate_array(rates, mask=mask)
-        for name in out:
-            devs, ratios = [], []
-            for k in range(1, 8):
-                if name == "joint":
-                    R, s1, sk = cal.R_ref_k[k], cal.scale[0], cal.scale[k]
-                else:
-                    pc = solve(cal.moments.pair(0, k))
-                    R, s1, sk = pc.R_1_2, pc.scale_1, pc.scale_2
-                nominal = MIMU_C if k % 2 == 1 else np.eye(3)
-                devs.append(Rotation.from_matrix(nominal.T @ R).as_rotvec() / DEG)
-                ratios.append(s1 / sk[np.argmax(np.abs(R), axis=1)])  # Lemma 2: scale_1[i] / scale_k[perm(i)]
-            out[name][0].append(devs)
-            out[name][1].append(ratios)
-    return {k: (np.array(v[0]), np.array(v[1])) for k, v in out.items()}
+    """Joint and pairwise estimates for the 9 sessions (the example's loop over the recordings read with
+    ``fusion_gyrocal.io.read_npz``, clipped samples masked): rotation deviation from nominal in deg (9, 7, 3)
+    and per-axis ratios ``scale_0[i] / scale_k[perm(i)]`` (9, 7, 3)."""
+    _mimu_dir()
+    return _example().main([])
 
 
 def test_calibrate_array_mimu_rotations_within_half_degree_of_nominal(mimu_runs):
     dev, _ = mimu_runs["joint"]
+    assert dev.shape == (9, 7, 3)
     assert np.linalg.norm(dev, axis=2).max() < 0.5
 
 
 def test_calibrate_array_mimu_ratio_means_match_source_gains(mimu_runs):
     # SOURCE.md's gain ||omega_1|| / ||R omega_k|| is scale_1 / scale_k (the ratio itself, not its inverse).
     _, ratios = mimu_runs["joint"]
-    gains = _source_gains(_mimu_dir())
+    gains = _example().source_gains(_mimu_dir())
     per_session = ratios.mean(axis=2)  # (9, 7): mean over axes
     assert np.abs(per_session.mean(axis=0) / gains - 1.0).max() < 0.003
     # single sessions scatter about the consensus (its own session std reaches 0.15 %): within 0.5 %
@@ -369,14 +355,10 @@ def test_calibrate_array_mimu_joint_at_least_as_consistent_as_pairwise(mimu_runs
     assert rat_j.std(axis=0).mean() <= rat_p.std(axis=0).mean()
 
 
-def test_example_mimu_array_runs_and_reports_both_estimates():
+def test_example_mimu_array_runs_and_reports_both_estimates(capsys):
     _mimu_dir()
-    import importlib.util
-    path = Path(__file__).resolve().parents[1] / "examples" / "mimu_array.py"
-    spec = importlib.util.spec_from_file_location("mimu_array_example", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    out = mod.main(["--sessions", "3"])
+    out = _example().main(["--sessions", "3"])
     dev, ratios = out["joint"]
     assert dev.shape == (1, 7, 3) and ratios.shape == (1, 7, 3)
     assert np.linalg.norm(dev, axis=2).max() < 0.5
+    assert "session 3:" in capsys.readouterr().out
