@@ -952,14 +952,12 @@ def excitation_report(omega, noise_std: float, *, valid=None, target_snr: float 
     n = w.shape[0]
     cum = np.zeros((n, 3))
     if keep.any():
-        x = np.where(keep[:, None], w, 0.0)
-        shift = w[keep].mean(axis=0)  # shifted data: the running sums stay O(spread), not O(bias)
-        x = np.where(keep[:, None], x - shift, 0.0)
+        # shifted by the mean: the running sums stay O(spread), not O(bias)
+        x = np.where(keep[:, None], w - w[keep].mean(axis=0), 0.0)
         cnt = np.cumsum(keep).astype(float)[:, None]
         s = np.cumsum(x, axis=0)
         q = np.cumsum(x * x, axis=0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            scat = np.where(cnt > 0, q - s * s / np.maximum(cnt, 1.0), 0.0)
+        scat = q - s * s / np.maximum(cnt, 1.0)  # 0 before the first used sample (s = q = 0 there)
         cum = np.sqrt(np.clip(scat - np.maximum(cnt - 1.0, 0.0) * sig**2, 0.0, None)) / sig
     snr = cum[-1].copy() if n else np.zeros(3)
     reached = snr >= target_snr
