@@ -51,6 +51,14 @@ _EVAL_STEP = 2.0 / (1.0 + 5.0 ** 0.5)  # refinement instants every 0.618 grid st
 _STD_BLOCK_S = 0.25            # block length of the sandwich estimate of the offset's std
 
 
+def _freeze(obj, names, dtype=None) -> None:
+    """Replace the array fields ``names`` of a frozen dataclass by read-only copies."""
+    for name in names:
+        arr = np.array(getattr(obj, name), dtype=dtype)
+        arr.flags.writeable = False
+        object.__setattr__(obj, name, arr)
+
+
 # ---------------------------------------------------------------------------------------------- stream checks
 def check_timestamps(name: str, t, *, length: int | None = None) -> np.ndarray:
     """Return timestamps as a 1-D float64 array of seconds, checking that they can be used.
@@ -414,10 +422,7 @@ class TimeOffset:
     n_samples: int
 
     def __post_init__(self):
-        for name in ("lags_s", "correlation"):
-            arr = np.array(getattr(self, name), dtype=np.float64)
-            arr.flags.writeable = False
-            object.__setattr__(self, name, arr)
+        _freeze(self, ("lags_s", "correlation"), np.float64)
 
 
 def _masked_correlation(f, mf, g, mg, d_lo, d_hi, min_overlap):
@@ -749,10 +754,7 @@ class AlignedPair:
     time_offset_s: float
 
     def __post_init__(self):
-        for name in ("t", "omega_1", "omega_2", "valid"):
-            arr = np.array(getattr(self, name))
-            arr.flags.writeable = False
-            object.__setattr__(self, name, arr)
+        _freeze(self, ("t", "omega_1", "omega_2", "valid"))
 
     @property
     def n_valid(self) -> int:
@@ -902,10 +904,7 @@ class ExcitationReport:
     n_used: int
 
     def __post_init__(self):
-        for name in ("snr", "cumulative_snr", "reached", "reached_at"):
-            arr = np.array(getattr(self, name))
-            arr.flags.writeable = False
-            object.__setattr__(self, name, arr)
+        _freeze(self, ("snr", "cumulative_snr", "reached", "reached_at"))
 
     @property
     def all_reached(self) -> bool:
