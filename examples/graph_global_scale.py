@@ -54,6 +54,14 @@ class Demo:
     pair_only: PairCalibration | None
     with_camera: PairCalibration
 
+    def global_scale_error(self) -> tuple[float, float]:
+        """Error of the global scale (the mean log-scale factor) with the camera, and its marginal 1-sigma."""
+        cal = self.with_camera
+        s = np.concatenate([cal.scale_1, cal.scale_2])
+        log_err = np.log(s / np.concatenate([self.scale_1, self.scale_2]))
+        P_log = cal.covariance[3:9, 3:9] / np.outer(s, s)
+        return float(log_err.mean()), float(np.sqrt(P_log.sum()) / 6.0)
+
 
 def run(seconds: float = 60.0, seed: int = 0, *, rate_hz: float = 100.0, camera_hz: float = 10.0,
         camera_sigma_rad: float = 1e-3, window: int = 1000, pair_only: bool = True) -> Demo:
@@ -95,11 +103,7 @@ def main(argv=None) -> Demo:
     print(f"{'':12s} {'truth':>10s} {'estimate':>10s} {'error':>10s} {'1-sigma':>10s} {'error/sigma':>12s}")
     for name, tr, e, sd in zip(names, truth, est, std):
         print(f"{name:12s} {tr:10.6f} {e:10.6f} {e - tr:+10.2e} {sd:10.2e} {(e - tr) / sd:+12.2f}")
-    cal = demo.with_camera
-    log_err = np.log(np.concatenate([cal.scale_1, cal.scale_2]) / truth)
-    s = np.concatenate([cal.scale_1, cal.scale_2])
-    P_log = cal.covariance[3:9, 3:9] / np.outer(s, s)
-    g_err, g_std = log_err.mean(), np.sqrt(P_log.sum()) / 6.0
+    g_err, g_std = demo.global_scale_error()
     print(f"\nglobal scale (mean log-scale) error {g_err:+.2e}, marginal 1-sigma {g_std:.2e} "
           f"({g_err / g_std:+.2f} sigma); rotation 1-sigma {np.linalg.norm(cal.rotation_std_rad) / DEG:.4f} deg")
     return demo
