@@ -81,7 +81,7 @@ from .direct import Gauge
 from .errors import ConfigurationError, GyroCalError, InputError
 from .model import BIAS, ROT, S1, S2, PairCalibration
 from .moments import Moments, as_rates
-from .observability import classify, skew
+from .observability import A_of, classify, skew
 from .preprocess import check_timestamps, resample
 
 __all__ = ["DriftNoise", "GyroPairTracker", "PairTruth", "ReseedEvent", "StepPrior", "TrackHistory",
@@ -320,23 +320,10 @@ def _exp_so3(v) -> np.ndarray:
     return np.eye(3) + (np.sin(th) / th) * K + ((1.0 - np.cos(th)) / th2) * (K @ K)
 
 
-def _jacobian1(R, s1, s2, w2):
-    """Measurement Jacobian ``dh/dx`` (3, 12) and prediction ``A omega_2`` for one sample."""
-    A = (s1[:, None] * R) / s2[None, :]
-    u = R @ (w2 / s2)
-    Aw = s1 * u
-    H = np.empty((3, _DIM))
-    H[:, 0:3] = -s1[:, None] * skew(u)
-    H[:, 3:6] = np.diag(Aw)
-    H[:, 6:9] = -A * w2[None, :]
-    H[:, 9:12] = np.eye(3)
-    return H, Aw
-
-
 def _jacobian(R, s1, s2, w2):
     """Measurement Jacobians ``dh/dx`` (B, 3, 12) at zero error for gyro-2 samples ``w2`` (B, 3)."""
     u = (w2 / s2) @ R.T                      # R diag(1/s2) omega_2: gyro 2's rate in gyro 1's frame
-    A = (s1[:, None] * R) / s2[None, :]
+    A = A_of(R, s1, s2)
     H = np.zeros((w2.shape[0], 3, _DIM))
     H[:, :, 0:3] = -s1[None, :, None] * skew(u)           # d(diag(s1) Exp(th) u)/dth
     idx = np.arange(3)
@@ -682,7 +669,7 @@ class GyroPairTracker:
 
     @property
     def A(self) -> np.ndarray:
-        return (self._s1[:, None] * self._R) / self._s2[None, :]
+        return A_of(self._R, self._s1, self._s2)
 
     @property
     def error_covariance(self) -> np.ndarray:
@@ -849,8 +836,8 @@ class GyroPairTracker:
             self._modes.add("sample")
             self._buffer.push(t, w1, w2)
             self.n_samples += 1
-        H, Aw = _jacobian1(self._R, self._s1, self._s2, w2)
-        hx = Aw + self._b
+        H = _jacobian(self._R, self._s1, self._s2, w2[None])[0]
+        hx = self.A @ w2 + self._b
         R = self.kf.R
         y = w1 - hx
         S = H @ self.kf.P @ H.T + R
