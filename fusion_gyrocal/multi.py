@@ -267,7 +267,8 @@ class ArrayCalibration:
         Covariance of ``[dtheta_0..dtheta_{N-1}, scale_0..scale_{N-1}, bias_0..bias_{N-1}]`` (3 entries
         each) with ``R_ref_k_true = Exp(dtheta_k) @ R_ref_k[k]``, in the gauge. For scale factors whose
         ``scale_observable`` is False the marginal variances belong to the gauge convention; only
-        ratios within a group are meaningful (:meth:`scale_ratio`). The reference's blocks are zero.
+        ratios within a group are meaningful (:meth:`scale_ratio`). The reference's rotation and bias
+        blocks are zero (its scale factors have a variance unless the gauge fixes them).
     gauge : str
         How the global scale (one factor per group) was fixed.
     snr : ndarray (3,)
