@@ -896,9 +896,9 @@ class GyroPairGraph:
         """Covariance of ``[x_keys..., sum_i weights_i b_i]`` (tangent spaces of the keys).
 
         Up to :data:`MARGINALS_MAX_SEGMENTS` bias segments: ``jointMarginalCovariance`` over every key
-        of what ``marginals()`` returns (``gtsam.Marginals`` or iSAM2; built only then). Beyond, that dense joint marginal grows
-        cubically, so the same Gauss-Newton information ``J^T J`` of the graph linearised at
-        ``values`` is factorised sparsely and solved for the few columns needed.
+        of what ``marginals()`` returns (``gtsam.Marginals`` or iSAM2; built only then). Beyond, that
+        dense joint marginal grows cubically, so the same Gauss-Newton information ``J^T J`` of the
+        graph linearised at ``values`` is factorised sparsely and solved for the few columns needed.
         """
         nb = len(self._bias_keys)
         dx = 10 if self.global_scale else 9
