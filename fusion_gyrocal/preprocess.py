@@ -481,15 +481,29 @@ def _norm_on_grid(t, w, ok, grid, gap):
     return x, inside
 
 
-def _profile_cost(w1, w2):
-    """Residual sum of squares of ``w1 = A w2 + b`` with A and b at their least-squares values (Eq. 16-17).
-
-    Returns (cost, A). Uses the centred scatter: cost = tr(S11 - S12 S22^+ S12^T).
-    """
+def _profile_fit(w1, w2):
+    """Least squares of ``w1 = A w2 + b`` (Eq. 16-17): the moments, ``S22^+`` and ``A = S12 S22^+``."""
     m = Moments.from_samples(w1, w2)
     S22p = np.linalg.pinv(m.S22, rcond=1e-12, hermitian=True)
-    A = m.S12 @ S22p
-    return float(np.trace(m.S11) - np.trace(A @ m.S12.T)), A
+    return m, S22p, m.S12 @ S22p
+
+
+def _span_misfit(spl2: _RunSplines, x1, y1, lo: float, hi: float):
+    """``(x, y, C)``: the instants of ``x1`` whose gyro-2 time ``x - tau`` lies inside one run of gyro 2 for
+    every offset ``tau`` in ``[lo, hi]`` (a fixed set, so ``C`` is smooth), gyro 1's rates ``y`` there and
+    the profiled misfit ``C(tau)``: the residual sum of squares of ``y = A omega_2(x - tau) + b`` with A and
+    b at their least-squares values, ``tr(S11 - S12 S22^+ S12^T)`` of the centred scatter.
+    """
+    ra, rb = spl2.run_of(x1 - hi), spl2.run_of(x1 - lo)
+    use = (ra >= 0) & (ra == rb)
+    xe, ye = x1[use], y1[use]
+    inside = np.ones(xe.size, dtype=bool)
+
+    def cost(tau):
+        m, _, A = _profile_fit(ye, spl2(xe - tau, inside=inside)[0])
+        return float(np.trace(m.S11) - np.trace(A @ m.S12.T))
+
+    return xe, ye, cost
 
 
 def _parabolic_peak(r, i) -> float:
@@ -511,17 +525,10 @@ def _refine(spl2: _RunSplines, x1, y1, tau0: float, h: float):
     tau, half = tau0, 1.5 * h
     for _ in range(6):
         lo, hi = tau - half, tau + half
-        ra, rb = spl2.run_of(x1 - hi), spl2.run_of(x1 - lo)
-        use = (ra >= 0) & (ra == rb)
-        if use.sum() < 16:
-            raise TimeAlignmentError(f"only {int(use.sum())} gyro-1 instants overlap valid gyro-2 data near the "
+        xe, ye, cost = _span_misfit(spl2, x1, y1, lo, hi)
+        if xe.size < 16:
+            raise TimeAlignmentError(f"only {xe.size} gyro-1 instants overlap valid gyro-2 data near the "
                                      f"offset {tau0:+.4f} s; need at least 16")
-        xe, ye = x1[use], y1[use]
-        inside = np.ones(xe.size, dtype=bool)
-
-        def cost(tt):
-            return _profile_cost(ye, spl2(xe - tt, inside=inside)[0])[0]
-
         res = minimize_scalar(cost, bounds=(lo, hi), method="bounded",
                               options={"xatol": 1e-9 * max(1.0, abs(tau)) + 1e-4 * h})
         tau = float(res.x)
@@ -543,23 +550,14 @@ def _offset_std(spl2: _RunSplines, x1, y1, tau: float, h: float) -> float:
     estimated from the sums of ``u`` over consecutive blocks of about ``_STD_BLOCK_S`` seconds.
     """
     delta = 0.25 * h
-    ra, rb = spl2.run_of(x1 - tau - delta), spl2.run_of(x1 - tau + delta)
-    use = (ra >= 0) & (ra == rb)
-    xe, ye = x1[use], y1[use]
-    inside = np.ones(xe.size, dtype=bool)
-
-    def cost(tt):
-        return _profile_cost(ye, spl2(xe - tt, inside=inside)[0])[0]
-
-    c0 = cost(tau)
-    half_curv = 0.5 * (cost(tau + delta) - 2.0 * c0 + cost(tau - delta)) / delta**2
+    xe, ye, cost = _span_misfit(spl2, x1, y1, tau - delta, tau + delta)
+    half_curv = 0.5 * (cost(tau + delta) - 2.0 * cost(tau) + cost(tau - delta)) / delta**2
     if not half_curv > 0:
         return float("inf")
+    inside = np.ones(xe.size, dtype=bool)
     w2 = spl2(xe - tau, inside=inside)[0]
     dw2 = spl2(xe - tau, nu=1, inside=inside)[0]
-    m = Moments.from_samples(ye, w2)
-    S22p = np.linalg.pinv(m.S22, rcond=1e-12, hermitian=True)
-    A = m.S12 @ S22p
+    m, S22p, A = _profile_fit(ye, w2)
     resid = (ye - m.mean_1) - (w2 - m.mean_2) @ A.T
     md = Moments.from_samples(dw2, w2)  # project d/dt omega_2 on the regressors [omega_2, 1]
     d = ((dw2 - md.mean_1) - (w2 - md.mean_2) @ (md.S12 @ S22p).T) @ A.T
