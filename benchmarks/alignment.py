@@ -26,17 +26,15 @@ from scipy.interpolate import CubicSpline
 from scipy.optimize import minimize_scalar
 from scipy.signal import correlate
 
-from fusion_gyrocal.preprocess import estimate_time_offset
+from fusion_gyrocal.preprocess import _parabolic_peak, estimate_time_offset
 from fusion_gyrocal.sim import simulate_streams
 
 
 def coarse_offset(est) -> float:
-    """Peak of the norm correlation with parabolic interpolation (the coarse stage alone)."""
+    """Peak of the norm correlation with parabolic interpolation (the library's coarse stage alone)."""
     r = np.where(np.isfinite(est.correlation), est.correlation, -np.inf)
     i = int(np.argmax(r))
-    h = est.lags_s[1] - est.lags_s[0]
-    den = r[i - 1] - 2 * r[i] + r[i + 1]
-    return float(est.lags_s[i] + (0.5 * (r[i - 1] - r[i + 1]) / den if den < 0 else 0.0) * h)
+    return float(est.lags_s[i] + _parabolic_peak(r, i) * (est.lags_s[1] - est.lags_s[0]))
 
 
 def norm_refined_offset(t1, w1, t2, w2, tau0, h) -> float:
@@ -62,7 +60,7 @@ def run(scenario: str, runs: int, rng, *, duration: float, rms: float, rates=((1
         offset = rng.uniform(-0.3, 0.3)
         rate_1, rate_2 = rates[k % len(rates)]
         t1, w1, t2, w2, *_ = simulate_streams(rng, rate_1=rate_1, rate_2=rate_2, duration=duration,
-                                          offset=offset, rms=rms)
+                                              offset=offset, rms=rms)
         t0 = time.perf_counter()
         est = estimate_time_offset(t1, w1, t2, w2)
         t_est.append(time.perf_counter() - t0)
