@@ -609,7 +609,6 @@ class GyroPairTracker:
         # observable coordinates: orthonormal complement of the held directions
         Q, _ = np.linalg.qr(Nf, mode="complete")
         self._obs_basis = Q[:, len(groups):]
-        self._W_obs_T = self._obs_basis.T
 
     def _update_projection(self):
         """Oblique projector ``T = I - N (G^T N)^-1 G^T`` (G: the linearised gauge conditions)."""
@@ -731,12 +730,18 @@ class GyroPairTracker:
         The error is ``[Log(R_true R^T), log s_true - log s, b_true - b]`` with the truth's scale
         factors expressed in the gauge; it has :attr:`nees_dof` degrees of freedom.
         """
+        return self._chi2(R_1_2, scale_1, scale_2, bias, (self._R, self._s1, self._s2, self._b), self.kf.P)
+
+    def _chi2(self, R_1_2, scale_1, scale_2, bias, state, P) -> float:
+        """``e^T P^-1 e`` in the observable coordinates for ``e`` the given values minus ``state``
+        ``(R, s1, s2, b)``: ``[Log(R_1_2 R^T), log scale - log s, bias - b]``, scales expressed in the gauge."""
+        R, s1, s2, b = state
         t1, t2 = self.express_in_gauge(scale_1, scale_2)
-        e = np.concatenate([_log_so3(np.asarray(R_1_2) @ self._R.T),
-                            np.log(t1 / self._s1), np.log(t2 / self._s2), np.asarray(bias) - self._b])
-        eo = self._W_obs_T @ e
-        Po = self._W_obs_T @ self.kf.P @ self._obs_basis
-        return float(eo @ np.linalg.solve(Po, eo))
+        e = np.concatenate([_log_so3(np.asarray(R_1_2) @ R.T), np.log(t1 / s1), np.log(t2 / s2),
+                            np.asarray(bias) - b])
+        V = self._obs_basis
+        eo = V.T @ e
+        return float(eo @ np.linalg.solve(V.T @ P @ V, eo))
 
     # ------------------------------------------------------------------ filter steps
     def _measurement_cov(self) -> np.ndarray:
@@ -990,8 +995,9 @@ class GyroPairTracker:
                                             f"batch solve failed ({exc}); kept the filter with the step prior"))
             self._close_alarm()
             return
-        R0, s10, s20, b0, P0, t0, rej0 = self._snapshot
-        stat = self._difference_statistic(cal, R0, s10, s20, b0, P0)
+        R0, s10, s20, b0, P0, _, _ = self._snapshot       # batch minus the filter at the alarm
+        stat = self._chi2(cal.R_1_2, cal.scale_1, cal.scale_2, cal.bias, (R0, s10, s20, b0),
+                          self._project_cov(self._log_covariance(cal)) + P0)
         accepted = stat > thr
         if accepted:
             self._seed(cal, span_s=float(data[-1, 0] - data[0, 0]))
@@ -1028,16 +1034,6 @@ class GyroPairTracker:
         finally:
             self._replaying = False
         self._predict_to(max(t_now, self._t))
-
-    def _difference_statistic(self, cal: PairCalibration, R, s1_ref, s2_ref, b, P) -> float:
-        """Chi-square of ``cal`` minus a filter state, in the observable coordinates."""
-        s1, s2 = self.express_in_gauge(cal.scale_1, cal.scale_2)
-        e = np.concatenate([Rotation.from_matrix(cal.R_1_2 @ R.T).as_rotvec(), np.log(s1 / s1_ref),
-                            np.log(s2 / s2_ref), cal.bias - b])
-        Pb = self._project_cov(self._log_covariance(cal))
-        C = self._W_obs_T @ (Pb + P) @ self._obs_basis
-        eo = self._W_obs_T @ e
-        return float(eo @ np.linalg.solve(C, eo))
 
     # ------------------------------------------------------------------ history
     def _record(self, t, nis, n_used):
