@@ -1,14 +1,15 @@
 """GTSAM graph versus the closed-form batch solver on identical data, and iSAM2 update cost.
 
 1. For N = 1e3 ... 1e6 samples of the paper's protocol (100 Hz, 0.1 deg/s noise): both solvers
-   read the same window moments (one constant bias). Printed: the number of window factors, the
-   time of the moment pass, the time per solve from the moments (batch: direct + ML refinement
-   + covariance; graph: direct seed + factor construction + Levenberg-Marquardt + Marginals),
-   best of 3, and the largest difference between the two estimates over all 12 parameters in
+   read the same window moments (one constant bias, so the graph merges them into one pair factor).
+   Printed: the number of windows, the time of the moment pass, the time per solve from the moments
+   (batch: direct + ML refinement + covariance; graph: direct seed + factor construction +
+   Levenberg-Marquardt + Marginals), best of 3, and the largest difference between the two estimates over all 12 parameters in
    units of the batch standard deviation.
-2. iSAM2 fed one second of 100 Hz data at a time (one window factor per second): wall time per
-   ``update()`` (median, 95th percentile, max) over the run, with one constant bias and with a
-   bias random walk (one new bias variable per second), and the final ``result()`` time.
+2. iSAM2 fed one second of 100 Hz data at a time (one window per second): wall time per
+   ``update()`` (median, 95th percentile, max) over the run, with one constant bias (the merged
+   pair factor replaced at each update) and with a bias random walk (one new pair factor and bias
+   variable per second), and the final ``result()`` time.
 
     python benchmarks/graph.py [--max-n 1000000] [--seconds 600]
 """
@@ -60,7 +61,7 @@ def batch_versus_graph(max_n: int):
     while n <= max_n:
         sim = simulate_pair(n=n, rng=n)
         noise = sim.noise_std
-        window = max(100, n // 200)                      # at most 200 factors whatever N
+        window = max(100, n // 200)                      # at most 200 windows whatever N
         t_mom, parts = best_of(lambda: window_moments(sim.omega_1, sim.omega_2, window), k=1)
         total = Moments.merge_all(parts)
         t_batch, batch = best_of(lambda: solve(total, noise_std=noise, method="ml"))
