@@ -4,8 +4,8 @@
    read the same window moments (one constant bias, so the graph merges them into one pair factor).
    Printed: the number of windows, the time of the moment pass, the time per solve from the moments
    (batch: direct + ML refinement + covariance; graph: direct seed + factor construction +
-   Levenberg-Marquardt + Marginals), best of 3, and the largest difference between the two estimates over all 12 parameters in
-   units of the batch standard deviation.
+   Levenberg-Marquardt + Marginals), best of 3, and the largest difference between the two
+   estimates over all 12 parameters in units of the batch standard deviation.
 2. iSAM2 fed one second of 100 Hz data at a time (one window per second): wall time per
    ``update()`` (median, 95th percentile, max) over the run, with one constant bias (the merged
    pair factor replaced at each update) and with a bias random walk (one new pair factor and bias
