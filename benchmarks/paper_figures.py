@@ -83,11 +83,10 @@ def main(argv=None):
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
 
-    everyone = tuple(DEFAULT_ESTIMATORS)
-    missing = {n: estimator_available(n) for n in everyone if estimator_available(n)}
+    missing = {n: why for n in DEFAULT_ESTIMATORS if (why := estimator_available(n))}
     for n, why in missing.items():
         print(f"{n}: {why}")
-    everyone = tuple(n for n in everyone if n not in missing)
+    everyone = tuple(n for n in DEFAULT_ESTIMATORS if n not in missing)
     no_ekf = tuple(n for n in everyone if n != "ekf")
     plan = [("nominal", "rate", everyone), ("nominal", "noise", no_ekf), ("nominal", "samples", no_ekf),
             ("weak_axis", "rate", everyone), ("skew", "rate", PAPER)]
@@ -106,8 +105,9 @@ def main(argv=None):
     plot_rmse_vs_snr(nominal, out / "rmse_vs_snr.png",
                      title=f"RMSE versus SNR (SNR through the rate norm), {args.runs} runs per point")
     plot_rmse_vs_snr([sweeps[("nominal", "noise")], sweeps[("nominal", "samples")]],
-                     out / "rmse_vs_snr_noise_samples.png", estimators=PAPER, title="RMSE versus SNR with the SNR scaled through the noise (solid) "
-                                             f"and the sample count (dashed), {args.runs} runs per point")
+                     out / "rmse_vs_snr_noise_samples.png", estimators=PAPER,
+                     title="RMSE versus SNR with the SNR scaled through the noise (solid) "
+                           f"and the sample count (dashed), {args.runs} runs per point")
     plot_rmse_vs_snr([nominal, sweeps[("weak_axis", "rate")]], out / "weak_axis.png", metrics=("rotation",),
                      estimators=tuple(n for n in everyone if n != "rotation_only"),
                      title="Rotation RMSE: nominal motion (solid) and x rates 10x smaller at the same SNR (dashed)")
