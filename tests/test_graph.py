@@ -1,3 +1,4 @@
+import doctest
 import importlib.util
 import sys
 from pathlib import Path
@@ -368,3 +369,8 @@ def test_gyro_pair_graph_add_window_rejects_pooled_moments(constant_bias_case):
     pooled = Moments.pool_all(window_moments(sim.omega_1, sim.omega_2, 1000))
     with pytest.raises(InputError, match="one bias segment"):
         GyroPairGraph(ml).add_window(pooled)
+
+
+def test_docstring_examples_run():
+    result = doctest.testmod(graph_module)
+    assert result.attempted > 0 and result.failed == 0
