@@ -18,7 +18,7 @@ import argparse
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from fusion_gyrocal.ekf import GyroPairTracker, PairTruth, plot_history, simulate_drifting_pair
+from fusion_gyrocal.ekf import GyroPairTracker, plot_history, simulate_drifting_pair
 from fusion_gyrocal.sim import DEG, PAPER_NOISE_STD, random_rotation
 
 
@@ -52,9 +52,7 @@ def main(argv=None) -> int:
 
     k = int(args.seed_s * args.rate)
     tracker = GyroPairTracker.from_samples(t[:k], w1[:k], w2[:k])         # seeded by calibrate_pair
-    sl = slice(k, None)
-    h = tracker.run(t[sl], w1[sl], w2[sl], mode=args.mode, block_size=int(args.rate),
-                    truth=PairTruth(truth.R_1_2[sl], truth.scale_1[sl], truth.scale_2[sl], truth.bias[sl]))
+    h = tracker.run(t[k:], w1[k:], w2[k:], mode=args.mode, block_size=int(args.rate), truth=truth[k:])
 
     print(f"tracked {h.n_samples} samples in {len(h)} {h.mode}-mode updates; gauge: {h.gauge}")
     print(f"gated samples: {h.n_rejected}")

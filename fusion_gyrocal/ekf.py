@@ -153,7 +153,7 @@ class StepPrior:
 
 @dataclass(frozen=True)
 class PairTruth:
-    """Ground truth of a pair per sample (for NEES and plots), in any gauge.
+    """Ground truth of a pair per sample (for NEES and plots), in any gauge; ``truth[rows]`` selects samples.
 
     Attributes
     ----------
@@ -179,6 +179,10 @@ class PairTruth:
 
     def __len__(self) -> int:
         return self.scale_1.shape[0]
+
+    def __getitem__(self, rows) -> "PairTruth":
+        """The truth at some samples (a slice or an index array), e.g. those a tracker runs over."""
+        return PairTruth(self.R_1_2[rows], self.scale_1[rows], self.scale_2[rows], self.bias[rows])
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from fusion_gyrocal import PairCalibration, calibrate_pair
-from fusion_gyrocal.ekf import (DriftNoise, GyroPairTracker, PairTruth, TrackHistory, plot_history,
+from fusion_gyrocal.ekf import (DriftNoise, GyroPairTracker, TrackHistory, plot_history,
                                 simulate_drifting_pair)
 from fusion_gyrocal.errors import InputError
 from fusion_gyrocal.sim import DEG, HumanMotion, random_rotation, rotation_error, scale_error, shared_data_dir
@@ -47,10 +47,6 @@ def scenario(rng, duration_s, *, R=None, scale_2_ramp=None, step=None, rate=RATE
     w1, w2, truth = simulate_drifting_pair(t, Rt, s1, S2, bias_1=rng.normal(0, 0.01, 3),
                                            bias_2=rng.normal(0, 0.01, 3), noise_std=NOISE, rng=rng)
     return t, w1, w2, truth
-
-
-def part(truth, sl):
-    return PairTruth(truth.R_1_2[sl], truth.scale_1[sl], truth.scale_2[sl], truth.bias[sl])
 
 
 def normalised_errors(h: TrackHistory):
@@ -133,7 +129,7 @@ def test_run_tracks_linear_scale_drift_within_2sigma():
     t, w1, w2, truth = scenario(rng, 600.0, scale_2_ramp=(1, 0.005))   # +0.5 % over 10 minutes
     n0 = int(30 * RATE)
     tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0])
-    h = tr.run(t[n0:], w1[n0:], w2[n0:], mode="fast", truth=part(truth, slice(n0, None)))
+    h = tr.run(t[n0:], w1[n0:], w2[n0:], mode="fast", truth=truth[n0:])
     e = normalised_errors(h)
     assert np.all(np.mean(np.abs(e) <= 2.0, axis=0) >= 0.95), np.mean(np.abs(e) <= 2.0, axis=0)
     assert abs(e[-1, 7]) <= 2.0                                   # scale_2[y] at the end
@@ -149,7 +145,7 @@ def test_run_tracks_rotation_step_within_2sigma():
     t, w1, w2, truth = scenario(rng, 600.0, step=(300.0, rotvec), scale_2_ramp=(1, 0.005))
     n0 = int(30 * RATE)
     tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0])
-    h = tr.run(t[n0:], w1[n0:], w2[n0:], mode="fast", truth=part(truth, slice(n0, None)))
+    h = tr.run(t[n0:], w1[n0:], w2[n0:], mode="fast", truth=truth[n0:])
     assert len(h.reseeds) == 1
     ev = h.reseeds[0]
     assert ev.accepted and 300.0 <= ev.t_detected <= 300.5 and abs(ev.t_onset - 300.0) <= 0.5
@@ -172,7 +168,7 @@ def test_run_nees_consistent_over_monte_carlo():
         R, s1, s2, b1 = random_walk_truth(t, drift, rng)
         w1, w2, truth = simulate_drifting_pair(t, R, s1, s2, bias_1=b1, noise_std=NOISE, rng=rng)
         tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0], drift=drift)
-        h = tr.run(t[n0:], w1[n0:], w2[n0:], truth=part(truth, slice(n0, None)))
+        h = tr.run(t[n0:], w1[n0:], w2[n0:], truth=truth[n0:])
         nees.append(h.nees[-1])
     dof = h.nees_dof
     lo, hi = chi2.ppf([0.025, 0.975], runs * dof) / runs
@@ -227,7 +223,7 @@ def test_update_block_gates_flex_spikes():
     for s in starts:                                   # 30 ms bursts of flex: 0.2 rad/s disturbances
         w2[s:s + 3] += rng.normal(0, 0.2, (3, 3))
     tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0])
-    h = tr.run(t[n0:], w1[n0:], w2[n0:], truth=part(truth, slice(n0, None)))
+    h = tr.run(t[n0:], w1[n0:], w2[n0:], truth=truth[n0:])
     assert h.n_rejected >= 60                           # every spike sample (and neighbours) was gated
     assert h.n_rejected <= 60 * 3 + 0.01 * h.n_samples
     assert not any(ev.accepted for ev in h.reseeds)
@@ -247,7 +243,7 @@ def test_run_false_alarm_restores_filter(mode):
     burst = (t >= 30.0) & (t < 30.5)                    # 0.5 s of flex: rate-dependent misalignment (2 deg)
     w2f[burst] = w2[burst] @ Rotation.from_rotvec([0, 0, 2 * DEG]).as_matrix().T
     tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2f[:n0])
-    h = tr.run(t[n0:], w1[n0:], w2f[n0:], mode=mode, truth=part(truth, slice(n0, None)))
+    h = tr.run(t[n0:], w1[n0:], w2f[n0:], mode=mode, truth=truth[n0:])
     assert len(h.reseeds) == 1 and not h.reseeds[0].accepted
     assert 30.0 <= h.reseeds[0].t_detected <= 30.5
     assert h.mode == mode                               # the replay (in blocks) adds no rows of its own
@@ -270,7 +266,7 @@ def test_GyroPairTracker_degenerate_configuration_holds_prior(config):
     assert tr.configuration.name == config
     pairs = [g for g in tr.configuration.groups if len(g) == 2]
     P0 = tr.error_covariance
-    h = tr.run(t[n0:], w1[n0:], w2[n0:], truth=part(truth, slice(n0, None)))
+    h = tr.run(t[n0:], w1[n0:], w2[n0:], truth=truth[n0:])
     P1 = tr.error_covariance
     s_end = np.log(np.concatenate([tr.scale_1, tr.scale_2]))
     s_start = np.log(np.concatenate([h.scale_1[0], h.scale_2[0]]))
@@ -297,7 +293,7 @@ def test_GyroPairTracker_fixed_gauge_holds_scale_1_x():
     t, w1, w2, truth = scenario(rng, 120.0, scale_2_ramp=(1, 0.005))
     n0 = int(10 * RATE)
     tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0], gauge="fixed")
-    h = tr.run(t[n0:], w1[n0:], w2[n0:], truth=part(truth, slice(n0, None)))
+    h = tr.run(t[n0:], w1[n0:], w2[n0:], truth=truth[n0:])
     np.testing.assert_allclose(h.scale_1[:, 0], 1.0, atol=1e-12)
     np.testing.assert_allclose(h.truth_scale_1[:, 0], 1.0, atol=1e-12)   # the truth in the same gauge
     assert np.all(h.scale_1_std[:, 0] < 1e-9)
@@ -313,7 +309,7 @@ def test_run_gap_grows_covariance_by_the_random_walk():
     keep = (t < 30.0) | (t >= 60.0)                     # a 30 s gap in both streams
     drift = DriftNoise()
     tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0], drift=drift)
-    h = tr.run(t[keep][n0:], w1[keep][n0:], w2[keep][n0:], truth=part(truth, np.flatnonzero(keep)[n0:]))
+    h = tr.run(t[keep][n0:], w1[keep][n0:], w2[keep][n0:], truth=truth[np.flatnonzero(keep)[n0:]])
     assert not np.any((h.t > 30.0) & (h.t < 60.0))        # no block straddles the gap
     i = int(np.searchsorted(h.t, 45.0))
     before, after = h.bias_std[i - 1], h.bias_std[i]
@@ -390,7 +386,7 @@ def test_plot_history_returns_figure_with_bands():
     rng = np.random.default_rng(15)
     t, w1, w2, truth = scenario(rng, 30.0)
     tr = GyroPairTracker.from_samples(t[:1000], w1[:1000], w2[:1000])
-    h = tr.run(t[1000:], w1[1000:], w2[1000:], truth=part(truth, slice(1000, None)))
+    h = tr.run(t[1000:], w1[1000:], w2[1000:], truth=truth[1000:])
     fig = plot_history(h)
     from matplotlib.figure import Figure
     assert isinstance(fig, Figure) and len(fig.axes) == 3
@@ -449,7 +445,7 @@ def test_run_tracks_drift_with_recorded_hand_motion():
                                            omega_true_1=motion, rng=rng)
     n0 = int(20 * fs)
     tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0])
-    h = tr.run(t[n0:], w1[n0:], w2[n0:], block_size=int(fs), truth=part(truth, slice(n0, None)))
+    h = tr.run(t[n0:], w1[n0:], w2[n0:], block_size=int(fs), truth=truth[n0:])
     assert np.all(np.mean(np.abs(normalised_errors(h)) <= 2.0, axis=0) >= 0.95)
     assert not any(ev.accepted for ev in h.reseeds)
 
