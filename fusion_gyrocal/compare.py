@@ -1053,6 +1053,8 @@ def compare_main(args) -> int:
 
     from rich.console import Console
 
+    from .io.writers import atomic_write
+
     console = Console(highlight=False)
     try:
         names = tuple(n.strip() for n in args.estimators.split(",") if n.strip())
@@ -1079,9 +1081,9 @@ def compare_main(args) -> int:
             br, bs = sweep.bound_slopes()
             console.print(f"  {'Cramer-Rao bound':>20}: rotation {br:+.3f}, scales {bs:+.3f}")
         if args.markdown:
-            Path(args.markdown).write_text("\n".join(t.to_markdown() for t in tables))
+            atomic_write(args.markdown, "\n".join(t.to_markdown() for t in tables))
         if args.csv:
-            Path(args.csv).write_text(tables[0].to_csv() if len(tables) == 1 else _sweep_csv(tables))
+            atomic_write(args.csv, tables[0].to_csv() if len(tables) == 1 else _sweep_csv(tables))
         if args.figure:
             if sweep is None:
                 raise InputError("--figure: expected --sweep (the figure is RMSE versus SNR)")

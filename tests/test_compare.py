@@ -308,6 +308,14 @@ def test_compare_main_unknown_scenario_exits_1(capsys):
     assert "gyrocal compare: error: scenario: expected one of" in capsys.readouterr().err
 
 
+def test_compare_main_output_in_missing_folder_exits_1(tmp_path, capsys):
+    args = _cli(["compare", "--estimators", "direct", "--workers", "1", "--no-progress",
+                 "--csv", str(tmp_path / "missing" / "t.csv")])
+    assert compare_main(args) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("gyrocal compare: error:") and "does not exist" in err
+
+
 def test_example_compare_estimators_runs(capsys):
     spec = importlib.util.spec_from_file_location("compare_estimators", EXAMPLE)
     mod = importlib.util.module_from_spec(spec)
