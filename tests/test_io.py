@@ -15,6 +15,7 @@ from fusion_gyrocal.errors import FormatError, InputError
 from fusion_gyrocal.io import (ImuNoise, ImuStream, detect_format, list_imu_topics, read_bag, read_csv, read_imu,
                                read_json, read_npz, read_xsens, write_csv, write_imu_bag, write_json,
                                write_kalibr_imu_yaml, write_npz, write_openvins_imu_chain)
+from fusion_gyrocal.io import readers as readers_mod
 from fusion_gyrocal.io import writers as writers_mod
 from fusion_gyrocal.model import PairCalibration
 from fusion_gyrocal.sim import DEG, shared_data_dir
@@ -167,6 +168,76 @@ def test_read_csv_empty_file_message(tmp_path):
     p.write_text("\n\n")
     with pytest.raises(FormatError, match="empty.csv: expected a header or data rows"):
         read_csv(p)
+
+
+def _read_both_ways(monkeypatch, read, path):
+    """``read(path)`` through np.loadtxt only and through pandas (size threshold 0): (result or error) x 2."""
+    out = []
+    for threshold in (float("inf"), 0):
+        monkeypatch.setattr(readers_mod, "PANDAS_MIN_BYTES", threshold)
+        try:
+            out.append(read(path))
+        except (FormatError, InputError) as exc:
+            out.append(f"{type(exc).__name__}: {exc}")
+    return out
+
+
+def test_read_csv_pandas_reads_big_files_exactly_in_one_pass(tmp_path, monkeypatch):
+    pytest.importorskip("pandas")
+    s = _stream(np.random.default_rng(60), n=3000)
+    p = write_csv(s, tmp_path / "imu.csv")
+    monkeypatch.setattr(readers_mod, "PANDAS_MIN_BYTES", 0)
+    loadtxt = readers_mod._load_columns
+    monkeypatch.setattr(readers_mod, "_load_columns", None)  # float columns must not reach np.loadtxt
+    r = read_csv(p)
+    np.testing.assert_array_equal(r.t, s.t)
+    np.testing.assert_array_equal(r.omega, s.omega)
+    monkeypatch.setattr(readers_mod, "_load_columns", loadtxt)
+    ref, fast = _read_both_ways(monkeypatch, read_csv, p)
+    np.testing.assert_array_equal(fast.omega, ref.omega)
+
+
+def test_read_csv_pandas_and_loadtxt_agree_on_integer_time_and_xsens(tmp_path, monkeypatch):
+    pytest.importorskip("pandas")
+    rng = np.random.default_rng(61)
+    t_ns = 1403636579758555392 + np.arange(50, dtype=np.int64) * 5_000_000
+    p = tmp_path / "data.csv"
+    p.write_text("#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1]\n"
+                 + "".join(f"{t_ns[k]}," + ",".join(f"{v:.17g}" for v in rng.normal(size=3)) + "\n" for k in range(50)))
+    ref, fast = _read_both_ways(monkeypatch, read_csv, p)
+    np.testing.assert_array_equal(fast.t, ref.t)
+    np.testing.assert_array_equal(fast.omega, ref.omega)
+    x = tmp_path / "x.txt"
+    x.write_text(_xsens_text(np.arange(1, 41), rng.normal(size=(40, 3))))
+    ref, fast = _read_both_ways(monkeypatch, read_xsens, x)
+    np.testing.assert_array_equal(fast.t, ref.t)
+    np.testing.assert_array_equal(fast.omega, ref.omega)
+    x.write_text(_xsens_text(["1", "2.0", "3"], np.zeros((3, 3))))  # pandas would read 2.0 as a counter
+    assert _read_both_ways(monkeypatch, read_xsens, x) == [
+        "FormatError: x.txt: expected numeric data in columns [0], could not convert string '2.0' to int64 at "
+        "row 1, column 1."] * 2
+
+
+@pytest.mark.parametrize("rows", [
+    "0,1,,3\n0.01,4,5,6\n0.02,7,8,9\n",      # empty field: NaN, flagged invalid
+    "0,1,2,3\n0.01,4,5\n0.02,7,8,9\n",       # short row: an error
+    "0,1,2,3\n\n0.01,4,5,6\n0.02,7,8,9\n",   # blank line: skipped
+    "0,1,2,3\n   \n0.01,4,5,6\n",            # whitespace-only line: an error
+    "0,1,NA,3\n0.01,4,5,6\n0.02,7,8,9\n",    # 'NA': an error
+    "0,1,nan,3\n0.01,4,5,6\n0.02,7,8,9\n",   # 'nan': NaN
+    '0,1,"2",3\n0.01,4,5,6\n',              # quotes: an error
+    "0,1,2,3 # note\n# comment\n0.01,4,5,6\n",
+])
+def test_read_csv_pandas_defers_to_loadtxt_on_unclean_rows(tmp_path, monkeypatch, rows):
+    pytest.importorskip("pandas")
+    p = tmp_path / "imu.csv"
+    p.write_text("t,gyro_x,gyro_y,gyro_z\n" + rows)
+    ref, fast = _read_both_ways(monkeypatch, read_csv, p)
+    if isinstance(ref, str):
+        assert fast == ref
+    else:
+        for name in ("t", "omega", "valid"):
+            np.testing.assert_array_equal(getattr(fast, name), getattr(ref, name), err_msg=name)
 
 
 # ----------------------------------------------------------------------------- Xsens
