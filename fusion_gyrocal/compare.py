@@ -285,13 +285,12 @@ def estimator_available(name: str) -> str:
     """``""`` when ``name`` can run here, else the reason it cannot (e.g. a missing module)."""
     if name not in ESTIMATORS:
         raise InputError(f"estimator: expected one of {', '.join(ESTIMATORS)}, got {name!r}")
-    module = {"graph": "graph", "ekf": "ekf"}.get(name)
-    if module is None:
+    if name not in ("graph", "ekf"):  # the estimators with a module of their own (optional dependencies)
         return ""
     try:
-        __import__(f"{__package__}.{module}")
+        __import__(f"{__package__}.{name}")
     except ImportError as exc:
-        return f"not available: fusion_gyrocal.{module} cannot be imported ({exc})"
+        return f"not available: fusion_gyrocal.{name} cannot be imported ({exc})"
     return ""
 
 
