@@ -98,9 +98,7 @@ def drift_and_step(runs):
         k = int(30 * RATE)
         tr = GyroPairTracker.from_samples(t[:k], w1[:k], w2[:k])
         h = tr.run(t[k:], w1[k:], w2[k:], truth=truth[k:])
-        e = np.hstack([h.rotation_error / h.rotation_std, (h.scale_1 - h.truth_scale_1) / h.scale_1_std,
-                       (h.scale_2 - h.truth_scale_2) / h.scale_2_std, (h.bias - h.truth_bias) / h.bias_std])
-        fractions.append(np.mean(np.abs(e) <= 2.0, axis=0))
+        fractions.append(np.mean(np.abs(h.normalised_error) <= 2.0, axis=0))
         accepted = [ev for ev in h.reseeds if ev.accepted]
         reseeds.append(len(accepted))
         if accepted:

@@ -312,6 +312,18 @@ class TrackHistory:
             return None
         return Rotation.from_matrix(self.truth_R_1_2 @ np.swapaxes(self.R_1_2, 1, 2)).as_rotvec()
 
+    @property
+    def normalised_error(self) -> np.ndarray | None:
+        """(M, 12) truth minus estimate over its 1-sigma, or None: :attr:`rotation_error`, then
+        ``truth_scale_1 - scale_1``, ``truth_scale_2 - scale_2`` and ``truth_bias - bias``, each
+        divided by its ``*_std`` (about N(0, 1) per component when the bands are consistent)."""
+        if self.truth_R_1_2 is None:
+            return None
+        return np.hstack([self.rotation_error / self.rotation_std,
+                          (self.truth_scale_1 - self.scale_1) / self.scale_1_std,
+                          (self.truth_scale_2 - self.scale_2) / self.scale_2_std,
+                          (self.truth_bias - self.bias) / self.bias_std])
+
 
 # ====================================================================== helpers
 def _exp_so3(v) -> np.ndarray:

@@ -12,8 +12,7 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from fusion_gyrocal import PairCalibration, calibrate_pair
-from fusion_gyrocal.ekf import (DriftNoise, GyroPairTracker, TrackHistory, plot_history,
-                                simulate_drifting_pair)
+from fusion_gyrocal.ekf import DriftNoise, GyroPairTracker, plot_history, simulate_drifting_pair
 from fusion_gyrocal.errors import InputError
 from fusion_gyrocal.sim import DEG, HumanMotion, random_rotation, rotation_error, scale_error, shared_data_dir
 
@@ -47,12 +46,6 @@ def scenario(rng, duration_s, *, R=None, scale_2_ramp=None, step=None, rate=RATE
     w1, w2, truth = simulate_drifting_pair(t, Rt, s1, S2, bias_1=rng.normal(0, 0.01, 3),
                                            bias_2=rng.normal(0, 0.01, 3), noise_std=NOISE, rng=rng)
     return t, w1, w2, truth
-
-
-def normalised_errors(h: TrackHistory):
-    """Estimate-minus-truth over 1-sigma for rotation (3), scale_1 (3), scale_2 (3), bias (3)."""
-    return np.hstack([h.rotation_error / h.rotation_std, (h.scale_1 - h.truth_scale_1) / h.scale_1_std,
-                      (h.scale_2 - h.truth_scale_2) / h.scale_2_std, (h.bias - h.truth_bias) / h.bias_std])
 
 
 def random_walk_truth(t, drift: DriftNoise, rng):
@@ -130,7 +123,8 @@ def test_run_tracks_linear_scale_drift_within_2sigma():
     n0 = int(30 * RATE)
     tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0])
     h = tr.run(t[n0:], w1[n0:], w2[n0:], mode="fast", truth=truth[n0:])
-    e = normalised_errors(h)
+    e = h.normalised_error
+    np.testing.assert_allclose(e[:, 7], (h.truth_scale_2[:, 1] - h.scale_2[:, 1]) / h.scale_2_std[:, 1])
     assert np.all(np.mean(np.abs(e) <= 2.0, axis=0) >= 0.95), np.mean(np.abs(e) <= 2.0, axis=0)
     assert abs(e[-1, 7]) <= 2.0                                   # scale_2[y] at the end
     tracked = h.scale_2[-1, 1] / h.scale_2[0, 1] - 1.0           # the drift was followed, not smoothed away
@@ -149,7 +143,7 @@ def test_run_tracks_rotation_step_within_2sigma():
     assert len(h.reseeds) == 1
     ev = h.reseeds[0]
     assert ev.accepted and 300.0 <= ev.t_detected <= 300.5 and abs(ev.t_onset - 300.0) <= 0.5
-    e = normalised_errors(h)
+    e = h.normalised_error
     assert np.all(np.mean(np.abs(e) <= 2.0, axis=0) >= 0.95), np.mean(np.abs(e) <= 2.0, axis=0)
     after = h.t > ev.t_detected + 1.0
     assert np.mean(np.abs(e[after, :3]) <= 2.0) >= 0.95
@@ -227,7 +221,7 @@ def test_update_block_gates_flex_spikes():
     assert h.n_rejected >= 60                           # every spike sample (and neighbours) was gated
     assert h.n_rejected <= 60 * 3 + 0.01 * h.n_samples
     assert not any(ev.accepted for ev in h.reseeds)
-    assert np.all(np.abs(normalised_errors(h)[-1]) <= 3.0)
+    assert np.all(np.abs(h.normalised_error[-1]) <= 3.0)
     assert np.nanmean(h.nis) < 1.2
 
 
@@ -250,7 +244,7 @@ def test_run_false_alarm_restores_filter(mode):
     # after restore and replay, the filter is where the undisturbed one is
     assert rotation_error(tr.R_1_2, ref.R_1_2) <= 0.5 * np.linalg.norm(np.sqrt(np.diag(ref.error_covariance))[:3])
     np.testing.assert_allclose(np.diag(tr.error_covariance), np.diag(ref.error_covariance), rtol=0.1)
-    assert np.all(np.abs(normalised_errors(h)[-1]) <= 3.0)
+    assert np.all(np.abs(h.normalised_error[-1]) <= 3.0)
 
 
 @pytest.mark.parametrize("config", ["all_axes_parallel", "one_axis_pair_parallel"])
@@ -283,7 +277,7 @@ def test_GyroPairTracker_degenerate_configuration_holds_prior(config):
         assert s_end[k].mean() == pytest.approx(s_start[k].mean(), abs=1e-12)
         # the ratio is observable and learnt from the data (well below the prior)
         assert np.sqrt(ratio_dir @ P1 @ ratio_dir) < 0.05 * 0.01
-    within = np.abs(normalised_errors(h)) <= 2.0     # 300 s of autocorrelated errors: pooled 95 %, each 90 %
+    within = np.abs(h.normalised_error) <= 2.0     # 300 s of autocorrelated errors: pooled 95 %, each 90 %
     assert within.mean() >= 0.95 and np.all(within.mean(axis=0) >= 0.90), within.mean(axis=0)
     assert h.nees_dof == 12 - len(tr.configuration.groups)
 
@@ -298,7 +292,7 @@ def test_GyroPairTracker_fixed_gauge_holds_scale_1_x():
     np.testing.assert_allclose(h.truth_scale_1[:, 0], 1.0, atol=1e-12)   # the truth in the same gauge
     assert np.all(h.scale_1_std[:, 0] < 1e-9)
     with np.errstate(invalid="ignore", divide="ignore"):
-        e = np.delete(normalised_errors(h), 3, axis=1)                    # scale_1[x] has no error to normalise
+        e = np.delete(h.normalised_error, 3, axis=1)                    # scale_1[x] has no error to normalise
     assert np.mean(np.abs(e) <= 2.0) >= 0.95          # 110 autocorrelated rows: pooled over the components
 
 
@@ -316,7 +310,7 @@ def test_run_gap_grows_covariance_by_the_random_walk():
     grown = np.sqrt(before**2 + drift.bias**2 * (h.t[i] - h.t[i - 1]))
     assert np.all(after > before)
     assert np.all(after < grown)                          # the first block after the gap pulls it back in
-    assert np.mean(np.abs(normalised_errors(h)) <= 2.0) >= 0.95
+    assert np.mean(np.abs(h.normalised_error) <= 2.0) >= 0.95
 
 
 def test_run_fast_mode_folds_one_sample_blocks():
@@ -446,7 +440,7 @@ def test_run_tracks_drift_with_recorded_hand_motion():
     n0 = int(20 * fs)
     tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0])
     h = tr.run(t[n0:], w1[n0:], w2[n0:], block_size=int(fs), truth=truth[n0:])
-    assert np.all(np.mean(np.abs(normalised_errors(h)) <= 2.0, axis=0) >= 0.95)
+    assert np.all(np.mean(np.abs(h.normalised_error) <= 2.0, axis=0) >= 0.95)
     assert not any(ev.accepted for ev in h.reseeds)
 
 
