@@ -42,6 +42,7 @@ from .calibrate import calibrate_pair, solve
 from .errors import ConfigurationError, FormatError, GyroCalError, InputError
 from .model import PairCalibration
 from .moments import Moments
+from .preprocess import check_timestamps
 
 COLUMNS = ("t", "w1x", "w1y", "w1z", "w2x", "w2y", "w2z")
 GYRO_FILES = ("gyro1", "gyro2")
@@ -104,33 +105,38 @@ def _check_columns(names: Sequence[str], where: Path):
         raise FormatError(f"{where}: expected Parquet columns {list(COLUMNS)}, missing {missing} (got {list(names)})")
 
 
-def _read_parquet_device(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _open_parts(path: Path) -> list:
+    """``(part, pyarrow.parquet.ParquetFile)`` of a Parquet file or dataset folder, each checked for :data:`COLUMNS`."""
     import pyarrow.parquet as pq
 
     parts = _parquet_parts(path)
     if not parts:
         raise FormatError(f"{path}: expected a .parquet file or a folder of .parquet parts, found none")
-    tables = []
+    opened = []
     for part in parts:
         try:
             pf = pq.ParquetFile(part)
-            _check_columns(pf.schema_arrow.names, part)
+        except Exception as exc:  # noqa: BLE001 - pyarrow raises its own types for damaged files
+            raise FormatError(f"{part}: not a readable Parquet file: {exc}") from exc
+        _check_columns(pf.schema_arrow.names, part)
+        opened.append((part, pf))
+    return opened
+
+
+def _read_parquet_device(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Gyro 1 and gyro 2 rates (N, 3) of a Parquet device, after checking that its ``t`` increases."""
+    tables = []
+    for part, pf in _open_parts(path):
+        try:
             tables.append(pf.read(columns=list(COLUMNS)))
-        except GyroCalError:
-            raise
-        except Exception as exc:  # pyarrow raises its own types for damaged files
+        except Exception as exc:  # noqa: BLE001 - pyarrow raises its own types for damaged files
             raise FormatError(f"{part}: not a readable Parquet file: {exc}") from exc
     cols = {c: np.concatenate([np.asarray(t.column(c).to_numpy(zero_copy_only=False), dtype=np.float64)
                                for t in tables]) for c in COLUMNS}
-    t = cols["t"]
-    steps = np.diff(t)
-    bad = np.flatnonzero(~(steps > 0))
-    if bad.size:
-        raise InputError(f"{path}: t: expected strictly increasing timestamps, got a step of {steps[bad[0]]:.6g} s "
-                         f"at sample {bad[0] + 1}")
+    check_timestamps(f"{path}: t", cols["t"])
     w1 = np.column_stack([cols["w1x"], cols["w1y"], cols["w1z"]])
     w2 = np.column_stack([cols["w2x"], cols["w2y"], cols["w2z"]])
-    return t, w1, w2
+    return w1, w2
 
 
 def calibrate_device(path, **options) -> PairCalibration:
@@ -164,7 +170,7 @@ def calibrate_device(path, **options) -> PairCalibration:
     if not _is_device(path):
         raise FormatError(f"{path}: expected a .parquet file, a <name>.parquet folder of .parquet parts or a folder "
                           f"with {GYRO_FILES[0]}.* and {GYRO_FILES[1]}.*")
-    _, w1, w2 = _read_parquet_device(path)
+    w1, w2 = _read_parquet_device(path)
     finite = np.isfinite(w1).all(axis=1) & np.isfinite(w2).all(axis=1)
     return calibrate_pair(np.where(finite[:, None], w1, 0.0), np.where(finite[:, None], w2, 0.0),
                           mask=finite, **options)
@@ -315,23 +321,10 @@ class _Failed:
 
 def row_groups(path) -> list[tuple[str, int]]:
     """The ``(file, row_group)`` chunks of a Parquet log (file or dataset folder), in order."""
-    import pyarrow.parquet as pq
-
     path = Path(path).expanduser()
     if not path.exists():
         raise FormatError(f"{path}: no such Parquet file or folder")
-    parts = _parquet_parts(path)
-    if not parts:
-        raise FormatError(f"{path}: expected a .parquet file or a folder of .parquet parts, found none")
-    out = []
-    for part in parts:
-        try:
-            pf = pq.ParquetFile(part)
-        except Exception as exc:  # noqa: BLE001
-            raise FormatError(f"{part}: not a readable Parquet file: {exc}") from exc
-        _check_columns(pf.schema_arrow.names, part)
-        out.extend((str(part), i) for i in range(pf.num_row_groups))
-    return out
+    return [(str(part), i) for part, pf in _open_parts(path) for i in range(pf.num_row_groups)]
 
 
 def chunk_moments(file: str, row_group: int) -> Moments:

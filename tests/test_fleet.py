@@ -182,3 +182,16 @@ def test_gyrocal_cli_has_fleet_subcommand(fleet_dir, tmp_path):
     assert main(["fleet", str(fleet_dir[0] / "dev_b.parquet"), "-o", str(out), "--workers", "0",
                  "--method", "direct"]) == 0
     assert pd.read_parquet(out)["ok"].tolist() == [True]
+
+
+def test_run_fleet_parquet_device_with_backward_time_step_is_an_input_error_row(tmp_path):
+    sim = simulate_pair(rng=15, n=500)
+    _write_parquet(tmp_path / "dev.parquet", sim)
+    table = pq.read_table(tmp_path / "dev.parquet")
+    t = table.column("t").to_numpy().copy()
+    t[300] = t[298]
+    pq.write_table(table.set_column(0, "t", pa.array(t)), tmp_path / "dev.parquet")
+    df = run_fleet([tmp_path / "dev.parquet"])
+    assert df.loc[0, "error_type"] == "InputError"
+    assert "dev.parquet: t: expected strictly increasing timestamps, got a step of -0.01 s at sample 300" \
+        in df.loc[0, "error"]
