@@ -221,9 +221,8 @@ def device_row(path, options: dict | None = None) -> dict:
         return _row(path.stem, str(path), None, exc, time.perf_counter() - t0)
 
 
-def _check_options(func, options: dict, reserved=()):
+def _check_options(func, options: dict):
     allowed = set(inspect.signature(func).parameters) - {"omega_1", "omega_2", "moments", "t_1", "t_2", "mask"}
-    allowed -= set(reserved)
     unknown = sorted(set(options) - allowed)
     if unknown:
         raise ConfigurationError(f"unknown option(s) {unknown} for {func.__name__}(); expected some of "
@@ -318,6 +317,10 @@ class _Failed:
     error_type: str
     message: str
 
+    def error(self) -> GyroCalError:
+        """The error to raise for the device: a FormatError stays one, anything else becomes an InputError."""
+        return (FormatError if self.error_type == "FormatError" else InputError)(self.message)
+
 
 def row_groups(path) -> list[tuple[str, int]]:
     """The ``(file, row_group)`` chunks of a Parquet log (file or dataset folder), in order."""
@@ -398,7 +401,7 @@ def log_moments(path, *, client=None, split_every: int = 8) -> Moments:
     tasks = row_groups(path)
     (m,) = _compute([_reduction(tasks, split_every)], client)
     if isinstance(m, _Failed):
-        raise (FormatError if m.error_type == "FormatError" else InputError)(m.message)
+        raise m.error()
     return m
 
 
@@ -424,7 +427,7 @@ def _run_chunked(paths, client, split_every, options):
         t1 = time.perf_counter()
         try:
             if isinstance(m, _Failed):
-                raise (FormatError if m.error_type == "FormatError" else InputError)(m.message)
+                raise m.error()
             cal = solve(m, **options)
             rows[i] = _row(p.stem, str(p), cal, None, per_device + time.perf_counter() - t1)
         except Exception as exc:  # noqa: BLE001 - recorded per device
