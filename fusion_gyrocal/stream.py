@@ -189,7 +189,7 @@ class StreamingCalibrator:
                 else:
                     self._bins.append([b, m])
             if n:
-                oldest = int(np.floor(times[-1] / (self.window_s / self.n_bins))) - self.n_bins
+                oldest = int(idx[-1]) - self.n_bins  # bin of the last sample, minus the window
                 while self._bins and self._bins[0][0] < oldest:
                     self._bins.popleft()
         if n and times is not None:
