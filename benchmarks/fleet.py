@@ -88,17 +88,17 @@ def bench_log(root: Path, n: int, row_group_size: int, repeat: int) -> None:
     n_groups = pq.ParquetFile(path).num_row_groups
     print(f"\n2. huge log: {n} samples, {n_groups} row groups, {size_mb:.0f} MB on disk; best of {repeat}")
 
-    def in_process():
+    def read_rates():
         table = pq.read_table(path, columns=list(COLUMNS[1:]))
-        x = np.column_stack([table.column(c).to_numpy() for c in COLUMNS[1:]])
+        return np.column_stack([table.column(c).to_numpy() for c in COLUMNS[1:]])
+
+    def in_process():
+        x = read_rates()
         return Moments.from_samples(x[:, :3], x[:, 3:])
 
-    def in_memory_pass_time():
-        table = pq.read_table(path, columns=list(COLUMNS[1:]))
-        x = np.column_stack([table.column(c).to_numpy() for c in COLUMNS[1:]])
-        return timed(lambda: Moments.from_samples(x[:, :3], x[:, 3:]), repeat=3)[0]
-
-    dt_mem = in_memory_pass_time()
+    x = read_rates()
+    dt_mem = timed(lambda: Moments.from_samples(x[:, :3], x[:, 3:]), repeat=3)[0]
+    del x
     dt_ref, ref = timed(in_process, repeat=repeat)
     print(f"   {'engine':46s} {'seconds':>8s} {'Msamples/s':>11s} {'max rel diff':>13s}")
     print(f"   {'in-process pass over arrays already in memory':46s} {dt_mem:8.2f} {n / dt_mem / 1e6:11.2f} {'-':>13s}")
