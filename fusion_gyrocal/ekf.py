@@ -1029,7 +1029,7 @@ class GyroPairTracker:
         self._cusum, self._cusum_zero_t, self._next_try_t = 0.0, self._t, -np.inf
 
     def _restore_and_replay(self, t_det: float) -> None:
-        """False alarm: return to the state at the alarm and re-process the buffered samples after it."""
+        """False alarm: return to the state at the alarm and re-process the buffered samples after its time."""
         R0, s10, s20, b0, P0, t0, rej0 = self._snapshot
         t_now = self._t
         self._R, self._s1, self._s2, self._b = R0, s10, s20, b0
@@ -1038,8 +1038,8 @@ class GyroPairTracker:
         self._t = t0
         self._update_projection()
         self._G_cache = None
-        data = self._buffer.since(max(t_det, t0) + 1e-12)
-        data = data[data[:, 0] > t0]
+        data = self._buffer.since(t0)
+        data = data[data[:, 0] > t0]             # every buffered sample the restored state has not seen
         self._alarm, self._snapshot = None, None
         self._replaying = True
         self.n_rejected = rej0
