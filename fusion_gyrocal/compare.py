@@ -441,6 +441,8 @@ def _monte_carlo(specs, runs: int, estimators, seed: int, workers: int | None, p
     """``runs`` realisations of every spec. ``paired``: run ``i`` of every spec uses the seed
     ``(seed, i)`` (common random numbers: the same truth and motion at every SNR point); else
     spec ``s`` uses ``(seed, s + 1, i)`` (independent realisations)."""
+    if runs < 1:
+        raise InputError(f"runs: expected >= 1, got {runs}")
     tasks = [(s, i, (int(seed), i) if paired else (int(seed), s + 1, i)) for s in range(len(specs))
              for i in range(runs)]
     out = [[None] * runs for _ in specs]
@@ -748,8 +750,6 @@ def compare(source="nominal", *, estimators=None, runs: int = 1, seed: int = 0, 
     """
     names = _estimator_list(estimators)
     if isinstance(source, str):
-        if int(runs) < 1:
-            raise InputError(f"runs: expected >= 1, got {runs}")
         description = describe_scenario(source, snr_factor=snr_factor, snr_via=snr_via)  # checks the name first
         records = _monte_carlo([(source, snr_factor, snr_via)], int(runs), names, seed, workers, progress)[0]
         return Comparison(source, description, names, tuple(records))

@@ -108,6 +108,13 @@ def test_compare_unavailable_module_row_says_not_available(monkeypatch):
     assert "ekf: not available" in c.to_markdown()
 
 
+@pytest.mark.parametrize("run", [lambda: compare("nominal", runs=0, progress=False),
+                                 lambda: snr_sweep("nominal", runs=0, progress=False)])
+def test_compare_and_sweep_reject_zero_runs(run):
+    with pytest.raises(InputError, match="runs: expected >= 1, got 0"):
+        run()
+
+
 def test_compare_unknown_estimator_raises_input_error():
     with pytest.raises(InputError, match="expected names from direct"):
         compare("nominal", estimators=["kalibr"], progress=False)
