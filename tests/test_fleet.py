@@ -93,7 +93,7 @@ def test_run_fleet_writes_parquet_results_table(fleet_dir, tmp_path):
 def test_run_fleet_csv_device_estimates_time_offset(fleet_dir):
     root, truth = fleet_dir
     df = run_fleet([root / "dev_c"])
-    assert df.loc[0, "ok"] and abs(df.loc[0, "time_offset_s"]) < 5 * df.loc[0, "time_offset_std_s"] + 1e-4
+    assert df.loc[0, "ok"] and abs(df.loc[0, "time_offset_s"]) < 5 * df.loc[0, "time_offset_std_s"]  # truth: 0
 
 
 def test_run_fleet_missing_device_is_a_row_not_a_crash(fleet_dir):
