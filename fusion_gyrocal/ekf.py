@@ -766,8 +766,8 @@ class GyroPairTracker:
 
     def _predict_to(self, t: float) -> None:
         dt = t - self._t
-        if dt < 0:
-            raise InputError(f"t: expected non-decreasing times, got {t!r} after {self._t!r} "
+        if not (np.isfinite(t) and dt >= 0):
+            raise InputError(f"t: expected finite, non-decreasing times, got {t!r} after {self._t!r} "
                              f"(a step of {dt:.6g} s)")
         if dt > 0:
             self.kf.Q = self._Q(dt)

@@ -364,6 +364,8 @@ def test_update_rejects_time_going_backwards():
     tr = GyroPairTracker.from_samples(t[:1000], w1[:1000], w2[:1000])
     with pytest.raises(InputError, match="non-decreasing"):
         tr.update(t[500], w1[1000], w2[1000])
+    with pytest.raises(InputError, match="finite"):
+        tr.update(np.nan, w1[1000], w2[1000])
     bad_t = t[1000:1100].copy()
     bad_t[40] = bad_t[38]
     with pytest.raises(InputError, match="strictly increasing.*sample 40"):
