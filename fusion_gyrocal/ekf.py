@@ -258,7 +258,7 @@ class TrackHistory:
     gauge : str
         How the unobservable scale directions are held.
     mode : str
-        ``"sample"``, ``"fast"`` or ``"mixed"``.
+        ``"sample"``, ``"fast"``, ``"mixed"`` (both kinds of rows) or ``"none"`` (no update yet).
     """
 
     t: np.ndarray
@@ -799,9 +799,9 @@ class GyroPairTracker:
 
     def _cusum_step(self, t, d2):
         """Vectorised CUSUM over per-sample ``d2`` at times ``t``; returns (alarm index or None)."""
-        x = np.minimum(d2, self.gate) / 3.0 - 1.0 - self.cusum_drift
         if self._alarm is not None or self._replaying:   # replays re-process a span judged transient
             return None
+        x = np.minimum(d2, self.gate) / 3.0 - 1.0 - self.cusum_drift
         S = np.cumsum(x)
         g0 = self._cusum
         level = g0 + S
