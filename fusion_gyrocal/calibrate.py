@@ -14,21 +14,12 @@ import numpy as np
 from .direct import Gauge, decompose, solve_A
 from .errors import ConfigurationError, InputError, NotRigidError
 from .model import BIAS, ROT, PairCalibration, mark_undetermined
-from .moments import Moments
+from .moments import Moments, noise_pair
 from .observability import (A_of, check_excitation, check_samples, classify, dA_dp, fisher_information,
                             nearest_rotation, per_axis_snr, residual_weight, signal_scatter)
 from .refine import residual_scatter, refine_ml
 
 METHODS = ("ml", "direct")
-
-
-def _noise_pair(noise_std) -> tuple[float, float] | None:
-    if noise_std is None:
-        return None
-    arr = np.broadcast_to(np.asarray(noise_std, dtype=float), (2,))
-    if not np.all(np.isfinite(arr)) or np.any(arr <= 0):
-        raise InputError(f"noise_std: expected positive rad/s per sample (one value or one per gyro), got {noise_std}")
-    return float(arr[0]), float(arr[1])
 
 
 def difference_noise_std(omega, max_samples: int = 200000) -> float:
@@ -132,7 +123,7 @@ def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_p
     gauge = Gauge.parse(gauge)
     T1, T2 = _skew_compensation(intrinsics_1, "intrinsics_1"), _skew_compensation(intrinsics_2, "intrinsics_2")
     moments = _transform(moments, T1, T2) if (intrinsics_1 is not None or intrinsics_2 is not None) else moments
-    noise = _noise_pair(noise_std)
+    noise = None if noise_std is None else noise_pair(noise_std)
     check_samples(moments)
     A_ls, _ = solve_A(moments)
     unexplained = float(np.trace(residual_scatter(A_ls, moments.scatter)) / np.trace(moments.S11))

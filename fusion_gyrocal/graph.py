@@ -62,11 +62,11 @@ from functools import partial
 import gtsam
 import numpy as np
 
-from .calibrate import _noise_pair, solve
+from .calibrate import solve
 from .direct import Gauge
 from .errors import ConfigurationError, InputError
 from .model import BIAS, ROT, PairCalibration, mark_undetermined
-from .moments import Moments, as_rates
+from .moments import Moments, as_rates, noise_pair
 from .observability import A_of, classify, dA_dp, per_axis_snr, skew
 
 __all__ = [
@@ -593,7 +593,7 @@ class GyroPairGraph:
         if not isinstance(seed, PairCalibration):
             raise InputError(f"seed: expected a PairCalibration, got {type(seed).__name__}")
         self.seed = seed
-        self.noise_std = np.array(_noise_pair(seed.noise_std if noise_std is None else noise_std))
+        self.noise_std = np.array(noise_pair(seed.noise_std if noise_std is None else noise_std))
         self._noise_source = seed.noise_source if noise_std is None else "user"
         for name, v in (("bias_walk_std", bias_walk_std), ("bias_1_walk_std", bias_1_walk_std)):
             if v is not None and not v > 0:

@@ -63,6 +63,14 @@ def as_rates(name: str, omega, *, length: int | None = None) -> np.ndarray:
     return arr
 
 
+def noise_pair(noise_std) -> tuple[float, float]:
+    """``(sigma_1, sigma_2)`` from one value or one per gyro (rad/s per sample), checked positive and finite."""
+    arr = np.broadcast_to(np.asarray(noise_std, dtype=float), (2,))
+    if not np.all(np.isfinite(arr)) or np.any(arr <= 0):
+        raise InputError(f"noise_std: expected positive rad/s per sample (one value or one per gyro), got {noise_std}")
+    return float(arr[0]), float(arr[1])
+
+
 def _default_threads() -> int:
     return max(1, min(2, os.cpu_count() or 1))
 

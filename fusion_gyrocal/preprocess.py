@@ -33,7 +33,7 @@ from scipy.linalg import solve_banded
 from scipy.optimize import minimize_scalar
 
 from .errors import InputError, TimeAlignmentError
-from .moments import Moments, as_rates
+from .moments import Moments, as_rates, noise_pair
 
 __all__ = [
     "UNITS", "check_timestamps", "to_rad_per_s", "saturation_mask", "valid_mask", "resample", "TimeOffset",
@@ -826,13 +826,6 @@ def align_streams(t_1, omega_1, t_2, omega_2, *, time_offset_s: float | None = N
 
 
 # ---------------------------------------------------------------------------------------------- selection
-def _noise_pair(noise_std) -> tuple[float, float]:
-    arr = np.broadcast_to(np.asarray(noise_std, dtype=float), (2,))
-    if not np.all(np.isfinite(arr)) or np.any(arr <= 0):
-        raise InputError(f"noise_std: expected positive rad/s per sample (one value or one per gyro), got {noise_std}")
-    return float(arr[0]), float(arr[1])
-
-
 def informative_mask(omega_1, omega_2, valid, noise_std, *, min_rate: float | None = None,
                      max_rate: float | None = None) -> np.ndarray:
     """Samples whose rate is well above the noise and below a flex / saturation limit.
@@ -862,7 +855,7 @@ def informative_mask(omega_1, omega_2, valid, noise_std, *, min_rate: float | No
     """
     w1 = as_rates("omega_1", omega_1)
     w2 = as_rates("omega_2", omega_2, length=w1.shape[0])
-    s1, s2 = _noise_pair(noise_std)
+    s1, s2 = noise_pair(noise_std)
     lo = 10.0 * max(s1, s2) if min_rate is None else float(min_rate)
     hi = np.inf if max_rate is None else float(max_rate)
     if not (lo >= 0 and hi > lo):
