@@ -1019,7 +1019,7 @@ class GyroPairTracker:
             self._seed(cal, span_s=float(data[-1, 0] - data[0, 0]))
             reason = "step change confirmed by the batch solve over the window after the onset; re-seeded"
         else:
-            self._restore_and_replay(t_det)
+            self._restore_and_replay()
             reason = "batch solve agrees with the filter before the alarm (transient, e.g. flex); restored and replayed"
         self._events.append(ReseedEvent(t_det, onset, self._t, bool(accepted), float(stat), thr, reason))
         self._close_alarm()
@@ -1028,7 +1028,7 @@ class GyroPairTracker:
         self._alarm, self._snapshot = None, None
         self._cusum, self._cusum_zero_t, self._next_try_t = 0.0, self._t, -np.inf
 
-    def _restore_and_replay(self, t_det: float) -> None:
+    def _restore_and_replay(self) -> None:
         """False alarm: return to the state at the alarm and re-process the buffered samples after its time."""
         R0, s10, s20, b0, P0, t0, rej0 = self._snapshot
         t_now = self._t
