@@ -22,6 +22,18 @@ from .refine import residual_scatter, refine_ml
 METHODS = ("ml", "direct")
 
 
+def check_keyword_options(func, options: dict, *, reserved=()) -> None:
+    """Raise :class:`ConfigurationError` for keyword options that ``func`` does not take (or that the
+    caller sets itself, ``reserved``), naming the ones it accepts."""
+    import inspect
+
+    allowed = set(inspect.signature(func).parameters) - set(reserved)
+    unknown = sorted(set(options) - allowed)
+    if unknown:
+        raise ConfigurationError(f"unknown option(s) {unknown} for {func.__name__}(); expected some of "
+                                 f"{sorted(allowed)}")
+
+
 def difference_noise_std(omega, max_samples: int = 200000) -> float:
     """White-noise std per sample of one stream from its third differences (robust, MAD).
 

@@ -119,9 +119,7 @@ def _pipeline(args, s1, s2):
     if args.bias_window:
         window = max(2, int(round(args.bias_window * (args.rate or s1.rate_hz))))
     noise = None if not args.noise_std else (args.noise_std if len(args.noise_std) > 1 else args.noise_std[0])
-    w1 = np.where(s1.valid[:, None], s1.omega, np.nan) if hasattr(s1, "valid") else s1.omega
-    w2 = np.where(s2.valid[:, None], s2.omega, np.nan) if hasattr(s2, "valid") else s2.omega
-    return run_pipeline(w1, w2, t_1=s1.t, t_2=s2.t, time_offset_s=args.offset, max_offset_s=args.max_offset,
+    return run_pipeline(s1.masked_omega, s2.masked_omega, t_1=s1.t, t_2=s2.t, time_offset_s=args.offset, max_offset_s=args.max_offset,
                         rate_hz=args.rate, method=args.method, noise_std=noise, gauge=args.gauge,
                         scale_prior_std=args.scale_prior, bias_window=window,
                         bias_walk_std=None if not args.bias_walk else np.asarray(args.bias_walk, float),

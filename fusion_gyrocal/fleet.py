@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import functools
-import inspect
 import math
 import sys
 import time
@@ -38,8 +37,10 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from .calibrate import calibrate_pair, solve
-from .errors import ConfigurationError, FormatError, GyroCalError, InputError
+from .calibrate import calibrate_pair, check_keyword_options, solve
+
+_SAMPLE_ARGS = ("omega_1", "omega_2", "moments", "t_1", "t_2", "mask")
+from .errors import FormatError, GyroCalError, InputError
 from .model import PairCalibration
 from .moments import Moments
 from .preprocess import check_timestamps
@@ -164,9 +165,7 @@ def calibrate_device(path, **options) -> PairCalibration:
         from .io import read_imu
 
         s1, s2 = read_imu(gyros[0]), read_imu(gyros[1])
-        w1 = np.where(s1.valid[:, None], s1.omega, np.nan)
-        w2 = np.where(s2.valid[:, None], s2.omega, np.nan)
-        return calibrate_pair(w1, w2, t_1=s1.t, t_2=s2.t, **options)
+        return calibrate_pair(s1.masked_omega, s2.masked_omega, t_1=s1.t, t_2=s2.t, **options)
     if not _is_device(path):
         raise FormatError(f"{path}: expected a .parquet file, a <name>.parquet folder of .parquet parts or a folder "
                           f"with {GYRO_FILES[0]}.* and {GYRO_FILES[1]}.*")
@@ -221,14 +220,6 @@ def device_row(path, options: dict | None = None) -> dict:
         return _row(path.stem, str(path), None, exc, time.perf_counter() - t0)
 
 
-def _check_options(func, options: dict):
-    allowed = set(inspect.signature(func).parameters) - {"omega_1", "omega_2", "moments", "t_1", "t_2", "mask"}
-    unknown = sorted(set(options) - allowed)
-    if unknown:
-        raise ConfigurationError(f"unknown option(s) {unknown} for {func.__name__}(); expected some of "
-                                 f"{sorted(allowed)}")
-
-
 def _table(rows):
     import pandas as pd
 
@@ -277,10 +268,10 @@ def run_fleet(devices, *, client=None, output=None, chunked: bool = False, split
     """
     paths = find_devices([devices] if isinstance(devices, (str, Path)) else devices)
     if chunked:
-        _check_options(solve, options)
+        check_keyword_options(solve, options, reserved=_SAMPLE_ARGS)
         rows = _run_chunked(paths, client, split_every, options)
     else:
-        _check_options(calibrate_pair, options)
+        check_keyword_options(calibrate_pair, options, reserved=_SAMPLE_ARGS)
         task = functools.partial(device_row, options=options)
         if client is not None:
             futures = client.map(task, [str(p) for p in paths], pure=False)
@@ -407,7 +398,7 @@ def log_moments(path, *, client=None, split_every: int = 8) -> Moments:
 
 def calibrate_log(path, *, client=None, split_every: int = 8, **solve_options) -> PairCalibration:
     """Calibrate a pair from a huge Parquet log: :func:`log_moments` across workers, then :func:`fusion_gyrocal.solve`."""
-    _check_options(solve, solve_options)
+    check_keyword_options(solve, solve_options, reserved=_SAMPLE_ARGS)
     return solve(log_moments(path, client=client, split_every=split_every), **solve_options)
 
 

@@ -18,13 +18,12 @@ update); its cost does not depend on how much data has been seen.
 
 from __future__ import annotations
 
-import inspect
 import math
 from collections import deque
 
 import numpy as np
 
-from .calibrate import solve
+from .calibrate import check_keyword_options, solve
 from .errors import ConfigurationError, InputError
 from .model import PairCalibration
 from .moments import Moments, as_rates
@@ -79,11 +78,7 @@ class StreamingCalibrator:
             raise ConfigurationError(f"rate_hz: expected a positive sample rate in Hz, got {rate_hz}")
         if int(n_bins) < 2:
             raise ConfigurationError(f"n_bins: expected at least 2 bins, got {n_bins}")
-        allowed = set(inspect.signature(solve).parameters) - set(_RESERVED)
-        unknown = sorted(set(solve_options) - allowed)
-        if unknown:
-            raise ConfigurationError(f"unknown option(s) {unknown}; expected keyword arguments of solve(): "
-                                     f"{sorted(allowed)}")
+        check_keyword_options(solve, solve_options, reserved=_RESERVED)
         self._solve_kwargs = dict(solve_options, method=method, noise_std=noise_std, gauge=gauge,
                                   scale_prior_std=scale_prior_std)
         self.forgetting = None if forgetting is None else float(forgetting)

@@ -131,6 +131,11 @@ class ImuStream:
         return int(self.t.shape[0])
 
     @property
+    def masked_omega(self) -> np.ndarray:
+        """``omega`` with the samples that are not ``valid`` (saturated, non-finite) set to NaN."""
+        return np.where(self.valid[:, None], self.omega, np.nan)
+
+    @property
     def duration_s(self) -> float:
         """``t[-1] - t[0]`` in seconds."""
         return float(self.t[-1] - self.t[0])
