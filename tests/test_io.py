@@ -651,3 +651,16 @@ def test_read_bag_feeds_calibrate_pair_with_time_offset(tmp_path):
     y = yaml.safe_load(write_kalibr_imu_yaml(cal, tmp_path / "imu.yaml").read_text())
     assert y["imu1"]["time_offset"] == cal.time_offset_s
     np.testing.assert_array_equal(read_json(write_json(cal, tmp_path / "cal.json")).R_1_2, cal.R_1_2)
+
+
+def test_read_npz_one_valid_mask_applies_to_every_imu(tmp_path):
+    t = np.arange(50) / 100.0
+    w = np.random.default_rng(0).standard_normal((50, 3, 3))
+    valid = np.ones(50, bool)
+    valid[7] = False
+    np.savez(tmp_path / "multi.npz", t=t, omega=w, valid=valid)
+    s = read_npz(tmp_path / "multi.npz", 2)
+    assert not s.valid[7] and s.valid.sum() == 49
+    np.savez(tmp_path / "bad.npz", t=t, omega=w, valid=np.ones((50, 2), bool))
+    with pytest.raises(FormatError, match=r"expected 'valid' of shape \(50,\) or \(50, 3\)"):
+        read_npz(tmp_path / "bad.npz", 0)

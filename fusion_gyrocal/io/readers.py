@@ -561,7 +561,7 @@ def read_npz(path, imu: int | None = None, *, unit: str = "rad/s", name: str | N
     Two layouts are recognised:
 
     * generic: ``t`` (N,) in seconds and ``omega`` (or ``gyro``) of shape (N, 3) or (N, M, 3) in
-      ``unit``; an optional boolean ``valid`` (N,) or (N, M) is honoured (as written by
+      ``unit``; an optional boolean ``valid`` (N,) (for every IMU) or (N, M) is honoured (as written by
       :func:`fusion_gyrocal.io.write_npz`);
     * the MIMU4444 array layout (``../shared/data/mimu_8imu_array``): ``t_s`` (N,) in seconds,
       ``gyro_counts`` int16 (N, M, 3) and ``gyro_lsb_per_dps``. Samples with any axis at the int16
@@ -619,6 +619,11 @@ def read_npz(path, imu: int | None = None, *, unit: str = "rad/s", name: str | N
         raise FormatError(f"{path.name}: expected gyro data of shape (N, 3) or (N, M, 3), got {w.shape}")
     n_imu = w.shape[1]
     multi = n_imu > 1
+    if valid is not None:  # one mask per sample applies to every IMU; (N, M) masks are per IMU
+        if valid.shape not in ((w.shape[0], 1), (w.shape[0], n_imu)):
+            raise FormatError(f"{path.name}: expected 'valid' of shape ({w.shape[0]},) or ({w.shape[0]}, {n_imu}), "
+                              f"got {valid.shape}")
+        valid = np.broadcast_to(valid, (w.shape[0], n_imu))
 
     def stream(k: int) -> ImuStream:
         nm = name or (f"imu{k}" if multi else path.stem)
