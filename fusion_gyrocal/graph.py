@@ -964,7 +964,8 @@ class GyroPairGraph:
             R_1_2=R, scale_1=s1, scale_2=s2, bias=bias, configuration=self.configuration.name,
             scale_observable=scale_observable, covariance=C, gauge=gauge,
             snr=per_axis_snr(self._moments, self.noise_std), n_samples=int(round(n)), noise_std=self.noise_std,
-            noise_source=self._noise_source, residual_rms=float(np.sqrt(ssr / (3.0 * n))), method=method,
+            noise_source=self._noise_source, residual_rms=float(np.sqrt(ssr / (3.0 * max(n - n_b, 1.0)))),
+            method=method,
             iterations=int(iterations), time_offset_s=self.seed.time_offset_s,
             time_offset_std_s=self.seed.time_offset_std_s, bias_segments=n_b, notes=tuple(notes))
 
