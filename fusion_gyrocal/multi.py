@@ -47,7 +47,7 @@ from .errors import ConfigurationError, GyroCalError, InputError
 from .model import PairCalibration, mark_undetermined
 from .moments import Moments, as_rates, window_moments
 from .observability import A_of, classify, dA_dp, per_axis_snr, skew
-from .refine import residual_scatter
+from .refine import fisher_scoring, residual_scatter
 
 GAUGES = ("unit_prior", "fixed")
 
@@ -630,28 +630,16 @@ def _noise_vector(noise_std, n):
 
 
 def _refine(R, s, moments_scatter, dof, noise, constraints, regauge, max_iter, tol=1e-11):
-    """Fisher scoring in the gauge's tangent space with a backtracking line search (as refine.refine_ml)."""
-    cost = joint_cost(R, s, moments_scatter, noise)
-    converged, it = False, 0
-    for it in range(1, max_iter + 1):
-        Omega = _signal_scatter(R, s, moments_scatter, noise, dof)
-        H = 2.0 * joint_information(R, s, noise, Omega)
-        g = joint_gradient(R, s, moments_scatter, noise)
-        Z = null_space(constraints(s))
-        step = -Z @ np.linalg.lstsq(Z.T @ H @ Z, Z.T @ g, rcond=1e-12)[0]
-        t = 1.0
-        while True:
-            Rn, sn = _retract(R, s, t * step)
-            sn = regauge(sn)
-            new = joint_cost(Rn, sn, moments_scatter, noise)
-            if new <= cost + 1e-12 * abs(cost) or t < 1e-4:
-                break
-            t *= 0.5
-        R, s = Rn, sn
-        decrease, cost = cost - new, new
-        if np.max(np.abs(t * step)) < tol or (0 <= decrease <= 1e-14 * max(abs(cost), 1.0)):
-            converged = True
-            break
+    """Joint maximum likelihood by :func:`~fusion_gyrocal.refine.fisher_scoring` in the gauge's tangent space."""
+    def step(x, delta):
+        Rn, sn = _retract(*x, delta)
+        return Rn, regauge(sn)
+
+    (R, s), it, converged = fisher_scoring(
+        (R, s), cost=lambda x: joint_cost(*x, moments_scatter, noise),
+        gradient=lambda x: joint_gradient(*x, moments_scatter, noise),
+        information=lambda x: 2.0 * joint_information(*x, noise, _signal_scatter(*x, moments_scatter, noise, dof)),
+        retract=step, constraints=lambda x: constraints(x[1]), max_iter=max_iter, tol=tol)
     return R, s, it, converged
 
 

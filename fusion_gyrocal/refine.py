@@ -80,9 +80,41 @@ class Refined:
     converged: bool
 
 
+def fisher_scoring(state, *, cost, gradient, information, retract, constraints=None, max_iter: int = 30,
+                   tol: float = 1e-11):
+    """Minimise ``cost(state)`` by Fisher scoring with a backtracking line search.
+
+    Each step solves ``(Z^T H Z) d = -Z^T g`` with ``H = information(state)`` (the expected Hessian),
+    ``g = gradient(state)`` and ``Z`` a basis of the null space of ``constraints(state)`` (the
+    linearised gauge; all of the tangent space when None), then moves by ``retract(state, t d)``,
+    halving ``t`` until the cost does not increase. The pair solver and the N-gyro solver share it.
+
+    Returns
+    -------
+    (state, iterations, converged)
+    """
+    c = cost(state)
+    it = 0
+    for it in range(1, max_iter + 1):
+        H, g = information(state), gradient(state)
+        Z = np.eye(len(g)) if constraints is None else null_space(constraints(state))
+        step = -Z @ np.linalg.lstsq(Z.T @ H @ Z, Z.T @ g, rcond=1e-12)[0]
+        t = 1.0
+        while True:
+            candidate = retract(state, t * step)
+            new = cost(candidate)
+            if new <= c + 1e-12 * abs(c) or t < 1e-4:
+                break
+            t *= 0.5
+        state, decrease, c = candidate, c - new, new
+        if np.max(np.abs(t * step)) < tol or (0 <= decrease <= 1e-14 * max(abs(c), 1.0)):
+            return state, it, True
+    return state, it, False
+
+
 def refine_ml(moments: Moments, R, s1, s2, noise_std, *, constraints=None, regauge=None,
               scale_prior_std=None, max_iter: int = 30, tol: float = 1e-11) -> Refined:
-    """Fisher-scoring refinement of ``(R, s1, s2)`` from the moments.
+    """Fisher-scoring refinement of ``(R, s1, s2)`` from the moments (:func:`fisher_scoring`).
 
     Parameters
     ----------
@@ -95,34 +127,23 @@ def refine_ml(moments: Moments, R, s1, s2, noise_std, *, constraints=None, regau
     """
     noise_std = tuple(float(x) for x in noise_std)
     _, Xi_c = signal_scatter(moments, noise_std)
-    R, s1, s2 = np.array(R, float), np.array(s1, float), np.array(s2, float)
-    cost = ml_cost(R, s1, s2, moments, noise_std, scale_prior_std)
-    converged = False
-    it = 0
-    for it in range(1, max_iter + 1):
-        F = fisher_information(R, s1, s2, noise_std, Xi_c)
-        H = 2.0 * F
+
+    def information(x):
+        H = 2.0 * fisher_information(*x, noise_std, Xi_c)
         if scale_prior_std is not None:
-            s = np.concatenate([s1, s2])
+            s = np.concatenate(x[1:])
             H[3:, 3:] += np.diag(2.0 * s**2 / scale_prior_std**2)
-        g = ml_gradient(R, s1, s2, moments, noise_std, scale_prior_std)
-        Z = np.eye(9) if constraints is None else null_space(constraints(s1, s2))
-        Hz = Z.T @ H @ Z
-        step = -Z @ np.linalg.lstsq(Hz, Z.T @ g, rcond=1e-12)[0]
-        t = 1.0
-        while True:
-            Rn, s1n, s2n = retract(R, s1, s2, t * step)
-            if regauge is not None:
-                s1n, s2n = regauge(s1n, s2n)
-            new = ml_cost(Rn, s1n, s2n, moments, noise_std, scale_prior_std)
-            if new <= cost + 1e-12 * abs(cost) or t < 1e-4:
-                break
-            t *= 0.5
-        R, s1, s2 = Rn, s1n, s2n
-        decrease = cost - new
-        cost = new
-        if np.max(np.abs(t * step)) < tol or (0 <= decrease <= 1e-14 * max(abs(cost), 1.0)):
-            converged = True
-            break
-    F = fisher_information(R, s1, s2, noise_std, Xi_c)
-    return Refined(R, s1, s2, it, F, converged)
+        return H
+
+    def step(x, delta):
+        R, s1, s2 = retract(*x, delta)
+        return (R, *regauge(s1, s2)) if regauge is not None else (R, s1, s2)
+
+    (R, s1, s2), it, converged = fisher_scoring(
+        (np.array(R, float), np.array(s1, float), np.array(s2, float)),
+        cost=lambda x: ml_cost(*x, moments, noise_std, scale_prior_std),
+        gradient=lambda x: ml_gradient(*x, moments, noise_std, scale_prior_std),
+        information=information, retract=step,
+        constraints=None if constraints is None else (lambda x: constraints(x[1], x[2])),
+        max_iter=max_iter, tol=tol)
+    return Refined(R, s1, s2, it, fisher_information(R, s1, s2, noise_std, Xi_c), converged)
