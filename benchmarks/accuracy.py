@@ -17,15 +17,7 @@ import numpy as np
 
 from fusion_gyrocal import calibrate_pair
 from fusion_gyrocal.observability import cramer_rao_bound
-from fusion_gyrocal.sim import PAPER_NOISE_STD, random_rotation, rotation_error, scale_error, simulate_pair
-
-
-def general_rotation(rng, min_angle_deg=20.0):
-    """A random rotation with no axis pair within ``min_angle_deg`` of parallel."""
-    while True:
-        R = random_rotation(rng)
-        if np.abs(R).max() < np.cos(np.deg2rad(min_angle_deg)):
-            return R
+from fusion_gyrocal.sim import PAPER_NOISE_STD, general_rotation, rotation_error, scale_error, simulate_pair
 
 
 def run(runs: int, snr_factors=(0.5, 1.0, 2.0, 4.0), n=6000, rms=0.5, seed=0):

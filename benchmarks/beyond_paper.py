@@ -24,23 +24,16 @@ from scipy.spatial.transform import Rotation
 
 from fusion_gyrocal import calibrate_pair
 from fusion_gyrocal.observability import cramer_rao_bound
-from fusion_gyrocal.sim import (PAPER_BIAS_WALK_STD, PAPER_NOISE_STD, PAPER_SKEW_STD, random_rotation, rotation_error,
+from fusion_gyrocal.sim import (PAPER_BIAS_WALK_STD, PAPER_NOISE_STD, PAPER_SKEW_STD, general_rotation, rotation_error,
                                 scale_error, simulate_pair)
 
 NOISE = PAPER_NOISE_STD
 RMS = 0.5
 
 
-def _general_rotation(rng):
-    while True:
-        R = random_rotation(rng)
-        if np.abs(R).max() < np.cos(np.deg2rad(20.0)):
-            return R
-
-
 def case(name, k):
     rng = np.random.default_rng([abs(hash(name)) % 2**31, k])
-    R = _general_rotation(rng)
+    R = general_rotation(rng)
     s1, s2 = rng.normal(1.0, 0.01, 3), rng.normal(1.0, 0.01, 3)
     kw, n, rms, walk, skew, prior = {}, 6000, RMS, PAPER_BIAS_WALK_STD, 0.0, None
     if name == "weak_axis":

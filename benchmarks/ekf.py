@@ -29,21 +29,14 @@ from scipy.spatial.transform import Rotation  # noqa: E402
 
 from fusion_gyrocal import calibrate_pair  # noqa: E402
 from fusion_gyrocal.ekf import DriftNoise, GyroPairTracker, simulate_drifting_pair  # noqa: E402
-from fusion_gyrocal.sim import DEG, PAPER_NOISE_STD, random_rotation, rotation_error, scale_error  # noqa: E402
+from fusion_gyrocal.sim import DEG, PAPER_NOISE_STD, general_rotation, rotation_error, scale_error  # noqa: E402
 
 RATE = 100.0
 
 
-def general_rotation(rng):
-    while True:
-        R = random_rotation(rng)
-        if np.abs(R).max() < np.cos(np.deg2rad(15.0)):
-            return R
-
-
 def pair(rng, duration_s, R=None, s2_ramp=0.0, step=None):
     t = np.arange(0.0, duration_s, 1.0 / RATE)
-    R0 = general_rotation(rng) if R is None else R
+    R0 = general_rotation(rng, 15.0) if R is None else R
     s1, s2 = 1 + rng.normal(0, 0.01, 3), 1 + rng.normal(0, 0.01, 3)
     S2 = np.tile(s2, (t.size, 1))
     S2[:, 1] *= 1 + s2_ramp * t / t[-1]

@@ -19,7 +19,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from fusion_gyrocal.ekf import GyroPairTracker, plot_history, simulate_drifting_pair
-from fusion_gyrocal.sim import DEG, PAPER_NOISE_STD, random_rotation
+from fusion_gyrocal.sim import DEG, PAPER_NOISE_STD, general_rotation
 
 
 def main(argv=None) -> int:
@@ -38,9 +38,7 @@ def main(argv=None) -> int:
     rng = np.random.default_rng(args.seed)
     t = np.arange(0.0, args.duration, 1.0 / args.rate)
     n = t.size
-    R0 = random_rotation(rng)
-    while np.abs(R0).max() > np.cos(np.deg2rad(15)):          # keep away from parallel axes (Lemma 4)
-        R0 = random_rotation(rng)
+    R0 = general_rotation(rng, 15.0)                            # keep away from parallel axes (Lemma 4)
     s1, s2 = 1 + rng.normal(0, 0.01, 3), 1 + rng.normal(0, 0.01, 3)
     S2 = np.tile(s2, (n, 1))
     S2[:, 1] *= 1.0 + args.drift * t / t[-1]                   # temperature drift of one scale factor

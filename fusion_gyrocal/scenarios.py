@@ -39,7 +39,7 @@ from scipy.spatial.transform import Rotation
 from .errors import InputError
 from .observability import cramer_rao_bound
 from .sim import (DEG, PAPER_BIAS_WALK_STD, PAPER_NOISE_STD, PAPER_RATE_HZ, PAPER_SKEW_STD, HumanMotion,
-                  SimulatedPair, random_rotation, simulate_pair)
+                  SimulatedPair, general_rotation, simulate_pair)
 
 __all__ = ["Scenario", "ScenarioBound", "SCENARIOS", "SNR_FACTORS", "SNR_VIA", "make_scenario", "describe_scenario",
            "scenario_bound", "list_scenarios"]
@@ -165,15 +165,6 @@ def list_scenarios() -> tuple[str, ...]:
     return tuple(SCENARIOS) + snr
 
 
-def _general_rotation(rng, min_angle_deg: float = MIN_PARALLEL_ANGLE_DEG) -> np.ndarray:
-    """Uniform random rotation, redrawn until no axis pair is within ``min_angle_deg`` of (anti)parallel."""
-    cos_max = np.cos(np.deg2rad(min_angle_deg))
-    while True:
-        R = random_rotation(rng)
-        if np.abs(R).max() < cos_max:
-            return R
-
-
 def _near_parallel_rotation(rng, angle_deg: float = NEAR_PARALLEL_DEG) -> np.ndarray:
     """``Rz(a) Exp(angle * u) Rz(b)`` with ``u`` horizontal: gyro 2's z axis ``angle_deg`` from gyro 1's,
     the other axes at least 20 deg from parallel."""
@@ -296,7 +287,7 @@ def make_scenario(name: str = "nominal", *, rng=None, snr_factor: float | None =
     rate_f = factor if via == "rate" else 1.0
     noise = PAPER_NOISE_STD / (factor if via == "noise" else 1.0)
 
-    R = _near_parallel_rotation(rng) if base == "near_parallel" else _general_rotation(rng)
+    R = _near_parallel_rotation(rng) if base == "near_parallel" else general_rotation(rng, MIN_PARALLEL_ANGLE_DEG)
     s1, s2 = rng.normal(1.0, SCALE_STD, 3), rng.normal(1.0, SCALE_STD, 3)
     rms_shape = {"weak_axis": (0.1, 1.0, 1.0), "slow_motion": (0.03, 0.06, 0.12)}.get(base, 1.0)
     total = {"slow_motion": float(np.sqrt((0.03**2 + 0.06**2 + 0.12**2) / 3))}.get(base, NOMINAL_RMS)

@@ -99,6 +99,17 @@ def random_rotation(rng=None, *, angle_deg: float | None = None) -> np.ndarray:
     return Rotation.from_rotvec(axis / np.linalg.norm(axis) * angle_deg * DEG).as_matrix()
 
 
+def general_rotation(rng=None, min_angle_deg: float = 20.0) -> np.ndarray:
+    """A uniformly random rotation redrawn until no axis of one frame is within ``min_angle_deg`` of
+    (anti)parallel to an axis of the other: the general configuration of Lemma 4."""
+    rng = np.random.default_rng(rng)
+    cos_max = np.cos(np.deg2rad(min_angle_deg))
+    while True:
+        R = random_rotation(rng)
+        if np.abs(R).max() < cos_max:
+            return R
+
+
 def simulate_pair(omega_true_1=None, *, n: int = 6000, rate_hz: float = PAPER_RATE_HZ, R_1_2=None,
                   scale_1=(1.0, 1.0, 1.0), scale_2=(1.0, 1.0, 1.0), noise_std=PAPER_NOISE_STD,
                   bias_walk_std: float = PAPER_BIAS_WALK_STD, bias_1=None, bias_2=None,

@@ -14,26 +14,18 @@ from scipy.stats import chi2
 from fusion_gyrocal import PairCalibration, calibrate_pair
 from fusion_gyrocal.ekf import DriftNoise, GyroPairTracker, plot_history, simulate_drifting_pair
 from fusion_gyrocal.errors import InputError
-from fusion_gyrocal.sim import DEG, HumanMotion, random_rotation, rotation_error, scale_error, shared_data_dir
+from fusion_gyrocal.sim import DEG, HumanMotion, general_rotation, rotation_error, scale_error, shared_data_dir
 
 RATE = 100.0
 NOISE = 0.1 * DEG          # the paper's white noise per sample (rad/s)
 
 
 # ---------------------------------------------------------------------------- helpers
-def general_rotation(rng, min_angle_deg=15.0):
-    """A random rotation with no pair of axes within ``min_angle_deg`` of parallel (Lemma 4)."""
-    while True:
-        R = random_rotation(rng)
-        if np.abs(R).max() < np.cos(np.deg2rad(min_angle_deg)):
-            return R
-
-
 def scenario(rng, duration_s, *, R=None, scale_2_ramp=None, step=None, rate=RATE):
     """Times, measurements and truth; optional linear ramp of scale_2 and a rotation step (t, rotvec)."""
     t = np.arange(0.0, duration_s, 1.0 / rate)
     n = t.size
-    R0 = general_rotation(rng) if R is None else R
+    R0 = general_rotation(rng, 15.0) if R is None else R
     s1, s2 = 1 + rng.normal(0, 0.01, 3), 1 + rng.normal(0, 0.01, 3)
     S2 = np.tile(s2, (n, 1))
     if scale_2_ramp is not None:
@@ -52,7 +44,7 @@ def random_walk_truth(t, drift: DriftNoise, rng):
     """Per-sample truth drawn from the tracker's own process model (random walks with ``drift``)."""
     n, dt = t.size, np.diff(t, prepend=t[0])
     sq = np.sqrt(dt)[:, None]
-    R0 = general_rotation(rng)
+    R0 = general_rotation(rng, 15.0)
     theta = np.cumsum(rng.normal(0, 1, (n, 3)) * drift.rotation * sq, axis=0)  # small: Exp(sum) = prod Exp
     R = Rotation.from_rotvec(theta).as_matrix() @ R0
     logs = np.log(1 + rng.normal(0, 0.01, 6)) + np.cumsum(rng.normal(0, 1, (n, 6)) * drift.log_scale * sq, axis=0)
@@ -176,7 +168,7 @@ def test_run_constant_parameters_within_1p2_of_batch_rmse():
     n0 = int(10 * RATE)
     err = {k: [] for k in ("ekf_r", "ekf_s", "direct_r", "direct_s", "ml_r", "ml_s")}
     for _ in range(30):
-        R = general_rotation(rng)
+        R = general_rotation(rng, 15.0)
         s1, s2 = 1 + rng.normal(0, 0.01, 3), 1 + rng.normal(0, 0.01, 3)
         w1, w2, _ = simulate_drifting_pair(t, R, s1, s2, bias_1=rng.normal(0, 0.01, 3),
                                            bias_2=rng.normal(0, 0.01, 3), noise_std=NOISE, rng=rng)
@@ -333,7 +325,7 @@ def test_run_fast_mode_folds_one_sample_blocks():
 def test_run_streams_unsynchronised_with_offset_and_gap():
     rng = np.random.default_rng(13)
     motion = HumanMotion(1.0, rng=rng)
-    R = general_rotation(rng)
+    R = general_rotation(rng, 15.0)
     s1, s2 = 1 + rng.normal(0, 0.01, 3), 1 + rng.normal(0, 0.01, 3)
     b1, b2 = rng.normal(0, 0.01, 3), rng.normal(0, 0.01, 3)
     offset = 0.0137                                      # add to gyro 2's stamps to reach gyro 1's clock
@@ -410,7 +402,7 @@ def test_track_figure_for_report_tracks_a_pipeline_run():
 
     rng = np.random.default_rng(18)
     motion = HumanMotion(0.8, rng=rng)
-    R = general_rotation(rng)
+    R = general_rotation(rng, 15.0)
     t1, t2 = np.arange(0, 60, 1 / 200.0), np.arange(0.013, 60, 1 / 100.0)     # unsynchronised, 47 ms offset
     w1 = motion(t1) + rng.normal(0, NOISE, (t1.size, 3))
     w2 = (motion(t2 + 0.0473) @ R) + rng.normal(0, NOISE, (t2.size, 3))
@@ -433,7 +425,7 @@ def test_run_tracks_drift_with_recorded_hand_motion():
     motion, fs = load_broad_rates("01_undisturbed_slow_rotation_A")
     rng = np.random.default_rng(17)
     t = np.arange(motion.shape[0]) / fs
-    R = general_rotation(rng)
+    R = general_rotation(rng, 15.0)
     s1, s2 = 1 + rng.normal(0, 0.01, 3), 1 + rng.normal(0, 0.01, 3)
     S2 = np.tile(s2, (t.size, 1))
     S2[:, 0] *= 1.0 + 0.005 * t / t[-1]
