@@ -1,11 +1,10 @@
 import argparse
 import csv
-import importlib.util
 import io
 import sys
-from pathlib import Path
 
 import numpy as np
+from _examples import load_example
 import pytest
 from scipy.spatial.transform import Rotation
 
@@ -20,7 +19,6 @@ from fusion_gyrocal.sim import (PAPER_NOISE_STD, PAPER_SKEW_STD, random_rotation
 
 S1 = np.array([1.01, 0.99, 1.02])
 S2 = np.array([0.98, 1.00, 1.03])
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "compare_estimators.py"
 
 
 def _kabsch(w1, w2):
@@ -324,10 +322,7 @@ def test_compare_main_output_in_missing_folder_exits_1(tmp_path, capsys):
 
 
 def test_example_compare_estimators_runs(capsys):
-    spec = importlib.util.spec_from_file_location("compare_estimators", EXAMPLE)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    mc, rec = mod.main(["--runs", "2", "--workers", "1"])
+    mc, rec = load_example("compare_estimators").main(["--runs", "2", "--workers", "1"])
     # the batch estimators reach the bound on the nominal scenario; a recording has estimates, no errors
     assert mc.row("default").rotation_ratio < 3 and mc.row("direct").scale_ratio < 3
     assert not rec.has_truth and np.isfinite(rec.row("appendix_c").rotvec_deg).all()

@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
-from pathlib import Path
 
 import numpy as np
+from _examples import load_example
 import pytest
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
@@ -439,10 +438,7 @@ def test_run_tracks_drift_with_recorded_hand_motion():
 
 
 def test_example_track_drift_runs(tmp_path, capsys):
-    path = Path(__file__).resolve().parents[1] / "examples" / "track_drift.py"
-    spec = importlib.util.spec_from_file_location("track_drift_example", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = load_example("track_drift")
     out = tmp_path / "drift.png"
     mod.main(["--duration", "120", "--step-at", "60", "--out", str(out), "--seed", "3"])
     text = capsys.readouterr().out

@@ -1,21 +1,16 @@
 """The examples are run by the tests (each asserts what it demonstrates)."""
 
-import importlib.util
-from pathlib import Path
 
 import numpy as np
+from _examples import load_example
 import pytest
 
 from fusion_gyrocal.sim import shared_data_dir
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
 def _load(name):
-    spec = importlib.util.spec_from_file_location(name, EXAMPLES / f"{name}.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_example(name)
 
 
 def test_example_simulated_pair_runs_and_is_accurate(capsys):

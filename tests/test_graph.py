@@ -1,10 +1,8 @@
 import doctest
-import importlib.util
-import sys
-from pathlib import Path
 
 import gtsam
 import numpy as np
+from _examples import load_example
 import pytest
 from gtsam.utils.numerical_derivative import numericalDerivative11
 from scipy.spatial.transform import Rotation
@@ -22,18 +20,11 @@ S2 = np.array([0.98, 1.03, 1.00])
 NOISE = (0.1 * DEG, 0.15 * DEG)   # unequal, so the weight's dependence on A matters
 KR, KL, KB, KG = 1, 2, 3, 4
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "graph_global_scale.py"
 
 
 def _example():
     """The example script as a module (its simulator and ``run``/``main`` are exercised here)."""
-    name = "graph_global_scale_example"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, EXAMPLE)
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[name] = mod          # dataclasses need their module registered
-        spec.loader.exec_module(mod)
-    return sys.modules[name]
+    return load_example("graph_global_scale")
 
 
 def _values(pairs):

@@ -1,10 +1,9 @@
 import doctest
-import importlib.util
 import itertools
-import sys
 from pathlib import Path
 
 import numpy as np
+from _examples import load_example
 import pytest
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
@@ -304,18 +303,11 @@ def test_calibrate_array_bad_options_raise(kwargs, exc):
 
 
 # ------------------------------------------------------------------------------------------- real data
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "mimu_array.py"
 
 
 def _example():
     """The example script as a module: its session loop and SOURCE.md reader are what the tests check."""
-    name = "mimu_array_example"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, EXAMPLE)
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[name] = mod
-        spec.loader.exec_module(mod)
-    return sys.modules[name]
+    return load_example("mimu_array")
 
 
 def _mimu_dir() -> Path:
