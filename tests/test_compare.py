@@ -327,12 +327,3 @@ def test_example_compare_estimators_runs(capsys):
     assert mc.row("default").rotation_ratio < 3 and mc.row("direct").scale_ratio < 3
     assert not rec.has_truth and np.isfinite(rec.row("appendix_c").rotvec_deg).all()
     assert "rot / bound" in capsys.readouterr().out
-
-
-@pytest.mark.parametrize("module", ["fusion_gyrocal.compare", "fusion_gyrocal.scenarios"])
-def test_docstring_examples_run(module):
-    import doctest
-    import importlib
-
-    result = doctest.testmod(importlib.import_module(module))
-    assert result.attempted > 0 and result.failed == 0

@@ -1,4 +1,3 @@
-import doctest
 
 import gtsam
 import numpy as np
@@ -360,8 +359,3 @@ def test_gyro_pair_graph_add_window_rejects_pooled_moments(constant_bias_case):
     pooled = Moments.pool_all(window_moments(sim.omega_1, sim.omega_2, 1000))
     with pytest.raises(InputError, match="one bias segment"):
         GyroPairGraph(ml).add_window(pooled)
-
-
-def test_docstring_examples_run():
-    result = doctest.testmod(graph_module)
-    assert result.attempted > 0 and result.failed == 0

@@ -1,4 +1,3 @@
-import doctest
 import itertools
 from pathlib import Path
 
@@ -9,7 +8,6 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from fusion_gyrocal import ConfigurationError, ExcitationError, InputError, Moments, NotRigidError, solve
-from fusion_gyrocal import multi
 from fusion_gyrocal.multi import (ArrayCalibration, ArrayMoments, _retract, calibrate_array, joint_cost,
                                   joint_gradient, solve_array)
 from fusion_gyrocal.refine import ml_cost
@@ -356,8 +354,3 @@ def test_example_mimu_array_runs_and_reports_both_estimates(capsys):
     assert dev.shape == (1, 7, 3) and ratios.shape == (1, 7, 3)
     assert np.linalg.norm(dev, axis=2).max() < 0.5
     assert "session 3:" in capsys.readouterr().out
-
-
-def test_docstring_examples_run():
-    result = doctest.testmod(multi)
-    assert result.attempted > 0 and result.failed == 0
