@@ -34,14 +34,14 @@ def check_keyword_options(func, options: dict, *, reserved=()) -> None:
                                  f"{sorted(allowed)}")
 
 
-def difference_noise_std(omega, max_samples: int = 200000) -> float:
+def difference_noise_std(omega) -> float:
     """White-noise std per sample of one stream from its third differences (robust, MAD).
 
     ``Var(Delta^3 n) = 20 sigma^2`` for white noise, while smooth motion contributes little to the
     third difference; fast motion at a low sample rate biases the value upwards, so the library
     uses it only to split the residual variance between the gyros, never for its level.
     """
-    w = np.asarray(omega, dtype=float)[:max_samples]
+    w = np.asarray(omega, dtype=float)
     d = np.diff(w[np.isfinite(w).all(axis=1)], n=3, axis=0)
     if d.shape[0] < 10:
         return float("nan")
@@ -451,8 +451,9 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s=None, ma
         return Moments.pool_all(window_moments(w1, w2, int(bias_window), mask=use))
 
     if noise_std is None:  # split the residual variance by each stream's high-frequency noise
-        v = slice(None) if mask is None else mask
-        d1, d2 = difference_noise_std(np.asarray(w1)[v]), difference_noise_std(np.asarray(w2)[v])
+        head = slice(0, 200_000)  # plenty for a noise level; no copy of a long log
+        v = slice(None) if mask is None else mask[head]
+        d1, d2 = (difference_noise_std(np.asarray(w[head])[v]) for w in (w1, w2))
         kw["noise_ratio"] = d1 / d2 if d1 > 0 and d2 > 0 else None
     valid_in = mask
     mom = mom0 = moments_of(mask)
