@@ -17,6 +17,9 @@ EXAMPLES = """examples:
   gyrocal calibrate mav0/imu0 other/data.csv --unit2 deg/s --noise-std 0.0017
   gyrocal calibrate exp_1.npz --imu1 0 --imu2 3 --method direct
   gyrocal report imu_a.csv imu_b.csv --out report/
+
+exit codes: 0 calibrated; 1 a known error (one line on stderr says what was expected and what arrived);
+3 the pair is not rigid; 4 (fleet) some devices failed; 70 an unexpected error (--debug shows the traceback)
 """
 
 EXIT_ERROR, EXIT_NOT_RIGID, EXIT_INTERNAL = 1, 3, 70
