@@ -16,8 +16,8 @@ import time
 import numpy as np
 
 from fusion_gyrocal import calibrate_pair
-from fusion_gyrocal.observability import cramer_rao_bound
-from fusion_gyrocal.sim import PAPER_NOISE_STD, general_rotation, rotation_error, scale_error, simulate_pair
+from fusion_gyrocal.core.observability import cramer_rao_bound
+from fusion_gyrocal.evaluate.sim import PAPER_NOISE_STD, general_rotation, rotation_error, scale_error, simulate_pair
 
 
 def run(runs: int, snr_factors=(0.5, 1.0, 2.0, 4.0), n=6000, rms=0.5, seed=0):

@@ -1,10 +1,10 @@
-"""Monte Carlo of the time-offset estimate (fusion_gyrocal.preprocess.estimate_time_offset).
+"""Monte Carlo of the time-offset estimate (fusion_gyrocal.pipeline.preprocess.estimate_time_offset).
 
 Two gyros on their own clocks at 100 Hz and 200 Hz (which one is faster alternates; one
 scenario has both at 200 Hz), jittered
 sample instants (uniform +-0.25 period, recorded exactly), gyro 2 rotated by a random rotation,
 scaled by ~1 % per axis and biased (0.5 deg/s per axis), white noise 0.1 deg/s per sample
-(the paper's Section V), human-like motion from ``fusion_gyrocal.sim.HumanMotion`` and a true
+(the paper's Section V), human-like motion from ``fusion_gyrocal.evaluate.sim.HumanMotion`` and a true
 offset drawn from U(-0.3, 0.3) s.
 
 Printed per scenario: RMS and max offset error, mean reported std, the ratio RMS / mean std
@@ -26,8 +26,8 @@ from scipy.interpolate import CubicSpline
 from scipy.optimize import minimize_scalar
 from scipy.signal import correlate
 
-from fusion_gyrocal.preprocess import _parabolic_peak, estimate_time_offset
-from fusion_gyrocal.sim import simulate_streams
+from fusion_gyrocal.pipeline.preprocess import _parabolic_peak, estimate_time_offset
+from fusion_gyrocal.evaluate.sim import simulate_streams
 
 
 def coarse_offset(est) -> float:

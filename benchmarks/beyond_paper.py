@@ -24,8 +24,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from fusion_gyrocal import calibrate_pair
-from fusion_gyrocal.observability import cramer_rao_bound
-from fusion_gyrocal.sim import (PAPER_BIAS_WALK_STD, PAPER_NOISE_STD, PAPER_SKEW_STD, general_rotation, rotation_error,
+from fusion_gyrocal.core.observability import cramer_rao_bound
+from fusion_gyrocal.evaluate.sim import (PAPER_BIAS_WALK_STD, PAPER_NOISE_STD, PAPER_SKEW_STD, general_rotation, rotation_error,
                                 scale_error, simulate_pair)
 
 NOISE = PAPER_NOISE_STD

@@ -20,7 +20,7 @@ import numpy as np
 
 
 def make_files(d: Path, minutes: float, rate=200.0, seed=0):
-    from fusion_gyrocal.sim import PAPER_NOISE_STD, HumanMotion, random_rotation
+    from fusion_gyrocal.evaluate.sim import PAPER_NOISE_STD, HumanMotion, random_rotation
 
     rng = np.random.default_rng(seed)
     motion, R = HumanMotion(0.6, rng=rng), random_rotation(rng)
@@ -48,10 +48,10 @@ def main(argv=None):
     p1, p2, n = make_files(Path(a.dir), a.minutes)
     print(f"{n} samples per file ({a.minutes:g} min at 200 Hz), {p1.stat().st_size / 2**20:.1f} MB per CSV")
 
-    from fusion_gyrocal.calibrate import run_pipeline
-    from fusion_gyrocal.cli import main as cli
+    from fusion_gyrocal.pipeline.pipeline import run_pipeline
+    from fusion_gyrocal.cli.main import main as cli
     from fusion_gyrocal.io import read_imu
-    from fusion_gyrocal.preprocess import align_streams, valid_mask
+    from fusion_gyrocal.pipeline.preprocess import align_streams, valid_mask
 
     (s1, s2), t_read = timed(lambda: (read_imu(p1), read_imu(p2, unit="deg/s")))
     pair, t_align = timed(lambda: align_streams(s1.t, s1.omega, s2.t, s2.omega, valid_1=valid_mask(s1.omega),

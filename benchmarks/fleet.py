@@ -28,8 +28,8 @@ import pyarrow.parquet as pq
 from distributed import Client, LocalCluster
 
 from fusion_gyrocal import Moments
-from fusion_gyrocal.fleet import COLUMNS, log_moments, run_fleet
-from fusion_gyrocal.sim import simulate_pair
+from fusion_gyrocal.distributed.fleet import COLUMNS, log_moments, run_fleet
+from fusion_gyrocal.evaluate.sim import simulate_pair
 
 
 def write_log(path: Path, n: int, *, seed: int, row_group_size: int, base: int = 200_000) -> None:

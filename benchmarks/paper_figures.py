@@ -1,6 +1,6 @@
 """Reproduce the paper's simulation figures (Section V) for every estimator, with the Cramer-Rao bound.
 
-Monte Carlo sweeps of :mod:`fusion_gyrocal.scenarios` over the paper's SNR factors 0.5 / 1 / 2 / 4:
+Monte Carlo sweeps of :mod:`fusion_gyrocal.evaluate.scenarios` over the paper's SNR factors 0.5 / 1 / 2 / 4:
 
 1. ``nominal``, SNR through the rate norm (the paper's Fig. rmse_rotation / rmse_scale);
 2. ``nominal``, SNR through the noise and through the sample count (the paper: "by appropriately
@@ -31,9 +31,9 @@ from pathlib import Path
 
 import numpy as np
 
-from fusion_gyrocal.compare import (DEFAULT_ESTIMATORS, estimator_available, plot_residual_vs_rate,
+from fusion_gyrocal.evaluate.compare import (DEFAULT_ESTIMATORS, estimator_available, plot_residual_vs_rate,
                                     plot_rmse_vs_snr, snr_sweep)
-from fusion_gyrocal.scenarios import SNR_FACTORS, make_scenario
+from fusion_gyrocal.evaluate.scenarios import SNR_FACTORS, make_scenario
 
 FIGURES = Path(__file__).resolve().parents[1] / "docs" / "figures"
 PAPER = ("direct", "default", "appendix_c")   # the estimators the paper's finding is about

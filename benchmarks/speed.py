@@ -20,7 +20,7 @@ import tracemalloc
 import numpy as np
 
 from fusion_gyrocal import Moments, calibrate_pair, solve
-from fusion_gyrocal.sim import PAPER_NOISE_STD, random_rotation
+from fusion_gyrocal.evaluate.sim import PAPER_NOISE_STD, random_rotation
 
 
 def best_of(f, k=3):

@@ -11,8 +11,8 @@ sample-aligned rates.
 
 import argparse
 
-from fusion_gyrocal.compare import compare
-from fusion_gyrocal.scenarios import list_scenarios, make_scenario
+from fusion_gyrocal.evaluate.compare import compare
+from fusion_gyrocal.evaluate.scenarios import list_scenarios, make_scenario
 
 
 def main(argv=None):

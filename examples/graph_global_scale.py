@@ -16,9 +16,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from fusion_gyrocal.graph import RotationIncrements, calibrate_pair_graph
-from fusion_gyrocal.model import PairCalibration
-from fusion_gyrocal.sim import DEG, HumanMotion, simulate_pair
+from fusion_gyrocal.graph.pair import RotationIncrements, calibrate_pair_graph
+from fusion_gyrocal.core.model import PairCalibration
+from fusion_gyrocal.evaluate.sim import DEG, HumanMotion, simulate_pair
 
 
 def simulate_camera_increments(motion, t_1, keyframe_index, sigma_rad: float, rng, *, substeps: int = 20):

@@ -3,7 +3,7 @@
 All eight gyros are axis-parallel (top side: identity, bottom side: a 180 degree flip), the paper's
 fully degenerate case (Lemma 2): only the rotations and the per-axis scale ratios
 ``scale_1[i] / scale_k[perm(i)]`` are determined. For every session this script calibrates the
-whole array jointly (:func:`fusion_gyrocal.multi.calibrate_array`) and every gyro against IMU 1
+whole array jointly (:func:`fusion_gyrocal.core.array.calibrate_array`) and every gyro against IMU 1
 pairwise (:func:`fusion_gyrocal.solve` on the same moments), and prints
 
 * each gyro's deviation from its nominal rotation (degrees),
@@ -25,8 +25,8 @@ from scipy.spatial.transform import Rotation
 
 from fusion_gyrocal import solve
 from fusion_gyrocal.io import read_npz
-from fusion_gyrocal.multi import calibrate_array
-from fusion_gyrocal.sim import DEG, shared_data_dir
+from fusion_gyrocal.core.array import calibrate_array
+from fusion_gyrocal.evaluate.sim import DEG, shared_data_dir
 
 C_BOTTOM = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # SOURCE.md, bottom-side IMUs
 

@@ -9,7 +9,7 @@ clock and sampled with fresh noise, as in the paper's simulations (which used re
 import numpy as np
 
 from fusion_gyrocal import calibrate_pair
-from fusion_gyrocal.sim import PAPER_NOISE_STD, load_broad_rates, random_rotation, rotation_error, simulate_pair
+from fusion_gyrocal.evaluate.sim import PAPER_NOISE_STD, load_broad_rates, random_rotation, rotation_error, simulate_pair
 
 
 def main(trial: str = "06_undisturbed_fast_rotation_A", seed: int = 3) -> dict:

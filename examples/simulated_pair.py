@@ -6,7 +6,7 @@
 import numpy as np
 
 from fusion_gyrocal import calibrate_pair
-from fusion_gyrocal.sim import PAPER_NOISE_STD, random_rotation, rotation_error, scale_error, simulate_pair
+from fusion_gyrocal.evaluate.sim import PAPER_NOISE_STD, random_rotation, rotation_error, scale_error, simulate_pair
 
 
 def main(seed: int = 0) -> dict:

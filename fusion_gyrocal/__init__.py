@@ -8,21 +8,22 @@ The core names import eagerly; the estimators with heavy dependencies (filterpy,
 load on first use.
 """
 
-from .calibrate import calibrate_pair, solve
-from .direct import Gauge
+from .core.solve import solve
+from .pipeline.pipeline import calibrate_pair
+from .core.direct import Gauge
 from .errors import (ConfigurationError, ExcitationError, FormatError, GyroCalError, InputError, NotRigidError,
                      TimeAlignmentError)
-from .model import PairCalibration
-from .moments import Moments
+from .core.model import PairCalibration
+from .core.moments import Moments
 
 __version__ = "0.1.0"
 
 _LAZY = {
-    "calibrate_array": "multi", "ArrayCalibration": "multi",
-    "StreamingCalibrator": "stream",
-    "GyroPairTracker": "ekf",
-    "calibrate_pair_graph": "graph", "GyroPairGraph": "graph",
-    "run_fleet": "fleet",
+    "calibrate_array": "core.array", "ArrayCalibration": "core.array",
+    "StreamingCalibrator": "online.stream",
+    "GyroPairTracker": "online.tracker",
+    "calibrate_pair_graph": "graph.pair", "GyroPairGraph": "graph.pair",
+    "run_fleet": "distributed.fleet",
 }
 
 __all__ = [

@@ -5,8 +5,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from fusion_gyrocal import (ExcitationError, Gauge, InputError, PairCalibration, calibrate_pair, ConfigurationError)
-from fusion_gyrocal.model import ROT
-from fusion_gyrocal.sim import PAPER_NOISE_STD, DEG, rotation_error, simulate_pair
+from fusion_gyrocal.core.model import ROT
+from fusion_gyrocal.evaluate.sim import PAPER_NOISE_STD, DEG, rotation_error, simulate_pair
 
 S1 = np.array([1.01, 0.99, 1.02])
 S2 = np.array([0.98, 1.00, 1.03])

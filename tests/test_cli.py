@@ -5,8 +5,8 @@ import sys
 import numpy as np
 import pytest
 
-from fusion_gyrocal.cli import main
-from fusion_gyrocal.sim import PAPER_NOISE_STD, HumanMotion, random_rotation, shared_data_dir
+from fusion_gyrocal.cli.main import main
+from fusion_gyrocal.evaluate.sim import PAPER_NOISE_STD, HumanMotion, random_rotation, shared_data_dir
 
 
 def _write_pair(tmp_path, seed=0, offset=0.031):

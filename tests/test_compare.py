@@ -9,12 +9,12 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from fusion_gyrocal import InputError, calibrate_pair
-from fusion_gyrocal.compare import (add_compare_parser, compare, compare_main,
+from fusion_gyrocal.evaluate.compare import (add_compare_parser, compare, compare_main,
                                     plot_rmse_vs_snr, rotation_only, run_estimator, snr_sweep, solve_appendix_c)
-from fusion_gyrocal.moments import Moments
-from fusion_gyrocal.observability import cramer_rao_bound
-from fusion_gyrocal.scenarios import SCENARIOS, describe_scenario, list_scenarios, make_scenario, scenario_bound
-from fusion_gyrocal.sim import (PAPER_NOISE_STD, PAPER_SKEW_STD, random_rotation, rotation_error, scale_error,
+from fusion_gyrocal.core.moments import Moments
+from fusion_gyrocal.core.observability import cramer_rao_bound
+from fusion_gyrocal.evaluate.scenarios import SCENARIOS, describe_scenario, list_scenarios, make_scenario, scenario_bound
+from fusion_gyrocal.evaluate.sim import (PAPER_NOISE_STD, PAPER_SKEW_STD, random_rotation, rotation_error, scale_error,
                                 simulate_pair)
 
 S1 = np.array([1.01, 0.99, 1.02])
@@ -98,10 +98,10 @@ def test_compare_recording_has_estimates_but_no_errors():
 
 
 def test_compare_unavailable_module_row_says_not_available(monkeypatch):
-    monkeypatch.setitem(sys.modules, "fusion_gyrocal.ekf", None)  # import now raises ImportError
+    monkeypatch.setitem(sys.modules, "fusion_gyrocal.online.tracker", None)  # import now raises ImportError
     c = compare("nominal", estimators=["direct", "ekf"], runs=1, workers=1, progress=False)
     ekf, direct = c.row("ekf"), c.row("direct")
-    assert ekf.failures == 1 and ekf.note.startswith("not available: fusion_gyrocal.ekf")
+    assert ekf.failures == 1 and ekf.note.startswith("not available: fusion_gyrocal.online.tracker")
     assert direct.failures == 0 and np.isfinite(direct.rotation_rmse)
     assert "ekf: not available" in c.to_markdown()
 

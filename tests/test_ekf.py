@@ -1,4 +1,4 @@
-"""Tests of the online drift tracker (fusion_gyrocal.ekf)."""
+"""Tests of the online drift tracker (fusion_gyrocal.online.tracker)."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from fusion_gyrocal import PairCalibration, calibrate_pair
-from fusion_gyrocal.ekf import DriftNoise, GyroPairTracker, plot_history, simulate_drifting_pair
+from fusion_gyrocal.online.tracker import DriftNoise, GyroPairTracker, plot_history, simulate_drifting_pair
 from fusion_gyrocal.errors import InputError
-from fusion_gyrocal.sim import DEG, HumanMotion, general_rotation, rotation_error, scale_error, shared_data_dir
+from fusion_gyrocal.evaluate.sim import DEG, HumanMotion, general_rotation, rotation_error, scale_error, shared_data_dir
 
 RATE = 100.0
 NOISE = 0.1 * DEG          # the paper's white noise per sample (rad/s)
@@ -396,8 +396,8 @@ def test_calibration_property_is_a_serialisable_pair_calibration():
 
 
 def test_track_figure_for_report_tracks_a_pipeline_run():
-    from fusion_gyrocal.calibrate import run_pipeline
-    from fusion_gyrocal.ekf import track_figure_for_report
+    from fusion_gyrocal.pipeline.pipeline import run_pipeline
+    from fusion_gyrocal.online.tracker import track_figure_for_report
 
     rng = np.random.default_rng(18)
     motion = HumanMotion(0.8, rng=rng)
@@ -419,7 +419,7 @@ def test_run_tracks_drift_with_recorded_hand_motion():
     root = shared_data_dir()
     if not (root / "broad_handheld").exists():
         pytest.skip("../shared/data not present (real recordings are only in the project checkout)")
-    from fusion_gyrocal.sim import load_broad_rates
+    from fusion_gyrocal.evaluate.sim import load_broad_rates
 
     motion, fs = load_broad_rates("01_undisturbed_slow_rotation_A")
     rng = np.random.default_rng(17)

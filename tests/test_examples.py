@@ -5,7 +5,7 @@ import numpy as np
 from _examples import load_example
 import pytest
 
-from fusion_gyrocal.sim import shared_data_dir
+from fusion_gyrocal.evaluate.sim import shared_data_dir
 
 
 

@@ -9,9 +9,9 @@ pq = pytest.importorskip("pyarrow.parquet")
 distributed = pytest.importorskip("distributed")
 
 from fusion_gyrocal import ConfigurationError, FormatError, InputError, Moments, PairCalibration, solve  # noqa: E402
-from fusion_gyrocal.fleet import (RESULT_COLUMNS, calibrate_log, find_devices, fleet_main, log_moments,  # noqa: E402
+from fusion_gyrocal.distributed.fleet import (RESULT_COLUMNS, calibrate_log, find_devices, fleet_main, log_moments,  # noqa: E402
                                   row_groups, run_fleet)
-from fusion_gyrocal.sim import PAPER_NOISE_STD, rotation_error, simulate_pair  # noqa: E402
+from fusion_gyrocal.evaluate.sim import PAPER_NOISE_STD, rotation_error, simulate_pair  # noqa: E402
 
 
 def _write_parquet(path, sim, *, row_group_size=1000, t0=0.0):
@@ -176,7 +176,7 @@ def test_fleet_main_writes_table_and_flags_failures_in_exit_code(fleet_dir, tmp_
 
 
 def test_gyrocal_cli_has_fleet_subcommand(fleet_dir, tmp_path):
-    from fusion_gyrocal.cli import main
+    from fusion_gyrocal.cli.main import main
 
     out = tmp_path / "via_cli.parquet"
     assert main(["fleet", str(fleet_dir[0] / "dev_b.parquet"), "-o", str(out), "--workers", "0",

@@ -8,11 +8,11 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from fusion_gyrocal import ConfigurationError, InputError, Moments, calibrate_pair, solve
-from fusion_gyrocal import graph as graph_module
-from fusion_gyrocal.graph import (GyroPairGraph, RotationIncrements, calibrate_pair_graph, gyro_pair_factor,
+from fusion_gyrocal.graph import pair as graph_module
+from fusion_gyrocal.graph.pair import (GyroPairGraph, RotationIncrements, calibrate_pair_graph, gyro_pair_factor,
                                   preintegrate_rotations, rotation_increment_factor)
-from fusion_gyrocal.moments import window_moments
-from fusion_gyrocal.sim import DEG, HumanMotion, random_rotation, rotation_error, scale_error, simulate_pair
+from fusion_gyrocal.core.moments import window_moments
+from fusion_gyrocal.evaluate.sim import DEG, HumanMotion, random_rotation, rotation_error, scale_error, simulate_pair
 
 S1 = np.array([1.01, 0.99, 1.02])
 S2 = np.array([0.98, 1.03, 1.00])

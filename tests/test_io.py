@@ -17,8 +17,8 @@ from fusion_gyrocal.io import (ImuNoise, ImuStream, detect_format, list_imu_topi
                                write_kalibr_imu_yaml, write_npz, write_openvins_imu_chain)
 from fusion_gyrocal.io import readers as readers_mod
 from fusion_gyrocal.io import writers as writers_mod
-from fusion_gyrocal.model import PairCalibration
-from fusion_gyrocal.sim import DEG, shared_data_dir
+from fusion_gyrocal.core.model import PairCalibration
+from fusion_gyrocal.evaluate.sim import DEG, shared_data_dir
 
 DATA = shared_data_dir()
 NO_DATA = "../shared/data not present (real recordings are only in the project checkout)"
@@ -605,7 +605,7 @@ def test_write_openvins_imu_chain_tiny_values_stay_floats(tmp_path):
 
 def test_kalibr_T_i_b_maps_gyro1_rates_to_gyro2(tmp_path):
     """Noise-free rigid pair: T_i_b of imu1 applied to gyro 1's true rate gives gyro 2's true rate."""
-    from fusion_gyrocal.sim import simulate_pair
+    from fusion_gyrocal.evaluate.sim import simulate_pair
     sim = simulate_pair(n=200, noise_std=0.0, bias_walk_std=0.0, bias_1=np.zeros(3), bias_2=np.zeros(3), rng=36)
     cal = _cal(np.random.default_rng(36), R_1_2=sim.R_1_2, scale_1=np.ones(3), scale_2=np.ones(3))
     y = yaml.safe_load(write_kalibr_imu_yaml(cal, tmp_path / "imu.yaml").read_text())
@@ -638,7 +638,7 @@ def test_read_imu_missing_file_message(tmp_path):
 def test_read_bag_feeds_calibrate_pair_with_time_offset(tmp_path):
     """Two Imu topics on different clocks -> bag -> read -> calibrate -> Kalibr time_offset."""
     from fusion_gyrocal import calibrate_pair
-    from fusion_gyrocal.sim import PAPER_NOISE_STD, rotation_error, simulate_pair
+    from fusion_gyrocal.evaluate.sim import PAPER_NOISE_STD, rotation_error, simulate_pair
 
     sim = simulate_pair(n=6000, rng=50)
     offset = 0.0234  # added to gyro 2's stamps puts them on gyro 1's clock

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from fusion_gyrocal import InputError, Moments
-from fusion_gyrocal.moments import window_moments
+from fusion_gyrocal.core.moments import window_moments
 
 
 def _data(n=5000, bias=0.0, seed=0):

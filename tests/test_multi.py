@@ -8,10 +8,10 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from fusion_gyrocal import ConfigurationError, ExcitationError, InputError, Moments, NotRigidError, solve
-from fusion_gyrocal.multi import (ArrayCalibration, ArrayMoments, _retract, calibrate_array, joint_cost,
+from fusion_gyrocal.core.array import (ArrayCalibration, ArrayMoments, _retract, calibrate_array, joint_cost,
                                   joint_gradient, solve_array)
-from fusion_gyrocal.refine import ml_cost
-from fusion_gyrocal.sim import DEG, PAPER_NOISE_STD, HumanMotion, random_rotation, rotation_error, shared_data_dir
+from fusion_gyrocal.core.refine import ml_cost
+from fusion_gyrocal.evaluate.sim import DEG, PAPER_NOISE_STD, HumanMotion, random_rotation, rotation_error, shared_data_dir
 
 SCALES = np.array([[1.01, 0.99, 1.02], [0.98, 1.00, 1.03], [1.00, 1.02, 0.97], [0.99, 1.01, 1.00]])
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from fusion_gyrocal import NotRigidError, calibrate_pair
-from fusion_gyrocal.sim import (PAPER_NOISE_STD, DEG, HumanMotion, random_rotation, rotation_error, shared_data_dir,
+from fusion_gyrocal.evaluate.sim import (PAPER_NOISE_STD, DEG, HumanMotion, random_rotation, rotation_error, shared_data_dir,
                                 simulate_pair)
 
 DATA = shared_data_dir()
@@ -73,7 +73,7 @@ def test_calibrate_pair_walking_legs_not_rigid():
 
 @needs_data
 def test_calibrate_pair_broad_motion_with_offset_and_clock():
-    from fusion_gyrocal.sim import load_broad_rates
+    from fusion_gyrocal.evaluate.sim import load_broad_rates
 
     gyr, fs = load_broad_rates("02_undisturbed_slow_rotation_B")
     R = random_rotation(11)
@@ -136,7 +136,7 @@ def test_calibrate_pair_timestamps_errors_are_specific():
 def test_calibrate_pair_flex_bursts_of_fast_motion_are_rejected():
     # bursts at 4x the usual rates that bend the mounting by up to 1 degree carry most of the motion energy;
     # rejecting them must not be vetoed as "removing the excitation"
-    from fusion_gyrocal.scenarios import make_scenario
+    from fusion_gyrocal.evaluate.scenarios import make_scenario
 
     err = []
     for seed in range(5):

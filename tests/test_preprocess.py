@@ -1,4 +1,4 @@
-"""Tests of fusion_gyrocal.preprocess: stream checks, resampling, time alignment, selection."""
+"""Tests of fusion_gyrocal.pipeline.preprocess: stream checks, resampling, time alignment, selection."""
 
 from __future__ import annotations
 
@@ -9,12 +9,12 @@ from scipy.spatial.transform import Rotation
 
 from fusion_gyrocal import calibrate_pair
 from fusion_gyrocal.errors import InputError, TimeAlignmentError
-from fusion_gyrocal.model import ROT
-from fusion_gyrocal.moments import Moments
-from fusion_gyrocal.preprocess import (AlignedPair, TimeOffset, align_streams, check_timestamps, estimate_time_offset,
+from fusion_gyrocal.core.model import ROT
+from fusion_gyrocal.core.moments import Moments
+from fusion_gyrocal.pipeline.preprocess import (AlignedPair, TimeOffset, align_streams, check_timestamps, estimate_time_offset,
                                        excitation_report, informative_mask, resample, saturation_mask, to_rad_per_s,
                                        valid_mask)
-from fusion_gyrocal.sim import (DEG, PAPER_NOISE_STD, HumanMotion, random_rotation, rotation_error, shared_data_dir,
+from fusion_gyrocal.evaluate.sim import (DEG, PAPER_NOISE_STD, HumanMotion, random_rotation, rotation_error, shared_data_dir,
                                 simulate_streams)
 
 NO_DATA = "../shared/data not present (real recordings are only in the project checkout)"

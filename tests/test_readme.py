@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fusion_gyrocal.sim import PAPER_NOISE_STD, general_rotation, simulate_pair
+from fusion_gyrocal.evaluate.sim import PAPER_NOISE_STD, general_rotation, simulate_pair
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 

@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 
 from fusion_gyrocal import ConfigurationError, InputError, Moments, solve
-from fusion_gyrocal.sim import DEG, PAPER_NOISE_STD, HumanMotion, random_rotation, rotation_error, simulate_pair
-from fusion_gyrocal.stream import StreamingCalibrator
+from fusion_gyrocal.evaluate.sim import DEG, PAPER_NOISE_STD, HumanMotion, random_rotation, rotation_error, simulate_pair
+from fusion_gyrocal.online.stream import StreamingCalibrator
 
 RATE = 100.0
 

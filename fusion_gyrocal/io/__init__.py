@@ -6,7 +6,7 @@ EuRoC / ASL ``imu0/data.csv``), :func:`read_xsens` (MT Manager export), :func:`r
 the MIMU array layout), :func:`read_bag` / :func:`list_imu_topics` (ROS1 and ROS2, via ``rosbags``).
 
 Writers are atomic (temp file, fsync, ``os.replace``): :func:`write_json` / :func:`read_json` for
-:class:`~fusion_gyrocal.model.PairCalibration`, :func:`write_kalibr_imu_yaml`,
+:class:`~fusion_gyrocal.core.model.PairCalibration`, :func:`write_kalibr_imu_yaml`,
 :func:`write_openvins_imu_chain`, and for streams :func:`write_csv`, :func:`write_npz`,
 :func:`write_imu_bag`.
 """

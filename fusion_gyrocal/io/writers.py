@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FormatError, InputError
-from ..model import PairCalibration
+from ..core.model import PairCalibration
 from .readers import ImuStream
 
 # Placeholder noise figures (the ADIS16448 values of OpenVINS' EuRoC kalibr_imu_chain.yaml), written

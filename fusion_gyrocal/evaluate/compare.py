@@ -19,10 +19,10 @@ Estimators (:data:`ESTIMATORS`)
     What rotation-only tools do: Kabsch / Wahba alignment of the bias-removed rates
     (:func:`rotation_only`, :meth:`scipy.spatial.transform.Rotation.align_vectors`); no scale factors.
 ``graph``
-    The GTSAM factor graph (:func:`fusion_gyrocal.graph.calibrate_pair_graph`, windows of 1000
+    The GTSAM factor graph (:func:`fusion_gyrocal.graph.pair.calibrate_pair_graph`, windows of 1000
     samples, Levenberg-Marquardt).
 ``ekf``
-    The final estimate of the online tracker (:class:`fusion_gyrocal.ekf.GyroPairTracker`)
+    The final estimate of the online tracker (:class:`fusion_gyrocal.online.tracker.GyroPairTracker`)
     seeded from the first 20 % of the data and run over the rest, with the simulations' model:
     constant extrinsics and scale factors and the paper's bias random walk (a tracker that expects
     drift forgets old data and cannot match a batch estimate on constant parameters).
@@ -32,11 +32,11 @@ Estimators (:data:`ESTIMATORS`)
 
 Outputs
 -------
-:func:`compare` runs every estimator on one recording, one :class:`~fusion_gyrocal.scenarios.Scenario`
-or ``runs`` Monte Carlo realisations of a named scenario (:mod:`fusion_gyrocal.scenarios`), spread
+:func:`compare` runs every estimator on one recording, one :class:`~fusion_gyrocal.evaluate.scenarios.Scenario`
+or ``runs`` Monte Carlo realisations of a named scenario (:mod:`fusion_gyrocal.evaluate.scenarios`), spread
 over the machine's cores with a progress bar, and returns a :class:`Comparison`: per estimator the
 estimate, the errors against the truth (the paper's metrics, Eq. 37-38), their ratio to the
-Cramer-Rao bound (:func:`fusion_gyrocal.scenarios.scenario_bound`) and the time per solve, as a
+Cramer-Rao bound (:func:`fusion_gyrocal.evaluate.scenarios.scenario_bound`) and the time per solve, as a
 terminal table (:meth:`Comparison.print`), Markdown (:meth:`Comparison.to_markdown`) and CSV
 (:meth:`Comparison.to_csv`). :func:`snr_sweep` repeats this over the paper's SNR factors and fits the
 log-log slope of RMSE versus SNR (:meth:`SnrSweep.slopes`); :func:`plot_rmse_vs_snr` and
@@ -62,9 +62,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .errors import GyroCalError, InputError
-from .moments import Moments, as_rates
-from .observability import A_of, skew
+from ..errors import GyroCalError, InputError
+from ..core.moments import Moments, as_rates
+from ..core.observability import A_of, skew
 from .scenarios import SNR_FACTORS, Scenario, ScenarioBound, describe_scenario, make_scenario, scenario_bound
 from .sim import rotation_error, scale_error
 
@@ -285,12 +285,13 @@ def estimator_available(name: str) -> str:
     """``""`` when ``name`` can run here, else the reason it cannot (e.g. a missing module)."""
     if name not in ESTIMATORS:
         raise InputError(f"estimator: expected one of {', '.join(ESTIMATORS)}, got {name!r}")
-    if name not in ("graph", "ekf"):  # the estimators with a module of their own (optional dependencies)
+    module = {"graph": "fusion_gyrocal.graph.pair", "ekf": "fusion_gyrocal.online.tracker"}.get(name)
+    if module is None:  # only these estimators have a module of their own (optional dependencies)
         return ""
     try:
-        __import__(f"{__package__}.{name}")
+        __import__(module)
     except ImportError as exc:
-        return f"not available: fusion_gyrocal.{name} cannot be imported ({exc})"
+        return f"not available: {module} cannot be imported ({exc})"
     return ""
 
 
@@ -299,7 +300,8 @@ def _from_calibration(name, cal, seconds) -> Estimate:
 
 
 def _run(name, w1, w2, rate_hz):
-    from .calibrate import calibrate_pair, solve
+    from ..core.solve import solve
+    from ..pipeline.pipeline import calibrate_pair
 
     if name == "direct":
         return calibrate_pair(w1, w2, method="direct")
@@ -316,10 +318,10 @@ def _run(name, w1, w2, rate_hz):
         R, b = rotation_only(w1, w2)
         return AppendixCResult(R, np.full(3, np.nan), np.full(3, np.nan), b, 0, True)
     if name == "graph":
-        from .graph import calibrate_pair_graph
+        from ..graph.pair import calibrate_pair_graph
         return calibrate_pair_graph(w1, w2)
     if name == "ekf":
-        from .ekf import DriftNoise, GyroPairTracker
+        from ..online.tracker import DriftNoise, GyroPairTracker
         n = w1.shape[0]
         k = max(int(0.2 * n), min(n, 200))
         t = np.arange(n) / rate_hz
@@ -717,8 +719,8 @@ def compare(source="nominal", *, estimators=None, runs: int = 1, seed: int = 0, 
     Parameters
     ----------
     source : str, Scenario or (omega_1, omega_2)
-        A scenario name (:func:`fusion_gyrocal.scenarios.list_scenarios`; ``runs`` realisations
-        are simulated), one :class:`~fusion_gyrocal.scenarios.Scenario` realisation, or a recording
+        A scenario name (:func:`fusion_gyrocal.evaluate.scenarios.list_scenarios`; ``runs`` realisations
+        are simulated), one :class:`~fusion_gyrocal.evaluate.scenarios.Scenario` realisation, or a recording
         as two sample-aligned ``(N, 3)`` rate arrays (rad/s; no truth, so no errors).
     estimators : sequence of str, optional
         Keys of :data:`ESTIMATORS`; default :data:`DEFAULT_ESTIMATORS`.
@@ -727,7 +729,7 @@ def compare(source="nominal", *, estimators=None, runs: int = 1, seed: int = 0, 
     seed : int
         Base seed.
     snr_factor, snr_via
-        Scale the scenario's SNR (see :func:`fusion_gyrocal.scenarios.make_scenario`).
+        Scale the scenario's SNR (see :func:`fusion_gyrocal.evaluate.scenarios.make_scenario`).
     workers : int, optional
         Processes for the Monte Carlo runs (default: all cores; 1 runs in this process).
     progress : bool
@@ -741,7 +743,7 @@ def compare(source="nominal", *, estimators=None, runs: int = 1, seed: int = 0, 
 
     Examples
     --------
-    >>> from fusion_gyrocal.compare import compare
+    >>> from fusion_gyrocal.evaluate.compare import compare
     >>> c = compare("nominal", estimators=["direct", "default"], runs=2, workers=1, progress=False)
     >>> [r.estimator for r in c.rows]
     ['direct', 'default']
@@ -1011,7 +1013,7 @@ def add_compare_parser(subparsers):
                     "Carlo runs of a simulated scenario; print a table (errors against the truth, error / "
                     "Cramer-Rao bound, time per solve) and optionally write Markdown, CSV and a figure.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    from .cli import add_recording_args
+    from ..cli.main import add_recording_args
 
     add_recording_args(p, optional=True)
     p.add_argument("--scenario", default="nominal",
@@ -1036,8 +1038,8 @@ def add_compare_parser(subparsers):
 
 def _load_recording(args):
     """Read and align the recording pair: ``(omega_1, omega_2, rate_hz)`` of the valid aligned samples."""
-    from .cli import read_streams
-    from .preprocess import align_streams
+    from ..cli.main import read_streams
+    from ..pipeline.preprocess import align_streams
 
     s1, s2 = read_streams(args)
     pair = align_streams(s1.t, s1.omega, s2.t, s2.omega, time_offset_s=args.offset, max_offset_s=args.max_offset,
@@ -1052,7 +1054,7 @@ def compare_main(args) -> int:
 
     from rich.console import Console
 
-    from .io.writers import atomic_write
+    from ..io.writers import atomic_write
 
     console = Console(highlight=False)
     try:

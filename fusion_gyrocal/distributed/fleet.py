@@ -37,13 +37,14 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from .calibrate import calibrate_pair, check_keyword_options, solve
+from ..core.solve import solve
+from ..pipeline.pipeline import calibrate_pair, check_keyword_options
 
 _SAMPLE_ARGS = ("omega_1", "omega_2", "moments", "t_1", "t_2", "mask")
-from .errors import FormatError, GyroCalError, InputError
-from .model import PairCalibration
-from .moments import Moments
-from .preprocess import check_timestamps
+from ..errors import FormatError, GyroCalError, InputError
+from ..core.model import PairCalibration
+from ..core.moments import Moments
+from ..pipeline.preprocess import check_timestamps
 
 COLUMNS = ("t", "w1x", "w1y", "w1z", "w2x", "w2y", "w2z")
 GYRO_FILES = ("gyro1", "gyro2")
@@ -162,7 +163,7 @@ def calibrate_device(path, **options) -> PairCalibration:
         raise FormatError(f"{path}: no such device file or folder")
     gyros = _gyro_files(path)
     if gyros is not None:
-        from .io import read_imu
+        from ..io import read_imu
 
         s1, s2 = read_imu(gyros[0]), read_imu(gyros[1])
         return calibrate_pair(s1.masked_omega, s2.masked_omega, t_1=s1.t, t_2=s2.t, **options)
@@ -290,7 +291,7 @@ def write_results(df, path) -> Path:
     """Write a results table (:func:`run_fleet`) to ``path`` as Parquet, atomically."""
     import io as _io
 
-    from .io.writers import atomic_write
+    from ..io.writers import atomic_write
 
     buf = _io.BytesIO()
     try:
@@ -498,7 +499,7 @@ def cmd_fleet(args) -> int:
 
 
 def fleet_main(argv=None) -> int:
-    """Standalone entry point: ``python -m fusion_gyrocal.fleet DEVICES... -o results.parquet``."""
+    """Standalone entry point: ``python -m fusion_gyrocal.distributed.fleet DEVICES... -o results.parquet``."""
     parser = argparse.ArgumentParser(prog="gyrocal")
     sub = parser.add_subparsers(dest="command", required=True)
     add_fleet_parser(sub)

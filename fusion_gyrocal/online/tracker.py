@@ -23,12 +23,12 @@ covariance by their duration.
 
 Unobservable directions
 -----------------------
-The scale factors are linked in groups (Theorem 2; :func:`fusion_gyrocal.observability.classify`):
+The scale factors are linked in groups (Theorem 2; :func:`fusion_gyrocal.core.observability.classify`):
 all six in the general configuration, plus one group per parallel axis pair in the degenerate
 ones (Lemmas 2-3). Scaling every member of a group by the same factor leaves ``A`` unchanged,
 so the data never inform the group's common factor. The tracker holds each such direction:
 
-* the group containing the gauge's members follows the :class:`~fusion_gyrocal.direct.Gauge`
+* the group containing the gauge's members follows the :class:`~fusion_gyrocal.core.direct.Gauge`
   (default the library's unit prior on both x axes, Eq. 32-34), as in
   :func:`fusion_gyrocal.calibrate_pair`; its common factor has no variance *in the gauge*;
 * every other group (a parallel axis pair) keeps the log-mean of its scale factors at the seed's
@@ -45,7 +45,7 @@ Modes
   and folded into ONE update. The stacked block update is an information update
   ``Lambda = sum_k H_k^T W H_k``, ``eta = sum_k H_k^T W r_k``; since ``H_k`` is affine in
   ``omega_2(k)`` and ``r_k`` affine in ``[omega_1(k); omega_2(k)]``, both follow exactly from the
-  block's :class:`~fusion_gyrocal.moments.Moments` (count, mean, centred scatter), the same
+  block's :class:`~fusion_gyrocal.core.moments.Moments` (count, mean, centred scatter), the same
   statistics the batch solver uses. The information is applied through filterpy as one
   update with a whitened pseudo-measurement of dimension 12 (``H_p^T H_p = Lambda``,
   ``H_p^T z_p = eta``, ``R = I``), which is algebraically the same update.
@@ -77,12 +77,12 @@ from filterpy.kalman import ExtendedKalmanFilter
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from .direct import Gauge
-from .errors import ConfigurationError, GyroCalError, InputError
-from .model import BIAS, ROT, S1, S2, PairCalibration
-from .moments import Moments, as_rates
-from .observability import A_of, classify, skew
-from .preprocess import check_timestamps, resample
+from ..core.direct import Gauge
+from ..errors import ConfigurationError, GyroCalError, InputError
+from ..core.model import BIAS, ROT, S1, S2, PairCalibration
+from ..core.moments import Moments, as_rates
+from ..core.observability import A_of, classify, skew
+from ..pipeline.preprocess import check_timestamps, resample
 
 __all__ = ["DriftNoise", "GyroPairTracker", "PairTruth", "ReseedEvent", "StepPrior", "TrackHistory",
            "plot_history", "simulate_drifting_pair", "track_figure_for_report"]
@@ -407,7 +407,7 @@ class _Ring:
 def _batch(w1, w2, noise_std, gauge) -> PairCalibration:
     """Batch calibration of a window (:func:`fusion_gyrocal.calibrate_pair`, which applies the paper's
     flex rejection, Section VI.C, when the residuals call for it)."""
-    from .calibrate import calibrate_pair
+    from ..pipeline.pipeline import calibrate_pair
 
     return calibrate_pair(w1, w2, noise_std=noise_std, gauge=gauge)
 
@@ -1159,7 +1159,7 @@ class GyroPairTracker:
         """Track unsynchronised streams: gyro 2 is resampled onto gyro 1's timestamps.
 
         ``time_offset_s`` of the seed is added to ``t_2`` (ARCHITECTURE convention). Gyro 2 is
-        interpolated with :func:`fusion_gyrocal.preprocess.resample` (a cubic spline, the paper's
+        interpolated with :func:`fusion_gyrocal.pipeline.preprocess.resample` (a cubic spline, the paper's
         footnote 1) separately inside each of its contiguous segments (a step larger than
         ``max_gap_s``, default 5 median intervals, is a gap); gyro 1's samples outside gyro 2's
         segments are dropped. Interpolation averages gyro 2's noise, so its stated variance is an
@@ -1240,7 +1240,7 @@ def track_figure_for_report(run, *, seed_fraction: float = 0.2, rate_hz: float =
 
     Parameters
     ----------
-    run : fusion_gyrocal.calibrate.PipelineRun
+    run : fusion_gyrocal.pipeline.pipeline.PipelineRun
         Sample-aligned rates the batch solver used (``run.omega_1``, ``run.omega_2``, ``run.t`` on
         gyro 1's clock, ``run.valid``).
     seed_fraction : float
@@ -1293,7 +1293,7 @@ def simulate_drifting_pair(t, R_1_2, scale_1, scale_2, *, bias_1=None, bias_2=No
         White noise per sample (rad/s).
     omega_true_1 : array_like (N, 3), optional
         True rate in gyro 1's frame (rad/s), e.g. recorded motion from
-        :func:`fusion_gyrocal.sim.load_broad_rates`. Default: :class:`fusion_gyrocal.sim.HumanMotion`.
+        :func:`fusion_gyrocal.evaluate.sim.load_broad_rates`. Default: :class:`fusion_gyrocal.evaluate.sim.HumanMotion`.
     rms : float
         RMS rate of the default human-like motion (rad/s per axis).
     rng : numpy.random.Generator or int, optional
@@ -1303,7 +1303,7 @@ def simulate_drifting_pair(t, R_1_2, scale_1, scale_2, *, bias_1=None, bias_2=No
     omega_1, omega_2 : ndarray (N, 3)
     truth : PairTruth
     """
-    from .sim import HumanMotion
+    from ..evaluate.sim import HumanMotion
 
     rng = np.random.default_rng(rng)
     t = np.asarray(t, dtype=float)

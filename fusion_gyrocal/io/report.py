@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .calibrate import PipelineRun
-from .model import PairCalibration
+from ..pipeline.pipeline import PipelineRun
+from ..core.model import PairCalibration
 
 
 def _figure(nrows=1, ncols=1, **kw):
@@ -51,7 +51,7 @@ def residual_vs_rate(run: PipelineRun, max_points: int = 20000):
 
 def snr_accumulation(run: PipelineRun, target_snr: float = 4e3):
     """Per-axis SNR of gyro 1 as samples accumulate (Eq. 36 per axis), with the paper's target."""
-    from .preprocess import excitation_report
+    from ..pipeline.preprocess import excitation_report
 
     cal = run.calibration
     sigma = float(np.hypot(*cal.noise_std))
@@ -128,7 +128,7 @@ def summary_markdown(cal: PairCalibration) -> str:
 
 def write_report(run: PipelineRun, out_dir, *, extra_figures=None) -> list[Path]:
     """Write the summary (``report.md``) and every figure as PNG into ``out_dir``."""
-    from .io.writers import atomic_write
+    from .writers import atomic_write
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

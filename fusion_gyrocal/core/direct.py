@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import ConfigurationError, ExcitationError
+from ..errors import ConfigurationError, ExcitationError
 from .moments import Moments
 from .observability import CONFIG_ALL, CONFIG_GENERAL, CONFIG_ONE_PAIR, Configuration, nearest_rotation
 

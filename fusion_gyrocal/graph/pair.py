@@ -3,7 +3,7 @@
 Visual-inertial pipelines built on GTSAM can put the pair calibration inside their own graph.
 This module provides the factors and a ready graph builder (:class:`GyroPairGraph`), solved in
 batch (Levenberg-Marquardt) or incrementally (iSAM2), with covariances from ``gtsam.Marginals``
-and the result returned as a :class:`~fusion_gyrocal.model.PairCalibration`.
+and the result returned as a :class:`~fusion_gyrocal.core.model.PairCalibration`.
 
 Variables (keys in :class:`GraphKeys`)
 --------------------------------------
@@ -17,7 +17,7 @@ Variables (keys in :class:`GraphKeys`)
 
 Gyro-pair window factor
 -----------------------
-For window ``w`` with moments ``(n_w, m_w = [m_1; m_2], Sc_w)`` (:mod:`fusion_gyrocal.moments`),
+For window ``w`` with moments ``(n_w, m_w = [m_1; m_2], Sc_w)`` (:mod:`fusion_gyrocal.core.moments`),
 ``A = S_1 R_1_2 S_2^-1`` (Eq. 4) and the errors-in-variables weight
 ``W(A) = (sigma_1^2 I + sigma_2^2 A A^T)^-1``, the per-sample cost of Eq. (8),
 ``sum_k r_k^T W(A) r_k`` with ``r_k = omega_1(k) - A omega_2(k) - b_w``, equals exactly (the
@@ -30,7 +30,7 @@ so each window is one fixed-size factor with a 21-dimensional residual (18 + 3),
 the windows' moments are merged into a single factor, exactly their sum). ``W`` is evaluated at the
 current ``A`` (``V`` the inverse Cholesky factor of ``W^-1``) and differentiated analytically, so
 the graph minimises the same profiled likelihood as the batch maximum-likelihood refinement
-(:mod:`fusion_gyrocal.refine`) and agrees with it on the same data.
+(:mod:`fusion_gyrocal.core.refine`) and agrees with it on the same data.
 
 Rotation-increment (camera) factor
 ----------------------------------
@@ -49,7 +49,7 @@ and the covariance is then conservative); its correlation with the pair factors 
 noise is neglected. Rotation composition per sample leaves a coning error of ~1e-5 rad per 0.1 s
 interval of 1 rad/s hand-held motion at 100 Hz.
 
-Covariance order and conventions follow :mod:`fusion_gyrocal.model`: ``[dtheta, scale_1,
+Covariance order and conventions follow :mod:`fusion_gyrocal.core.model`: ``[dtheta, scale_1,
 scale_2, bias]`` with ``R_true = Exp(dtheta) R_1_2``; GTSAM's right perturbation ``d`` maps to
 ``dtheta = R_1_2 d``.
 """
@@ -62,12 +62,12 @@ from functools import partial
 import gtsam
 import numpy as np
 
-from .calibrate import solve
-from .direct import Gauge
-from .errors import ConfigurationError, InputError
-from .model import BIAS, ROT, PairCalibration, mark_undetermined
-from .moments import Moments, as_rates, noise_pair
-from .observability import A_of, classify, dA_dp, per_axis_snr, skew
+from ..core.solve import solve
+from ..core.direct import Gauge
+from ..errors import ConfigurationError, InputError
+from ..core.model import BIAS, ROT, PairCalibration, mark_undetermined
+from ..core.moments import Moments, as_rates, noise_pair
+from ..core.observability import A_of, classify, dA_dp, per_axis_snr, skew
 
 __all__ = [
     "GraphKeys", "WindowStatistics", "RotationIncrements", "PreintegratedRotations", "GraphEstimate",
@@ -173,7 +173,7 @@ def _pair_residual(R, log_scale, bias, stats: WindowStatistics, noise_std, jacob
     ``Sigma(A) = sigma_1^2 I + sigma_2^2 A A^T = C C^T`` (Cholesky), ``V = C^-1``; residual
     ``[vec(V [I, -A] L), sqrt(n) V (m_1 - A m_2 - b)]``, so ``||e||^2 = tr(W(A) M(A)) + n r^T W(A) r``
     with ``W(A) = Sigma(A)^-1``: the profiled errors-in-variables likelihood (the same cost as
-    :func:`fusion_gyrocal.refine.ml_cost`, plus the window's mean term).
+    :func:`fusion_gyrocal.core.refine.ml_cost`, plus the window's mean term).
 
     Perturbations: ``R Exp(d)`` (GTSAM's Rot3 retraction), ``log_scale + e``, ``bias + beta``;
     ``dA = S_1 R [d x] S_2^-1``, ``diag(e_1) A`` and ``-A diag(e_2)``. The weight's derivative uses
@@ -559,7 +559,7 @@ class GyroPairGraph:
         window biases (no between factors).
     gauge : str or Gauge
         How the result states the global scale (``"unit_prior"``, ``"fixed"`` or a
-        :class:`~fusion_gyrocal.direct.Gauge`); ignored with ``global_scale=True``.
+        :class:`~fusion_gyrocal.core.direct.Gauge`); ignored with ``global_scale=True``.
     global_scale : bool
         Add the global log-scale variable ``g`` (absolute scales ``= exp(g) * relative``), to be fixed
         by :meth:`add_rotation_increments`.
@@ -1074,12 +1074,12 @@ def calibrate_pair_graph(omega_1, omega_2, *, noise_std=None, window: int = 1000
     -------
     PairCalibration
         ``method`` ``"graph_lm"`` or ``"graph_isam2"``; ``bias`` the count-weighted mean of the window
-        biases; covariance from the graph's marginals in the order of :mod:`fusion_gyrocal.model`.
+        biases; covariance from the graph's marginals in the order of :mod:`fusion_gyrocal.core.model`.
 
     Examples
     --------
-    >>> from fusion_gyrocal.graph import calibrate_pair_graph
-    >>> from fusion_gyrocal.sim import simulate_pair
+    >>> from fusion_gyrocal.graph.pair import calibrate_pair_graph
+    >>> from fusion_gyrocal.evaluate.sim import simulate_pair
     >>> sim = simulate_pair(rng=0)
     >>> cal = calibrate_pair_graph(sim.omega_1, sim.omega_2, noise_std=sim.noise_std, window=500)
     >>> cal.method, cal.bias_segments

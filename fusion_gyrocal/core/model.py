@@ -211,7 +211,7 @@ class PairCalibration:
     def from_dict(cls, d: dict[str, Any]) -> "PairCalibration":
         version = d.get("format_version")
         if version != FORMAT_VERSION:
-            from .errors import FormatError
+            from ..errors import FormatError
             raise FormatError(f"calibration: expected format_version {FORMAT_VERSION!r}, got {version!r}")
         kwargs = {}
         for f in fields(cls):

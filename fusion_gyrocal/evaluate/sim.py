@@ -256,7 +256,7 @@ def load_broad_rates(trial: str = "06_undisturbed_fast_rotation_A", *, data_dir=
     root = Path(data_dir) if data_dir is not None else shared_data_dir()
     path = root / "broad_handheld" / "data_mat" / f"{trial}.mat"
     if not path.exists():
-        from .errors import FormatError
+        from ..errors import FormatError
         raise FormatError(f"BROAD trial not found: expected {path}")
     d = loadmat(path, squeeze_me=True)
     gyr = np.asarray(d["imu_gyr"], dtype=float)

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import ExcitationError, InputError
+from ..errors import ExcitationError, InputError
 from .moments import Moments
 
 AXES = "xyz"

@@ -86,8 +86,8 @@ def _stream_options(args, k: str) -> dict:
 
 def read_streams(args, progress=None):
     """Read the two gyro streams named by :func:`add_recording_args` arguments."""
-    from .errors import InputError
-    from .io import read_imu
+    from ..errors import InputError
+    from ..io import read_imu
 
     path2 = args.gyro2 or args.gyro1
     if args.gyro2 is None and args.topic2 is None and args.imu2 is None:
@@ -104,7 +104,7 @@ def read_streams(args, progress=None):
 
 def _pick(opts: dict, path) -> dict:
     """Keep only the options that the detected reader accepts."""
-    from .io import detect_format
+    from ..io import detect_format
 
     fmt = detect_format(path)
     allowed = {"csv": {"columns", "unit", "sensitivity", "time_column", "time_unit"},
@@ -116,7 +116,7 @@ def _pick(opts: dict, path) -> dict:
 def _pipeline(args, s1, s2):
     import numpy as np
 
-    from .calibrate import run_pipeline
+    from ..pipeline.pipeline import run_pipeline
 
     window = None
     if args.bias_window:
@@ -174,7 +174,7 @@ def _console():
 def cmd_calibrate(args) -> int:
     from rich.progress import Progress
 
-    from .io import write_json, write_kalibr_imu_yaml, write_openvins_imu_chain
+    from ..io import write_json, write_kalibr_imu_yaml, write_openvins_imu_chain
 
     console = _console()
     with Progress(transient=True, disable=not sys.stderr.isatty()) as progress:
@@ -199,14 +199,14 @@ def cmd_calibrate(args) -> int:
 
 
 def cmd_report(args) -> int:
-    from .report import write_report
+    from ..io.report import write_report
 
     s1, s2 = read_streams(args)
     run = _pipeline(args, s1, s2)
     extra = {}
     if args.track:
-        from .ekf import track_figure_for_report  # drift tracking plot
-        from .errors import GyroCalError
+        from ..online.tracker import track_figure_for_report  # drift tracking plot
+        from ..errors import GyroCalError
         try:
             extra["drift_tracking"] = track_figure_for_report(run)
         except GyroCalError as e:  # the rest of the report is still worth writing
@@ -219,8 +219,8 @@ def cmd_report(args) -> int:
 def cmd_demo(args) -> int:
     import numpy as np
 
-    from .calibrate import run_pipeline
-    from .sim import PAPER_NOISE_STD, HumanMotion, random_rotation
+    from ..pipeline.pipeline import run_pipeline
+    from ..evaluate.sim import PAPER_NOISE_STD, HumanMotion, random_rotation
 
     rng = np.random.default_rng(args.seed)
     motion = HumanMotion(0.8, rng=rng)
@@ -274,7 +274,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("demo", help="calibrate a built-in simulated pair and print it beside the truth")
     p.add_argument("--seed", type=int, default=7)
     p.set_defaults(func=cmd_demo)
-    for mod, adder in (("compare", "add_compare_parser"), ("fleet", "add_fleet_parser")):
+    for mod, adder in (("evaluate.compare", "add_compare_parser"), ("distributed.fleet", "add_fleet_parser")):
         try:
             m = __import__(f"fusion_gyrocal.{mod}", fromlist=[adder])
             getattr(m, adder)(sub)
@@ -284,7 +284,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    from .errors import GyroCalError, NotRigidError
+    from ..errors import GyroCalError, NotRigidError
 
     parser = build_parser()
     args = parser.parse_args(argv)

@@ -26,7 +26,7 @@ from typing import Iterable
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 
 CHUNK_SIZE = 65536
 

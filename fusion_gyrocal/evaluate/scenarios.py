@@ -1,8 +1,8 @@
 """Named simulated scenarios for comparing estimators, with their truth and their bound.
 
-Every scenario follows the paper's simulation protocol (Section V, :func:`fusion_gyrocal.sim.simulate_pair`:
+Every scenario follows the paper's simulation protocol (Section V, :func:`fusion_gyrocal.evaluate.sim.simulate_pair`:
 100 Hz, white noise 0.1 deg/s per gyro, bias random walk 57.3 micro-deg/s per step, 60 s of human-like
-motion from :class:`fusion_gyrocal.sim.HumanMotion`) and changes one thing:
+motion from :class:`fusion_gyrocal.evaluate.sim.HumanMotion`) and changes one thing:
 
 =================  ===================================================================================
 name               what changes
@@ -24,7 +24,7 @@ its target), so that Monte Carlo runs at one SNR point share one abscissa.
 (``make_scenario("weak_axis", snr_factor=2)``).
 
 :func:`scenario_bound` gives the Cramer-Rao bound of a realisation in the paper's metrics
-(Eq. 37-38), from the true signal (:func:`fusion_gyrocal.observability.cramer_rao_bound`), plus the
+(Eq. 37-38), from the true signal (:func:`fusion_gyrocal.core.observability.cramer_rao_bound`), plus the
 rotation error that Appendix D predicts from the realised skew.
 """
 
@@ -36,8 +36,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .errors import InputError
-from .observability import cramer_rao_bound
+from ..errors import InputError
+from ..core.observability import cramer_rao_bound
 from .sim import (DEG, PAPER_BIAS_WALK_STD, PAPER_NOISE_STD, PAPER_RATE_HZ, PAPER_SKEW_STD, HumanMotion,
                   SimulatedPair, general_rotation, simulate_pair)
 
@@ -277,7 +277,7 @@ def make_scenario(name: str = "nominal", *, rng=None, snr_factor: float | None =
 
     Examples
     --------
-    >>> from fusion_gyrocal.scenarios import make_scenario
+    >>> from fusion_gyrocal.evaluate.scenarios import make_scenario
     >>> sc = make_scenario("snr_x2_noise", rng=0)
     >>> round(sc.snr / make_scenario("nominal", rng=0).snr, 6)
     2.0
@@ -322,7 +322,7 @@ def scenario_bound(scenario: Scenario) -> ScenarioBound:
 
     The Fisher information (Appendix B, generalised to the scale factors, bias profiled out) is
     evaluated at the truth with the true, noise-free signal scatter of gyro 2
-    (:func:`fusion_gyrocal.observability.cramer_rao_bound`):
+    (:func:`fusion_gyrocal.core.observability.cramer_rao_bound`):
 
     * rotation: ``sqrt(tr P_rot)``, the expected RMSE of ``||Log(R_hat R^T)||`` since
       ``Log(R_hat R^T) = dtheta`` to first order;

@@ -32,8 +32,8 @@ from scipy.interpolate import PPoly
 from scipy.linalg import solve_banded
 from scipy.optimize import minimize_scalar
 
-from .errors import InputError, TimeAlignmentError
-from .moments import Moments, as_rates, noise_pair
+from ..errors import InputError, TimeAlignmentError
+from ..core.moments import Moments, as_rates, noise_pair
 
 __all__ = [
     "UNITS", "check_timestamps", "to_rad_per_s", "saturation_mask", "valid_mask", "resample", "TimeOffset",

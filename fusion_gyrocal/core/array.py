@@ -15,7 +15,7 @@ or per-segment) biases out of the likelihood leaves
     L(theta) = tr(P S_c),   P = Sigma^-1 - Sigma^-1 H (H^T Sigma^-1 H)^-1 H^T Sigma^-1,
 
 where ``S_c`` is the (3N x 3N) centred scatter of the stacked measurements. For two gyros this is
-exactly the pair cost :func:`fusion_gyrocal.refine.ml_cost` (``A = S_1 R_1_2 S_2^-1``, Eq. 4); for
+exactly the pair cost :func:`fusion_gyrocal.core.refine.ml_cost` (``A = S_1 R_1_2 S_2^-1``, Eq. 4); for
 more it uses every pair at once, and because one true rate drives all gyros the rotations are
 consistent around every loop by construction (``R_i_j = R_ref_i^T R_ref_j``).
 
@@ -27,7 +27,7 @@ with an analytic gradient, seeded from the pairwise direct solutions (Eq. 17, Le
 gyro to the reference. The covariance is the inverse Fisher information in the gauge.
 
 The one O(N) pass over the samples is :meth:`ArrayMoments.from_samples`: the
-:class:`~fusion_gyrocal.moments.Moments` of every pair of gyros, from which the stacked scatter is
+:class:`~fusion_gyrocal.core.moments.Moments` of every pair of gyros, from which the stacked scatter is
 assembled.
 """
 
@@ -42,8 +42,8 @@ from scipy.linalg import null_space
 from scipy.optimize import nnls
 from scipy.spatial.transform import Rotation
 
-from .calibrate import pair_covariance, solve
-from .errors import ConfigurationError, GyroCalError, InputError
+from .solve import pair_covariance, solve
+from ..errors import ConfigurationError, GyroCalError, InputError
 from .model import PairCalibration, mark_undetermined
 from .moments import Moments, as_rates, window_moments
 from .observability import A_of, classify, dA_dp, per_axis_snr, skew
@@ -630,7 +630,7 @@ def _noise_vector(noise_std, n):
 
 
 def _refine(R, s, moments_scatter, dof, noise, constraints, regauge, max_iter, tol=1e-11):
-    """Joint maximum likelihood by :func:`~fusion_gyrocal.refine.fisher_scoring` in the gauge's tangent space."""
+    """Joint maximum likelihood by :func:`~fusion_gyrocal.core.refine.fisher_scoring` in the gauge's tangent space."""
     def step(x, delta):
         Rn, sn = _retract(*x, delta)
         return Rn, regauge(sn)
@@ -811,8 +811,8 @@ def calibrate_array(omegas, *, reference: int = 0, noise_std=None, gauge: str = 
     Examples
     --------
     >>> import numpy as np
-    >>> from fusion_gyrocal.multi import calibrate_array
-    >>> from fusion_gyrocal.sim import HumanMotion, random_rotation
+    >>> from fusion_gyrocal.core.array import calibrate_array
+    >>> from fusion_gyrocal.evaluate.sim import HumanMotion, random_rotation
     >>> rng = np.random.default_rng(0)
     >>> omega = HumanMotion(rng=rng)(np.arange(4000) / 100.0)
     >>> R = [np.eye(3)] + [random_rotation(rng) for _ in range(2)]

@@ -1,6 +1,6 @@
 """Streaming calibration of a gyro pair: chunks in, an estimate out at any time, bounded memory.
 
-The calibrator keeps only sufficient statistics (:class:`~fusion_gyrocal.moments.Moments`, a few
+The calibrator keeps only sufficient statistics (:class:`~fusion_gyrocal.core.moments.Moments`, a few
 dozen numbers), never samples, so its memory does not grow with the length of the log:
 
 * no forgetting: every chunk is merged (:meth:`Moments.merge`); the estimate equals the batch
@@ -23,10 +23,11 @@ from collections import deque
 
 import numpy as np
 
-from .calibrate import check_keyword_options, solve
-from .errors import ConfigurationError, InputError
-from .model import PairCalibration
-from .moments import Moments, as_rates
+from ..core.solve import solve
+from ..pipeline.pipeline import check_keyword_options
+from ..errors import ConfigurationError, InputError
+from ..core.model import PairCalibration
+from ..core.moments import Moments, as_rates
 
 _RESERVED = ("moments", "method", "noise_std", "gauge", "scale_prior_std")
 
@@ -56,7 +57,7 @@ class StreamingCalibrator:
 
     Examples
     --------
-    >>> from fusion_gyrocal.sim import simulate_pair
+    >>> from fusion_gyrocal.evaluate.sim import simulate_pair
     >>> sim = simulate_pair(rng=0, n=6000)
     >>> cal = StreamingCalibrator(window_s=30.0, rate_hz=100.0)
     >>> for start in range(0, 6000, 500):
