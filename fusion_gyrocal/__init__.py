@@ -8,13 +8,14 @@ The core names import eagerly; the estimators with heavy dependencies (filterpy,
 load on first use.
 """
 
-from .core.solve import solve
-from .pipeline.pipeline import calibrate_pair
-from .core.direct import Gauge
-from .errors import (ConfigurationError, ExcitationError, FormatError, GyroCalError, InputError, NotRigidError,
-                     TimeAlignmentError)
+from .core.gauge import Gauge
 from .core.model import PairCalibration
 from .core.moments import Moments
+from .core.solve import solve
+from .errors import (ConfigurationError, ExcitationError, FormatError, GyroCalError, InputError, NotRigidError,
+                     OptionError, TimeAlignmentError)
+from .options import Options
+from .pipeline.pipeline import calibrate_pair
 
 __version__ = "0.1.0"
 
@@ -27,8 +28,8 @@ _LAZY = {
 }
 
 __all__ = [
-    "calibrate_pair", "solve", "Gauge", "PairCalibration", "Moments",
-    "GyroCalError", "InputError", "ExcitationError", "ConfigurationError", "TimeAlignmentError",
+    "calibrate_pair", "solve", "Options", "Gauge", "PairCalibration", "Moments",
+    "GyroCalError", "InputError", "OptionError", "ExcitationError", "ConfigurationError", "TimeAlignmentError",
     "NotRigidError", "FormatError", "__version__", *_LAZY,
 ]
 

@@ -16,6 +16,10 @@ class InputError(GyroCalError, ValueError):
     """Input arrays or timestamps do not have the expected shape, type or content."""
 
 
+class OptionError(GyroCalError, ValueError):
+    """An option (keyword argument or command-line flag) has a value it does not accept, or is unknown."""
+
+
 class ExcitationError(GyroCalError):
     """The motion does not excite every axis enough to determine the calibration (Lemma 1)."""
 

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fusion_gyrocal import (ExcitationError, Gauge, InputError, PairCalibration, calibrate_pair, ConfigurationError)
+from fusion_gyrocal import (ExcitationError, Gauge, InputError, OptionError, PairCalibration,
+                            calibrate_pair)
 from fusion_gyrocal.core.model import ROT
 from fusion_gyrocal.evaluate.sim import PAPER_NOISE_STD, DEG, rotation_error, simulate_pair
 
@@ -209,12 +210,14 @@ def test_calibrate_pair_skew_compensation_and_budget():
     assert np.all(np.diag(budget.covariance)[ROT] > np.diag(raw.covariance)[ROT])
 
 
-def test_calibrate_pair_rejects_unknown_method_and_gauge():
+def test_calibrate_pair_rejects_unknown_method_and_gauge_with_one_error_class():
     sim = simulate_pair(rng=0, n=500)
-    with pytest.raises(InputError, match="method"):
+    with pytest.raises(OptionError, match="method"):
         calibrate_pair(sim.omega_1, sim.omega_2, method="magic")
-    with pytest.raises(ConfigurationError, match="gauge"):
+    with pytest.raises(OptionError, match="gauge"):
         calibrate_pair(sim.omega_1, sim.omega_2, gauge="none")
+    with pytest.raises(OptionError, match="no_such_option"):
+        calibrate_pair(sim.omega_1, sim.omega_2, no_such_option=1)
 
 
 def test_pair_calibration_to_dict_round_trip_is_json():

@@ -8,7 +8,7 @@ pa = pytest.importorskip("pyarrow")
 pq = pytest.importorskip("pyarrow.parquet")
 distributed = pytest.importorskip("distributed")
 
-from fusion_gyrocal import ConfigurationError, FormatError, InputError, Moments, PairCalibration, solve  # noqa: E402
+from fusion_gyrocal import FormatError, InputError, Moments, OptionError, PairCalibration, solve  # noqa: E402
 from fusion_gyrocal.distributed.fleet import (RESULT_COLUMNS, calibrate_log, find_devices, fleet_main, log_moments,  # noqa: E402
                                   row_groups, run_fleet)
 from fusion_gyrocal.evaluate.sim import PAPER_NOISE_STD, rotation_error, simulate_pair  # noqa: E402
@@ -103,8 +103,8 @@ def test_run_fleet_missing_device_is_a_row_not_a_crash(fleet_dir):
     assert df.loc[1, "error_type"] == "FormatError" and "no such device" in df.loc[1, "error"]
 
 
-def test_run_fleet_unknown_option_raises_configuration_error(fleet_dir):
-    with pytest.raises(ConfigurationError, match="no_such_option"):
+def test_run_fleet_unknown_option_raises_option_error(fleet_dir):
+    with pytest.raises(OptionError, match="no_such_option"):
         run_fleet(fleet_dir[0], no_such_option=1)
 
 

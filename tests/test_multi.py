@@ -7,7 +7,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from fusion_gyrocal import ConfigurationError, ExcitationError, InputError, Moments, NotRigidError, solve
+from fusion_gyrocal import (ConfigurationError, ExcitationError, InputError, Moments, NotRigidError, OptionError,
+                            solve)
 from fusion_gyrocal.core.array import (ArrayCalibration, ArrayMoments, _retract, calibrate_array, joint_cost,
                                   joint_gradient, solve_array)
 from fusion_gyrocal.core.refine import ml_cost
@@ -290,7 +291,7 @@ def test_calibrate_array_non_finite_sample_names_gyro_and_sample():
 
 
 @pytest.mark.parametrize("kwargs, exc", [
-    ({"reference": 3}, InputError), ({"reference": -1}, InputError), ({"gauge": "nope"}, ConfigurationError),
+    ({"reference": 3}, InputError), ({"reference": -1}, InputError), ({"gauge": "nope"}, OptionError),
     ({"noise_std": [1e-3, 1e-3]}, InputError), ({"noise_std": -1.0}, InputError),
 ])
 def test_calibrate_array_bad_options_raise(kwargs, exc):

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from fusion_gyrocal import ConfigurationError, InputError, Moments, solve
+from fusion_gyrocal import InputError, Moments, OptionError, solve
 from fusion_gyrocal.evaluate.sim import DEG, PAPER_NOISE_STD, HumanMotion, random_rotation, rotation_error, simulate_pair
 from fusion_gyrocal.online.stream import StreamingCalibrator
 
@@ -143,7 +143,7 @@ def test_streaming_calibrator_window_without_clock_raises():
     {"rate_hz": 0.0}, {"n_bins": 1}, {"no_such_option": 1}, {"moments": None},
 ])
 def test_streaming_calibrator_bad_configuration_raises(kwargs):
-    with pytest.raises(ConfigurationError):
+    with pytest.raises(OptionError):
         StreamingCalibrator(**kwargs)
 
 

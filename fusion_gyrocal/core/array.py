@@ -38,18 +38,18 @@ from dataclasses import dataclass, field
 from typing import Iterable, Sequence
 
 import numpy as np
-from scipy.linalg import null_space
 from scipy.optimize import nnls
 from scipy.spatial.transform import Rotation
 
 from .solve import pair_covariance, solve
 from ..errors import ConfigurationError, GyroCalError, InputError
+from .gauge import Gauge, constrained_inverse
 from .model import PairCalibration, mark_undetermined
 from .moments import Moments, as_rates, window_moments
-from .observability import A_of, classify, dA_dp, per_axis_snr, skew
+from .observability import A_of, classify, dA_dp, per_axis_snr
+from ..lie import skew
 from .refine import fisher_scoring, residual_scatter
 
-GAUGES = ("unit_prior", "fixed")
 
 
 # ---------------------------------------------------------------------------------------- statistics
@@ -312,7 +312,7 @@ class ArrayCalibration:
         for name, shape in shapes.items():
             arr = np.array(getattr(self, name), dtype=bool if name == "scale_observable" else np.float64)
             if arr.shape != shape:
-                raise ValueError(f"{name}: expected shape {shape}, got {arr.shape}")
+                raise InputError(f"{name}: expected shape {shape}, got {arr.shape}")
             arr.flags.writeable = False
             object.__setattr__(self, name, arr)
         object.__setattr__(self, "notes", tuple(self.notes))
@@ -472,50 +472,8 @@ def _retract(R, s, delta):
     return np.einsum("kij,kjl->kil", rot, R), s * np.exp(delta[3 * n:].reshape(n, 3))
 
 
-# ---------------------------------------------------------------------------------------- gauge
-def _gauge_members(gauge: str, n: int, reference: int):
-    if gauge == "unit_prior":
-        return tuple((k, 0) for k in range(n)), None
-    if gauge == "fixed":
-        return ((reference, 0),), 1.0
-    raise ConfigurationError(f"gauge: expected one of {GAUGES}, got {gauge!r}")
-
-
-def _gauge_apply(groups, members, value, s):
-    """Rescale each group of linked scale factors so that the gauge holds (as :meth:`Gauge.apply`)."""
-    s = np.array(s, dtype=float)
-    for group in groups:
-        own = [m for m in members if m in group]
-        use = own or list(group)
-        r = np.array([s[g, a] for g, a in use])
-        c = value / r[0] if (value is not None and own) else r.sum() / (r**2).sum()  # Eq. 32-34
-        for g, a in group:
-            s[g, a] *= c
-    return s
-
-
-def _gauge_rows(groups, members, value, s, n, reference):
-    """Linearised conditions on ``[dtheta, log s]``: the reference rotation is fixed, one row per group."""
-    rows = []
-    for m in range(3):
-        r = np.zeros(6 * n)
-        r[3 * reference + m] = 1.0
-        rows.append(r)
-    for group in groups:
-        own = [m for m in members if m in group]
-        use = own or list(group)
-        r = np.zeros(6 * n)
-        for g, a in use:
-            r[3 * n + 3 * g + a] = 1.0 if (value is not None and own) else s[g, a] * (2 * s[g, a] - 1)
-        rows.append(r)
-    return np.array(rows)
-
-
-def _describe_gauge(gauge, reference, n_groups):
-    if gauge == "fixed":
-        text = f"scale[{reference}][0] == 1"
-    else:
-        text = "unit prior on the x-axis scale factors of every gyro (Eq. 32-34 generalised)"
+def _describe(gauge: Gauge, n: int, n_groups: int) -> str:
+    text = gauge.describe(tuple(f"scale[{k}]" for k in range(n)))
     if n_groups > 1:
         text += f"; {n_groups} groups of linked axes, each other group at its members' unit prior"
     return text
@@ -657,10 +615,11 @@ def solve_array(moments: ArrayMoments, *, reference: int = 0, noise_std=None, ga
     noise_std : float or array_like (N,), optional
         White-noise std per sample of every gyro (rad/s). Default: from the pairwise residuals
         (three-cornered hat for N >= 3; equal split for N = 2, where only the sum is observable).
-    gauge : {"unit_prior", "fixed"}
+    gauge : {"unit_prior", "fixed"} or Gauge
         ``"unit_prior"``: the x-axis scale factors of all gyros as close to 1 as their determined
-        ratios allow (Eq. 32-34 generalised); ``"fixed"``: ``scale[reference][0] == 1``. Groups of
-        linked axes that hold no gauge member follow the unit prior over their own members.
+        ratios allow (Eq. 32-34 generalised); ``"fixed"``: ``scale[reference][0] == 1``; or a
+        :class:`~fusion_gyrocal.core.gauge.Gauge` (gyros counted from 0). Groups of linked axes that
+        hold no gauge member follow the unit prior over their own members.
     parallel_tol_deg : float
         Axes closer than this to (anti)parallel are treated as parallel (see :func:`classify`).
     min_snr : float
@@ -688,19 +647,21 @@ def solve_array(moments: ArrayMoments, *, reference: int = 0, noise_std=None, ga
     reference = int(reference)
     if moments.count < 4:
         raise InputError(f"expected at least 4 samples (Lemma 1), got {int(moments.count)}")
-    members, value = _gauge_members(gauge, n, reference)
+    gauge = Gauge.parse(gauge, n, reference)
     user_noise = _noise_vector(noise_std, n)
 
     R, s = _seed(moments, reference, user_noise, parallel_tol_deg, min_snr)
     groups, configs = _scale_groups(R, n, parallel_tol_deg)
-    s = _gauge_apply(groups, members, value, s)
+    s = gauge.apply(groups, s)
     Sc, dof = moments.scatter, moments.dof
+    fix_reference = np.eye(3, 6 * n, 3 * reference)   # the reference's rotation is the array frame
 
     def constraints(sc):
-        return _gauge_rows(groups, members, value, sc, n, reference)
+        """Linearised conditions on ``[dtheta (3n), log s (3n)]``: the reference rotation, then the gauge."""
+        return np.vstack([fix_reference, gauge.constraints(groups, sc, leading=3 * n)])
 
     def regauge(sc):
-        return _gauge_apply(groups, members, value, sc)
+        return gauge.apply(groups, sc)
 
     notes = []
     total_it = 0
@@ -726,10 +687,10 @@ def solve_array(moments: ArrayMoments, *, reference: int = 0, noise_std=None, ga
     # covariance: inverse Fisher information in the gauge's tangent space
     Omega = _signal_scatter(R, s, Sc, noise, dof)
     F = joint_information(R, s, noise, Omega)
-    Z = null_space(constraints(s))
-    P = Z @ np.linalg.pinv(Z.T @ F @ Z, rcond=1e-12, hermitian=True) @ Z.T
+    C = constraints(s)
+    P = constrained_inverse(F, C)
     cost = joint_cost(R, s, Sc, noise)
-    chi2_dof = max(3.0 * (n - 1) * dof - (Z.shape[1]), 1.0)
+    chi2_dof = max(3.0 * (n - 1) * dof - (6 * n - len(C)), 1.0)
     ratio = cost / chi2_dof
     if user_noise is not None and ratio > 1.5:
         P = P * ratio
@@ -777,7 +738,7 @@ def solve_array(moments: ArrayMoments, *, reference: int = 0, noise_std=None, ga
                      "within a group are determined")
     return ArrayCalibration(
         R_ref_k=R, scale=s, bias=bias, reference=reference, scale_observable=obs, scale_groups=groups,
-        configurations=configs, covariance=cov, gauge=_describe_gauge(gauge, reference, len(groups)), snr=snr,
+        configurations=configs, covariance=cov, gauge=_describe(gauge, n, len(groups)), snr=snr,
         n_samples=int(moments.count), noise_std=noise, noise_source=noise_source, residual_rms=residual_rms,
         iterations=total_it, bias_segments=moments.segments, notes=tuple(notes), moments=moments)
 

@@ -5,21 +5,18 @@
   general (Lemma 4, smallest eigenvector of A_0^T A_0, Eq. 30-31), one pair of axes parallel
   (Lemma 3, any pair and any signs, Eq. 26-29) and all axes parallel (Lemma 2, any signed
   permutation).
-* :class:`Gauge`: how the global scale (Theorem 2) is fixed: a fixed scale factor, the paper's
-  unit-scale prior on one axis of both gyros (Eq. 32-34), or a user-supplied known scale.
+
+The global scale (Theorem 2) is fixed afterwards by :class:`~fusion_gyrocal.core.gauge.Gauge`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from ..errors import ConfigurationError, ExcitationError
+from ..lie import nearest_rotation
 from .moments import Moments
-from .observability import CONFIG_ALL, CONFIG_GENERAL, CONFIG_ONE_PAIR, Configuration, nearest_rotation
-
-GYRO_NAMES = ("scale_1", "scale_2")
+from .observability import CONFIG_ALL, CONFIG_GENERAL, CONFIG_ONE_PAIR, Configuration
 
 
 def solve_A(moments: Moments) -> tuple[np.ndarray, np.ndarray]:
@@ -59,7 +56,7 @@ def decompose(A, config: Configuration) -> tuple[np.ndarray, np.ndarray, np.ndar
     """Decompose ``A = S_1 C S_2^-1`` into ``(R_1_2, scale_1, scale_2)`` (Lemmas 2-4).
 
     Scale factors that the configuration leaves undetermined (the common factor of each
-    parallel axis pair) are set by the unit convention of :meth:`Gauge.apply`; only their
+    parallel axis pair) are set by the unit convention of :meth:`~fusion_gyrocal.core.gauge.Gauge.apply`; only their
     ratio comes from the data. The caller applies the gauge afterwards.
     """
     A = np.asarray(A, dtype=float)
@@ -86,93 +83,3 @@ def decompose(A, config: Configuration) -> tuple[np.ndarray, np.ndarray, np.ndar
             s1[i], s2[j] = abs(A[i, j]), 1.0
     R = nearest_rotation((A * s2[None, :]) / s1[:, None])  # Eq. (31) and its projection onto SO(3)
     return R, s1, s2
-
-
-@dataclass(frozen=True)
-class Gauge:
-    """How the unobservable global scale is fixed (Theorem 2).
-
-    Parameters
-    ----------
-    members : tuple of (gyro, axis)
-        Scale factors the gauge acts on; gyro 0 is gyro 1 (``scale_1``), gyro 1 is gyro 2.
-    value : float or None
-        ``None``: the paper's unit-scale prior, the members' scale factors are as close to 1 as
-        their determined ratios allow (Eq. 32-34). A float: the single member's scale factor is
-        known and equal to ``value``.
-    """
-
-    members: tuple = ((0, 0), (1, 0))
-    value: float | None = None
-
-    @classmethod
-    def unit_prior(cls, axis: int = 0) -> "Gauge":
-        """The paper's prior that the ``axis`` scale factors of both gyros are close to 1 (Eq. 32)."""
-        return cls(((0, axis), (1, axis)), None)
-
-    @classmethod
-    def known_scale(cls, gyro: int, axis: int, value: float) -> "Gauge":
-        """A known scale factor: ``scale_<gyro>[axis] == value`` (gyro is 1 or 2)."""
-        if gyro not in (1, 2) or axis not in (0, 1, 2) or not value > 0:
-            raise ConfigurationError(f"known scale: expected gyro in (1, 2), axis in (0, 1, 2), value > 0; "
-                                     f"got gyro={gyro}, axis={axis}, value={value}")
-        return cls(((gyro - 1, axis),), float(value))
-
-    @classmethod
-    def fixed(cls) -> "Gauge":
-        """``scale_1[0] == 1``."""
-        return cls.known_scale(1, 0, 1.0)
-
-    @classmethod
-    def parse(cls, gauge) -> "Gauge":
-        """Accept a :class:`Gauge`, ``"unit_prior"`` or ``"fixed"``."""
-        if isinstance(gauge, Gauge):
-            return gauge
-        if gauge == "unit_prior":
-            return cls.unit_prior()
-        if gauge == "fixed":
-            return cls.fixed()
-        raise ConfigurationError(f"gauge: expected 'unit_prior', 'fixed' or a Gauge, got {gauge!r}")
-
-    def describe(self) -> str:
-        names = ", ".join(f"{GYRO_NAMES[g]}[{a}]" for g, a in self.members)
-        if self.value is None:
-            return f"unit prior on {names} (Eq. 32-34)"
-        return f"{names} == {self.value:g}"
-
-    def members_in(self, group) -> list:
-        """The gauge's members that belong to ``group`` (a tuple of ``(gyro, axis)``)."""
-        return [m for m in self.members if m in group]
-
-    def apply(self, groups, s1, s2) -> tuple[np.ndarray, np.ndarray]:
-        """Rescale each group of linked scale factors so that the gauge holds.
-
-        The group holding the gauge's members follows the gauge; any other group (the
-        parallel axis pairs of a degenerate configuration, whose common factor the data
-        cannot fix) follows the unit convention over all its members.
-        """
-        s = np.stack([np.asarray(s1, float), np.asarray(s2, float)])
-        for group in groups:
-            members = self.members_in(group) or list(group)
-            r = np.array([s[g, a] for g, a in members])
-            if self.value is not None and self.members_in(group):
-                c = self.value / r[0]
-            else:
-                c = r.sum() / (r**2).sum()  # argmin_c sum (c r - 1)^2 (Eq. 32-34 for two members)
-            for g, a in group:
-                s[g, a] *= c
-        return s[0], s[1]
-
-    def constraints(self, groups, s1, s2) -> np.ndarray:
-        """Linearised gauge conditions (one row per group) on ``[dtheta, log s_1, log s_2]``."""
-        s = np.stack([s1, s2])
-        rows = []
-        for group in groups:
-            members = self.members_in(group) or list(group)
-            row = np.zeros(9)
-            for g, a in members:
-                # fixed: d log s = 0; unit prior: d/dlog s of sum (s - 1) s = (2 s - 1) s
-                row[3 + 3 * g + a] = 1.0 if (self.value is not None and self.members_in(group)) \
-                    else s[g, a] * (2 * s[g, a] - 1)
-            rows.append(row)
-        return np.array(rows)

@@ -21,27 +21,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ExcitationError, InputError
+from ..lie import skew
 from .moments import Moments
 
 AXES = "xyz"
 CONFIG_GENERAL, CONFIG_ONE_PAIR, CONFIG_ALL = "general", "one_axis_pair_parallel", "all_axes_parallel"
-
-
-def skew(v) -> np.ndarray:
-    """``[v x]``: the matrix of the cross product with ``v``; (..., 3) -> (..., 3, 3)."""
-    v = np.asarray(v, dtype=float)
-    out = np.zeros(v.shape[:-1] + (3, 3))
-    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
-    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
-    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
-    return out
-
-
-def nearest_rotation(M) -> np.ndarray:
-    """Nearest rotation matrix to ``M`` in the Frobenius norm (Horn et al., used after Eq. 31)."""
-    U, _, Vt = np.linalg.svd(M)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return U @ D @ Vt
 
 
 def A_of(R, s1, s2) -> np.ndarray:

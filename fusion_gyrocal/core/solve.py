@@ -1,4 +1,4 @@
-"""Calibrate a gyroscope pair: from samples (:func:`calibrate_pair`) or moments (:func:`solve`).
+"""Calibrate a gyroscope pair from its moments: :func:`solve`.
 
 Pipeline: moments -> direct least squares for A (Eq. 17) -> configuration class (Lemmas 2-4)
 -> decomposition -> gauge (Theorem 2, Eq. 32-34) -> maximum-likelihood refinement (Appendix C
@@ -9,15 +9,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from .direct import Gauge, decompose, solve_A
-from ..errors import ConfigurationError, InputError, NotRigidError
+from ..errors import NotRigidError
+from ..lie import log, nearest_rotation
+from ..options import Options
+from .direct import decompose, solve_A
+from .gauge import Gauge, constrained_inverse
 from .model import BIAS, ROT, PairCalibration, mark_undetermined
 from .moments import Moments, noise_pair
 from .observability import (A_of, check_excitation, check_samples, classify, dA_dp, fisher_information,
-                            nearest_rotation, per_axis_snr, residual_weight, signal_scatter)
+                            per_axis_snr, residual_weight, signal_scatter)
 from .refine import residual_scatter, refine_ml
-
-METHODS = ("ml", "direct")
 
 
 def _residual_noise(moments: Moments, A, ratio: float = 1.0) -> tuple[float, float]:
@@ -30,14 +31,12 @@ def _residual_noise(moments: Moments, A, ratio: float = 1.0) -> tuple[float, flo
     return float(np.sqrt(s2) * ratio), float(np.sqrt(s2))
 
 
-def _skew_compensation(intrinsics, name):
-    """``U^-1`` for an upper-triangular intrinsic matrix ``S = U D`` (U unit upper triangular)."""
+def _skew_compensation(intrinsics):
+    """``U^-1`` for an upper-triangular intrinsic matrix ``S = U D`` (U unit upper triangular; checked by
+    :class:`~fusion_gyrocal.options.Options`)."""
     if intrinsics is None:
         return np.eye(3)
     S = np.asarray(intrinsics, dtype=float)
-    if S.shape != (3, 3) or np.any(np.tril(S, -1) != 0) or np.any(np.diag(S) <= 0):
-        raise InputError(f"{name}: expected an upper-triangular (3, 3) intrinsic matrix with a positive "
-                         f"diagonal, got {S.tolist()}")
     U = S / np.diag(S)[None, :]
     return np.linalg.inv(U)
 
@@ -48,74 +47,58 @@ def _transform(moments: Moments, T1, T2) -> Moments:
     return Moments(moments.count, T @ moments.mean, T @ moments.scatter @ T.T, moments.segments)
 
 
-def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_prior",
-          scale_prior_std: float | None = None, parallel_tol_deg: float = 5.0,
-          intrinsics_1=None, intrinsics_2=None, skew_std=0.0, min_snr: float = 10.0,
-          max_unexplained: float = 0.05, on_not_rigid: str = "raise", noise_ratio: float | None = None,
-          target_snr: float = 4e3) -> PairCalibration:
+def solve(moments: Moments, options: Options | None = None, *, noise_ratio: float | None = None,
+          **keywords) -> PairCalibration:
     """Calibrate a pair from its sufficient statistics.
+
+    Pipeline: direct least squares for A (Eq. 17) -> rigidity test -> excitation test (Lemma 1) ->
+    configuration class and decomposition (Lemmas 2-4) -> gauge (Theorem 2, Eq. 32-34) ->
+    maximum-likelihood refinement (``method="ml"``) -> covariance (Appendix B generalised) ->
+    skew error budget (Appendix D, Eq. 40-41).
 
     Parameters
     ----------
     moments : Moments
         Statistics of sample-aligned ``[omega_1; omega_2]`` (pooled per segment for a
         piecewise-constant bias).
-    method : {"ml", "direct"}
-        ``"direct"``: the paper's closed form (Eq. 17, Lemmas 2-4, Eq. 32-34), covariance by first-
-        order propagation of the least-squares covariance of A. ``"ml"`` (default): the direct
-        solution refined to the maximum-likelihood estimate of the errors-in-variables model;
-        covariance = inverse Fisher information (the Cramer-Rao bound at the estimate).
-    noise_std : float or (float, float), optional
-        White-noise std per sample of gyro 1 and gyro 2 (rad/s). Default: from the
-        least-squares residual, split between the gyros by ``noise_ratio`` (only the sum of the
-        variances is observable there; :func:`calibrate_pair` estimates the ratio from the data).
-    gauge : "unit_prior", "fixed" or Gauge
-        How the global scale is fixed (ignored when ``scale_prior_std`` is given).
-    scale_prior_std : float, optional
-        Gaussian prior N(1, std^2) on every scale factor (``"ml"`` only); directions the data do
-        not fix then take the prior and the covariance says so.
-    parallel_tol_deg : float
-        Axes closer than this to parallel are treated as parallel (ill-conditioned decomposition).
-    intrinsics_1, intrinsics_2 : (3, 3) upper-triangular, optional
-        Manufacturer intrinsic matrices; their skew (off-diagonal) part is compensated before the
-        solve; the scale factors are then estimated.
-    skew_std : float or (float, float)
-        Standard deviation of the remaining skew error of each gyro; its rotation error
-        (Appendix D, Eq. 40-41) is reported in ``skew_rotation_covariance`` and added to the
-        covariance.
-    min_snr : float
-        Smallest SNR of any principal motion direction accepted (Lemma 1).
-    max_unexplained : float
-        Rigidity test: the pair is "not rigid" when the least-squares fit leaves more than this
-        fraction of gyro 1's (centred) motion energy unexplained.
-    on_not_rigid : {"raise", "flag"}
-        Raise :class:`NotRigidError` (default), or return the result with ``rigid=False`` and the
-        covariance from the residual scatter.
+    options : Options, optional
+        The solve options (:class:`~fusion_gyrocal.options.Options`; its pipeline options play no part
+        here). Default: ``Options()``.
     noise_ratio : float, optional
         ``sigma_1 / sigma_2`` used to split the residual variance when ``noise_std`` is not given
         (only the sum ``sigma_1^2 + sigma_2^2`` is observable from the residual); default 1.
-    target_snr : float
-        Per-axis SNR the data should reach (Section VI accumulates to 4e3); a note names the axes
-        below it.
+        :func:`~fusion_gyrocal.calibrate_pair` estimates it from each stream's third differences.
+    **keywords
+        Fields of :class:`~fusion_gyrocal.options.Options` (``method``, ``noise_std``, ``gauge``, ...),
+        applied on top of ``options``.
+
+    Returns
+    -------
+    PairCalibration
+
+    Raises
+    ------
+    OptionError
+        An option value it does not accept.
+    ExcitationError
+        Motion that does not determine every parameter (Lemma 1).
+    NotRigidError
+        The pair is not rigid and ``on_not_rigid="raise"``.
     """
-    if on_not_rigid not in ("raise", "flag"):
-        raise InputError(f"on_not_rigid: expected 'raise' or 'flag', got {on_not_rigid!r}")
-    if method not in METHODS:
-        raise InputError(f"method: expected one of {METHODS}, got {method!r}")
-    if scale_prior_std is not None and (method != "ml" or not scale_prior_std > 0):
-        raise ConfigurationError("scale_prior_std: expected a positive value with method='ml'")
-    gauge = Gauge.parse(gauge)
-    T1, T2 = _skew_compensation(intrinsics_1, "intrinsics_1"), _skew_compensation(intrinsics_2, "intrinsics_2")
-    moments = _transform(moments, T1, T2) if (intrinsics_1 is not None or intrinsics_2 is not None) else moments
-    noise = None if noise_std is None else noise_pair(noise_std)
+    o = Options.of(options, **keywords)
+    method, scale_prior_std, parallel_tol_deg = o.method, o.scale_prior_std, o.parallel_tol_deg
+    gauge = Gauge.parse(o.gauge)
+    if o.intrinsics_1 is not None or o.intrinsics_2 is not None:
+        moments = _transform(moments, _skew_compensation(o.intrinsics_1), _skew_compensation(o.intrinsics_2))
+    noise = None if o.noise_std is None else noise_pair(o.noise_std)
     check_samples(moments)
     A_ls, _ = solve_A(moments)
     unexplained = float(np.trace(residual_scatter(A_ls, moments.scatter)) / np.trace(moments.S11))
-    rigid = unexplained <= max_unexplained
-    if not rigid and on_not_rigid == "raise":
+    rigid = unexplained <= o.max_unexplained
+    if not rigid and o.on_not_rigid == "raise":
         raise NotRigidError(
             f"not rigid: a single rotation and scale factors leave {100 * unexplained:.1f}% of gyro 1's motion "
-            f"unexplained (a rigid pair leaves <= {100 * max_unexplained:g}%); the gyros move relative to each "
+            f"unexplained (a rigid pair leaves <= {100 * o.max_unexplained:g}%); the gyros move relative to each "
             "other, the streams are misaligned in time, or they are not the same device")
     if noise is None:
         ratio = 1.0 if noise_ratio is None or not np.isfinite(noise_ratio) else float(noise_ratio)
@@ -125,7 +108,7 @@ def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_p
     else:
         noise_source = "user"
     if rigid:
-        check_excitation(moments, noise, min_snr=min_snr)
+        check_excitation(moments, noise, min_snr=o.min_snr)
     # classify from the polar factor of A (scales ~1), then again from the decomposed rotation
     config = classify(nearest_rotation(A_ls), parallel_tol_deg)
     notes = []
@@ -136,12 +119,12 @@ def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_p
         R, s1, s2 = decompose(A_ls, config)
     else:  # no rigid model fits: report the nearest rotation with unit scales, flagged, never refined
         R, s1, s2 = nearest_rotation(A_ls), np.ones(3), np.ones(3)
-    s1, s2 = gauge.apply(config.groups, s1, s2)
+    s1, s2 = gauge.apply(config.groups, np.stack([s1, s2]))
     if method == "ml" and rigid:
         use_prior = scale_prior_std is not None
         ref = refine_ml(moments, R, s1, s2, noise, scale_prior_std=scale_prior_std,
-                        constraints=None if use_prior else (lambda a, b: gauge.constraints(config.groups, a, b)),
-                        regauge=None if use_prior else (lambda a, b: gauge.apply(config.groups, a, b)))
+                        constraints=None if use_prior else (lambda a, b: gauge.constraints(config.groups, [a, b], 3)),
+                        regauge=None if use_prior else (lambda a, b: tuple(gauge.apply(config.groups, [a, b]))))
         R, s1, s2, iterations = ref.R, ref.s1, ref.s2, ref.iterations
         if not ref.converged:
             notes.append(f"maximum-likelihood refinement stopped after {iterations} iterations without converging")
@@ -168,13 +151,13 @@ def solve(moments: Moments, *, method: str = "ml", noise_std=None, gauge="unit_p
     cov = pair_covariance(P9, R, s1, s2, A, moments, noise)
     if scale_prior_std is None:
         mark_undetermined(cov, config.scale_observable)
-    sk = np.broadcast_to(np.asarray(skew_std, dtype=float), (2,))
+    sk = np.asarray(o.skew_std, dtype=float)
     skew_cov = 0.25 * (sk[0] ** 2 + sk[1] ** 2) * np.eye(3)  # Appendix D: theta ~ (w_1 - C w_2) / 2
     cov[ROT, ROT] += skew_cov
     snr = per_axis_snr(moments, noise)
-    weak = [f"{'xyz'[i]} ({snr[i]:.3g})" for i in range(3) if snr[i] < target_snr]
+    weak = [f"{'xyz'[i]} ({snr[i]:.3g})" for i in range(3) if snr[i] < o.target_snr]
     if weak:
-        notes.append(f"per-axis SNR below the target {target_snr:g} (the paper accumulates to 4e3) on axis "
+        notes.append(f"per-axis SNR below the target {o.target_snr:g} (the paper accumulates to 4e3) on axis "
                      f"{', '.join(weak)}: rotate more about those axes of gyro 1, or record longer")
     if config.name != "general" and scale_prior_std is None:
         pairs = ", ".join(f"gyro 1 {'xyz'[i]} ~ gyro 2 {'xyz'[j]} ({ang:.2f} deg)"
@@ -198,20 +181,17 @@ def _ml_covariance(F, s1, s2, config, gauge, scale_prior_std):
         H = F.copy()
         H[3:, 3:] += np.diag(s**2 / scale_prior_std**2)
         return np.linalg.inv(H)
-    from scipy.linalg import null_space
-    Z = null_space(gauge.constraints(config.groups, s1, s2))
-    return Z @ np.linalg.pinv(Z.T @ F @ Z, rcond=1e-12, hermitian=True) @ Z.T
+    return constrained_inverse(F, gauge.constraints(config.groups, [s1, s2], 3))
 
 
 def _direct_covariance(moments, A_ls, noise, config, gauge):
     """First-order propagation of Cov(vec A) through the decomposition and gauge (numerical Jacobian)."""
-    from scipy.spatial.transform import Rotation
     W_inv = np.linalg.inv(residual_weight(A_ls, noise))
     cov_A = np.kron(W_inv, np.linalg.inv(moments.S22))  # row-major vec(A)
 
     def params(A):
         R, s1, s2 = decompose(A, config)
-        s1, s2 = gauge.apply(config.groups, s1, s2)
+        s1, s2 = gauge.apply(config.groups, [s1, s2])
         return R, np.log(s1), np.log(s2)
 
     R0, l10, l20 = params(A_ls)
@@ -221,7 +201,7 @@ def _direct_covariance(moments, A_ls, noise, config, gauge):
         dA = np.zeros(9)
         dA[k] = h
         R, l1, l2 = params(A_ls + dA.reshape(3, 3))
-        J[:3, k] = Rotation.from_matrix(R @ R0.T).as_rotvec() / h
+        J[:3, k] = log(R @ R0.T) / h
         J[3:6, k] = (l1 - l10) / h
         J[6:, k] = (l2 - l20) / h
     return J @ cov_A @ J.T

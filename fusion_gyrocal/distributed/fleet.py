@@ -38,9 +38,9 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from ..core.solve import solve
-from ..pipeline.pipeline import calibrate_pair, check_keyword_options
+from ..options import Options
+from ..pipeline.pipeline import calibrate_pair
 
-_SAMPLE_ARGS = ("omega_1", "omega_2", "moments", "t_1", "t_2", "mask")
 from ..errors import FormatError, GyroCalError, InputError
 from ..core.model import PairCalibration
 from ..core.moments import Moments
@@ -141,15 +141,17 @@ def _read_parquet_device(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return w1, w2
 
 
-def calibrate_device(path, **options) -> PairCalibration:
+def calibrate_device(path, options: Options | None = None, **keywords) -> PairCalibration:
     """Run the per-device pipeline (:func:`fusion_gyrocal.calibrate_pair`) on one device recording.
 
     Parameters
     ----------
     path : str or Path
         A device (see the module docstring).
-    **options
-        Keyword arguments of :func:`fusion_gyrocal.calibrate_pair` (``method``, ``noise_std``, ...).
+    options : Options, optional
+        Passed to :func:`fusion_gyrocal.calibrate_pair` unchanged.
+    **keywords
+        Fields of :class:`~fusion_gyrocal.options.Options` (``method``, ``noise_std``, ...).
 
     Raises
     ------
@@ -158,6 +160,7 @@ def calibrate_device(path, **options) -> PairCalibration:
     GyroCalError
         Anything :func:`fusion_gyrocal.calibrate_pair` raises.
     """
+    options = Options.of(options, **keywords)
     path = Path(path).expanduser()
     if not path.exists():
         raise FormatError(f"{path}: no such device file or folder")
@@ -166,14 +169,14 @@ def calibrate_device(path, **options) -> PairCalibration:
         from ..io import read_imu
 
         s1, s2 = read_imu(gyros[0]), read_imu(gyros[1])
-        return calibrate_pair(s1.masked_omega, s2.masked_omega, t_1=s1.t, t_2=s2.t, **options)
+        return calibrate_pair(s1.masked_omega, s2.masked_omega, t_1=s1.t, t_2=s2.t, options=options)
     if not _is_device(path):
         raise FormatError(f"{path}: expected a .parquet file, a <name>.parquet folder of .parquet parts or a folder "
                           f"with {GYRO_FILES[0]}.* and {GYRO_FILES[1]}.*")
     w1, w2 = _read_parquet_device(path)
     finite = np.isfinite(w1).all(axis=1) & np.isfinite(w2).all(axis=1)
     return calibrate_pair(np.where(finite[:, None], w1, 0.0), np.where(finite[:, None], w2, 0.0),
-                          mask=finite, **options)
+                          mask=finite, options=options)
 
 
 # ---------------------------------------------------------------------------------------- rows
@@ -206,7 +209,7 @@ def _row(name: str, path: str, cal: PairCalibration | None, exc: BaseException |
     return row
 
 
-def device_row(path, options: dict | None = None) -> dict:
+def device_row(path, options: Options | None = None) -> dict:
     """Calibrate one device and return its results-table row; never raises for a failing device.
 
     A :class:`~fusion_gyrocal.errors.GyroCalError` is recorded with its message in ``error``; any
@@ -215,7 +218,7 @@ def device_row(path, options: dict | None = None) -> dict:
     path = Path(path)
     t0 = time.perf_counter()
     try:
-        cal = calibrate_device(path, **(options or {}))
+        cal = calibrate_device(path, options)
         return _row(path.stem, str(path), cal, None, time.perf_counter() - t0)
     except Exception as exc:  # noqa: BLE001 - recorded per device by design
         return _row(path.stem, str(path), None, exc, time.perf_counter() - t0)
@@ -229,7 +232,7 @@ def _table(rows):
 
 
 def run_fleet(devices, *, client=None, output=None, chunked: bool = False, split_every: int = 8,
-              **options):
+              options: Options | None = None, **keywords):
     """Calibrate many devices on Dask; one results row per device, errors recorded per device.
 
     Parameters
@@ -247,9 +250,11 @@ def run_fleet(devices, *, client=None, output=None, chunked: bool = False, split
         for one worker. Parquet devices only; no time alignment or flex gating.
     split_every : int
         Fan-in of the tree reduction (``chunked`` only).
-    **options
-        Keyword arguments of :func:`fusion_gyrocal.calibrate_pair` (or of :func:`fusion_gyrocal.solve`
-        when ``chunked``), e.g. ``method="direct"``, ``noise_std=1e-3``.
+    options : Options, optional
+        Passed unchanged to :func:`fusion_gyrocal.calibrate_pair` on every device (to
+        :func:`fusion_gyrocal.solve` when ``chunked``, which refuses pipeline options).
+    **keywords
+        Fields of :class:`~fusion_gyrocal.options.Options`, e.g. ``method="direct"``, ``noise_std=1e-3``.
 
     Returns
     -------
@@ -264,15 +269,16 @@ def run_fleet(devices, *, client=None, output=None, chunked: bool = False, split
     ------
     InputError
         When no device is found.
-    ConfigurationError
-        For an option the pipeline does not have.
+    OptionError
+        For an option the pipeline does not have (or, ``chunked``, a pipeline option).
     """
+    options = Options.of(options, **keywords)
+    if chunked:
+        options.require_stage("solve", "run_fleet(chunked=True)")
     paths = find_devices([devices] if isinstance(devices, (str, Path)) else devices)
     if chunked:
-        check_keyword_options(solve, options, reserved=_SAMPLE_ARGS)
         rows = _run_chunked(paths, client, split_every, options)
     else:
-        check_keyword_options(calibrate_pair, options, reserved=_SAMPLE_ARGS)
         task = functools.partial(device_row, options=options)
         if client is not None:
             futures = client.map(task, [str(p) for p in paths], pure=False)
@@ -397,10 +403,12 @@ def log_moments(path, *, client=None, split_every: int = 8) -> Moments:
     return m
 
 
-def calibrate_log(path, *, client=None, split_every: int = 8, **solve_options) -> PairCalibration:
-    """Calibrate a pair from a huge Parquet log: :func:`log_moments` across workers, then :func:`fusion_gyrocal.solve`."""
-    check_keyword_options(solve, solve_options, reserved=_SAMPLE_ARGS)
-    return solve(log_moments(path, client=client, split_every=split_every), **solve_options)
+def calibrate_log(path, *, client=None, split_every: int = 8, options: Options | None = None,
+                  **keywords) -> PairCalibration:
+    """Calibrate a pair from a huge Parquet log: :func:`log_moments` across workers, then :func:`fusion_gyrocal.solve`
+    with ``options`` (solve options only; keywords are fields of :class:`~fusion_gyrocal.options.Options`)."""
+    options = Options.of(options, **keywords).require_stage("solve", "calibrate_log")
+    return solve(log_moments(path, client=client, split_every=split_every), options)
 
 
 def _run_chunked(paths, client, split_every, options):
@@ -420,7 +428,7 @@ def _run_chunked(paths, client, split_every, options):
         try:
             if isinstance(m, _Failed):
                 raise m.error()
-            cal = solve(m, **options)
+            cal = solve(m, options)
             rows[i] = _row(p.stem, str(p), cal, None, per_device + time.perf_counter() - t1)
         except Exception as exc:  # noqa: BLE001 - recorded per device
             rows[i] = _row(p.stem, str(p), None, exc, per_device + time.perf_counter() - t1)

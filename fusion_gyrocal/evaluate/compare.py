@@ -64,7 +64,8 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import GyroCalError, InputError
 from ..core.moments import Moments, as_rates
-from ..core.observability import A_of, skew
+from ..core.observability import A_of
+from ..lie import skew
 from .scenarios import SNR_FACTORS, Scenario, ScenarioBound, describe_scenario, make_scenario, scenario_bound
 from .sim import rotation_error, scale_error
 

@@ -63,11 +63,12 @@ import gtsam
 import numpy as np
 
 from ..core.solve import solve
-from ..core.direct import Gauge
+from ..core.gauge import Gauge
 from ..errors import ConfigurationError, InputError
 from ..core.model import BIAS, ROT, PairCalibration, mark_undetermined
 from ..core.moments import Moments, as_rates, noise_pair
-from ..core.observability import A_of, classify, dA_dp, per_axis_snr, skew
+from ..core.observability import A_of, classify, dA_dp, per_axis_snr
+from ..lie import skew
 
 __all__ = [
     "GraphKeys", "WindowStatistics", "RotationIncrements", "PreintegratedRotations", "GraphEstimate",
@@ -633,8 +634,8 @@ class GyroPairGraph:
         seed_std = np.sqrt(np.diag(seed.covariance)[3:9]) / np.concatenate([seed.scale_1, seed.scale_2])
         seed_std = seed_std[np.isfinite(seed_std) & (seed_std > 0)]
         sigma = GAUGE_PRIOR_RATIO * (float(seed_std.min()) if seed_std.size else 1e-6)
-        s1, s2 = (seed.scale_1, seed.scale_2) if self.global_scale else self.gauge.apply(groups, seed.scale_1,
-                                                                                         seed.scale_2)
+        s1, s2 = (seed.scale_1, seed.scale_2) if self.global_scale else self.gauge.apply(groups, [seed.scale_1,
+                                                                                          seed.scale_2])
         self._insert(k.rotation, gtsam.Rot3(seed.R_1_2))
         self._insert(k.log_scale, np.log(np.concatenate([s1, s2])))
         if self.global_scale:
@@ -942,7 +943,7 @@ class GyroPairGraph:
             gauge = GLOBAL_SCALE_GAUGE
         else:
             groups = self.configuration.groups
-            s1, s2 = self.gauge.apply(groups, s1, s2)
+            s1, s2 = self.gauge.apply(groups, [s1, s2])
             C = _project_gauge(C, self.gauge, groups, s1, s2)
             gauge = self.gauge.describe()
             scale_observable = self.configuration.scale_observable
@@ -1029,7 +1030,7 @@ def _project_gauge(C, gauge: Gauge, groups, s1, s2) -> np.ndarray:
     gauge without changing anything the data determine.
     """
     G = np.zeros((len(groups), 12))
-    G[:, :9] = gauge.constraints(groups, s1, s2)
+    G[:, :9] = gauge.constraints(groups, [s1, s2], 3)
     Un = np.zeros((12, len(groups)))
     for j, group in enumerate(groups):
         for gyro, axis in group:

@@ -23,13 +23,11 @@ from collections import deque
 
 import numpy as np
 
-from ..core.solve import solve
-from ..pipeline.pipeline import check_keyword_options
-from ..errors import ConfigurationError, InputError
 from ..core.model import PairCalibration
 from ..core.moments import Moments, as_rates
-
-_RESERVED = ("moments", "method", "noise_std", "gauge", "scale_prior_std")
+from ..core.solve import solve
+from ..errors import InputError, OptionError
+from ..options import Options
 
 
 class StreamingCalibrator:
@@ -49,11 +47,12 @@ class StreamingCalibrator:
         Sample rate used as the clock when :meth:`update` gets no timestamps.
     n_bins : int
         Bins of the sliding window (memory and resolution of its edge: ``window_s / n_bins``).
-    method, gauge, scale_prior_std
-        Passed to :func:`fusion_gyrocal.solve`.
-    **solve_options
-        Further keyword arguments of :func:`fusion_gyrocal.solve` (``min_snr``, ``parallel_tol_deg``,
-        ``intrinsics_1``, ...), checked here.
+    options : Options, optional
+        Solve options passed to :func:`fusion_gyrocal.solve` (:class:`~fusion_gyrocal.options.Options`);
+        pipeline options (time alignment, bias model, flex gate) act on samples and are refused here.
+    **keywords
+        Fields of :class:`~fusion_gyrocal.options.Options` (``noise_std``, ``method``, ``gauge``,
+        ``min_snr``, ...), applied on top of ``options``.
 
     Examples
     --------
@@ -66,22 +65,19 @@ class StreamingCalibrator:
     'general'
     """
 
-    def __init__(self, *, noise_std=None, forgetting: float | None = None, window_s: float | None = None,
-                 rate_hz: float | None = None, n_bins: int = 32, method: str = "ml", gauge="unit_prior",
-                 scale_prior_std: float | None = None, **solve_options):
+    def __init__(self, *, forgetting: float | None = None, window_s: float | None = None,
+                 rate_hz: float | None = None, n_bins: int = 32, options: Options | None = None, **keywords):
         if forgetting is not None and window_s is not None:
-            raise ConfigurationError("forgetting and window_s: expected at most one way to forget old data, got both")
+            raise OptionError("forgetting and window_s: expected at most one way to forget old data, got both")
         if forgetting is not None and not (0.0 < float(forgetting) <= 1.0):
-            raise ConfigurationError(f"forgetting: expected a factor per sample in (0, 1], got {forgetting}")
+            raise OptionError(f"forgetting: expected a factor per sample in (0, 1], got {forgetting}")
         if window_s is not None and not (np.isfinite(window_s) and window_s > 0):
-            raise ConfigurationError(f"window_s: expected a positive duration in seconds, got {window_s}")
+            raise OptionError(f"window_s: expected a positive duration in seconds, got {window_s}")
         if rate_hz is not None and not (np.isfinite(rate_hz) and rate_hz > 0):
-            raise ConfigurationError(f"rate_hz: expected a positive sample rate in Hz, got {rate_hz}")
+            raise OptionError(f"rate_hz: expected a positive sample rate in Hz, got {rate_hz}")
         if int(n_bins) < 2:
-            raise ConfigurationError(f"n_bins: expected at least 2 bins, got {n_bins}")
-        check_keyword_options(solve, solve_options, reserved=_RESERVED)
-        self._solve_kwargs = dict(solve_options, method=method, noise_std=noise_std, gauge=gauge,
-                                  scale_prior_std=scale_prior_std)
+            raise OptionError(f"n_bins: expected at least 2 bins, got {n_bins}")
+        self.options = Options.of(options, **keywords).require_stage("solve", "StreamingCalibrator")
         self.forgetting = None if forgetting is None else float(forgetting)
         self.window_s = None if window_s is None else float(window_s)
         self.rate_hz = None if rate_hz is None else float(rate_hz)
@@ -209,5 +205,5 @@ class StreamingCalibrator:
             if m.count < 4:
                 raise InputError(f"no estimate yet: expected at least 4 samples in the statistics, got "
                                  f"{m.count:.3g} after {self._samples_seen} sample(s)")
-            self._cache = solve(m, **self._solve_kwargs)
+            self._cache = solve(m, self.options)
         return self._cache

@@ -77,11 +77,12 @@ from filterpy.kalman import ExtendedKalmanFilter
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from ..core.direct import Gauge
+from ..core.gauge import Gauge
 from ..errors import ConfigurationError, GyroCalError, InputError
 from ..core.model import BIAS, ROT, S1, S2, PairCalibration
 from ..core.moments import Moments, as_rates
-from ..core.observability import A_of, classify, skew
+from ..core.observability import A_of, classify
+from ..lie import skew
 from ..pipeline.preprocess import check_timestamps, resample
 
 __all__ = ["DriftNoise", "GyroPairTracker", "PairTruth", "ReseedEvent", "StepPrior", "TrackHistory",
@@ -598,7 +599,7 @@ class GyroPairTracker:
 
     def _regauge(self, s1, s2):
         for g in self._gauge_groups:
-            s1, s2 = self.gauge.apply((g,), s1, s2)
+            s1, s2 = self.gauge.apply((g,), [s1, s2])
         return np.asarray(s1, float), np.asarray(s2, float)
 
     def _enforce_hold(self):
@@ -632,7 +633,7 @@ class GyroPairTracker:
         G = np.zeros_like(N)
         ng = len(self._gauge_groups)
         if ng:
-            G[:, :ng] = self.gauge.constraints(tuple(self._gauge_groups), self._s1, self._s2)[:, 3:].T
+            G[:, :ng] = self.gauge.constraints(tuple(self._gauge_groups), [self._s1, self._s2]).T
         G[:, ng:] = N[:, ng:] / N[:, ng:].sum(axis=0)   # log-mean of each parallel pair
         T = np.eye(6) - N @ np.linalg.solve(G.T @ N, G.T)
         Pi = np.eye(_DIM)

@@ -16,19 +16,8 @@ from ..core.direct import solve_A
 from ..core.model import PairCalibration
 from ..core.moments import Moments
 from ..core.solve import solve
-from ..errors import ConfigurationError, InputError
-
-
-def check_keyword_options(func, options: dict, *, reserved=()) -> None:
-    """Raise :class:`ConfigurationError` for keyword options that ``func`` does not take (or that the
-    caller sets itself, ``reserved``), naming the ones it accepts."""
-    import inspect
-
-    allowed = set(inspect.signature(func).parameters) - set(reserved)
-    unknown = sorted(set(options) - allowed)
-    if unknown:
-        raise ConfigurationError(f"unknown option(s) {unknown} for {func.__name__}(); expected some of "
-                                 f"{sorted(allowed)}")
+from ..errors import InputError
+from ..options import Options
 
 
 def difference_noise_std(omega) -> float:
@@ -45,15 +34,8 @@ def difference_noise_std(omega) -> float:
     return float(np.median(1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0)) / np.sqrt(20.0))
 
 
-
-def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s: float | None = None,
-                   max_offset_s: float = 1.0, rate_hz: float | None = None, saturation_limit=None,
-                   method: str = "ml", noise_std=None, gauge="unit_prior", scale_prior_std: float | None = None,
-                   bias_window: int | None = None, bias_walk_std=None, mask=None, flex_rejection="auto",
-                   flex_margin: int = 2,
-                   parallel_tol_deg: float = 5.0, intrinsics_1=None, intrinsics_2=None, skew_std=0.0,
-                   min_snr: float = 10.0, max_unexplained: float = 0.05, on_not_rigid: str = "raise",
-                   max_rate: float | None = None) -> PairCalibration:
+def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Options | None = None,
+                   **keywords) -> PairCalibration:
     """Calibrate two rigidly mounted gyroscopes from their angular rates.
 
     Parameters
@@ -67,45 +49,14 @@ def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s: float
         refined below one sample (unless ``time_offset_s`` is given), and gyro 2 is resampled
         onto gyro 1's timestamps (or a ``rate_hz`` grid) with cubic splines that never cross
         a gap (see :mod:`fusion_gyrocal.pipeline.preprocess`).
-    time_offset_s : float, optional
-        Known offset, ADDED to gyro 2's timestamps to put them on gyro 1's clock.
-    max_offset_s : float
-        Search range of the offset estimate.
-    rate_hz : float, optional
-        Resample both streams onto a uniform grid at this rate.
-    saturation_limit : float or (float, float), optional
-        Sensor range (rad/s) of each gyro for masking clipped samples (default: detect samples
-        sitting flat at the extreme values).
-    method : {"ml", "direct"}
-        Estimator (see :func:`solve`); ``"ml"`` is the default and the best available.
-    noise_std : float or (float, float), optional
-        White-noise std per sample (rad/s); estimated from the residual when omitted.
-    gauge : "unit_prior", "fixed" or Gauge
-        Global-scale gauge (Theorem 2): the paper's unit prior on both x axes (default),
-        ``scale_1[0] == 1``, or ``Gauge.known_scale(gyro, axis, value)``.
-    scale_prior_std : float, optional
-        Gaussian prior N(1, std^2) on the scale factors.
-    bias_window : int, optional
-        Model the bias as piecewise constant over windows of this many samples (for drifting
-        biases); default: one constant bias (Eq. 8).
-    bias_walk_std : float or (float, float), optional
-        Model the bias of each gyro as a random walk with this step std per sample (rad/s); the
-        streams are whitened by the Kalman innovations filter of that model
-        (:func:`~fusion_gyrocal.core.moments.random_walk_bias_moments`), which is the exact likelihood.
-        Needs ``noise_std``. The best choice for temperature drift over long logs.
     mask : array_like of bool (N,), optional
         Samples to use (sample-aligned input only).
-    flex_rejection : {"auto", True, False}
-        The paper's flex rejection (Section VI.C): residuals beyond the 3-sigma gate (in its 3-D
-        form, chi-square with the same 0.27% false-alarm rate) and ``flex_margin`` samples on each
-        side are removed and the pair is solved again. ``"auto"`` applies it only when more than
-        1% of the samples exceed the gate (four times what white noise explains).
-    max_rate : float, optional
-        Drop samples where either gyro's rate norm exceeds this (rad/s): a known flex or saturation
-        limit (the paper's advice to avoid the fastest motion). Slow samples are kept: they cost
-        nothing in accuracy, and selecting on gyro 1's noisy measurement would bias the fit.
-    parallel_tol_deg, intrinsics_1, intrinsics_2, skew_std, min_snr, max_unexplained, on_not_rigid
-        See :func:`solve`.
+    options : Options, optional
+        Every option of the solver and the pipeline (:class:`~fusion_gyrocal.options.Options`: method,
+        noise model, gauge, priors, time alignment, bias model, flex gate, ...). Default: ``Options()``.
+    **keywords
+        Fields of :class:`~fusion_gyrocal.options.Options`, applied on top of ``options``
+        (e.g. ``noise_std=1.7e-3``, ``gauge="fixed"``, ``bias_walk_std=1e-5``).
 
     Returns
     -------
@@ -113,6 +64,8 @@ def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s: float
 
     Raises
     ------
+    OptionError
+        An unknown option or a value it does not accept.
     InputError
         Wrong shapes or lengths, non-finite values, fewer than 4 samples, constant input, bad
         timestamps (unsorted, duplicate, non-finite).
@@ -133,14 +86,7 @@ def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s: float
     >>> cal.configuration
     'general'
     """
-    return run_pipeline(omega_1, omega_2, t_1=t_1, t_2=t_2, time_offset_s=time_offset_s, max_offset_s=max_offset_s,
-                        rate_hz=rate_hz, saturation_limit=saturation_limit, method=method, noise_std=noise_std,
-                        gauge=gauge, scale_prior_std=scale_prior_std, bias_window=bias_window,
-                        bias_walk_std=bias_walk_std, mask=mask, flex_rejection=flex_rejection,
-                        flex_margin=flex_margin, parallel_tol_deg=parallel_tol_deg,
-                        intrinsics_1=intrinsics_1, intrinsics_2=intrinsics_2, skew_std=skew_std, min_snr=min_snr,
-                        max_unexplained=max_unexplained, on_not_rigid=on_not_rigid,
-                        max_rate=max_rate).calibration
+    return run_pipeline(omega_1, omega_2, t_1=t_1, t_2=t_2, mask=mask, options=options, **keywords).calibration
 
 
 @dataclass(frozen=True)
@@ -162,20 +108,10 @@ class PipelineRun:
     aligned: object | None
 
 
-def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s=None, max_offset_s=1.0, rate_hz=None,
-                 saturation_limit=None, method="ml", noise_std=None, gauge="unit_prior", scale_prior_std=None,
-                 bias_window=None, bias_walk_std=None, mask=None, flex_rejection="auto", flex_margin=2,
-                 parallel_tol_deg=5.0, intrinsics_1=None, intrinsics_2=None, skew_std=0.0, min_snr=10.0,
-                 max_unexplained=0.05,
-                 on_not_rigid="raise", min_kept_energy=0.05, max_rate=None) -> PipelineRun:
-    """:func:`calibrate_pair` returning its intermediate products too (same parameters).
-
-    ``min_kept_energy``: flex rejection is applied only when the kept samples retain at least this
-    fraction of gyro 1's motion energy; otherwise the rate-dependent residual is not a flex burst
-    but pervasive, removing it would remove the excitation itself, and a note says so.
-    """
-    if flex_rejection not in ("auto", True, False):
-        raise InputError(f"flex_rejection: expected 'auto', True or False, got {flex_rejection!r}")
+def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Options | None = None,
+                 **keywords) -> PipelineRun:
+    """:func:`calibrate_pair` returning its intermediate products too (same parameters)."""
+    o = Options.of(options, **keywords)
     offset, offset_std = 0.0, 0.0
     pair, t_grid = None, None
     if (t_1 is None) != (t_2 is None):
@@ -185,9 +121,9 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s=None, ma
         if mask is not None:
             raise InputError("mask: only for sample-aligned input; with timestamps, saturated and non-finite "
                              "samples are masked automatically")
-        lim = (None, None) if saturation_limit is None else np.broadcast_to(np.asarray(saturation_limit, float), (2,))
-        pair = align_streams(t_1, omega_1, t_2, omega_2, time_offset_s=time_offset_s, max_offset_s=max_offset_s,
-                             rate_hz=rate_hz, valid_1=valid_mask(omega_1, limit=lim[0]),
+        lim = (None, None) if o.saturation_limit is None else o.saturation_limit
+        pair = align_streams(t_1, omega_1, t_2, omega_2, time_offset_s=o.time_offset_s, max_offset_s=o.max_offset_s,
+                             rate_hz=o.rate_hz, valid_1=valid_mask(omega_1, limit=lim[0]),
                              valid_2=valid_mask(omega_2, limit=lim[1]))
         w1 = np.where(pair.valid[:, None], pair.omega_1, 0.0)
         w2 = np.where(pair.valid[:, None], pair.omega_2, 0.0)
@@ -199,45 +135,40 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s=None, ma
         w1, w2 = omega_1, omega_2
         if mask is not None:
             mask = np.asarray(mask, dtype=bool)
-    if max_rate is not None:
+    if o.max_rate is not None:
         from .preprocess import informative_mask
-        keep = informative_mask(w1, w2, mask, 1.0, min_rate=0.0, max_rate=max_rate)
+        keep = informative_mask(w1, w2, mask, 1.0, min_rate=0.0, max_rate=o.max_rate)
         mask = keep if mask is None else (mask & keep)
-    kw = dict(method=method, noise_std=noise_std, gauge=gauge, scale_prior_std=scale_prior_std,
-              parallel_tol_deg=parallel_tol_deg, intrinsics_1=intrinsics_1, intrinsics_2=intrinsics_2,
-              skew_std=skew_std, min_snr=min_snr, max_unexplained=max_unexplained, on_not_rigid=on_not_rigid)
-
+    solve_options = o
+    bias_walk_std, bias_window = o.bias_walk_std, o.bias_window
     if bias_walk_std is not None:
-        if noise_std is None:
-            raise ConfigurationError("bias_walk_std: the drifting-bias filter needs noise_std too (rad/s per sample)")
-        if bias_window is not None:
-            raise ConfigurationError("bias_window and bias_walk_std: expected one bias model, got both")
         from ..core.moments import random_walk_bias_moments, random_walk_gain
-        gain, noise_scale = random_walk_gain(bias_walk_std, noise_std)
-        kw["noise_std"] = np.broadcast_to(np.asarray(noise_std, float), (2,)) * noise_scale
+        gain, noise_scale = random_walk_gain(bias_walk_std, o.noise_std)
+        solve_options = o.replace(noise_std=tuple(np.asarray(o.noise_std, float) * noise_scale))
         gate_window = max(20, int(round(1.0 / gain)))  # residual windows of the filter's time constant
     else:
         gate_window = bias_window
 
     def moments_of(use):
         if bias_walk_std is not None:
-            return random_walk_bias_moments(w1, w2, bias_walk_std, noise_std, mask=use)[0]
+            return random_walk_bias_moments(w1, w2, bias_walk_std, o.noise_std, mask=use)[0]
         if bias_window is None:
             return Moments.from_samples(w1, w2, mask=use)
         from ..core.moments import window_moments
         return Moments.pool_all(window_moments(w1, w2, int(bias_window), mask=use))
 
-    if noise_std is None:  # split the residual variance by each stream's high-frequency noise
+    noise_ratio = None
+    if o.noise_std is None:  # split the residual variance by each stream's high-frequency noise
         head = slice(0, 200_000)  # plenty for a noise level; no copy of a long log
         v = slice(None) if mask is None else mask[head]
         d1, d2 = (difference_noise_std(np.asarray(w[head])[v]) for w in (w1, w2))
-        kw["noise_ratio"] = d1 / d2 if d1 > 0 and d2 > 0 else None
+        noise_ratio = d1 / d2 if d1 > 0 and d2 > 0 else None
     valid_in = mask
     mom = mom0 = moments_of(mask)
-    cal = solve(mom, **kw)
+    cal = solve(mom, solve_options, noise_ratio=noise_ratio)
     rejected = 0.0
     corr = float("nan")
-    if flex_rejection is not False and cal.rigid:
+    if o.flex_rejection is not False and cal.rigid:
         from . import flex
 
         n, n_used, keep = len(w1), cal.n_samples, mask
@@ -246,14 +177,14 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s=None, ma
         L = flex.robust_whitener(w1, w2, A_ls, b_ls, keep, gate_window, sub)
         n_sub = sum(b - a for a, b in sub) if mask is None else sum(int(mask[a:b].sum()) for a, b in sub)
         frac = flex.outliers(w1, w2, A_ls, b_ls, keep, gate_window, sub, L).size / max(n_sub, 1)
-        if flex_rejection is True or frac > 0.01:  # the paper's gate, iterated until nothing new is rejected
+        if o.flex_rejection is True or frac > 0.01:  # the paper's gate, iterated until nothing new is rejected
             everything = flex.block_ranges(n, gate_window)
             for _ in range(5):
                 out = flex.outliers(w1, w2, A_ls, b_ls, keep, gate_window, everything, L)
                 if out.size == 0:
                     break
                 gate = np.ones(n, bool) if keep is None else keep.copy()
-                gate[flex.dilate(out, flex_margin, n)] = False  # the outliers and their neighbours
+                gate[flex.dilate(out, o.flex_margin, n)] = False  # the outliers and their neighbours
                 keep = gate
                 mom = moments_of(keep)
                 A_ls, b_ls = solve_A(mom)
@@ -264,9 +195,9 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, time_offset_s=None, ma
             keep = ~fast if keep is None else (keep & ~fast)
             mom = moments_of(keep)
         kept_energy = float(np.trace(mom.S11) / np.trace(mom0.S11)) if keep is not mask else 1.0
-        if keep is not mask and kept_energy >= min_kept_energy:
+        if keep is not mask and kept_energy >= o.min_kept_energy:
             rejected = 1.0 - mom.count / max(n_used, 1)
-            cal = solve(mom, **kw)
+            cal = solve(mom, solve_options, noise_ratio=noise_ratio)
             mask = keep
         elif keep is not mask:
             cal = _replace(cal, notes=cal.notes + (

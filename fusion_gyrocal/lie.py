@@ -1,0 +1,99 @@
+"""SO(3), the one place: hat, Exp, Log, the right Jacobian, the nearest rotation, canonical rotation vectors.
+
+Every function takes stacks (``(..., 3)`` vectors, ``(..., 3, 3)`` matrices). Rotation errors follow
+the library's convention ``R_true = Exp(dtheta) @ R_estimate`` (``dtheta`` in the left frame).
+
+Examples
+--------
+>>> import numpy as np
+>>> v = np.array([0.1, -0.2, 0.3])
+>>> np.allclose(log(exp(v)), v)
+True
+>>> np.allclose(exp(np.array([0.0, 0.0, np.pi / 2])) @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+True
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def skew(v) -> np.ndarray:
+    """``[v x]``: the matrix of the cross product with ``v``; (..., 3) -> (..., 3, 3)."""
+    v = np.asarray(v, dtype=float)
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
+    return out
+
+
+def _coefficients(theta):
+    """``sin(t)/t``, ``(1-cos t)/t^2``, ``(t-sin t)/t^3`` of ``t = |theta|`` (Taylor series near 0)."""
+    t2 = np.einsum("...i,...i->...", theta, theta)
+    t = np.sqrt(t2)
+    small = t < 1e-4
+    ts = np.where(small, 1.0, t)
+    a = np.where(small, 1.0 - t2 / 6.0, np.sin(ts) / ts)
+    b = np.where(small, 0.5 - t2 / 24.0, (1.0 - np.cos(ts)) / ts**2)
+    c = np.where(small, 1.0 / 6.0 - t2 / 120.0, (ts - np.sin(ts)) / ts**3)
+    return a, b, c
+
+
+def exp(theta) -> np.ndarray:
+    """``Exp(theta)``: Rodrigues' formula; (..., 3) rad -> (..., 3, 3)."""
+    return exp_and_right_jacobian(theta)[0]
+
+
+def exp_and_right_jacobian(theta) -> tuple[np.ndarray, np.ndarray]:
+    """``Exp(theta)`` and the right Jacobian ``J_r(theta)``, with ``Exp(t + d) ~ Exp(t) Exp(J_r(t) d)``."""
+    theta = np.asarray(theta, dtype=float)
+    a, b, c = _coefficients(theta)
+    K = skew(theta)
+    K2 = K @ K
+    eye = np.eye(3)
+    R = eye + a[..., None, None] * K + b[..., None, None] * K2
+    Jr = eye - b[..., None, None] * K + c[..., None, None] * K2
+    return R, Jr
+
+
+def log(R) -> np.ndarray:
+    """``Log(R)``: the rotation vector (rad) of rotation matrices; (..., 3, 3) -> (..., 3), angle in [0, pi].
+
+    Below 60 degrees the axial vector's arcsine is exact and cheap; larger angles go through scipy's
+    quaternion conversion, which is accurate up to and at pi.
+    """
+    R = np.asarray(R, dtype=float)
+    v = 0.5 * np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
+    cos = 0.5 * (np.trace(R, axis1=-2, axis2=-1) - 1.0)
+    s = np.linalg.norm(v, axis=-1)
+    out = v * np.where(s < 1e-12, 1.0, np.arcsin(np.clip(s, 0.0, 1.0)) / np.where(s < 1e-12, 1.0, s))[..., None]
+    large = cos <= 0.5
+    if np.any(large):
+        from scipy.spatial.transform import Rotation
+
+        out[large] = Rotation.from_matrix(R[large].reshape(-1, 3, 3)).as_rotvec()
+    return out
+
+
+def canonical_rotvec(v) -> np.ndarray:
+    """The same rotations as ``v`` (..., 3) with a unique representative: angle in [0, pi], and at pi the
+    first non-zero component of the axis positive (``Log(Exp(v))`` is ambiguous there)."""
+    v = log(exp(v))
+    n = np.linalg.norm(v, axis=-1)
+    near_pi = n > np.pi - 1e-9
+    if np.any(near_pi):
+        w = v[near_pi]
+        first = np.argmax(np.abs(w) > 1e-9 * np.pi, axis=-1)
+        sign = np.sign(w[np.arange(len(w)), first])
+        v[near_pi] = w * sign[:, None]
+    return v
+
+
+def nearest_rotation(M) -> np.ndarray:
+    """Nearest rotation matrix to ``M`` in the Frobenius norm (Horn et al., used after Eq. 31)."""
+    U, _, Vt = np.linalg.svd(M)
+    d = np.sign(np.linalg.det(U @ Vt))
+    D = np.ones(np.shape(M)[:-2] + (3,))
+    D[..., 2] = d
+    return (U * D[..., None, :]) @ Vt
