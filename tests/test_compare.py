@@ -9,8 +9,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from fusion_gyrocal import InputError, calibrate_pair
-from fusion_gyrocal.evaluate.compare import (add_compare_parser, compare, compare_main,
-                                    plot_rmse_vs_snr, rotation_only, run_estimator, snr_sweep, solve_appendix_c)
+from fusion_gyrocal.cli.compare import add_compare_parser, compare_main
+from fusion_gyrocal.evaluate.compare import (compare, plot_rmse_vs_snr, rotation_only, run_estimator, snr_sweep, solve_appendix_c)
 from fusion_gyrocal.core.moments import Moments
 from fusion_gyrocal.core.observability import cramer_rao_bound
 from fusion_gyrocal.evaluate.scenarios import SCENARIOS, describe_scenario, list_scenarios, make_scenario, scenario_bound

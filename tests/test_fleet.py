@@ -9,7 +9,8 @@ pq = pytest.importorskip("pyarrow.parquet")
 distributed = pytest.importorskip("distributed")
 
 from fusion_gyrocal import FormatError, InputError, Moments, OptionError, PairCalibration, solve  # noqa: E402
-from fusion_gyrocal.distributed.fleet import (RESULT_COLUMNS, calibrate_log, find_devices, fleet_main, log_moments,  # noqa: E402
+from fusion_gyrocal.cli.fleet import fleet_main  # noqa: E402
+from fusion_gyrocal.distributed.fleet import (RESULT_COLUMNS, calibrate_log, find_devices, log_moments,  # noqa: E402
                                   row_groups, run_fleet)
 from fusion_gyrocal.evaluate.sim import PAPER_NOISE_STD, rotation_error, simulate_pair  # noqa: E402
 

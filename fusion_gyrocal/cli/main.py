@@ -274,9 +274,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("demo", help="calibrate a built-in simulated pair and print it beside the truth")
     p.add_argument("--seed", type=int, default=7)
     p.set_defaults(func=cmd_demo)
-    for mod, adder in (("evaluate.compare", "add_compare_parser"), ("distributed.fleet", "add_fleet_parser")):
+    for mod, adder in (("compare", "add_compare_parser"), ("fleet", "add_fleet_parser")):
         try:
-            m = __import__(f"fusion_gyrocal.{mod}", fromlist=[adder])
+            m = __import__(f"fusion_gyrocal.cli.{mod}", fromlist=[adder])
             getattr(m, adder)(sub)
         except (ImportError, AttributeError):
             pass

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ExcitationError, InputError
+from ..errors import ConfigurationError, ExcitationError, InputError
 from ..lie import skew
 from .moments import Moments
 
@@ -102,6 +102,29 @@ class Configuration:
         return obs
 
 
+def _angle(c) -> float:
+    return float(np.rad2deg(np.arccos(min(1.0, c))))
+
+
+def _configuration(R, n_pairs: int) -> Configuration:
+    """The configuration with the ``n_pairs`` (0, 1 or 3) most nearly parallel axis pairs of ``R``."""
+    C = np.abs(np.asarray(R, dtype=float))
+    everyone = tuple((g, a) for g in (0, 1) for a in range(3))
+    if n_pairs == 0:
+        return Configuration(CONFIG_GENERAL, (), (everyone,))
+    if n_pairs == 1:
+        i, j = np.unravel_index(int(np.argmax(C)), C.shape)
+        pair = ((0, int(i)), (1, int(j)))
+        rest = tuple(m for m in everyone if m not in pair)
+        return Configuration(CONFIG_ONE_PAIR, ((int(i), int(j), _angle(C[i, j])),), (rest, pair))
+    # two near-parallel pairs force the third (R is orthogonal); use the full signed permutation
+    perm = np.argmax(C, axis=1)
+    if len(set(perm.tolist())) != 3:
+        raise ConfigurationError(f"R_1_2 is not close to a signed permutation although two axes are parallel: {R}")
+    pairs = tuple((i, int(perm[i]), _angle(C[i, perm[i]])) for i in range(3))
+    return Configuration(CONFIG_ALL, pairs, tuple(((0, i), (1, int(perm[i]))) for i in range(3)))
+
+
 def classify(R, parallel_tol_deg: float = 5.0) -> Configuration:
     """Classify the configuration of a pair from its rotation (Lemmas 2-4).
 
@@ -111,26 +134,32 @@ def classify(R, parallel_tol_deg: float = 5.0) -> Configuration:
     scale factors of that pair are reported as a ratio only.
     """
     C = np.abs(np.asarray(R))
-    cos_tol = np.cos(np.deg2rad(parallel_tol_deg))
-    pairs = []
-    for i in range(3):
-        j = int(np.argmax(C[i]))
-        if C[i, j] >= cos_tol:
-            pairs.append((i, j, float(np.rad2deg(np.arccos(min(1.0, C[i, j]))))))
-    everyone = tuple((g, a) for g in (0, 1) for a in range(3))
-    if len(pairs) == 0:
-        return Configuration(CONFIG_GENERAL, (), (everyone,))
-    if len(pairs) == 1:
-        i, j, _ = pairs[0]
-        pair = ((0, i), (1, j))
-        rest = tuple(m for m in everyone if m not in pair)
-        return Configuration(CONFIG_ONE_PAIR, tuple(pairs), (rest, pair))
-    # two near-parallel pairs force the third (R is orthogonal); use the full signed permutation
-    perm = np.argmax(C, axis=1)
-    if len(set(perm.tolist())) != 3:
-        raise InputError(f"R_1_2 is not close to a signed permutation although two axes are parallel: {R}")
-    pairs = tuple((i, int(perm[i]), float(np.rad2deg(np.arccos(min(1.0, C[i, perm[i]]))))) for i in range(3))
-    return Configuration(CONFIG_ALL, pairs, tuple(((0, i), (1, int(perm[i]))) for i in range(3)))
+    n = int(np.sum(C.max(axis=1) >= np.cos(np.deg2rad(parallel_tol_deg))))
+    return _configuration(R, n if n < 2 else 3)
+
+
+def seed_configuration(R, name: str, parallel_tol_deg: float | None = None) -> Configuration:
+    """The configuration of a seed calibration (rotation ``R``, class ``name``) for the trackers built on it.
+
+    Without a tolerance the seed's class is kept as its solver decided it, with the most nearly
+    parallel axis pairs of ``R``. With one, ``classify(R, parallel_tol_deg)`` must give that class.
+
+    Raises
+    ------
+    ConfigurationError
+        ``name`` is no configuration class, or ``R`` does not classify as ``name`` at the tolerance.
+    """
+    if name not in (CONFIG_GENERAL, CONFIG_ONE_PAIR, CONFIG_ALL):
+        raise ConfigurationError(f"configuration: expected one of {(CONFIG_GENERAL, CONFIG_ONE_PAIR, CONFIG_ALL)}, "
+                                 f"got {name!r}")
+    if parallel_tol_deg is None:
+        return _configuration(R, {CONFIG_GENERAL: 0, CONFIG_ONE_PAIR: 1, CONFIG_ALL: 3}[name])
+    config = classify(R, parallel_tol_deg)
+    if config.name != name:
+        raise ConfigurationError(f"seed: its configuration is {name!r} but its R_1_2 classifies as {config.name!r} at "
+                                 f"parallel_tol_deg={parallel_tol_deg:g}; pass the tolerance the seed was solved with "
+                                 "(or none, to keep the seed's class)")
+    return config
 
 
 def per_axis_snr(moments: Moments, noise_std) -> np.ndarray:
