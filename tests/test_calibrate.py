@@ -230,7 +230,45 @@ def test_pair_calibration_to_dict_round_trip_is_json():
     np.testing.assert_array_equal(back.R_1_2, cal.R_1_2)
     np.testing.assert_array_equal(back.covariance, cal.covariance)
     assert back.configuration == cal.configuration and back.gauge == cal.gauge
-    assert cal.to_dict()["format_version"] == "1.0"
+    assert cal.to_dict()["format_version"] == "1.1"
+
+
+def _strict_json(text):
+    import json
+
+    def refuse(token):
+        raise AssertionError(f"non-standard JSON literal {token}")
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_pair_calibration_to_dict_keeps_nan_and_inf_apart():
+    import dataclasses
+    import json
+
+    sim = simulate_pair(rng=0, n=2000)
+    cal = calibrate_pair(sim.omega_1, sim.omega_2, noise_std=PAPER_NOISE_STD)
+    cov = cal.covariance.copy()
+    cov[0, 0], cov[1, 1], cov[2, 2] = np.nan, np.inf, -np.inf
+    cal = dataclasses.replace(cal, covariance=cov, residual_rms=float("inf"), time_offset_std_s=float("nan"),
+                              rate_residual_correlation=float("-inf"))
+    back = PairCalibration.from_dict(_strict_json(json.dumps(cal.to_dict(), allow_nan=False)))
+    assert np.isnan(back.covariance[0, 0])
+    assert back.covariance[1, 1] == np.inf and back.covariance[2, 2] == -np.inf
+    assert back.residual_rms == np.inf and np.isnan(back.time_offset_std_s)
+    assert back.rate_residual_correlation == -np.inf
+    np.testing.assert_array_equal(back.covariance[3:, 3:], cal.covariance[3:, 3:])
+
+
+def test_pair_calibration_from_dict_reads_format_1_0_nulls():
+    sim = simulate_pair(rng=0, R_1_2=np.eye(3))
+    cal = calibrate_pair(sim.omega_1, sim.omega_2, noise_std=PAPER_NOISE_STD)
+    d = cal.to_dict()
+    d["format_version"] = "1.0"   # version 1.0 wrote every non-finite number as null
+    d["covariance"] = [[None if x == "Infinity" else x for x in row] for row in d["covariance"]]
+    d["residual_rms"] = None
+    back = PairCalibration.from_dict(d)
+    np.testing.assert_array_equal(back.covariance, cal.covariance)
+    assert np.isinf(back.covariance[3, 3]) and np.isnan(back.residual_rms)
 
 
 def test_pair_calibration_is_frozen():

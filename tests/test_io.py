@@ -478,7 +478,9 @@ def test_write_json_roundtrip(tmp_path):
     for name in ("configuration", "gauge", "n_samples", "time_offset_s", "time_offset_std_s", "notes", "rigid",
                  "method", "bias_segments"):
         assert getattr(r, name) == getattr(cal, name), name
-    json.loads((tmp_path / "cal.json").read_text())  # strict JSON: no NaN/Infinity literals
+    def refuse(token):
+        raise AssertionError(f"non-standard JSON literal {token}")
+    json.loads((tmp_path / "cal.json").read_text(), parse_constant=refuse)  # strict JSON: no NaN/Infinity literals
 
 
 def test_read_json_wrong_version_message(tmp_path):
@@ -487,7 +489,8 @@ def test_read_json_wrong_version_message(tmp_path):
     d = json.loads(p.read_text())
     d["format_version"] = "0.1"
     p.write_text(json.dumps(d))
-    with pytest.raises(FormatError, match=r"cal\.json: .*expected format_version '1\.0', got '0\.1'"):
+    with pytest.raises(FormatError, match=r"cal\.json: .*expected format_version '1\.1' \(or an earlier '1\.0'\), "
+                                         r"got '0\.1'"):
         read_json(p)
 
 

@@ -29,7 +29,12 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-FORMAT_VERSION = "1.0"
+FORMAT_VERSION = "1.1"
+#: Versions :meth:`PairCalibration.from_dict` reads: 1.0 wrote every non-finite number as ``null``
+#: (read back as inf in arrays, NaN in scalars); 1.1 writes them as the strings of :data:`NON_FINITE`.
+READABLE_VERSIONS = ("1.0", FORMAT_VERSION)
+#: Non-finite numbers in JSON: strings any standard JSON parser reads, distinct for NaN and +-inf.
+NON_FINITE = {"NaN": float("nan"), "Infinity": float("inf"), "-Infinity": float("-inf")}
 CONFIGURATIONS = ("general", "one_axis_pair_parallel", "all_axes_parallel")
 PARAMETER_NAMES = (
     "dtheta_x", "dtheta_y", "dtheta_z",
@@ -61,7 +66,8 @@ def mark_undetermined(cov: np.ndarray, scale_observable) -> np.ndarray:
 def _frozen(a, shape, dtype=np.float64):
     arr = np.array(a, dtype=dtype)
     if arr.shape != shape:
-        raise ValueError(f"expected shape {shape}, got {arr.shape}")
+        from ..errors import InputError
+        raise InputError(f"expected shape {shape}, got {arr.shape}")
     arr.flags.writeable = False
     return arr
 
@@ -189,7 +195,8 @@ class PairCalibration:
 
     # ------------------------------------------------------------------ serialisation
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dictionary with ``format_version``; non-finite numbers become ``None``."""
+        """JSON-ready dictionary with ``format_version``; NaN and +-inf become ``"NaN"``, ``"Infinity"``,
+        ``"-Infinity"`` (strings: strict JSON that any parser reads, with NaN and inf kept apart)."""
         out: dict[str, Any] = {"format_version": FORMAT_VERSION, "units": {"rate": "rad/s", "time": "s"},
                                "convention": "omega_1 = R_1_2 @ omega_2; omega_i_meas = diag(scale_i) omega_i + b_i",
                                "covariance_order": list(PARAMETER_NAMES)}
@@ -197,8 +204,8 @@ class PairCalibration:
             v = getattr(self, f.name)
             if isinstance(v, np.ndarray):
                 v = _to_json_list(v)
-            elif isinstance(v, float) and not np.isfinite(v):
-                v = None
+            elif isinstance(v, float):
+                v = _to_json_number(v)
             elif isinstance(v, tuple):
                 v = list(v)
             out[f.name] = v
@@ -210,33 +217,51 @@ class PairCalibration:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "PairCalibration":
         version = d.get("format_version")
-        if version != FORMAT_VERSION:
+        if version not in READABLE_VERSIONS:
             from ..errors import FormatError
-            raise FormatError(f"calibration: expected format_version {FORMAT_VERSION!r}, got {version!r}")
+            raise FormatError(f"calibration: expected format_version {FORMAT_VERSION!r} (or an earlier "
+                              f"{', '.join(repr(v) for v in READABLE_VERSIONS[:-1])}), got {version!r}")
+        legacy = version == "1.0"
         kwargs = {}
         for f in fields(cls):
             if f.name not in d:
                 continue
             v = d[f.name]
             if f.name in _ARRAY_SHAPES:
-                v = _from_json_list(v, bool if f.name == "scale_observable" else np.float64)
-            elif v is None and f.name not in ("rigid",):
-                v = float("nan")
+                v = _from_json_list(v, bool if f.name == "scale_observable" else np.float64, legacy)
+            elif f.name != "rigid" and (v is None or isinstance(v, str) and v in NON_FINITE):
+                v = float("nan") if v is None else NON_FINITE[v]
             kwargs[f.name] = v
         return cls(**kwargs)
+
+
+def _to_json_number(x: float):
+    """``x`` itself when finite, else its :data:`NON_FINITE` string."""
+    if np.isfinite(x):
+        return float(x)
+    return "NaN" if np.isnan(x) else ("Infinity" if x > 0 else "-Infinity")
 
 
 def _to_json_list(a: np.ndarray):
     if a.dtype == bool:
         return a.tolist()
-    obj = a.astype(object)
-    obj[~np.isfinite(a)] = None
-    return obj.tolist()
+    return np.vectorize(_to_json_number, otypes=[object])(a).tolist() if a.size else a.tolist()
 
 
-def _from_json_list(v, dtype):
+def _from_json_list(v, dtype, legacy: bool = False):
     if dtype is bool:
         return np.array(v, dtype=bool)
     arr = np.array(v, dtype=object)
-    arr = np.where(arr == None, np.inf, arr)  # noqa: E711  (undetermined entries were written as null)
-    return arr.astype(np.float64)
+    null = arr == None  # noqa: E711
+    if legacy:  # format 1.0 wrote every non-finite entry as null; they were the undetermined (infinite) ones
+        arr = np.where(null, np.inf, arr)
+    elif np.any(null):
+        from ..errors import FormatError
+        raise FormatError("calibration: expected numbers or 'NaN'/'Infinity'/'-Infinity' in arrays, got null")
+    for text, value in NON_FINITE.items():
+        arr = np.where(arr == text, value, arr)
+    try:
+        return arr.astype(np.float64)
+    except (TypeError, ValueError):
+        from ..errors import FormatError
+        raise FormatError(f"calibration: expected numbers in arrays, got {v!r}") from None

@@ -152,8 +152,8 @@ def _json_default(o):
 def write_json(cal: PairCalibration, path) -> Path:
     """Write the full calibration (``cal.to_dict()``, with ``format_version``) as JSON, atomically.
 
-    Non-finite numbers are written as ``null`` (``PairCalibration.to_dict``); the file is strict
-    JSON (no NaN / Infinity literals).
+    Non-finite numbers are written as the strings ``"NaN"``, ``"Infinity"``, ``"-Infinity"``
+    (``PairCalibration.to_dict``); the file is strict JSON (no NaN / Infinity literals).
     """
     if not isinstance(cal, PairCalibration):
         raise InputError(f"cal: expected a PairCalibration, got {type(cal).__name__}")
