@@ -39,7 +39,6 @@ from typing import Iterable, Sequence
 
 import numpy as np
 from scipy.optimize import nnls
-from scipy.spatial.transform import Rotation
 
 from .solve import pair_covariance, solve
 from ..errors import ConfigurationError, GyroCalError, InputError
@@ -47,7 +46,7 @@ from .gauge import Gauge, constrained_inverse
 from .model import PairCalibration, mark_undetermined
 from .moments import Moments, as_rates, window_moments
 from .observability import A_of, classify, dA_dp, per_axis_snr
-from ..lie import skew
+from ..lie import exp, skew
 from .refine import fisher_scoring, residual_scatter
 
 
@@ -468,7 +467,7 @@ def _signal_scatter(R, s, scatter, noise_std, dof):
 
 def _retract(R, s, delta):
     n = len(s)
-    rot = Rotation.from_rotvec(delta[:3 * n].reshape(n, 3)).as_matrix()
+    rot = exp(delta[:3 * n].reshape(n, 3))
     return np.einsum("kij,kjl->kil", rot, R), s * np.exp(delta[3 * n:].reshape(n, 3))
 
 

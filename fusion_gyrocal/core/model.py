@@ -27,7 +27,9 @@ from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+
+from ..errors import FormatError, InputError
+from ..lie import canonical_rotvec, log
 
 FORMAT_VERSION = "1.1"
 #: Versions :meth:`PairCalibration.from_dict` reads: 1.0 wrote every non-finite number as ``null``
@@ -63,11 +65,10 @@ def mark_undetermined(cov: np.ndarray, scale_observable) -> np.ndarray:
     return cov
 
 
-def _frozen(a, shape, dtype=np.float64):
+def _frozen(name, a, shape, dtype=np.float64):
     arr = np.array(a, dtype=dtype)
     if arr.shape != shape:
-        from ..errors import InputError
-        raise InputError(f"expected shape {shape}, got {arr.shape}")
+        raise InputError(f"{name}: expected shape {shape}, got {arr.shape}")
     arr.flags.writeable = False
     return arr
 
@@ -158,9 +159,9 @@ class PairCalibration:
     def __post_init__(self):
         for name, shape in _ARRAY_SHAPES.items():
             dtype = bool if name == "scale_observable" else np.float64
-            object.__setattr__(self, name, _frozen(getattr(self, name), shape, dtype))
+            object.__setattr__(self, name, _frozen(name, getattr(self, name), shape, dtype))
         if self.configuration not in CONFIGURATIONS:
-            raise ValueError(f"configuration: expected one of {CONFIGURATIONS}, got {self.configuration!r}")
+            raise InputError(f"configuration: expected one of {CONFIGURATIONS}, got {self.configuration!r}")
         object.__setattr__(self, "notes", tuple(self.notes))
 
     # ------------------------------------------------------------------ derived
@@ -186,8 +187,8 @@ class PairCalibration:
 
     @property
     def rotvec(self) -> np.ndarray:
-        """Rotation vector (axis * angle, rad) of ``R_1_2``."""
-        return Rotation.from_matrix(self.R_1_2).as_rotvec()
+        """Rotation vector (axis * angle, rad) of ``R_1_2``, canonical at 180 deg (:func:`fusion_gyrocal.lie.canonical_rotvec`)."""
+        return canonical_rotvec(log(self.R_1_2))
 
     def compensate(self, omega_2) -> np.ndarray:
         """Predict gyro 1's measurement from gyro 2's: ``A @ omega_2 + bias`` for (N, 3) input."""
@@ -218,7 +219,6 @@ class PairCalibration:
     def from_dict(cls, d: dict[str, Any]) -> "PairCalibration":
         version = d.get("format_version")
         if version not in READABLE_VERSIONS:
-            from ..errors import FormatError
             raise FormatError(f"calibration: expected format_version {FORMAT_VERSION!r} (or an earlier "
                               f"{', '.join(repr(v) for v in READABLE_VERSIONS[:-1])}), got {version!r}")
         legacy = version == "1.0"
@@ -256,12 +256,10 @@ def _from_json_list(v, dtype, legacy: bool = False):
     if legacy:  # format 1.0 wrote every non-finite entry as null; they were the undetermined (infinite) ones
         arr = np.where(null, np.inf, arr)
     elif np.any(null):
-        from ..errors import FormatError
         raise FormatError("calibration: expected numbers or 'NaN'/'Infinity'/'-Infinity' in arrays, got null")
     for text, value in NON_FINITE.items():
         arr = np.where(arr == text, value, arr)
     try:
         return arr.astype(np.float64)
     except (TypeError, ValueError):
-        from ..errors import FormatError
         raise FormatError(f"calibration: expected numbers in arrays, got {v!r}") from None

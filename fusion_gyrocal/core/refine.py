@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import null_space
-from scipy.spatial.transform import Rotation
 
+from ..lie import exp
 from .moments import Moments
 from .observability import A_of, dA_dp, fisher_information, residual_weight, signal_scatter
 
@@ -67,7 +67,7 @@ def ml_gradient(R, s1, s2, moments: Moments, noise_std, scale_prior_std=None) ->
 
 def retract(R, s1, s2, delta):
     """Apply a step ``[dtheta, dlog s_1, dlog s_2]``: ``R <- Exp(dtheta) R``, ``s <- s exp(dlog s)``."""
-    return (Rotation.from_rotvec(delta[:3]).as_matrix() @ R, s1 * np.exp(delta[3:6]), s2 * np.exp(delta[6:9]))
+    return (exp(delta[:3]) @ R, s1 * np.exp(delta[3:6]), s2 * np.exp(delta[6:9]))
 
 
 @dataclass(frozen=True)
