@@ -11,7 +11,7 @@ import pytest
 import yaml
 from scipy.spatial.transform import Rotation
 
-from fusion_gyrocal.errors import FormatError, InputError
+from fusion_gyrocal.errors import FormatError, InputError, OptionError
 from fusion_gyrocal.io import (ImuNoise, ImuStream, detect_format, list_imu_topics, read_bag, read_csv, read_imu,
                                read_json, read_npz, read_xsens, write_csv, write_imu_bag, write_json,
                                write_kalibr_imu_yaml, write_npz, write_openvins_imu_chain)
@@ -108,7 +108,7 @@ def test_read_csv_counts_without_header_and_explicit_columns(tmp_path):
 def test_read_csv_counts_without_sensitivity_raises(tmp_path):
     p = tmp_path / "raw.csv"
     p.write_text("t,gyro_x,gyro_y,gyro_z\n0,1,2,3\n1,1,2,3\n")
-    with pytest.raises(InputError, match="raw.csv: .*sensitivity"):
+    with pytest.raises(OptionError, match="raw.csv: .*sensitivity"):
         read_csv(p, unit="counts")
 
 

@@ -291,8 +291,8 @@ def test_calibrate_array_non_finite_sample_names_gyro_and_sample():
 
 
 @pytest.mark.parametrize("kwargs, exc", [
-    ({"reference": 3}, InputError), ({"reference": -1}, InputError), ({"gauge": "nope"}, OptionError),
-    ({"noise_std": [1e-3, 1e-3]}, InputError), ({"noise_std": -1.0}, InputError),
+    ({"reference": 3}, OptionError), ({"reference": -1}, OptionError), ({"gauge": "nope"}, OptionError),
+    ({"noise_std": [1e-3, 1e-3]}, OptionError), ({"noise_std": -1.0}, OptionError),
 ])
 def test_calibrate_array_bad_options_raise(kwargs, exc):
     R = _rotations(30, 3)

@@ -8,7 +8,7 @@ from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation
 
 from fusion_gyrocal import calibrate_pair
-from fusion_gyrocal.errors import InputError, TimeAlignmentError
+from fusion_gyrocal.errors import InputError, OptionError, TimeAlignmentError
 from fusion_gyrocal.core.model import ROT
 from fusion_gyrocal.core.moments import Moments
 from fusion_gyrocal.pipeline.preprocess import (AlignedPair, TimeOffset, align_streams, check_timestamps, estimate_time_offset,
@@ -70,12 +70,12 @@ def test_to_rad_per_s_converts_counts_with_sensitivity():
 
 
 def test_to_rad_per_s_rejects_counts_without_sensitivity():
-    with pytest.raises(InputError, match="sensitivity: expected a positive LSB per deg/s"):
+    with pytest.raises(OptionError, match="sensitivity: expected a positive LSB per deg/s"):
         to_rad_per_s(np.ones((2, 3)), "counts")
 
 
 def test_to_rad_per_s_rejects_unknown_unit():
-    with pytest.raises(InputError, match="unit: expected one of"):
+    with pytest.raises(OptionError, match="unit: expected one of"):
         to_rad_per_s(np.ones((2, 3)), "rpm")
 
 

@@ -41,7 +41,7 @@ import numpy as np
 from scipy.optimize import nnls
 
 from .solve import pair_covariance, solve
-from ..errors import ConfigurationError, GyroCalError, InputError
+from ..errors import ConfigurationError, GyroCalError, InputError, OptionError
 from .gauge import Gauge, constrained_inverse
 from .model import PairCalibration, mark_undetermined
 from .moments import Moments, as_rates, window_moments
@@ -581,7 +581,7 @@ def _noise_vector(noise_std, n):
     arr = np.broadcast_to(np.asarray(noise_std, dtype=float), (n,)).copy() if np.ndim(noise_std) == 0 \
         else np.asarray(noise_std, dtype=float)
     if arr.shape != (n,) or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
-        raise InputError(f"noise_std: expected positive rad/s per sample (one value or one per gyro, {n}), "
+        raise OptionError(f"noise_std: expected positive rad/s per sample (one value or one per gyro, {n}), "
                          f"got {noise_std}")
     return arr
 
@@ -642,7 +642,7 @@ def solve_array(moments: ArrayMoments, *, reference: int = 0, noise_std=None, ga
         raise InputError(f"moments: expected ArrayMoments, got {type(moments).__name__}")
     n = moments.n_gyros
     if not (isinstance(reference, (int, np.integer)) and 0 <= reference < n):
-        raise InputError(f"reference: expected a gyro index in [0, {n}), got {reference!r}")
+        raise OptionError(f"reference: expected a gyro index in [0, {n}), got {reference!r}")
     reference = int(reference)
     if moments.count < 4:
         raise InputError(f"expected at least 4 samples (Lemma 1), got {int(moments.count)}")

@@ -26,7 +26,7 @@ from typing import Iterable
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, OptionError
 
 CHUNK_SIZE = 65536
 
@@ -67,7 +67,7 @@ def noise_pair(noise_std) -> tuple[float, float]:
     """``(sigma_1, sigma_2)`` from one value or one per gyro (rad/s per sample), checked positive and finite."""
     arr = np.broadcast_to(np.asarray(noise_std, dtype=float), (2,))
     if not np.all(np.isfinite(arr)) or np.any(arr <= 0):
-        raise InputError(f"noise_std: expected positive rad/s per sample (one value or one per gyro), got {noise_std}")
+        raise OptionError(f"noise_std: expected positive rad/s per sample (one value or one per gyro), got {noise_std}")
     return float(arr[0]), float(arr[1])
 
 
@@ -299,7 +299,7 @@ def window_moments(omega_1, omega_2, window: int, *, mask=None) -> list[Moments]
     w1 = as_rates("omega_1", omega_1)
     w2 = as_rates("omega_2", omega_2, length=w1.shape[0])
     if window < 2:
-        raise InputError(f"window: expected at least 2 samples per window, got {window}")
+        raise OptionError(f"window: expected at least 2 samples per window, got {window}")
     n = w1.shape[0]
     out = []
     for start in range(0, n, window):
@@ -320,7 +320,7 @@ def random_walk_gain(bias_walk_std, noise_std) -> tuple[float, float]:
     qs = np.broadcast_to(np.asarray(bias_walk_std, float), (2,))
     rs = np.broadcast_to(np.asarray(noise_std, float), (2,))
     if np.any(~np.isfinite(qs)) or np.any(qs <= 0) or np.any(~np.isfinite(rs)) or np.any(rs <= 0):
-        raise InputError(f"bias_walk_std and noise_std: expected positive rad/s per sample, got {qs} and {rs}")
+        raise OptionError(f"bias_walk_std and noise_std: expected positive rad/s per sample, got {qs} and {rs}")
     q, R = float((qs**2).sum()), float((rs**2).sum())
     P = 0.5 * (q + np.sqrt(q * q + 4.0 * q * R))
     return P / (P + R), float(np.sqrt((P + R) / R))

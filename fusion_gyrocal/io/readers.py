@@ -30,7 +30,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..errors import FormatError, InputError
+from ..errors import FormatError, InputError, OptionError
 from ..pipeline.preprocess import UNITS, check_timestamps, to_rad_per_s
 
 
@@ -154,8 +154,8 @@ def _rate_factor(unit: str, sensitivity, where: str) -> float:
     ``sensitivity`` is LSB per deg/s for raw counts."""
     try:
         return float(to_rad_per_s(np.ones(1), unit, sensitivity)[0])
-    except InputError as exc:
-        raise InputError(f"{where}: {exc}") from None
+    except OptionError as exc:
+        raise OptionError(f"{where}: {exc}") from None
 
 
 def _int_time_to_seconds(ticks: np.ndarray, decimals: int) -> np.ndarray:

@@ -32,7 +32,7 @@ from scipy.interpolate import PPoly
 from scipy.linalg import solve_banded
 from scipy.optimize import minimize_scalar
 
-from ..errors import InputError, TimeAlignmentError
+from ..errors import InputError, OptionError, TimeAlignmentError
 from ..core.moments import Moments, as_rates, noise_pair
 
 __all__ = [
@@ -133,14 +133,14 @@ def to_rad_per_s(x, unit: str, sensitivity: float | None = None) -> np.ndarray:
     if arr.dtype.kind not in "fiu":
         raise InputError(f"x: expected numeric angular rates, got dtype {arr.dtype}")
     if unit not in UNITS:
-        raise InputError(f"unit: expected one of {UNITS}, got {unit!r}")
+        raise OptionError(f"unit: expected one of {UNITS}, got {unit!r}")
     if unit == "counts":
         if sensitivity is None or not np.isfinite(sensitivity) or not sensitivity > 0:
-            raise InputError("sensitivity: expected a positive LSB per deg/s (e.g. 16.4) to convert counts, "
+            raise OptionError("sensitivity: expected a positive LSB per deg/s (e.g. 16.4) to convert counts, "
                              f"got {sensitivity!r}")
         return arr.astype(np.float64) * (DEG / float(sensitivity))
     if sensitivity is not None:
-        raise InputError(f"sensitivity: only used with unit='counts', got {sensitivity!r} with unit={unit!r}")
+        raise OptionError(f"sensitivity: only used with unit='counts', got {sensitivity!r} with unit={unit!r}")
     if unit == "deg/s":
         return arr.astype(np.float64) * DEG
     return np.array(arr, dtype=np.float64)
@@ -170,7 +170,7 @@ def saturation_mask(omega, limit: float | None = None) -> np.ndarray:
     finite = np.isfinite(w)
     if limit is not None:
         if not np.isfinite(limit) or not limit > 0:
-            raise InputError(f"limit: expected a positive sensor range, got {limit!r}")
+            raise OptionError(f"limit: expected a positive sensor range, got {limit!r}")
         with np.errstate(invalid="ignore"):
             return np.any(finite & (np.abs(w) >= limit), axis=1)
     out = np.zeros(w.shape[0], dtype=bool)
@@ -381,7 +381,7 @@ def resample(t_src, omega_src, t_grid, *, valid=None, max_gap_s: float | None = 
         raise InputError(f"t_grid: expected a 1-D array of instants, got shape {grid.shape}")
     gap = DEFAULT_GAP_PERIODS * _nominal_period(t) if max_gap_s is None else float(max_gap_s)
     if not gap > 0:
-        raise InputError(f"max_gap_s: expected a positive duration, got {max_gap_s!r}")
+        raise OptionError(f"max_gap_s: expected a positive duration, got {max_gap_s!r}")
     t_ref = t[0]  # splines in relative time: absolute (epoch) seconds lose precision in the cubic terms
     spl = _RunSplines(t - t_ref, w, ok, gap)
     finite_grid = np.isfinite(grid)
@@ -632,7 +632,7 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.
     t1, w1, ok1 = _stream("t_1", t_1, "omega_1", omega_1, valid_1)
     t2, w2, ok2 = _stream("t_2", t_2, "omega_2", omega_2, valid_2)
     if not (np.isfinite(max_offset_s) and max_offset_s > 0):
-        raise InputError(f"max_offset_s: expected a positive duration in seconds, got {max_offset_s!r}")
+        raise OptionError(f"max_offset_s: expected a positive duration in seconds, got {max_offset_s!r}")
     for name, ok in (("omega_1", ok1), ("omega_2", ok2)):
         if ok.sum() < 8:
             raise TimeAlignmentError(f"{name}: expected at least 8 valid samples to align, got {int(ok.sum())}")
@@ -806,7 +806,7 @@ def align_streams(t_1, omega_1, t_2, omega_2, *, time_offset_s: float | None = N
     else:
         tau = float(time_offset_s)
         if not np.isfinite(tau):
-            raise InputError(f"time_offset_s: expected a finite offset in seconds, got {time_offset_s!r}")
+            raise OptionError(f"time_offset_s: expected a finite offset in seconds, got {time_offset_s!r}")
     lo, hi = max(t1[0], t2[0] + tau), min(t1[-1], t2[-1] + tau)
     if not hi > lo:
         raise TimeAlignmentError(f"the streams do not overlap after applying the offset {tau:+.6g} s: gyro 1 covers "
@@ -818,7 +818,7 @@ def align_streams(t_1, omega_1, t_2, omega_2, *, time_offset_s: float | None = N
         v1 = ok1[keep]
     else:
         if not (np.isfinite(rate_hz) and rate_hz > 0):
-            raise InputError(f"rate_hz: expected a positive rate, got {rate_hz!r}")
+            raise OptionError(f"rate_hz: expected a positive rate, got {rate_hz!r}")
         grid = lo + np.arange(int(np.floor((hi - lo) * rate_hz + 1e-9)) + 1) / float(rate_hz)
         o1, v1 = resample(t1, w1, grid, valid=ok1)
     o2, v2 = resample(t2, w2, grid - tau, valid=ok2)
@@ -859,7 +859,7 @@ def informative_mask(omega_1, omega_2, valid, noise_std, *, min_rate: float | No
     lo = 10.0 * max(s1, s2) if min_rate is None else float(min_rate)
     hi = np.inf if max_rate is None else float(max_rate)
     if not (lo >= 0 and hi > lo):
-        raise InputError(f"min_rate/max_rate: expected 0 <= min_rate < max_rate, got {lo!r} and {hi!r}")
+        raise OptionError(f"min_rate/max_rate: expected 0 <= min_rate < max_rate, got {lo!r} and {hi!r}")
     keep = _and_valid(np.isfinite(w1).all(axis=1) & np.isfinite(w2).all(axis=1), valid, "valid")
     with np.errstate(invalid="ignore"):
         n1, n2 = np.linalg.norm(w1, axis=1), np.linalg.norm(w2, axis=1)
@@ -935,9 +935,9 @@ def excitation_report(omega, noise_std: float, *, valid=None, target_snr: float 
     w = as_rates("omega", omega)
     sig = float(noise_std)
     if not (np.isfinite(sig) and sig > 0):
-        raise InputError(f"noise_std: expected a positive rad/s per sample, got {noise_std!r}")
+        raise OptionError(f"noise_std: expected a positive rad/s per sample, got {noise_std!r}")
     if not (np.isfinite(target_snr) and target_snr > 0):
-        raise InputError(f"target_snr: expected a positive value, got {target_snr!r}")
+        raise OptionError(f"target_snr: expected a positive value, got {target_snr!r}")
     keep = _and_valid(np.isfinite(w).all(axis=1), valid, "valid")
     n = w.shape[0]
     cum = np.zeros((n, 3))
