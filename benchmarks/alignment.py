@@ -1,4 +1,4 @@
-"""Monte Carlo of the time-offset estimate (fusion_gyrocal.pipeline.preprocess.estimate_time_offset).
+"""Monte Carlo of the time-offset estimate (fusion_gyrocal.pipeline.alignment.estimate_time_offset).
 
 Two gyros on their own clocks at 100 Hz and 200 Hz (which one is faster alternates; one
 scenario has both at 200 Hz), jittered
@@ -26,7 +26,7 @@ from scipy.interpolate import CubicSpline
 from scipy.optimize import minimize_scalar
 from scipy.signal import correlate
 
-from fusion_gyrocal.pipeline.preprocess import _parabolic_peak, estimate_time_offset
+from fusion_gyrocal.pipeline.alignment import _parabolic_peak, estimate_time_offset
 from fusion_gyrocal.evaluate.sim import simulate_streams
 
 

@@ -51,7 +51,8 @@ def main(argv=None):
     from fusion_gyrocal.pipeline.pipeline import run_pipeline
     from fusion_gyrocal.cli.main import main as cli
     from fusion_gyrocal.io import read_imu
-    from fusion_gyrocal.pipeline.preprocess import align_streams, valid_mask
+    from fusion_gyrocal.pipeline.alignment import align_streams
+    from fusion_gyrocal.pipeline.streams import valid_mask
 
     (s1, s2), t_read = timed(lambda: (read_imu(p1), read_imu(p2, unit="deg/s")))
     pair, t_align = timed(lambda: align_streams(s1.t, s1.omega, s2.t, s2.omega, valid_1=valid_mask(s1.omega),

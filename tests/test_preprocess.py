@@ -1,4 +1,4 @@
-"""Tests of fusion_gyrocal.pipeline.preprocess: stream checks, resampling, time alignment, selection."""
+"""Tests of fusion_gyrocal.pipeline (streams, resample, alignment, selection): stream checks, resampling, time alignment, selection."""
 
 from __future__ import annotations
 
@@ -11,9 +11,10 @@ from fusion_gyrocal import calibrate_pair
 from fusion_gyrocal.errors import InputError, OptionError, TimeAlignmentError
 from fusion_gyrocal.core.model import ROT
 from fusion_gyrocal.core.moments import Moments
-from fusion_gyrocal.pipeline.preprocess import (AlignedPair, TimeOffset, align_streams, check_timestamps, estimate_time_offset,
-                                       excitation_report, informative_mask, resample, saturation_mask, to_rad_per_s,
-                                       valid_mask)
+from fusion_gyrocal.pipeline.alignment import AlignedPair, TimeOffset, align_streams, estimate_time_offset
+from fusion_gyrocal.pipeline.resample import resample
+from fusion_gyrocal.pipeline.selection import excitation_report, informative_mask
+from fusion_gyrocal.pipeline.streams import check_timestamps, saturation_mask, to_rad_per_s, valid_mask
 from fusion_gyrocal.evaluate.sim import (DEG, PAPER_NOISE_STD, HumanMotion, random_rotation, rotation_error, shared_data_dir,
                                 simulate_streams)
 

@@ -48,7 +48,7 @@ def add_compare_parser(subparsers):
 def _load_recording(args):
     """Read and align the recording pair: ``(omega_1, omega_2, rate_hz)`` of the valid aligned samples."""
     from .main import read_streams
-    from ..pipeline.preprocess import align_streams
+    from ..pipeline.alignment import align_streams
 
     s1, s2 = read_streams(args)
     pair = align_streams(s1.t, s1.omega, s2.t, s2.omega, time_offset_s=args.offset, max_offset_s=args.max_offset,

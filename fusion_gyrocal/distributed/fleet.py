@@ -42,7 +42,7 @@ from ..pipeline.pipeline import calibrate_pair
 from ..errors import FormatError, GyroCalError, InputError
 from ..core.model import PairCalibration
 from ..core.moments import Moments
-from ..pipeline.preprocess import check_timestamps
+from ..pipeline.streams import check_timestamps
 
 COLUMNS = ("t", "w1x", "w1y", "w1z", "w2x", "w2y", "w2z")
 GYRO_FILES = ("gyro1", "gyro2")

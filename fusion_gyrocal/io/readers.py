@@ -31,10 +31,10 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import FormatError, InputError, OptionError
-from ..pipeline.preprocess import UNITS, check_timestamps, to_rad_per_s
+from ..pipeline.streams import UNITS, check_timestamps, to_rad_per_s
 
 
-#: Rate units understood by the readers (converted with :func:`fusion_gyrocal.pipeline.preprocess.to_rad_per_s`).
+#: Rate units understood by the readers (converted with :func:`fusion_gyrocal.pipeline.streams.to_rad_per_s`).
 RATE_UNITS = UNITS
 #: Time units understood by the readers, as powers of ten of one second.
 TIME_UNITS = {"s": 0, "ms": 3, "us": 6, "ns": 9}
@@ -150,7 +150,7 @@ def _path(path, what: str = "file") -> Path:
 
 
 def _rate_factor(unit: str, sensitivity, where: str) -> float:
-    """Factor turning ``unit`` into rad/s (:func:`fusion_gyrocal.pipeline.preprocess.to_rad_per_s`);
+    """Factor turning ``unit`` into rad/s (:func:`fusion_gyrocal.pipeline.streams.to_rad_per_s`);
     ``sensitivity`` is LSB per deg/s for raw counts."""
     try:
         return float(to_rad_per_s(np.ones(1), unit, sensitivity)[0])

@@ -51,7 +51,7 @@ def residual_vs_rate(run: PipelineRun, max_points: int = 20000):
 
 def snr_accumulation(run: PipelineRun, target_snr: float = 4e3):
     """Per-axis SNR of gyro 1 as samples accumulate (Eq. 36 per axis), with the paper's target."""
-    from ..pipeline.preprocess import excitation_report
+    from ..pipeline.selection import excitation_report
 
     cal = run.calibration
     sigma = float(np.hypot(*cal.noise_std))

@@ -83,7 +83,8 @@ from ..core.model import BIAS, ROT, S1, S2, PairCalibration
 from ..core.moments import Moments, as_rates
 from ..core.observability import A_of, classify
 from ..lie import skew
-from ..pipeline.preprocess import check_timestamps, resample
+from ..pipeline.resample import resample
+from ..pipeline.streams import check_timestamps
 
 __all__ = ["DriftNoise", "GyroPairTracker", "PairTruth", "ReseedEvent", "StepPrior", "TrackHistory",
            "plot_history", "simulate_drifting_pair", "track_figure_for_report"]
@@ -1160,7 +1161,7 @@ class GyroPairTracker:
         """Track unsynchronised streams: gyro 2 is resampled onto gyro 1's timestamps.
 
         ``time_offset_s`` of the seed is added to ``t_2`` (ARCHITECTURE convention). Gyro 2 is
-        interpolated with :func:`fusion_gyrocal.pipeline.preprocess.resample` (a cubic spline, the paper's
+        interpolated with :func:`fusion_gyrocal.pipeline.resample.resample` (a cubic spline, the paper's
         footnote 1) separately inside each of its contiguous segments (a step larger than
         ``max_gap_s``, default 5 median intervals, is a gap); gyro 1's samples outside gyro 2's
         segments are dropped. Interpolation averages gyro 2's noise, so its stated variance is an

@@ -1,7 +1,7 @@
 """The pipeline from raw rate streams to a calibration: :func:`calibrate_pair` and :func:`run_pipeline`.
 
 Streams with timestamps are checked, masked, time-aligned and resampled
-(:mod:`~fusion_gyrocal.pipeline.preprocess`); the moments of the kept samples are solved
+(:mod:`~fusion_gyrocal.pipeline.alignment`); the moments of the kept samples are solved
 (:func:`~fusion_gyrocal.core.solve.solve`); flex and outliers are gated
 (:mod:`~fusion_gyrocal.pipeline.flex`, Eq. 42) and the pair is solved again.
 """
@@ -48,7 +48,7 @@ def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: 
         samples are masked, the time offset is estimated by correlating the rate norms and
         refined below one sample (unless ``time_offset_s`` is given), and gyro 2 is resampled
         onto gyro 1's timestamps (or a ``rate_hz`` grid) with cubic splines that never cross
-        a gap (see :mod:`fusion_gyrocal.pipeline.preprocess`).
+        a gap (see :mod:`fusion_gyrocal.pipeline.alignment`).
     mask : array_like of bool (N,), optional
         Samples to use (sample-aligned input only).
     options : Options, optional
@@ -96,7 +96,7 @@ class PipelineRun:
     ``omega_1``/``omega_2`` are the sample-aligned rates the solver used (zero where ``valid`` is
     False), ``t`` their times on gyro 1's clock (None for sample-aligned input), ``used`` the
     samples kept after masking and flex rejection, and ``aligned`` the
-    :class:`~fusion_gyrocal.pipeline.preprocess.AlignedPair` (None for sample-aligned input).
+    :class:`~fusion_gyrocal.pipeline.alignment.AlignedPair` (None for sample-aligned input).
     """
 
     calibration: PairCalibration
@@ -117,7 +117,8 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
     if (t_1 is None) != (t_2 is None):
         raise InputError("t_1 and t_2: expected both timestamps or neither (sample-aligned input)")
     if t_1 is not None:
-        from .preprocess import align_streams, valid_mask
+        from .alignment import align_streams
+        from .streams import valid_mask
         if mask is not None:
             raise InputError("mask: only for sample-aligned input; with timestamps, saturated and non-finite "
                              "samples are masked automatically")
@@ -136,7 +137,7 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
         if mask is not None:
             mask = np.asarray(mask, dtype=bool)
     if o.max_rate is not None:
-        from .preprocess import informative_mask
+        from .selection import informative_mask
         keep = informative_mask(w1, w2, mask, 1.0, min_rate=0.0, max_rate=o.max_rate)
         mask = keep if mask is None else (mask & keep)
     solve_options = o

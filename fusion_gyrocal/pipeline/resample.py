@@ -1,0 +1,171 @@
+"""Cubic-spline resampling per contiguous run of valid samples, never across a gap.
+
+The paper (footnote in Section III) notes that resampling "can be done via cubic-spline
+interpolation"; :func:`resample` does it on plain arrays with a validity mask.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.interpolate import PPoly
+from scipy.linalg import solve_banded
+
+from ..errors import InputError, OptionError
+from .streams import DEFAULT_GAP_PERIODS, _nominal_period, _stream
+
+
+# ---------------------------------------------------------------------------------------------- resampling
+def _runs(t: np.ndarray, valid: np.ndarray, max_gap_s: float) -> list[np.ndarray]:
+    """Sample indices of each contiguous run (>= 2 samples) of valid samples without a gap."""
+    idx = np.flatnonzero(valid)
+    if idx.size < 2:
+        return []
+    brk = (np.diff(idx) > 1) | (np.diff(t[idx]) > max_gap_s)
+    cut = np.flatnonzero(brk) + 1
+    return [idx[a:b] for a, b in zip(np.r_[0, cut], np.r_[cut, idx.size]) if b - a >= 2]
+
+
+def _spline_slopes(x: np.ndarray, Y: np.ndarray, first: np.ndarray, last: np.ndarray) -> np.ndarray:
+    """Knot slopes of the not-a-knot cubic spline of each run ``first[k]..last[k]`` of ``(x, Y)``.
+
+    The same equations as scipy's ``CubicSpline`` (tridiagonal continuity of the second
+    derivative, not-a-knot end rows in their tridiagonal form), with no coupling between runs.
+    """
+    m = x.size
+    dx = np.diff(x)
+    slope = np.diff(Y, axis=0) / dx[:, None]
+    ab = np.zeros((3, m))  # banded storage: ab[1 + i - j, j] = a[i, j]
+    rhs = np.zeros_like(Y)
+    ab[1, 1:-1] = 2.0 * (dx[:-1] + dx[1:])
+    ab[0, 2:] = dx[:-1]
+    ab[2, :-2] = dx[1:]
+    rhs[1:-1] = 3.0 * (dx[1:, None] * slope[:-1] + dx[:-1, None] * slope[1:])
+    n = last - first + 1
+    # cut the coupling between consecutive runs
+    ab[2, first[first > 0] - 1] = 0.0
+    ab[0, last[last < m - 1] + 1] = 0.0
+    big = n >= 4
+    i0, i1 = first[big], last[big]
+    d0 = x[i0 + 2] - x[i0]
+    ab[1, i0] = dx[i0 + 1]
+    ab[0, i0 + 1] = d0
+    rhs[i0] = (((dx[i0] + 2.0 * d0) * dx[i0 + 1])[:, None] * slope[i0]
+               + (dx[i0] ** 2)[:, None] * slope[i0 + 1]) / d0[:, None]
+    d1 = x[i1] - x[i1 - 2]
+    ab[1, i1] = dx[i1 - 2]
+    ab[2, i1 - 1] = d1
+    rhs[i1] = ((dx[i1 - 1] ** 2)[:, None] * slope[i1 - 2]
+               + ((2.0 * d1 + dx[i1 - 1]) * dx[i1 - 2])[:, None] * slope[i1 - 1]) / d1[:, None]
+    # short runs: explicit slopes (two samples: the line; three: the parabola through them)
+    fixed, values = [], []
+    for k in np.flatnonzero(~big):
+        j = first[k]
+        if n[k] == 2:
+            fixed += [j, j + 1]
+            values += [slope[j], slope[j]]
+        else:
+            c = (slope[j + 1] - slope[j]) / (dx[j] + dx[j + 1])
+            fixed += [j, j + 1, j + 2]
+            values += [slope[j] - dx[j] * c, slope[j] + dx[j] * c, slope[j + 1] + dx[j + 1] * c]
+    if fixed:
+        fixed = np.asarray(fixed)
+        ab[1, fixed] = 1.0
+        ab[0, fixed[fixed < m - 1] + 1] = 0.0
+        ab[2, fixed[fixed > 0] - 1] = 0.0
+        rhs[fixed] = np.asarray(values)
+    return solve_banded((1, 1), ab, rhs, check_finite=False)
+
+
+def _hermite_ppoly(x: np.ndarray, Y: np.ndarray, S: np.ndarray, width: tuple) -> PPoly:
+    """Piecewise cubic through ``(x, Y)`` with knot slopes ``S`` (as scipy's ``CubicHermiteSpline``)."""
+    dx = np.diff(x)[:, None]
+    slope = np.diff(Y, axis=0) / dx
+    t = (S[:-1] + S[1:] - 2.0 * slope) / dx
+    c = np.stack((t / dx, (slope - S[:-1]) / dx - t, S[:-1], Y[:-1]))
+    return PPoly(c.reshape((4, x.size - 1) + width), x, extrapolate=False)
+
+
+class _RunSplines:
+    """Cubic splines of ``y(t)`` over each contiguous run of valid samples (no gap, no masked sample).
+
+    Every run gets the not-a-knot cubic spline that scipy's ``CubicSpline`` would fit (a run of
+    two samples: a line, of three: a parabola). All runs are solved together as one block-
+    tridiagonal system for the knot slopes (one banded solve, however many runs a masked
+    record has) and packed into one piecewise polynomial; the interval between two runs holds
+    a Hermite bridge that is masked on evaluation (values and first derivatives at the run
+    ends are exact).
+    """
+
+    def __init__(self, t: np.ndarray, y: np.ndarray, valid: np.ndarray, max_gap_s: float):
+        self.width = y.shape[1:]
+        self.starts, self.ends, self.poly = np.empty(0), np.empty(0), None
+        runs = _runs(t, valid, max_gap_s)
+        if not runs:
+            return
+        sel = np.concatenate(runs)
+        x = t[sel]
+        Y = y[sel].reshape(sel.size, -1)
+        lens = np.array([r.size for r in runs])
+        first = np.r_[0, np.cumsum(lens)[:-1]]
+        last = first + lens - 1
+        self.starts, self.ends = x[first], x[last]
+        self.poly = _hermite_ppoly(x, Y, _spline_slopes(x, Y, first, last), self.width)
+
+    def run_of(self, x: np.ndarray) -> np.ndarray:
+        """Index of the run containing each query time, -1 outside every run."""
+        if self.poly is None:
+            return np.full(x.shape, -1)
+        r = np.searchsorted(self.starts, x, side="right") - 1
+        inside = (r >= 0) & (x <= self.ends[np.clip(r, 0, None)])
+        return np.where(inside, r, -1)
+
+    def __call__(self, x: np.ndarray, nu: int = 0, inside: np.ndarray | None = None):
+        """Values (or ``nu``-th derivatives) at ``x``, NaN outside the runs; returns (values, inside)."""
+        if inside is None:
+            inside = self.run_of(x) >= 0
+        out = np.full(x.shape + self.width, np.nan)
+        if inside.any():
+            out[inside] = self.poly(x[inside], nu)
+        return out, inside
+
+
+def resample(t_src, omega_src, t_grid, *, valid=None, max_gap_s: float | None = None):
+    """Resample rates onto new instants with cubic splines, never bridging gaps or masked samples.
+
+    A not-a-knot cubic spline (the one scipy's ``CubicSpline`` fits) is fitted to each contiguous run of
+    valid samples; a run ends at a masked or non-finite sample or at a step longer than
+    ``max_gap_s``. Grid points outside every run are invalid.
+
+    Parameters
+    ----------
+    t_src : array_like, shape (N,)
+        Source timestamps (s), strictly increasing.
+    omega_src : array_like, shape (N, 3)
+        Source rates (rad/s).
+    t_grid : array_like, shape (M,)
+        Instants to evaluate at, on the same clock as ``t_src`` (any order).
+    valid : array_like of bool, shape (N,), optional
+        Source samples that may be used (non-finite samples are always excluded).
+    max_gap_s : float, optional
+        Longest step bridged (default: 2.5 nominal sample periods, the median step).
+
+    Returns
+    -------
+    omega : ndarray, shape (M, 3)
+        Rates at ``t_grid``; NaN where invalid.
+    valid : ndarray of bool, shape (M,)
+        True where ``t_grid`` lies inside a run of valid source samples.
+    """
+    t, w, ok = _stream("t_src", t_src, "omega_src", omega_src, valid)
+    grid = np.asarray(t_grid, dtype=np.float64)
+    if grid.ndim != 1:
+        raise InputError(f"t_grid: expected a 1-D array of instants, got shape {grid.shape}")
+    gap = DEFAULT_GAP_PERIODS * _nominal_period(t) if max_gap_s is None else float(max_gap_s)
+    if not gap > 0:
+        raise OptionError(f"max_gap_s: expected a positive duration, got {max_gap_s!r}")
+    t_ref = t[0]  # splines in relative time: absolute (epoch) seconds lose precision in the cubic terms
+    spl = _RunSplines(t - t_ref, w, ok, gap)
+    finite_grid = np.isfinite(grid)
+    out, inside = spl(np.where(finite_grid, grid - t_ref, -np.inf))
+    inside &= finite_grid
+    return out, inside

@@ -1,0 +1,194 @@
+"""Stream checks and unit conversion at the edge: timestamps, rate units, saturated and non-finite samples."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.moments import as_rates
+from ..errors import InputError, OptionError
+
+DEG = np.pi / 180.0
+UNITS = ("rad/s", "deg/s", "counts")
+DEFAULT_GAP_PERIODS = 2.5      # default max_gap_s in nominal sample periods
+
+
+def _freeze(obj, names, dtype=None) -> None:
+    """Replace the array fields ``names`` of a frozen dataclass by read-only copies."""
+    for name in names:
+        arr = np.array(getattr(obj, name), dtype=dtype)
+        arr.flags.writeable = False
+        object.__setattr__(obj, name, arr)
+
+
+# ---------------------------------------------------------------------------------------------- stream checks
+def check_timestamps(name: str, t, *, length: int | None = None) -> np.ndarray:
+    """Return timestamps as a 1-D float64 array of seconds, checking that they can be used.
+
+    Parameters
+    ----------
+    name : str
+        Name used in error messages (e.g. ``"t_2"``).
+    t : array_like, shape (N,)
+        Timestamps in seconds, strictly increasing.
+    length : int, optional
+        Number of rate samples they belong to.
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        ``t`` as float64 (the caller's array is never modified; no copy when already float64).
+
+    Raises
+    ------
+    InputError
+        If ``t`` is not 1-D and numeric, its length differs from ``length``, it has fewer than
+        two samples, a non-finite value, a duplicate timestamp or a step backwards (the message
+        names the sample index and the step).
+    """
+    arr = np.asarray(t)
+    if arr.dtype.kind not in "fiu":
+        raise InputError(f"{name}: expected numeric timestamps in seconds, got dtype {arr.dtype}")
+    if arr.ndim != 1:
+        raise InputError(f"{name}: expected a 1-D array of timestamps, got shape {arr.shape}")
+    if length is not None and arr.shape[0] != length:
+        raise InputError(f"{name}: expected {length} timestamps (one per rate sample), got {arr.shape[0]}")
+    if arr.shape[0] < 2:
+        raise InputError(f"{name}: expected at least 2 timestamps, got {arr.shape[0]}")
+    arr = arr.astype(np.float64, copy=False)
+    bad = np.flatnonzero(~np.isfinite(arr))
+    if bad.size:
+        raise InputError(f"{name}: expected finite timestamps, got {arr[bad[0]]} at sample {bad[0]} "
+                         f"({bad.size} non-finite)")
+    step = np.diff(arr)
+    nonpos = np.flatnonzero(step <= 0)
+    if nonpos.size:
+        k = int(nonpos[0])
+        if step[k] == 0:
+            raise InputError(f"{name}: expected strictly increasing timestamps, got a duplicate timestamp "
+                             f"{arr[k]!r} s at samples {k} and {k + 1} ({nonpos.size} non-increasing step(s))")
+        raise InputError(f"{name}: expected strictly increasing timestamps, got a step of {step[k]:.6g} s at "
+                         f"sample {k + 1} ({nonpos.size} non-increasing step(s))")
+    return arr
+
+
+def to_rad_per_s(x, unit: str, sensitivity: float | None = None) -> np.ndarray:
+    """Convert angular rates to rad/s (a new float64 array).
+
+    Parameters
+    ----------
+    x : array_like
+        Rates in ``unit``.
+    unit : {"rad/s", "deg/s", "counts"}
+        Unit of ``x``. Raw ``"counts"`` need ``sensitivity``.
+    sensitivity : float, optional
+        Sensor sensitivity in LSB per deg/s (e.g. 16.4 for a +-2000 deg/s MEMS gyro); only
+        with ``unit="counts"``.
+
+    Raises
+    ------
+    InputError
+        On an unknown unit, counts without a positive finite sensitivity, a sensitivity with
+        another unit, or non-numeric input.
+    """
+    arr = np.asarray(x)
+    if arr.dtype.kind not in "fiu":
+        raise InputError(f"x: expected numeric angular rates, got dtype {arr.dtype}")
+    if unit not in UNITS:
+        raise OptionError(f"unit: expected one of {UNITS}, got {unit!r}")
+    if unit == "counts":
+        if sensitivity is None or not np.isfinite(sensitivity) or not sensitivity > 0:
+            raise OptionError("sensitivity: expected a positive LSB per deg/s (e.g. 16.4) to convert counts, "
+                             f"got {sensitivity!r}")
+        return arr.astype(np.float64) * (DEG / float(sensitivity))
+    if sensitivity is not None:
+        raise OptionError(f"sensitivity: only used with unit='counts', got {sensitivity!r} with unit={unit!r}")
+    if unit == "deg/s":
+        return arr.astype(np.float64) * DEG
+    return np.array(arr, dtype=np.float64)
+
+
+def saturation_mask(omega, limit: float | None = None) -> np.ndarray:
+    """Samples at which at least one axis is saturated (clipped at the sensor range).
+
+    Parameters
+    ----------
+    omega : array_like, shape (N, 3)
+        Rates in any unit (``limit`` in the same unit).
+    limit : float, optional
+        Sensor range: a sample is saturated where ``|value| >= limit`` on any axis. Without it a
+        heuristic is used: on each axis, the largest and the smallest value are taken as clip
+        levels when that exact value occurs in at least two samples and its magnitude is at
+        least half the largest magnitude of the whole record (clipped data sit flat at the
+        range; smooth unclipped motion almost never repeats its extreme exactly). Pass
+        ``limit`` when the range is known, especially for quantised (integer count) data.
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+        True where saturated. Non-finite samples are ignored here (see :func:`valid_mask`).
+    """
+    w = as_rates("omega", omega)
+    finite = np.isfinite(w)
+    if limit is not None:
+        if not np.isfinite(limit) or not limit > 0:
+            raise OptionError(f"limit: expected a positive sensor range, got {limit!r}")
+        with np.errstate(invalid="ignore"):
+            return np.any(finite & (np.abs(w) >= limit), axis=1)
+    out = np.zeros(w.shape[0], dtype=bool)
+    if not finite.any():
+        return out
+    biggest = float(np.max(np.abs(w[finite])))
+    for a in range(3):
+        col = w[finite[:, a], a]
+        if col.size < 2:
+            continue
+        for level in (col.max(), col.min()):
+            if level == 0 or abs(level) < 0.5 * biggest:
+                continue
+            hit = w[:, a] == level
+            if np.count_nonzero(hit) >= 2:
+                out |= hit
+    return out
+
+
+def valid_mask(omega, *, limit: float | None = None, saturation: bool = True) -> np.ndarray:
+    """Samples that may be used: finite on every axis and (by default) not saturated.
+
+    Parameters
+    ----------
+    omega : array_like, shape (N, 3)
+    limit : float, optional
+        Sensor range for :func:`saturation_mask`.
+    saturation : bool
+        Also mask saturated samples (default True).
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+    """
+    w = as_rates("omega", omega)
+    ok = np.isfinite(w).all(axis=1)
+    if saturation:
+        ok &= ~saturation_mask(w, limit)
+    return ok
+
+
+def _and_valid(keep: np.ndarray, valid, name: str) -> np.ndarray:
+    """``keep & valid`` with the caller's ``valid`` checked to be a bool mask of the same shape (None: all)."""
+    if valid is None:
+        return keep
+    v = np.asarray(valid)
+    if v.dtype != bool or v.shape != keep.shape:
+        raise InputError(f"{name}: expected a bool array of shape {keep.shape}, got {v.dtype} {v.shape}")
+    return keep & v
+
+
+def _stream(name_t, t, name_w, omega, valid) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Checked (t, omega, valid) of one stream; ``valid`` also excludes non-finite samples."""
+    w = as_rates(name_w, omega)
+    tt = check_timestamps(name_t, t, length=w.shape[0])
+    return tt, w, _and_valid(np.isfinite(w).all(axis=1), valid, f"valid mask for {name_w}")
+
+
+def _nominal_period(t: np.ndarray) -> float:
+    return float(np.median(np.diff(t)))
