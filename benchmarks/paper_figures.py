@@ -31,8 +31,9 @@ from pathlib import Path
 
 import numpy as np
 
-from fusion_gyrocal.evaluate.compare import (DEFAULT_ESTIMATORS, estimator_available, plot_residual_vs_rate,
-                                    plot_rmse_vs_snr, snr_sweep)
+from fusion_gyrocal.evaluate.compare import snr_sweep
+from fusion_gyrocal.evaluate.figures import plot_residual_vs_rate, plot_rmse_vs_snr
+from fusion_gyrocal.evaluate.registry import DEFAULT_ESTIMATORS, estimator_available
 from fusion_gyrocal.evaluate.scenarios import SNR_FACTORS, make_scenario
 
 FIGURES = Path(__file__).resolve().parents[1] / "docs" / "figures"

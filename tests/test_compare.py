@@ -1,5 +1,6 @@
 import argparse
 import csv
+import dataclasses
 import io
 import sys
 
@@ -8,9 +9,14 @@ from _examples import load_example
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fusion_gyrocal import InputError, calibrate_pair
+from fusion_gyrocal import GyroCalError, InputError, OptionError, calibrate_pair
 from fusion_gyrocal.cli.compare import add_compare_parser, compare_main
-from fusion_gyrocal.evaluate.compare import (compare, plot_rmse_vs_snr, rotation_only, run_estimator, snr_sweep, solve_appendix_c)
+from fusion_gyrocal.evaluate import registry
+from fusion_gyrocal.evaluate.baselines import rotation_only, solve_appendix_c
+from fusion_gyrocal.evaluate.compare import compare, plot_rmse_vs_snr, snr_sweep
+from fusion_gyrocal.evaluate.registry import DEFAULT_ESTIMATORS, ESTIMATORS, REGISTRY, Estimator, run_estimator
+from fusion_gyrocal.lie import exp
+from fusion_gyrocal.options import Options
 from fusion_gyrocal.core.moments import Moments
 from fusion_gyrocal.core.observability import cramer_rao_bound
 from fusion_gyrocal.evaluate.scenarios import SCENARIOS, describe_scenario, list_scenarios, make_scenario, scenario_bound
@@ -160,6 +166,88 @@ def test_run_estimator_reports_failure_instead_of_raising():
     w = np.zeros((100, 3))  # constant input: the calibration must refuse
     est = run_estimator("direct", w, w)
     assert not est.ok and "InputError" in est.error and np.isnan(est.R_1_2).all()
+
+
+def test_solve_appendix_c_divergence_raises_gyrocal_error():
+    # from identity on a weak-axis realisation the Gauss-Newton iteration runs away (scales change sign)
+    sc = make_scenario("weak_axis", rng=[4, 1])
+    with pytest.raises(GyroCalError, match="diverged at iteration"):
+        solve_appendix_c(Moments.from_samples(sc.omega_1, sc.omega_2))
+    est = run_estimator("appendix_c_identity", sc.omega_1, sc.omega_2)
+    assert not est.ok and est.error.startswith("GyroCalError: appendix C: the Gauss-Newton iteration diverged")
+
+
+def _with_run(name, run):
+    return dataclasses.replace(REGISTRY[name], run=run)
+
+
+@pytest.mark.parametrize("exc", [ValueError("a bug"), np.linalg.LinAlgError("Singular matrix"), RuntimeError("x")])
+def test_run_estimator_non_gyrocal_error_propagates(monkeypatch, exc):
+    def run(w1, w2, rate_hz, options):
+        raise exc
+
+    monkeypatch.setitem(REGISTRY, "direct", _with_run("direct", run))
+    sc = make_scenario("nominal", rng=0, n=600)
+    with pytest.raises(type(exc), match=str(exc)):
+        run_estimator("direct", sc.omega_1, sc.omega_2)
+    with pytest.raises(type(exc), match=str(exc)):
+        compare("nominal", estimators=["direct"], runs=1, workers=1, progress=False)
+
+
+def test_run_estimator_gyrocal_error_is_a_failed_row(monkeypatch):
+    def run(w1, w2, rate_hz, options):
+        raise OptionError("noise_std: expected > 0")  # a GyroCalError (and a ValueError): a failure, not a bug
+
+    monkeypatch.setitem(REGISTRY, "direct", _with_run("direct", run))
+    c = compare("nominal", estimators=["direct", "rotation_only"], runs=1, workers=1, progress=False)
+    assert c.row("direct").failures == 1 and c.row("direct").note == "OptionError: noise_std: expected > 0"
+    assert c.row("rotation_only").failures == 0
+
+
+def test_registry_one_entry_adds_an_estimator(monkeypatch):
+    # adding an estimator is adding one entry: it runs, is named in the rows and draws in its colour
+    def run(w1, w2, rate_hz, options):
+        return np.eye(3), np.ones(3), np.ones(3), np.zeros(3), 0
+
+    monkeypatch.setitem(REGISTRY, "identity", Estimator("identity", "assumes identity", run, colour="k", marker="*"))
+    c = compare("nominal", estimators=["identity"], runs=1, seed=2, workers=1, progress=False)
+    sc = make_scenario("nominal", rng=[2, 0])
+    row = c.row("identity")
+    assert row.description == "assumes identity" and row.failures == 0
+    np.testing.assert_allclose(row.rotation_rmse, rotation_error(np.eye(3), sc.data.R_1_2), rtol=1e-12)
+    assert ESTIMATORS == {n: e.description for n, e in registry.REGISTRY.items() if n != "identity"}
+    assert DEFAULT_ESTIMATORS == ("direct", "default", "appendix_c", "rotation_only", "graph", "ekf")
+
+
+def test_compare_rotvec_is_canonical_at_180_deg(monkeypatch):
+    # a half turn about -x - y: Log may return either sign; the table shows the canonical one
+    axis = -np.array([1.0, 1.0, 0.0]) / np.sqrt(2.0)
+    R = exp(np.pi * axis)
+
+    def run(w1, w2, rate_hz, options):
+        return R, np.ones(3), np.ones(3), np.zeros(3), 0
+
+    monkeypatch.setitem(REGISTRY, "half_turn", Estimator("half_turn", "half turn", run))
+    sim = simulate_pair(rng=1, n=600)
+    row = compare((sim.omega_1, sim.omega_2), estimators=["half_turn"], progress=False).row("half_turn")
+    np.testing.assert_allclose(row.rotvec_deg, -180.0 * axis, atol=1e-6)
+
+
+def test_compare_options_reach_the_estimators():
+    sim = simulate_pair(rng=2, scale_1=S1, scale_2=S2)
+    noise = (1e-3, 4e-3)  # an unequal split changes the maximum-likelihood weights
+    c = compare((sim.omega_1, sim.omega_2), estimators=["direct", "default"], progress=False, noise_std=noise)
+    by_options = compare((sim.omega_1, sim.omega_2), estimators=["direct", "default"], progress=False,
+                         options=Options(noise_std=noise, method="direct"))  # the method is each estimator's
+    plain = compare((sim.omega_1, sim.omega_2), estimators=["default"], progress=False)
+    ml = calibrate_pair(sim.omega_1, sim.omega_2, noise_std=noise)
+    np.testing.assert_allclose(c.row("default").scale_2, ml.scale_2, rtol=1e-12)
+    np.testing.assert_allclose(by_options.row("default").scale_2, ml.scale_2, rtol=1e-12)
+    assert np.abs(plain.row("default").scale_2 - ml.scale_2).max() > 1e-7
+    direct = calibrate_pair(sim.omega_1, sim.omega_2, method="direct", noise_std=noise)
+    np.testing.assert_allclose(by_options.row("direct").scale_2, direct.scale_2, rtol=1e-12)
+    with pytest.raises(OptionError, match="unknown option"):
+        compare((sim.omega_1, sim.omega_2), estimators=["direct"], progress=False, noise=1e-3)
 
 
 # ------------------------------------------------------------------------------------------ scenarios
