@@ -12,8 +12,8 @@ from .core.gauge import Gauge
 from .core.model import PairCalibration
 from .core.moments import Moments
 from .core.solve import solve
-from .errors import (ConfigurationError, ExcitationError, FormatError, GyroCalError, InputError, NotRigidError,
-                     OptionError, TimeAlignmentError)
+from .errors import (ConfigurationError, ConvergenceError, ExcitationError, FormatError, GyroCalError, InputError,
+                     NotRigidError, OptionError, TimeAlignmentError)
 from .options import Options
 from .pipeline.pipeline import calibrate_pair
 
@@ -30,7 +30,7 @@ _LAZY = {
 __all__ = [
     "calibrate_pair", "solve", "Options", "Gauge", "PairCalibration", "Moments",
     "GyroCalError", "InputError", "OptionError", "ExcitationError", "ConfigurationError", "TimeAlignmentError",
-    "NotRigidError", "FormatError", "__version__", *_LAZY,
+    "NotRigidError", "FormatError", "ConvergenceError", "__version__", *_LAZY,
 ]
 
 

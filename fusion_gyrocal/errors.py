@@ -36,5 +36,9 @@ class NotRigidError(GyroCalError):
     """The two gyroscopes do not move as one rigid body (residuals grow with the rate)."""
 
 
+class ConvergenceError(GyroCalError):
+    """An iterative solver diverged (its normal equations became singular or non-finite)."""
+
+
 class FormatError(GyroCalError):
     """A file could not be read or written in the requested format."""

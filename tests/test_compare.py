@@ -9,7 +9,7 @@ from _examples import load_example
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fusion_gyrocal import GyroCalError, InputError, OptionError, calibrate_pair
+from fusion_gyrocal import ConvergenceError, InputError, OptionError, calibrate_pair
 from fusion_gyrocal.cli.compare import add_compare_parser, compare_main
 from fusion_gyrocal.evaluate import registry
 from fusion_gyrocal.evaluate.baselines import rotation_only, solve_appendix_c
@@ -168,13 +168,13 @@ def test_run_estimator_reports_failure_instead_of_raising():
     assert not est.ok and "InputError" in est.error and np.isnan(est.R_1_2).all()
 
 
-def test_solve_appendix_c_divergence_raises_gyrocal_error():
+def test_solve_appendix_c_divergence_raises_convergence_error():
     # from identity on a weak-axis realisation the Gauss-Newton iteration runs away (scales change sign)
     sc = make_scenario("weak_axis", rng=[4, 1])
-    with pytest.raises(GyroCalError, match="diverged at iteration"):
+    with pytest.raises(ConvergenceError, match="diverged at iteration"):
         solve_appendix_c(Moments.from_samples(sc.omega_1, sc.omega_2))
     est = run_estimator("appendix_c_identity", sc.omega_1, sc.omega_2)
-    assert not est.ok and est.error.startswith("GyroCalError: appendix C: the Gauss-Newton iteration diverged")
+    assert not est.ok and est.error.startswith("ConvergenceError: appendix C: the Gauss-Newton iteration diverged")
 
 
 def _with_run(name, run):

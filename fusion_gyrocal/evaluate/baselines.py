@@ -19,7 +19,7 @@ from scipy.spatial.transform import Rotation
 
 from ..core.moments import Moments, as_rates
 from ..core.observability import A_of
-from ..errors import GyroCalError
+from ..errors import ConvergenceError
 from ..lie import skew
 
 __all__ = ["AppendixCResult", "solve_appendix_c", "rotation_only"]
@@ -79,7 +79,7 @@ def _gauss_newton_step(H, g, iteration, s1, s2) -> np.ndarray:
             return np.linalg.solve(H, g)
         except np.linalg.LinAlgError:
             pass  # exactly singular: reported below
-    raise GyroCalError(f"appendix C: the Gauss-Newton iteration diverged at iteration {iteration} (singular or "
+    raise ConvergenceError(f"appendix C: the Gauss-Newton iteration diverged at iteration {iteration} (singular or "
                        f"non-finite normal matrix; scale_1 {np.array2string(s1, precision=3)}, scale_2 "
                        f"{np.array2string(s2, precision=3)})")
 
@@ -115,7 +115,7 @@ def solve_appendix_c(moments: Moments, R_1_2=None, scale_1=None, scale_2=None, *
 
     Raises
     ------
-    GyroCalError
+    ConvergenceError
         The iteration diverged: its normal matrix became singular or not finite (from a poor start,
         e.g. identity far from the truth, the scale factors can change sign and run away).
 
