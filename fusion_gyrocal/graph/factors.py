@@ -236,7 +236,7 @@ def rotation_increment_factor(preintegrated: PreintegratedRotations, k: int, del
     Parameters
     ----------
     preintegrated : PreintegratedRotations
-        Output of :func:`preintegrate_rotations`.
+        Output of :func:`~fusion_gyrocal.graph.preintegration.preintegrate_rotations`.
     k : int
         Which interval.
     delta_R_meas : array_like (3, 3)

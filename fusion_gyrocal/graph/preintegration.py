@@ -13,12 +13,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import gtsam
 import numpy as np
 
 from ..core.moments import as_rates
 from ..errors import InputError
-from ..lie import exp_and_right_jacobian
+from ..lie import exp_and_right_jacobian, log
 
 __all__ = ["RotationIncrements", "PreintegratedRotations", "preintegrate_rotations", "fit_global_scale_and_bias"]
 
@@ -204,7 +203,7 @@ def fit_global_scale_and_bias(omega_1, rate_hz, increments, measured, sigma, l_r
     w = 1.0 / np.asarray(sigma) ** 2
     for _ in range(iterations):
         pre = preintegrate_rotations(omega_1, rate_hz, increments, scale_1=np.exp(g + l_rel), bias_1=b)
-        r = np.array([gtsam.Rot3.Logmap(gtsam.Rot3(m.T @ d)) for m, d in zip(measured, pre.delta_R)])
+        r = log(np.swapaxes(measured, 1, 2) @ pre.delta_R)                              # (K, 3)
         J = np.concatenate([pre.J_scale.sum(axis=2)[..., None], pre.J_bias], axis=2)     # (K, 3, 4)
         H = np.einsum("k,kia,kib->ab", w, J, J)
         step = -np.linalg.lstsq(H, np.einsum("k,kia,ki->a", w, J, r), rcond=1e-12)[0]

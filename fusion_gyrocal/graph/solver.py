@@ -127,7 +127,7 @@ class GyroPairGraph:
         window biases (no between factors).
     gauge : str or Gauge
         How the result states the global scale (``"unit_prior"``, ``"fixed"`` or a
-        :class:`~fusion_gyrocal.core.direct.Gauge`); ignored with ``global_scale=True``.
+        :class:`~fusion_gyrocal.core.gauge.Gauge`); ignored with ``global_scale=True``.
     global_scale : bool
         Add the global log-scale variable ``g`` (absolute scales ``= exp(g) * relative``), to be fixed
         by :meth:`add_rotation_increments`.
