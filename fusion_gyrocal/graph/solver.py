@@ -49,6 +49,7 @@ from .preintegration import (PreintegratedRotations, RotationIncrements, fit_glo
 __all__ = ["GraphKeys", "GraphEstimate", "GyroPairGraph", "calibrate_pair_graph", "GLOBAL_SCALE_GAUGE"]
 
 GAUGE_PRIOR_RATIO = 1e-2        # gauge-prior std relative to the seed's smallest scale std (see GyroPairGraph notes)
+GAUGE_FIXED_STD_RATIO = 1e-6    # seed scale stds below this times the largest are gauge-fixed, not measured
 GLOBAL_SCALE_GAUGE = "global scale estimated from rotation increments"
 MARGINALS_MAX_SEGMENTS = 64     # above: bias-mean covariance by a sparse solve of the same information
 
@@ -195,8 +196,10 @@ class GyroPairGraph:
         k = self.keys
         groups = self.configuration.groups
         # gauge-prior std: 1e-2 of the seed's smallest scale std (see the class notes)
+        # (a scale the seed's gauge fixes has a std of zero up to rounding, ~1e-14: not a scale std)
         seed_std = np.sqrt(np.diag(seed.covariance)[3:9]) / np.concatenate([seed.scale_1, seed.scale_2])
-        seed_std = seed_std[np.isfinite(seed_std) & (seed_std > 0)]
+        seed_std = seed_std[np.isfinite(seed_std)]
+        seed_std = seed_std[seed_std > GAUGE_FIXED_STD_RATIO * seed_std.max(initial=0.0)]
         sigma = GAUGE_PRIOR_RATIO * (float(seed_std.min()) if seed_std.size else 1e-6)
         s1, s2 = (seed.scale_1, seed.scale_2) if self.global_scale else self.gauge.apply(groups, [seed.scale_1,
                                                                                           seed.scale_2])
