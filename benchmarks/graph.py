@@ -23,7 +23,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from fusion_gyrocal import Moments, solve
-from fusion_gyrocal.graph.pair import GyroPairGraph
+from fusion_gyrocal.graph import GyroPairGraph
 from fusion_gyrocal.core.moments import window_moments
 from fusion_gyrocal.evaluate.sim import PAPER_BIAS_WALK_STD, simulate_pair
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from fusion_gyrocal.graph.pair import RotationIncrements, calibrate_pair_graph
+from fusion_gyrocal.graph import RotationIncrements, calibrate_pair_graph
 from fusion_gyrocal.core.model import PairCalibration
 from fusion_gyrocal.evaluate.sim import DEG, HumanMotion, simulate_pair
 

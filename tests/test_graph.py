@@ -8,9 +8,9 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from fusion_gyrocal import ConfigurationError, InputError, Moments, calibrate_pair, solve
-from fusion_gyrocal.graph import pair as graph_module
-from fusion_gyrocal.graph.pair import (GyroPairGraph, RotationIncrements, calibrate_pair_graph, gyro_pair_factor,
-                                  preintegrate_rotations, rotation_increment_factor)
+from fusion_gyrocal.graph import (GLOBAL_SCALE_GAUGE, GyroPairGraph, RotationIncrements, calibrate_pair_graph,
+                                  gyro_pair_factor, preintegrate_rotations, rotation_increment_factor)
+from fusion_gyrocal.graph import solver as graph_solver
 from fusion_gyrocal.core.moments import window_moments
 from fusion_gyrocal.evaluate.sim import DEG, HumanMotion, random_rotation, rotation_error, scale_error, simulate_pair
 
@@ -220,6 +220,19 @@ def test_calibrate_pair_graph_one_axis_parallel_agrees_with_batch_ml():
     assert np.abs(_normalised_difference(gr, ml)).max() <= 0.1
 
 
+def test_calibrate_pair_graph_one_axis_parallel_fixed_gauge_agrees_with_batch_ml():
+    # the seed's gauge-fixed scale_1[0] has a std of ~1e-14 from rounding: not a scale std for the gauge prior
+    R = Rotation.from_euler("z", 30, degrees=True).as_matrix()
+    for seed in (0, 1):          # seeds whose gauge-fixed std is not exactly zero
+        sim = simulate_pair(n=6000, R_1_2=R, scale_1=S1, scale_2=S2, rng=seed)
+        ml = calibrate_pair(sim.omega_1, sim.omega_2, noise_std=sim.noise_std, gauge="fixed")
+        gr = calibrate_pair_graph(sim.omega_1, sim.omega_2, noise_std=sim.noise_std, window=1000, gauge="fixed")
+        assert gr.configuration == ml.configuration == "one_axis_pair_parallel" and gr.gauge == ml.gauge
+        assert gr.scale_1[0] == pytest.approx(1.0, abs=1e-12)
+        assert np.abs(_normalised_difference(gr, ml)).max() <= 0.1
+        np.testing.assert_allclose(gr.scale_std[gr.scale_std > 0], ml.scale_std[ml.scale_std > 0], rtol=1e-2)
+
+
 def test_calibrate_pair_graph_drifting_bias_beats_constant_bias_batch():
     walk = 2e-3 * DEG        # per-step bias random walk of each gyro (35x the paper's)
     err_batch, err_graph, nees = [], [], []
@@ -244,7 +257,7 @@ def test_gyro_pair_graph_sparse_covariance_matches_marginals(monkeypatch):
     sim = simulate_pair(n=8000, scale_1=S1, scale_2=S2, bias_walk_std=1e-3 * DEG, rng=12)
     kw = dict(noise_std=sim.noise_std, window=400, bias_walk_std=1.4e-3 * DEG)
     dense = calibrate_pair_graph(sim.omega_1, sim.omega_2, **kw)
-    monkeypatch.setattr(graph_module, "MARGINALS_MAX_SEGMENTS", 0)
+    monkeypatch.setattr(graph_solver, "MARGINALS_MAX_SEGMENTS", 0)
     sparse = calibrate_pair_graph(sim.omega_1, sim.omega_2, **kw)
     assert dense.bias_segments == 20
     atol = 1e-12 * np.abs(dense.covariance).max()
@@ -270,7 +283,7 @@ def test_mean_walk_variance_matches_simulation():
     walk = np.cumsum(rng.standard_normal((20000, n_a + n_b)), axis=1)
     diff = walk[:, n_a:].mean(axis=1) - walk[:, :n_a].mean(axis=1)
     # 20000 draws: the variance estimate has a relative std of 1 %
-    assert np.var(diff) == pytest.approx(graph_module._mean_walk_variance(n_a, n_b), rel=0.05)
+    assert np.var(diff) == pytest.approx(graph_solver._mean_walk_variance(n_a, n_b), rel=0.05)
 
 
 # ---------------------------------------------------------------------------------------------- global scale
@@ -289,7 +302,7 @@ def test_example_graph_global_scale_recovers_absolute_scale(capsys):
     cal = demo.with_camera
     err = np.concatenate([cal.scale_1 - demo.scale_1, cal.scale_2 - demo.scale_2])
     std = cal.scale_std.reshape(-1)
-    assert cal.gauge == graph_module.GLOBAL_SCALE_GAUGE and cal.scale_observable.all()
+    assert cal.gauge == GLOBAL_SCALE_GAUGE and cal.scale_observable.all()
     assert np.all(std < 1e-3) and np.all(np.abs(err) < 4.0 * std)
     # the pair alone, in its gauge, is off by the unobservable common factor (truth drawn with 2 % spread)
     truth = np.concatenate([demo.scale_1, demo.scale_2])
@@ -313,7 +326,7 @@ def test_calibrate_pair_graph_isam2_with_rotation_increments_matches_lm():
     kw = dict(noise_std=sim.noise_std, window=500, rotation_increments=inc, rate_hz=100.0)
     lm = calibrate_pair_graph(sim.omega_1, sim.omega_2, **kw)
     isam = calibrate_pair_graph(sim.omega_1, sim.omega_2, solver="isam2", **kw)
-    assert isam.gauge == lm.gauge == graph_module.GLOBAL_SCALE_GAUGE
+    assert isam.gauge == lm.gauge == GLOBAL_SCALE_GAUGE
     # iSAM2 keeps the first preintegration point, LM re-preintegrates at its solution
     assert np.abs(_normalised_difference(isam, lm)).max() <= 0.02
 
@@ -328,15 +341,32 @@ def test_calibrate_pair_graph_drifting_biases_with_rotation_increments_recover_a
     assert np.all(np.abs(err) < 4.0 * cal.scale_std.reshape(-1))
 
 
-def test_gyro_pair_graph_seed_configuration_mismatch_raises():
+@pytest.fixture(scope="module")
+def tilted_general_case():
+    """Samples and a seed solved at 1 deg whose z axes are 3 deg from parallel: 'general' at 1 deg, not at 5 deg."""
     R = Rotation.from_euler("z", 30, degrees=True).as_matrix() @ Rotation.from_euler("x", 3, degrees=True).as_matrix()
     sim = simulate_pair(n=3000, R_1_2=R, scale_1=S1, scale_2=S2, rng=22)
     seed = solve(Moments.from_samples(sim.omega_1, sim.omega_2), noise_std=sim.noise_std, method="direct",
                  parallel_tol_deg=1.0)
     assert seed.configuration == "general"
+    return sim, seed
+
+
+def test_gyro_pair_graph_seed_configuration_mismatch_raises(tilted_general_case):
+    _, seed = tilted_general_case
     with pytest.raises(ConfigurationError, match="parallel_tol_deg"):
-        GyroPairGraph(seed)                      # default 5 deg: the 3 deg tilt counts as parallel
+        GyroPairGraph(seed, parallel_tol_deg=5.0)     # at 5 deg the 3 deg tilt counts as parallel
     assert GyroPairGraph(seed, parallel_tol_deg=1.0).configuration.name == "general"
+
+
+def test_gyro_pair_graph_default_keeps_seed_configuration(tilted_general_case):
+    sim, seed = tilted_general_case
+    graph = GyroPairGraph(seed)                        # no tolerance: the seed's class, not classify's at 5 deg
+    assert graph.configuration.name == "general" and len(graph.configuration.groups) == 1
+    for m in window_moments(sim.omega_1, sim.omega_2, 1000):
+        graph.add_window(m)
+    cal = graph.solve()
+    assert cal.configuration == "general" and cal.scale_observable.all() and np.isfinite(cal.scale_std).all()
 
 
 def test_gyro_pair_graph_global_scale_without_increments_raises(constant_bias_case):
