@@ -23,7 +23,7 @@ _LAZY = {
     "calibrate_array": "core.array", "ArrayCalibration": "core.array",
     "StreamingCalibrator": "online.stream",
     "GyroPairTracker": "online.tracker",
-    "calibrate_pair_graph": "graph.pair", "GyroPairGraph": "graph.pair",
+    "calibrate_pair_graph": "graph", "GyroPairGraph": "graph",
     "run_fleet": "distributed.fleet",
 }
 

@@ -87,3 +87,15 @@ def test_seed_configuration_keeps_class_or_checks_tolerance():
         seed_configuration(R, "general", parallel_tol_deg=5.0)
     with pytest.raises(ConfigurationError, match="configuration"):
         seed_configuration(R, "diagonal")
+
+
+def test_gauge_condition_holds_after_apply_and_constraints_are_its_derivative():
+    groups = (((0, 0), (1, 1)), ((0, 1), (1, 0), (0, 2), (1, 2)))
+    s = np.array([[1.1, 0.9, 1.05], [0.97, 1.02, 1.0]])
+    for gauge in (Gauge.unit_prior(), Gauge.known_scale(2, 1, 0.8)):
+        np.testing.assert_allclose(gauge.condition(groups, gauge.apply(groups, s)), 0.0, atol=1e-15)
+        eps, log_s = 1e-7, np.log(s).ravel()
+        num = np.column_stack([(gauge.condition(groups, np.exp(log_s + eps * e).reshape(2, 3))
+                                - gauge.condition(groups, np.exp(log_s - eps * e).reshape(2, 3))) / (2 * eps)
+                               for e in np.eye(6)])
+        np.testing.assert_allclose(gauge.constraints(groups, s), num, rtol=1e-6, atol=1e-9)

@@ -6,7 +6,8 @@ a common amount leaves every ``A = S_i R S_j^-1`` unchanged, so each group needs
 :class:`Gauge` supplies it, and this module is the one place that turns it into numbers:
 
 * :meth:`Gauge.apply` rescales estimates so that the gauge holds (Eq. 32-34);
-* :meth:`Gauge.constraints` linearises the conditions on the log-scales;
+* :meth:`Gauge.condition` gives the conditions' values, :meth:`Gauge.constraints` their linearisation on the
+  log-scales (the graph's gauge factor uses both);
 * :meth:`Gauge.null_directions` and :func:`oblique_projector` move a covariance onto the constraint
   surface (``T = I - N (G N)^-1 G``), as the EKF and the graph need;
 * :func:`constrained_inverse` inverts a Fisher information inside the gauge's tangent space
@@ -120,6 +121,20 @@ class Gauge:
             for g, a in group:
                 s[g, a] *= c
         return s
+
+    def condition(self, groups, scales) -> np.ndarray:
+        """Values of the gauge conditions, one per group, at ``scales`` (n_gyros, 3); zero where the gauge holds.
+
+        A known scale: ``log s_m - log value``; the unit convention: ``sum_m s_m (s_m - 1)`` (Eq. 32-34).
+        :meth:`constraints` is their derivative with respect to ``log s``.
+        """
+        s = np.asarray(scales, dtype=float)
+        out = np.zeros(len(groups))
+        for j, group in enumerate(groups):
+            members, value = self._condition(group)
+            r = np.array([s[g, a] for g, a in members])
+            out[j] = np.sum(np.log(r) - np.log(value)) if value is not None else np.sum(r * (r - 1.0))
+        return out
 
     def constraints(self, groups, scales, leading: int = 0) -> np.ndarray:
         """Linearised gauge conditions, one row per group, on ``[leading zeros, log s (3 n_gyros)]``.

@@ -290,11 +290,13 @@ class Moments:
         return cls(d["count"], np.asarray(d["mean"]), np.asarray(d["scatter"]), int(d.get("segments", 1)))
 
 
-def window_moments(omega_1, omega_2, window: int, *, mask=None) -> list[Moments]:
+def window_moments(omega_1, omega_2, window: int, *, mask=None, with_starts: bool = False) -> list:
     """Moments of consecutive windows of ``window`` samples (one bias segment each).
 
     ``Moments.pool_all(window_moments(...))`` gives the statistics of a piecewise-constant
-    bias; ``Moments.merge_all`` of the same list equals :meth:`Moments.from_samples`.
+    bias; ``Moments.merge_all`` of the same list equals :meth:`Moments.from_samples`. Windows with
+    fewer than two (unmasked) samples are left out; ``with_starts=True`` gives
+    ``(start sample index, Moments)`` pairs instead of the Moments alone.
     """
     w1 = as_rates("omega_1", omega_1)
     w2 = as_rates("omega_2", omega_2, length=w1.shape[0])
@@ -307,7 +309,7 @@ def window_moments(omega_1, omega_2, window: int, *, mask=None) -> list[Moments]
         sub_mask = None if mask is None else np.asarray(mask)[start:stop]
         m = Moments.from_samples(w1[start:stop], w2[start:stop], mask=sub_mask, chunk_size=window)
         if m.count > 1:
-            out.append(m)
+            out.append((start, m) if with_starts else m)
     return out
 
 

@@ -25,7 +25,7 @@ Estimators
     What rotation-only tools do: Kabsch / Wahba alignment of the bias-removed rates
     (:func:`~fusion_gyrocal.evaluate.baselines.rotation_only`); no scale factors.
 ``graph``
-    The GTSAM factor graph (:func:`fusion_gyrocal.graph.pair.calibrate_pair_graph`, windows of 1000
+    The GTSAM factor graph (:func:`fusion_gyrocal.graph.calibrate_pair_graph`, windows of 1000
     samples, Levenberg-Marquardt).
 ``ekf``
     The final estimate of the online tracker (:class:`fusion_gyrocal.online.tracker.GyroPairTracker`)
@@ -109,7 +109,7 @@ def _run_rotation_only(w1, w2, rate_hz, options):
 
 
 def _run_graph(w1, w2, rate_hz, options):
-    from ..graph.pair import calibrate_pair_graph
+    from ..graph import calibrate_pair_graph
     return _fields(calibrate_pair_graph(w1, w2, noise_std=options.noise_std, gauge=options.gauge,
                                         parallel_tol_deg=options.parallel_tol_deg))
 
@@ -173,7 +173,7 @@ REGISTRY = {e.name: e for e in (
     Estimator("rotation_only", "Kabsch alignment of bias-removed rates (rotation-only tools); no scales",
               _run_rotation_only, colour="tab:red", marker="x"),
     Estimator("graph", "GTSAM factor graph, windows of 1000 samples, Levenberg-Marquardt",
-              _run_graph, module="fusion_gyrocal.graph.pair", colour="tab:purple", marker="D"),
+              _run_graph, module="fusion_gyrocal.graph", colour="tab:purple", marker="D"),
     Estimator("ekf", "online EKF tracker (constant extrinsics and scales, the paper's bias walk) seeded on the "
                      "first 20 % of the data, final estimate",
               _run_ekf, module="fusion_gyrocal.online.tracker", colour="tab:brown", marker="P"),

@@ -49,7 +49,7 @@ from ..core.observability import A_of, dA_dp
 from ..errors import InputError
 from .preintegration import PreintegratedRotations
 
-__all__ = ["WindowStatistics", "gyro_pair_factor", "gauge_condition", "gauge_factor", "rotation_increment_factor"]
+__all__ = ["WindowStatistics", "gyro_pair_factor", "gauge_factor", "rotation_increment_factor"]
 
 
 # ---------------------------------------------------------------------------------------------- pair factor
@@ -162,32 +162,17 @@ def gyro_pair_factor(moments: Moments | WindowStatistics, noise_std, *, rotation
                               partial(_pair_error, stats, (float(sig[0]), float(sig[1]))))
 
 
-def gauge_condition(gauge: Gauge, group, scales) -> float:
-    """Value of ``gauge``'s condition on one linked ``group`` at ``scales`` (n_gyros, 3); zero where it holds.
-
-    A known scale factor: ``log s_m - log value``; the unit convention: ``sum_m s_m (s_m - 1)``
-    (Eq. 32-34) over the members :meth:`Gauge.apply` uses for the group. Its derivative with respect
-    to ``log s`` is the group's row of :meth:`Gauge.constraints`.
-    """
-    # TODO(issue 11): Gauge.condition(groups, scales) in core/gauge.py, next to apply and constraints
-    members, value = gauge._condition(group)
-    s = np.array([scales[g][a] for g, a in members], dtype=float)
-    if value is not None:
-        return float(np.sum(np.log(s) - np.log(value)))
-    return float(np.sum(s * (s - 1.0)))
-
-
 def _gauge_error(gauge, group, this, values, H):
     s = np.exp(values.atVector(this.keys()[0])).reshape(-1, 3)
     if H is not None:
         H[0] = gauge.constraints([group], s)
-    return np.array([gauge_condition(gauge, group, s)])
+    return gauge.condition([group], s)
 
 
 def gauge_factor(gauge: Gauge, group, sigma: float, *, log_scale_key: int) -> gtsam.CustomFactor:
     """A tight prior imposing ``gauge``'s condition on one linked group of scale factors (Theorem 2).
 
-    The condition is the one :meth:`Gauge.apply` imposes (:func:`gauge_condition`), its Jacobian the
+    The condition is the one :meth:`Gauge.apply` imposes (:meth:`Gauge.condition`), its Jacobian the
     group's row of :meth:`Gauge.constraints`, so the graph and the batch refinement solve the same
     constrained problem.
 

@@ -606,20 +606,6 @@ def _project_gauge(C, gauge: Gauge, groups, s1, s2) -> np.ndarray:
     return 0.5 * (out + out.T)
 
 
-def _windows(w1, w2, window: int, mask) -> list:
-    """``(start index, Moments)`` of the windows :func:`~fusion_gyrocal.core.moments.window_moments` keeps.
-
-    The start indices place the rotation increments; a window is kept when it has at least two
-    (unmasked) samples.
-    """
-    # TODO(issue 11): window_moments to return the start indices itself (see the graph's report)
-    parts = window_moments(w1, w2, window, mask=mask)
-    n = w1.shape[0]
-    starts = np.arange(0, n, window)
-    counts = np.minimum(window, n - starts) if mask is None else np.array([mask[a:a + window].sum() for a in starts])
-    return [(int(a), m) for a, m in zip(starts[counts > 1], parts, strict=True)]
-
-
 def calibrate_pair_graph(omega_1, omega_2, *, noise_std=None, window: int = 1000, bias_walk_std: float | None = None,
                          gauge="unit_prior", rotation_increments: RotationIncrements | None = None,
                          rate_hz: float | None = None, solver: str = "lm", seed: PairCalibration | None = None,
@@ -677,7 +663,7 @@ def calibrate_pair_graph(omega_1, omega_2, *, noise_std=None, window: int = 1000
         mask = np.asarray(mask, dtype=bool)
         if mask.shape != (w1.shape[0],):
             raise InputError(f"mask: expected shape ({w1.shape[0]},), got {mask.shape}")
-    windows = _windows(w1, w2, window, mask)
+    windows = window_moments(w1, w2, window, mask=mask, with_starts=True)
     if not windows:
         raise InputError(f"expected at least one window of >= 2 samples, got {w1.shape[0]} samples")
     if seed is None:
