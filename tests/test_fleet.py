@@ -177,7 +177,7 @@ def test_fleet_main_writes_table_and_flags_failures_in_exit_code(fleet_dir, tmp_
 
 
 def test_gyrocal_cli_has_fleet_subcommand(fleet_dir, tmp_path):
-    from fusion_gyrocal.cli.main import main
+    from fusion_gyrocal.cli import main
 
     out = tmp_path / "via_cli.parquet"
     assert main(["fleet", str(fleet_dir[0] / "dev_b.parquet"), "-o", str(out), "--workers", "0",
