@@ -3,8 +3,10 @@
 The options' flags are those of ``calibrate`` (:func:`fusion_gyrocal.options.add_option_arguments`)
 except ``--bias-window``: it is given in seconds, and the devices of a fleet each have their own
 sample rate, so no one window in samples fits them all (use ``--bias-walk``, or
-:func:`fusion_gyrocal.distributed.fleet.run_fleet` with ``bias_window`` in samples). With
-``--chunked`` only the solve options apply; a pipeline option is refused (exit 1), not ignored.
+:func:`fusion_gyrocal.distributed.fleet.run_fleet` with ``bias_window`` in samples). The alignment
+options (``--offset``, ``--max-offset``, ``--rate``, ``--saturation-limit``) act on gyro1/gyro2
+devices only: Parquet devices are sample-aligned. With ``--chunked`` only the solve options apply;
+a pipeline option is refused (exit 1), not ignored.
 """
 
 from __future__ import annotations
@@ -27,9 +29,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                     "s and rad/s, or a folder with gyro1.* and gyro2.* recordings) on a Dask cluster and write a "
                     "results table with one row per device. A failing device gets a row with its error. Exit code "
                     f"0 when every device was calibrated, {EXIT_SOME_FAILED} when some failed (the table is still "
-                    "written). The options apply to every device; --bias-window is not offered (seconds have no "
-                    "one length in samples across devices of different rates); with --chunked only solve options "
-                    "apply.")
+                    "written). The options apply to every device; --offset, --max-offset, --rate and "
+                    "--saturation-limit only to gyro1/gyro2 devices (Parquet devices are sample-aligned); "
+                    "--bias-window is not offered (seconds have no one length in samples across devices of "
+                    "different rates); with --chunked only solve options apply.")
     p.add_argument("devices", nargs="+", help="device paths, or folders holding devices")
     p.add_argument("--output", "-o", default="fleet_results.parquet", help="results table (Parquet)")
     p.add_argument("--workers", type=int, default=2,
@@ -50,7 +53,7 @@ def run(args) -> int:
 
     options = options_from_args(args)
     if args.chunked:  # refused before a cluster starts (run_fleet applies the same rule)
-        options.require_stage("solve", "gyrocal fleet --chunked")
+        options.require_stage("solve", "--chunked")
     cluster = client = None
     try:
         if args.scheduler or args.workers > 0:
