@@ -21,6 +21,7 @@ from ..errors import GyroCalError, NotRigidError
 
 EXIT_OK = 0
 EXIT_ERROR = 1
+EXIT_USAGE = 2  # argparse's own exit for a bad command line
 EXIT_NOT_RIGID = 3
 EXIT_SOME_FAILED = 4
 EXIT_INTERNAL = 70
@@ -29,6 +30,7 @@ EXIT_INTERRUPTED = 130
 EXIT_MEANINGS = (
     (EXIT_OK, "calibrated"),
     (EXIT_ERROR, "a known error (one line on stderr says what was expected and what arrived)"),
+    (EXIT_USAGE, "a bad command line (usage)"),
     (EXIT_NOT_RIGID, "the pair is not rigid"),
     (EXIT_SOME_FAILED, "(fleet) some devices failed"),
     (EXIT_INTERNAL, "an unexpected error (--debug shows the traceback)"),
