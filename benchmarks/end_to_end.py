@@ -49,7 +49,7 @@ def main(argv=None):
     print(f"{n} samples per file ({a.minutes:g} min at 200 Hz), {p1.stat().st_size / 2**20:.1f} MB per CSV")
 
     from fusion_gyrocal.pipeline.pipeline import run_pipeline
-    from fusion_gyrocal.cli.main import main as cli
+    from fusion_gyrocal.cli import main as cli
     from fusion_gyrocal.io import read_imu
     from fusion_gyrocal.pipeline.alignment import align_streams
     from fusion_gyrocal.pipeline.streams import valid_mask

@@ -79,9 +79,16 @@ def _per_gyro(check):
     return per_gyro
 
 
+def _angle_below_90(name, v):
+    x = _finite(name, v)
+    if not 0.0 < x < 90.0:
+        raise OptionError(f"{name}: expected an angle in (0, 90) deg, got {v!r}")
+    return x
+
+
 def _choice(choices):
     def choice(name, v):
-        if isinstance(v, bool) or v not in choices:
+        if not isinstance(v, str) or v not in choices:
             raise OptionError(f"{name}: expected one of {choices}, got {v!r}")
         return v
     return choice
@@ -96,16 +103,17 @@ def _gauge(name, v):
 
 
 def _flex(name, v):
-    if v == "auto" or v is True or v is False:
+    if (isinstance(v, str) and v == "auto") or v is True or v is False:
         return v
     raise OptionError(f"{name}: expected 'auto', True or False, got {v!r}")
 
 
 def _int_at_least(low):
     def check(name, v):
-        if isinstance(v, bool) or not float(_finite(name, v)).is_integer() or int(v) < low:
+        x = None if isinstance(v, bool) else _finite(name, v)
+        if x is None or not x.is_integer() or x < low:
             raise OptionError(f"{name}: expected an integer >= {low}, got {v!r}")
-        return int(v)
+        return int(x)
     return check
 
 
@@ -119,11 +127,28 @@ def _fraction(name, v):
 def _intrinsics(name, v):
     if v is None:
         return None
-    S = np.asarray(v, dtype=float)
-    if S.shape != (3, 3) or not np.all(np.isfinite(S)) or np.any(np.tril(S, -1) != 0) or np.any(np.diag(S) <= 0):
+    try:
+        S = np.asarray(v, dtype=float)
+    except (TypeError, ValueError):
+        S = None
+    if S is None or S.shape != (3, 3) or not np.all(np.isfinite(S)) or np.any(np.tril(S, -1) != 0) or np.any(np.diag(S) <= 0):
         raise OptionError(f"{name}: expected an upper-triangular (3, 3) intrinsic matrix with a positive diagonal, "
-                          f"got {np.asarray(v).tolist()!r}")
+                          f"got {v if S is None else S.tolist()!r}")
     return tuple(map(tuple, S.tolist()))
+
+
+def _window_samples(seconds, context) -> int:
+    """``--bias-window`` (s) to samples at the recording's rate; refuses what is not a window of >= 2 samples."""
+    x = _positive("bias_window (--bias-window, s)", seconds)
+    rate = context.get("rate_hz")
+    if rate is None:
+        raise OptionError("bias_window: --bias-window is in seconds and needs the sample rate; expected --rate "
+                          "or a recording, got neither")
+    n = int(round(x * rate))
+    if n < 2:
+        raise OptionError(f"bias_window: expected a window of at least 2 samples ({2 / rate:.3g} s at {rate:g} Hz), "
+                          f"got --bias-window {seconds!r} s ({n} sample(s))")
+    return n
 
 
 # ------------------------------------------------------------------------------------------ declaration
@@ -164,7 +189,7 @@ class Options:
         "fix then take the prior and the covariance says so.",
         "--scale-prior", type=float, metavar="STD", help="Gaussian prior N(1, STD^2) on the scale factors")
     parallel_tol_deg: float = _option(
-        5.0, _positive, "solve",
+        5.0, _angle_below_90, "solve",
         "Axes closer than this to parallel (deg) are treated as parallel (Lemmas 2-3).",
         "--parallel-tol", type=float, metavar="DEG",
         help="axes closer than this to parallel are treated as parallel (default 5 deg)")
@@ -218,10 +243,10 @@ class Options:
         help="sensor range (rad/s) for masking clipped samples, one value or one per gyro")
     bias_window: int | None = _option(
         None, _optional(_int_at_least(2)), "pipeline",
-        "Model the bias as piecewise constant over windows of this many samples (drifting biases).",
-        "--bias-window", type=float, metavar="SECONDS",
-        to_option=lambda v, context: None if v is None else max(2, int(round(v * context["rate_hz"]))),
-        help="piecewise-constant bias over windows of this length (drifting biases)")
+        "Model the bias as piecewise constant over windows of this many samples (drifting biases). The "
+        "command-line flag is in seconds, converted with the recording's sample rate (``--rate`` when given).",
+        "--bias-window", type=float, metavar="SECONDS", to_option=lambda v, context: _window_samples(v, context),
+        help="piecewise-constant bias over windows of this length in s (drifting biases)")
     bias_walk_std: tuple | None = _option(
         None, _optional(_per_gyro(_positive)), "pipeline",
         "Bias random-walk step std per sample (rad/s) of each gyro: the exact drifting-bias likelihood "
@@ -308,37 +333,73 @@ Options.__doc__ = _numpydoc()
 
 
 # ------------------------------------------------------------------------------------------ command line
-def add_option_arguments(parser, *, stage: str | None = None, exclude=()) -> None:
-    """Add the command-line flag of every option (of ``stage``, when given) to ``parser``."""
+FLAGS = {f.name: f.metadata["flag"] for f in dataclasses.fields(Options) if f.metadata["flag"] is not None}
+"""The command-line flag of every option that has one (option name -> flag)."""
+
+
+def add_option_arguments(parser, *, stage: str | None = None, exclude=(), names=None):
+    """Add the command-line flag of every option to ``parser``, in one argument group; returns the group.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+    stage : {"solve", "pipeline"}, optional
+        Only the options of this stage.
+    exclude : iterable of str
+        Option names left out.
+    names : iterable of str, optional
+        Only these options (each must have a flag).
+
+    The value of a flag is stored under ``option_<name>``; :func:`options_from_args` reads it back.
+    """
+    if names is not None:
+        names = tuple(names)
+        unknown = sorted(set(names) - set(FLAGS))
+        if unknown:
+            raise OptionError(f"unknown option(s) or option(s) without a flag {unknown}; expected some of {sorted(FLAGS)}")
+    group = parser.add_argument_group("calibration options", "fusion_gyrocal.options.Options (one flag per option)")
     for f in dataclasses.fields(Options):
         flag = f.metadata["flag"]
-        if flag is None or f.name in exclude or (stage is not None and f.metadata["stage"] != stage):
+        if (flag is None or f.name in exclude or (stage is not None and f.metadata["stage"] != stage)
+                or (names is not None and f.name not in names)):
             continue
         kw = {k: v for k, v in f.metadata["cli"].items() if k != "to_option"}
         if kw.get("action") != "store_true":
             kw.setdefault("default", None)
-        parser.add_argument(flag, dest=f"option_{f.name}", **kw)
+            if "choices" not in kw:
+                kw.setdefault("metavar", flag.lstrip("-").upper().replace("-", "_"))
+        group.add_argument(flag, dest=f"option_{f.name}", **kw)
+    return group
 
 
 def options_from_args(args, *, rate_hz: float | None = None, **keywords) -> Options:
     """The :class:`Options` of parsed command-line flags (added by :func:`add_option_arguments`).
 
-    A flag left out keeps the option's default. ``rate_hz`` is the recording's sample rate (for flags
-    given in seconds); ``keywords`` are further options set by the command itself.
+    A flag left out keeps the option's default; a bad value raises
+    :class:`~fusion_gyrocal.errors.OptionError` naming the option.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+    rate_hz : float, optional
+        Sample rate of the recording (gyro 1's), for flags given in seconds (``--bias-window``). The
+        resampling rate ``--rate`` takes precedence when given: the samples are then on its grid.
+    **keywords
+        Further options set by the command itself (they win over the flags).
     """
+    parsed = {f: getattr(args, f"option_{f}") for f in FLAGS if hasattr(args, f"option_{f}")}
+    rate = parsed.get("rate_hz")
+    context = {"rate_hz": rate_hz if rate is None else _positive("rate_hz", rate)}
     values = {}
-    context = {"rate_hz": rate_hz}
-    for f in dataclasses.fields(Options):
-        dest = f"option_{f.name}"
-        if not hasattr(args, dest):
-            continue
-        v = getattr(args, dest)
-        convert = f.metadata["cli"].get("to_option")
-        if convert is not None:
-            if v is not None:
-                v = convert(v, context)
+    for name, v in parsed.items():
+        convert = _FIELDS[name].metadata["cli"].get("to_option")
+        if convert is not None and v is not None:
+            v = convert(v, context)
         if v is None or (isinstance(v, list) and not v):
             continue
-        values[f.name] = v
+        values[name] = v
     values.update(keywords)
     return Options.of(**values)
+
+
+_FIELDS = {f.name: f for f in dataclasses.fields(Options)}

@@ -1,3 +1,4 @@
+import argparse
 import json
 import subprocess
 import sys
@@ -5,7 +6,9 @@ import sys
 import numpy as np
 import pytest
 
-from fusion_gyrocal.cli.main import main
+from fusion_gyrocal import ExcitationError, InputError, NotRigidError, OptionError
+from fusion_gyrocal.cli import main
+from fusion_gyrocal.cli.app import EXIT_MEANINGS
 from fusion_gyrocal.evaluate.sim import PAPER_NOISE_STD, HumanMotion, random_rotation, shared_data_dir
 
 
@@ -97,3 +100,88 @@ def test_cli_bias_walk_needs_noise_std(tmp_path, capsys):
     code = main(["calibrate", str(p1), str(p2), "--unit2", "deg/s", "--bias-walk", "1e-5", "--noise-std", "0.0017",
                  "--output", str(tmp_path / "c.json")])
     assert code == 0 and json.loads((tmp_path / "c.json").read_text())["rigid"] is True
+
+
+@pytest.mark.parametrize("argv", [["--skew-std", "nan"], ["--skew-std", "-0.1"], ["--noise-std", "1", "2", "3"],
+                                  ["--bias-window", "-5"], ["--parallel-tol", "95"]])
+def test_cli_bad_option_is_one_line_exit_1_naming_it(tmp_path, capsys, argv):
+    p1, p2, _, _ = _write_pair(tmp_path, seed=4)
+    code = main(["calibrate", str(p1), str(p2), "--unit2", "deg/s", *argv])
+    err = capsys.readouterr().err
+    name = {"--skew-std": "skew_std", "--noise-std": "noise_std", "--bias-window": "bias_window",
+            "--parallel-tol": "parallel_tol_deg"}[argv[0]]
+    assert code == 1 and err.startswith(f"gyrocal: error: {name}") and err.count("\n") == 1
+
+
+def _raise(exc):
+    def run(args):
+        raise exc
+    return run
+
+
+@pytest.mark.parametrize("exc, code, line", [
+    (ExcitationError("too little motion"), 1, "gyrocal: error: too little motion\n"),
+    (OptionError("min_snr: expected a positive number, got 0"), 1,
+     "gyrocal: error: min_snr: expected a positive number, got 0\n"),
+    (NotRigidError("the pair is not rigid"), 3, "gyrocal: the pair is not rigid\n"),
+    (PermissionError("denied"), 1, "gyrocal: error: denied\n"),
+    (KeyboardInterrupt(), 130, "gyrocal: interrupted\n"),
+    (RuntimeError("boom\nsecond line"), 70,
+     "gyrocal: internal error: RuntimeError: boom second line (rerun with --debug for the traceback)\n"),
+])
+def test_main_maps_errors_to_documented_exit_codes(monkeypatch, capsys, exc, code, line):
+    monkeypatch.setattr("fusion_gyrocal.cli.demo.run", _raise(exc))
+    assert main(["demo"]) == code
+    assert capsys.readouterr().err == line
+
+
+def test_main_debug_reraises_unexpected_errors_only(monkeypatch, capsys):
+    monkeypatch.setattr("fusion_gyrocal.cli.demo.run", _raise(RuntimeError("boom")))
+    with pytest.raises(RuntimeError, match="boom"):
+        main(["--debug", "demo"])
+    monkeypatch.setattr("fusion_gyrocal.cli.demo.run", _raise(InputError("bad")))
+    assert main(["--debug", "demo"]) == 1 and capsys.readouterr().err == "gyrocal: error: bad\n"
+
+
+def test_standalone_entry_points_use_the_same_map(monkeypatch, capsys):
+    from fusion_gyrocal.cli.compare import add_compare_parser, compare_main
+    from fusion_gyrocal.cli.fleet import fleet_main
+
+    for exc, code in ((NotRigidError("nr"), 3), (InputError("in"), 1), (ValueError("v"), 70)):
+        monkeypatch.setattr("fusion_gyrocal.cli.fleet.run", _raise(exc))
+        assert fleet_main(["some_device"]) == code
+        monkeypatch.setattr("fusion_gyrocal.cli.compare.run", _raise(exc))
+        parser = argparse.ArgumentParser(prog="gyrocal")
+        add_compare_parser(parser.add_subparsers(dest="command"))
+        assert compare_main(parser.parse_args(["compare"])) == code
+        err = capsys.readouterr().err.splitlines()
+        assert len(err) == 2 and err[0].startswith("gyrocal: ") and err[1].startswith("gyrocal compare: ")
+
+
+def test_main_help_lists_every_exit_code(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["--help"])
+    assert e.value.code == 0
+    out = " ".join(capsys.readouterr().out.split())
+    for code, meaning in EXIT_MEANINGS:
+        assert f"{code} {' '.join(meaning.split())}" in out
+
+
+def test_cli_compare_alignment_flags_without_recordings_exit_1(capsys):
+    assert main(["compare", "--offset", "0", "--no-progress"]) == 1
+    assert capsys.readouterr().err == ("gyrocal: error: --offset: expected recordings (gyro1 [gyro2]) to align; "
+                                       "a simulated scenario has none\n")
+
+
+def test_cli_same_json_as_calibrate_pair_with_the_same_options(tmp_path):
+    p1, p2, _, _ = _write_pair(tmp_path, seed=5)
+    out = tmp_path / "c.json"
+    assert main(["calibrate", str(p1), str(p2), "--unit2", "deg/s", "--method", "direct", "--noise-std", "0.0017",
+                 "--bias-window", "5", "--output", str(out)]) == 0
+    from fusion_gyrocal.io import read_imu
+    from fusion_gyrocal.pipeline.pipeline import run_pipeline
+
+    s1, s2 = read_imu(p1), read_imu(p2, unit="deg/s")
+    cal = run_pipeline(s1.masked_omega, s2.masked_omega, t_1=s1.t, t_2=s2.t, method="direct", noise_std=0.0017,
+                       bias_window=int(round(5 * s1.rate_hz))).calibration
+    assert json.loads(out.read_text()) == json.loads(cal.to_json())

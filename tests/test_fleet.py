@@ -177,7 +177,7 @@ def test_fleet_main_writes_table_and_flags_failures_in_exit_code(fleet_dir, tmp_
 
 
 def test_gyrocal_cli_has_fleet_subcommand(fleet_dir, tmp_path):
-    from fusion_gyrocal.cli.main import main
+    from fusion_gyrocal.cli import main
 
     out = tmp_path / "via_cli.parquet"
     assert main(["fleet", str(fleet_dir[0] / "dev_b.parquet"), "-o", str(out), "--workers", "0",
@@ -196,3 +196,18 @@ def test_run_fleet_parquet_device_with_backward_time_step_is_an_input_error_row(
     assert df.loc[0, "error_type"] == "InputError"
     assert "dev.parquet: t: expected strictly increasing timestamps, got a step of -0.01 s at sample 300" \
         in df.loc[0, "error"]
+
+
+def test_fleet_main_chunked_refuses_pipeline_options_before_starting_workers(fleet_dir, tmp_path, capsys):
+    out = tmp_path / "never.parquet"
+    code = fleet_main([str(fleet_dir[0] / "dev_a.parquet"), "--chunked", "--no-flex-rejection", "-o", str(out)])
+    assert code == 1 and not out.exists()
+    err = capsys.readouterr().err
+    assert err.startswith("gyrocal: error: --chunked: works from moments only and cannot apply "
+                          "['flex_rejection']") and err.count("\n") == 1
+
+
+def test_fleet_main_has_no_bias_window_flag(capsys):
+    with pytest.raises(SystemExit):
+        fleet_main(["dev.parquet", "--bias-window", "2"])
+    assert "unrecognized arguments: --bias-window" in capsys.readouterr().err

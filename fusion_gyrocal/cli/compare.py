@@ -5,13 +5,16 @@ from __future__ import annotations
 import csv
 import io
 
-from ..errors import GyroCalError, InputError
+from ..errors import InputError
 from ..evaluate.compare import (DEFAULT_ESTIMATORS, ESTIMATORS, SNR_FACTORS, compare, plot_rmse_vs_snr,
                                 snr_sweep)
+from ..options import FLAGS
+from .app import EXIT_OK, run_command
+from .recording import ALIGNMENT_OPTIONS, add_alignment_args, add_recording_args, read_recording
 
 
-def add_compare_parser(subparsers):
-    """Add ``compare`` to an :mod:`argparse` sub-command set; returns the sub-parser."""
+def add_parser(subparsers):
+    """Add ``compare`` to an :mod:`argparse` sub-command set (sets ``func``); returns the sub-parser."""
     import argparse
 
     from ..evaluate.scenarios import SCENARIOS, SNR_VIA
@@ -22,8 +25,6 @@ def add_compare_parser(subparsers):
                     "Carlo runs of a simulated scenario; print a table (errors against the truth, error / "
                     "Cramer-Rao bound, time per solve) and optionally write Markdown, CSV and a figure.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    from .main import add_recording_args
-
     add_recording_args(p, optional=True)
     p.add_argument("--scenario", default="nominal",
                    help="simulated scenario (without recordings): " + ", ".join(SCENARIOS)
@@ -41,39 +42,44 @@ def add_compare_parser(subparsers):
     p.add_argument("--csv", metavar="PATH", help="write the table(s) as CSV")
     p.add_argument("--figure", metavar="PATH", help="with --sweep: write the RMSE-versus-SNR figure")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.set_defaults(func=compare_main)
+    add_alignment_args(p)  # recordings only: the estimators run with their own settings
+    p.set_defaults(func=run)
     return p
+
+
+add_compare_parser = add_parser  # the name fusion_gyrocal.evaluate.compare's documentation and tests use
 
 
 def _load_recording(args):
     """Read and align the recording pair: ``(omega_1, omega_2, rate_hz)`` of the valid aligned samples."""
-    from .main import read_streams
     from ..pipeline.alignment import align_streams
 
-    s1, s2 = read_streams(args)
-    pair = align_streams(s1.t, s1.omega, s2.t, s2.omega, time_offset_s=args.offset, max_offset_s=args.max_offset,
-                         rate_hz=args.rate, valid_1=s1.valid, valid_2=s2.valid)
+    s1, s2, o = read_recording(args)
+    pair = align_streams(s1.t, s1.omega, s2.t, s2.omega, time_offset_s=o.time_offset_s, max_offset_s=o.max_offset_s,
+                         rate_hz=o.rate_hz, valid_1=s1.valid, valid_2=s2.valid)
     keep = pair.valid
-    return pair.omega_1[keep], pair.omega_2[keep], float(args.rate or s1.rate_hz)
+    return pair.omega_1[keep], pair.omega_2[keep], float(o.rate_hz or s1.rate_hz)
 
 
-def compare_main(args) -> int:
-    """Run ``gyrocal compare`` from parsed arguments; returns the exit code (1 on a known error)."""
-    import sys
-
+def run(args) -> int:
+    """Run ``gyrocal compare`` from parsed arguments (raises; :func:`compare_main` maps errors to exit codes)."""
     from rich.console import Console
 
     from ..io.writers import atomic_write
 
     console = Console(highlight=False)
-    try:
-        names = tuple(n.strip() for n in args.estimators.split(",") if n.strip())
-        progress = not args.no_progress
-        if args.gyro1:
-            w1, w2, rate = _load_recording(args)
-            tables = [compare((w1, w2), estimators=names, rate_hz=rate, progress=progress)]
-            sweep = None
-        elif args.sweep:
+    names = tuple(n.strip() for n in args.estimators.split(",") if n.strip())
+    progress = not args.no_progress
+    if args.gyro1:
+        w1, w2, rate = _load_recording(args)
+        tables = [compare((w1, w2), estimators=names, rate_hz=rate, progress=progress)]
+        sweep = None
+    else:
+        given = [FLAGS[n] for n in ALIGNMENT_OPTIONS if getattr(args, f"option_{n}", None) is not None]
+        if given:
+            raise InputError(f"{'/'.join(given)}: expected recordings (gyro1 [gyro2]) to align; a simulated "
+                             f"scenario has none")
+        if args.sweep:
             sweep = snr_sweep(args.scenario, via=args.snr_via or "rate", runs=args.runs, estimators=names,
                               seed=args.seed, workers=args.workers, progress=progress)
             tables = list(sweep.comparisons)
@@ -82,26 +88,28 @@ def compare_main(args) -> int:
             tables = [compare(args.scenario, estimators=names, runs=args.runs, seed=args.seed,
                               snr_factor=args.snr_factor, snr_via=args.snr_via, workers=args.workers,
                               progress=progress)]
-        for t in tables:
-            t.print()
-        if sweep is not None:
-            console.print("log-log slope of RMSE versus SNR (paper: -1):")
-            for s in sweep.slopes():
-                console.print(f"  {s.estimator:>20}: rotation {s.rotation:+.3f}, scales {s.scale:+.3f}")
-            br, bs = sweep.bound_slopes()
-            console.print(f"  {'Cramer-Rao bound':>20}: rotation {br:+.3f}, scales {bs:+.3f}")
-        if args.markdown:
-            atomic_write(args.markdown, "\n".join(t.to_markdown() for t in tables))
-        if args.csv:
-            atomic_write(args.csv, tables[0].to_csv() if len(tables) == 1 else _sweep_csv(tables))
-        if args.figure:
-            if sweep is None:
-                raise InputError("--figure: expected --sweep (the figure is RMSE versus SNR)")
-            plot_rmse_vs_snr(sweep, args.figure)
-    except GyroCalError as exc:
-        print(f"gyrocal compare: error: {exc}", file=sys.stderr)
-        return 1
-    return 0
+    for t in tables:
+        t.print()
+    if sweep is not None:
+        console.print("log-log slope of RMSE versus SNR (paper: -1):")
+        for s in sweep.slopes():
+            console.print(f"  {s.estimator:>20}: rotation {s.rotation:+.3f}, scales {s.scale:+.3f}")
+        br, bs = sweep.bound_slopes()
+        console.print(f"  {'Cramer-Rao bound':>20}: rotation {br:+.3f}, scales {bs:+.3f}")
+    if args.markdown:
+        atomic_write(args.markdown, "\n".join(t.to_markdown() for t in tables))
+    if args.csv:
+        atomic_write(args.csv, tables[0].to_csv() if len(tables) == 1 else _sweep_csv(tables))
+    if args.figure:
+        if sweep is None:
+            raise InputError("--figure: expected --sweep (the figure is RMSE versus SNR)")
+        plot_rmse_vs_snr(sweep, args.figure)
+    return EXIT_OK
+
+
+def compare_main(args) -> int:
+    """``gyrocal compare`` from parsed arguments through the command line's error map; returns the exit code."""
+    return run_command(run, args, prog="gyrocal compare")
 
 
 def _sweep_csv(tables) -> str:

@@ -1,18 +1,27 @@
-"""``gyrocal fleet``: many devices on Dask, one results row per device."""
+"""``gyrocal fleet``: many devices on Dask, one results row per device.
+
+The options' flags are those of ``calibrate`` (:func:`fusion_gyrocal.options.add_option_arguments`)
+except ``--bias-window``: it is given in seconds, and the devices of a fleet each have their own
+sample rate, so no one window in samples fits them all (use ``--bias-walk``, or
+:func:`fusion_gyrocal.distributed.fleet.run_fleet` with ``bias_window`` in samples). The alignment
+options (``--offset``, ``--max-offset``, ``--rate``, ``--saturation-limit``) act on gyro1/gyro2
+devices only: Parquet devices are sample-aligned. With ``--chunked`` only the solve options apply;
+a pipeline option is refused (exit 1), not ignored.
+"""
 
 from __future__ import annotations
 
 import argparse
 import sys
 
-from ..distributed.fleet import run_fleet
-from ..errors import GyroCalError
+from ..options import add_option_arguments, options_from_args
+from .app import EXIT_OK, EXIT_SOME_FAILED, main
+
+FLEET_EXCLUDED_OPTIONS = ("bias_window",)
+"""Options without a fleet flag (a window in seconds has no one length in samples across devices)."""
 
 
-EXIT_SOME_FAILED = 4
-
-
-def add_fleet_parser(subparsers) -> argparse.ArgumentParser:
+def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add the ``fleet`` subcommand to a ``gyrocal`` subparsers object (sets ``func``)."""
     p = subparsers.add_parser(
         "fleet", help="calibrate many devices on Dask, one Parquet row per device",
@@ -20,7 +29,10 @@ def add_fleet_parser(subparsers) -> argparse.ArgumentParser:
                     "s and rad/s, or a folder with gyro1.* and gyro2.* recordings) on a Dask cluster and write a "
                     "results table with one row per device. A failing device gets a row with its error. Exit code "
                     f"0 when every device was calibrated, {EXIT_SOME_FAILED} when some failed (the table is still "
-                    "written).")
+                    "written). The options apply to every device; --offset, --max-offset, --rate and "
+                    "--saturation-limit only to gyro1/gyro2 devices (Parquet devices are sample-aligned); "
+                    "--bias-window is not offered (seconds have no one length in samples across devices of "
+                    "different rates); with --chunked only solve options apply.")
     p.add_argument("devices", nargs="+", help="device paths, or folders holding devices")
     p.add_argument("--output", "-o", default="fleet_results.parquet", help="results table (Parquet)")
     p.add_argument("--workers", type=int, default=2,
@@ -29,31 +41,19 @@ def add_fleet_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--scheduler", help="address of a running Dask scheduler (e.g. tcp://10.0.0.5:8786)")
     p.add_argument("--chunked", action="store_true",
                    help="huge Parquet logs: reduce each device's row-group statistics across the workers, then solve")
-    p.add_argument("--method", choices=("ml", "direct"), default="ml")
-    p.add_argument("--noise-std", type=float, nargs="+", metavar="RAD_S",
-                   help="white-noise std per sample (rad/s), one value or one per gyro")
-    p.add_argument("--gauge", choices=("unit_prior", "fixed"), default="unit_prior")
-    p.add_argument("--max-offset", type=float, help="time-offset search range in s (gyro1/gyro2 devices)")
-    p.add_argument("--no-flex-rejection", action="store_true", help="keep every sample (no flex/outlier gate)")
-    p.set_defaults(func=cmd_fleet)
+    add_option_arguments(p, exclude=FLEET_EXCLUDED_OPTIONS)
+    p.set_defaults(func=run)
     return p
 
 
-def _cli_options(args) -> dict:
-    opts = {"method": args.method, "gauge": args.gauge}
-    if args.noise_std:
-        opts["noise_std"] = args.noise_std if len(args.noise_std) > 1 else args.noise_std[0]
-    if not args.chunked:
-        if args.max_offset is not None:
-            opts["max_offset_s"] = args.max_offset
-        if args.no_flex_rejection:
-            opts["flex_rejection"] = False
-    return opts
 
+def run(args) -> int:
+    """Run ``gyrocal fleet`` from parsed arguments; 0, or 4 when some devices failed (the table is written)."""
+    from ..distributed.fleet import run_fleet
 
-def cmd_fleet(args) -> int:
-    """Run ``gyrocal fleet`` from parsed arguments; returns the exit code."""
-    options = _cli_options(args)
+    options = options_from_args(args)
+    if args.chunked:  # refused before a cluster starts (run_fleet applies the same rule)
+        options.require_stage("solve", "--chunked")
     cluster = client = None
     try:
         if args.scheduler or args.workers > 0:
@@ -65,7 +65,7 @@ def cmd_fleet(args) -> int:
                 cluster = LocalCluster(n_workers=args.workers, threads_per_worker=args.threads_per_worker,
                                        processes=True, host="127.0.0.1", dashboard_address=None)
                 client = Client(cluster)
-        df = run_fleet(args.devices, client=client, output=args.output, chunked=args.chunked, **options)
+        df = run_fleet(args.devices, client=client, output=args.output, chunked=args.chunked, options=options)
     finally:
         if client is not None:
             client.close()
@@ -76,20 +76,13 @@ def cmd_fleet(args) -> int:
         status = "ok" if r["ok"] else f"FAILED ({r['error_type']}): {r['error']}"
         print(f"{r['device']}: {status}")
     print(f"{len(df)} device(s), {len(failed)} failed; table written to {args.output}")
-    return 0 if failed.empty else EXIT_SOME_FAILED
+    return EXIT_OK if failed.empty else EXIT_SOME_FAILED
 
 
 def fleet_main(argv=None) -> int:
-    """Standalone entry point: ``python -m fusion_gyrocal.cli.fleet DEVICES... -o results.parquet``."""
-    parser = argparse.ArgumentParser(prog="gyrocal")
-    sub = parser.add_subparsers(dest="command", required=True)
-    add_fleet_parser(sub)
-    args = parser.parse_args(["fleet", *(sys.argv[1:] if argv is None else argv)])
-    try:
-        return cmd_fleet(args)
-    except GyroCalError as exc:
-        print(f"gyrocal: error: {exc}", file=sys.stderr)
-        return 1
+    """Standalone entry point: ``python -m fusion_gyrocal.cli.fleet DEVICES... -o results.parquet``
+    (``gyrocal fleet`` through the same parser and error map)."""
+    return main(["fleet", *(sys.argv[1:] if argv is None else argv)])
 
 
 if __name__ == "__main__":

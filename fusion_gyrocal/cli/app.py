@@ -1,0 +1,123 @@
+"""The ``gyrocal`` application: the parser of every command and ONE error-to-exit-code map.
+
+Every command lives in its own module of this package (:data:`COMMANDS`) with ``add_parser(subparsers)``
+(which sets ``func``) and ``run(args) -> int``. Commands raise; :func:`run_command` turns what they
+raise into one line on stderr and an exit code by :data:`ERROR_EXIT_CODES`, for ``gyrocal`` and for the
+standalone entry points (:func:`fusion_gyrocal.cli.fleet.fleet_main`,
+:func:`fusion_gyrocal.cli.compare.compare_main`) alike.
+
+Imports stay light here: a command imports what it needs when it runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+import textwrap
+from typing import NamedTuple
+
+from ..errors import GyroCalError, NotRigidError
+
+EXIT_OK = 0
+EXIT_ERROR = 1
+EXIT_USAGE = 2  # argparse's own exit for a bad command line
+EXIT_NOT_RIGID = 3
+EXIT_SOME_FAILED = 4
+EXIT_INTERNAL = 70
+EXIT_INTERRUPTED = 130
+
+EXIT_MEANINGS = (
+    (EXIT_OK, "calibrated"),
+    (EXIT_ERROR, "a known error (one line on stderr says what was expected and what arrived)"),
+    (EXIT_USAGE, "a bad command line (usage)"),
+    (EXIT_NOT_RIGID, "the pair is not rigid"),
+    (EXIT_SOME_FAILED, "(fleet) some devices failed"),
+    (EXIT_INTERNAL, "an unexpected error (--debug shows the traceback)"),
+    (EXIT_INTERRUPTED, "interrupted"),
+)
+
+
+class ExitRule(NamedTuple):
+    """One row of the map: what is caught, the exit code, the stderr line, and whether ``--debug`` re-raises."""
+
+    errors: type | tuple
+    code: int
+    message: str
+    debug_raises: bool = False
+
+
+ERROR_EXIT_CODES = (
+    ExitRule(NotRigidError, EXIT_NOT_RIGID, "{prog}: {exc}"),
+    ExitRule(GyroCalError, EXIT_ERROR, "{prog}: error: {exc}"),
+    ExitRule(KeyboardInterrupt, EXIT_INTERRUPTED, "{prog}: interrupted"),
+    ExitRule((OSError, MemoryError), EXIT_ERROR, "{prog}: error: {exc}", debug_raises=True),
+    ExitRule(Exception, EXIT_INTERNAL,
+             "{prog}: internal error: {kind}: {exc} (rerun with --debug for the traceback)", debug_raises=True),
+)
+"""The error -> exit-code map of every command; the first row whose ``errors`` match wins."""
+
+COMMANDS = ("calibrate", "report", "demo", "compare", "fleet")
+"""The command modules of this package, in the order ``gyrocal --help`` lists them."""
+
+EXAMPLES = """examples:
+  gyrocal demo
+  gyrocal calibrate imu_a.csv imu_b.csv --output cal.json --kalibr imu.yaml
+  gyrocal calibrate run.bag --topic1 /imu0 --topic2 /imu1 --openvins kalibr_imu_chain.yaml
+  gyrocal calibrate mav0/imu0 other/data.csv --unit2 deg/s --noise-std 0.0017
+  gyrocal calibrate exp_1.npz --imu1 0 --imu2 3 --method direct
+  gyrocal report imu_a.csv imu_b.csv --out report/
+
+""" + textwrap.fill("exit codes: " + "; ".join(f"{code} {meaning}" for code, meaning in EXIT_MEANINGS),
+                    width=118, break_on_hyphens=False) + "\n"
+
+
+def run_command(func, args, *, prog: str = "gyrocal", debug: bool | None = None) -> int:
+    """Run ``func(args)`` and map what it raises to one stderr line and an exit code (:data:`ERROR_EXIT_CODES`).
+
+    Parameters
+    ----------
+    func : callable
+        A command's ``run(args) -> int`` (None counts as 0).
+    args : argparse.Namespace
+    prog : str
+        Prefix of the stderr line.
+    debug : bool, optional
+        Re-raise unexpected errors (their traceback); default ``args.debug`` when present.
+    """
+    if debug is None:
+        debug = bool(getattr(args, "debug", False))
+    try:
+        return int(func(args) or 0)
+    except BaseException as exc:  # noqa: BLE001 - mapped by the table; SystemExit and the like pass through
+        rule = next((r for r in ERROR_EXIT_CODES if isinstance(exc, r.errors)), None)
+        if rule is None or (debug and rule.debug_raises):
+            raise
+        line = rule.message.format(prog=prog, exc=exc, kind=type(exc).__name__)
+        print(" ".join(line.splitlines()), file=sys.stderr)
+        return rule.code
+
+
+def command_modules():
+    """The command modules (imported now; each imports its heavy dependencies only when it runs)."""
+    return [importlib.import_module(f".{name}", __package__) for name in COMMANDS]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``gyrocal`` parser: ``--debug`` and one sub-command per module of :data:`COMMANDS`."""
+    parser = argparse.ArgumentParser(
+        prog="gyrocal", description="Calibrate rigidly mounted gyroscopes from their angular rates alone: "
+        "rotation, scale factors (up to one global scale), biases and time offset.",
+        epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--debug", action="store_true", help="show tracebacks of unexpected errors")
+    sub = parser.add_subparsers(dest="command", required=True)
+    for module in command_modules():
+        module.add_parser(sub)
+    return parser
+
+
+def main(argv=None) -> int:
+    """``gyrocal [--debug] COMMAND ...``: parse, run the command, return its exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    return run_command(args.func, args, prog=parser.prog)
