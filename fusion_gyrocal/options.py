@@ -314,6 +314,8 @@ class Options:
 
 
 NAMES = tuple(f.name for f in dataclasses.fields(Options))
+#: Options that act on timestamps (time alignment and resampling): refused for sample-aligned input.
+TIMESTAMP_OPTIONS = ("time_offset_s", "max_offset_s", "rate_hz")
 STAGES = {f.name: f.metadata["stage"] for f in dataclasses.fields(Options)}
 _DEFAULTS = {n: getattr(Options(), n) for n in NAMES}
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from fusion_gyrocal import NotRigidError, calibrate_pair
+from fusion_gyrocal import NotRigidError, OptionError, calibrate_pair
 from fusion_gyrocal.evaluate.sim import (PAPER_NOISE_STD, DEG, HumanMotion, random_rotation, rotation_error, shared_data_dir,
                                 simulate_pair)
 
@@ -147,3 +147,22 @@ def test_calibrate_pair_flex_bursts_of_fast_motion_are_rejected():
     err = np.array(err)
     assert np.sqrt((err[:, 0] ** 2).mean()) < 0.1 * np.sqrt((err[:, 1] ** 2).mean())
     assert np.all(err[:, 2] > 0.02)
+
+
+def test_calibrate_pair_refuses_timestamp_options_without_timestamps():
+    sim = simulate_pair(rng=5, n=2000)
+    for kw in ({"time_offset_s": 0.01}, {"max_offset_s": 2.0}, {"rate_hz": 100.0}):
+        with pytest.raises(OptionError, match="act on timestamps"):
+            calibrate_pair(sim.omega_1, sim.omega_2, **kw)
+
+
+def test_calibrate_pair_saturation_limit_masks_sample_aligned_input():
+    sim = simulate_pair(rng=5, n=4000)
+    w1 = sim.omega_1.copy()
+    limit = float(np.quantile(np.abs(w1).max(axis=1), 0.9))
+    clipped = np.abs(w1) >= limit
+    w1 = np.clip(w1, -limit, limit)                          # gyro 1 clips at its range
+    cal = calibrate_pair(w1, sim.omega_2, saturation_limit=(limit, 1e3))
+    assert cal.n_samples == 4000 - int(clipped.any(axis=1).sum())
+    ref = calibrate_pair(sim.omega_1, sim.omega_2, mask=~clipped.any(axis=1))
+    np.testing.assert_allclose(cal.R_1_2, ref.R_1_2, atol=1e-12)

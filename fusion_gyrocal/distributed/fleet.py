@@ -36,7 +36,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from ..core.solve import solve
-from ..options import Options
+from ..options import TIMESTAMP_OPTIONS, Options
 from ..pipeline.pipeline import calibrate_pair
 
 from ..errors import FormatError, GyroCalError, InputError
@@ -147,7 +147,9 @@ def calibrate_device(path, options: Options | None = None, **keywords) -> PairCa
     path : str or Path
         A device (see the module docstring).
     options : Options, optional
-        Passed to :func:`fusion_gyrocal.calibrate_pair` unchanged.
+        Passed to :func:`fusion_gyrocal.calibrate_pair`; a Parquet device is sample-aligned, so the
+        time-alignment options (:data:`~fusion_gyrocal.options.TIMESTAMP_OPTIONS`) apply to
+        gyro1/gyro2 devices only and are reset to their defaults for it.
     **keywords
         Fields of :class:`~fusion_gyrocal.options.Options` (``method``, ``noise_std``, ...).
 
@@ -173,8 +175,9 @@ def calibrate_device(path, options: Options | None = None, **keywords) -> PairCa
                           f"with {GYRO_FILES[0]}.* and {GYRO_FILES[1]}.*")
     w1, w2 = _read_parquet_device(path)
     finite = np.isfinite(w1).all(axis=1) & np.isfinite(w2).all(axis=1)
+    aligned = options.replace(**{n: getattr(Options(), n) for n in TIMESTAMP_OPTIONS})
     return calibrate_pair(np.where(finite[:, None], w1, 0.0), np.where(finite[:, None], w2, 0.0),
-                          mask=finite, options=options)
+                          mask=finite, options=aligned)
 
 
 # ---------------------------------------------------------------------------------------- rows

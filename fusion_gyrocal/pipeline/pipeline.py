@@ -16,8 +16,8 @@ from ..core.direct import solve_A
 from ..core.model import PairCalibration
 from ..core.moments import Moments
 from ..core.solve import solve
-from ..errors import InputError
-from ..options import Options
+from ..errors import InputError, OptionError
+from ..options import TIMESTAMP_OPTIONS, Options
 
 
 def difference_noise_std(omega) -> float:
@@ -133,9 +133,17 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
         offset = pair.time_offset_s
         offset_std = pair.time_offset.std_s if pair.time_offset is not None else 0.0
     else:
+        timing = sorted(set(o.to_dict()) & set(TIMESTAMP_OPTIONS))
+        if timing:
+            raise OptionError(f"{', '.join(timing)}: act on timestamps; expected t_1 and t_2 with them, got "
+                              "sample-aligned input")
         w1, w2 = omega_1, omega_2
         if mask is not None:
             mask = np.asarray(mask, dtype=bool)
+        if o.saturation_limit is not None:  # the sensor ranges are known: mask the clipped samples
+            from .streams import saturation_mask
+            clipped = saturation_mask(w1, o.saturation_limit[0]) | saturation_mask(w2, o.saturation_limit[1])
+            mask = ~clipped if mask is None else (mask & ~clipped)
     if o.max_rate is not None:
         from .selection import informative_mask
         keep = informative_mask(w1, w2, mask, 1.0, min_rate=0.0, max_rate=o.max_rate)
