@@ -97,6 +97,24 @@ def _log_covariance(cal: PairCalibration, prior_std: float) -> np.ndarray:
     return P
 
 
+def _blocks(t, size: int, max_gap_s: float | None) -> list[tuple[int, int]]:
+    """``(start, end)`` of blocks of about ``size`` samples that never straddle a gap (a short tail joins
+    the block before it); a step larger than ``max_gap_s`` (default 5 median intervals) is a gap."""
+    if max_gap_s is None:
+        max_gap_s = 5.0 * float(np.median(np.diff(t))) if t.shape[0] > 1 else np.inf
+    bounds = np.concatenate([[0], np.flatnonzero(np.diff(t) > max_gap_s) + 1, [t.shape[0]]])
+    spans = []
+    for lo, hi in zip(bounds[:-1].tolist(), bounds[1:].tolist()):
+        for s in range(lo, hi, size):
+            e = min(s + size, hi)
+            if hi - e < size // 2 and e < hi:   # fold a short tail into this block
+                e = hi
+            spans.append((s, e))
+            if e == hi:
+                break
+    return spans
+
+
 @dataclass
 class _Alarm:
     """An open step alarm: when it rose, the estimated onset, and the filter's state to return to."""
@@ -588,23 +606,7 @@ class GyroPairTracker:
         if truth is not None and len(truth) != t.shape[0]:
             raise InputError(f"truth: expected {t.shape[0]} rows (one per sample), got {len(truth)}")
         self._check_start(t[0])
-        if mode == "sample":
-            spans = [(k, k + 1) for k in range(t.shape[0])]
-        else:
-            if max_gap_s is None:
-                max_gap_s = 5.0 * float(np.median(np.diff(t))) if t.shape[0] > 1 else np.inf
-            cuts = np.flatnonzero(np.diff(t) > max_gap_s) + 1
-            bounds = np.concatenate([[0], cuts, [t.shape[0]]])
-            spans = []
-            for lo, hi in zip(bounds[:-1], bounds[1:]):
-                for s in range(lo, hi, B):
-                    e = min(s + B, hi)
-                    if hi - e < B // 2 and e < hi:   # fold a short tail into this block
-                        e = hi
-                    spans.append((s, e))
-                    if e == hi:
-                        break
-        n0 = len(self._history)
+        spans = [(k, k + 1) for k in range(t.shape[0])] if mode == "sample" else _blocks(t, B, max_gap_s)
         truth_idx, nees_rows = [], []
         for s, e in spans:
             self._step(t[s:e], w1[s:e], w2[s:e], mode)
@@ -614,17 +616,17 @@ class GyroPairTracker:
                 nees_rows.append(self.nees(truth.R_1_2[k], truth.scale_1[k], truth.scale_2[k], truth.bias[k]))
         if truth is None:
             return self.history()
-        # truth columns aligned with the rows of this run; earlier rows get NaN
-        M = len(self._history)
-        nees = np.full(M, np.nan)
-        nees[n0:] = nees_rows
-        tR = np.full((M, 3, 3), np.nan)
-        ts1, ts2, tb = (np.full((M, 3), np.nan) for _ in range(3))
-        for row, k in zip(range(n0, M), truth_idx):
-            tR[row] = truth.R_1_2[k]
-            ts1[row], ts2[row] = self.express_in_gauge(truth.scale_1[k], truth.scale_2[k])
-            tb[row] = truth.bias[k]
-        return self._history_with(nees, (tR, ts1, ts2, tb))
+        # truth columns aligned with the rows of this run (scales in the gauge); earlier rows get NaN
+        rows = truth[np.asarray(truth_idx, dtype=int)]
+        scales = np.array([np.concatenate(self.express_in_gauge(a, b)) for a, b in zip(rows.scale_1, rows.scale_2)])
+        n0 = len(self._history) - len(truth_idx)
+
+        def pad(x):
+            return np.concatenate([np.full((n0,) + x.shape[1:], np.nan), x])
+
+        scales = pad(scales.reshape(-1, 6))
+        return self._history_with(pad(np.array(nees_rows)), (pad(rows.R_1_2), scales[:, :3], scales[:, 3:],
+                                                             pad(rows.bias)))
 
     def run_streams(self, t_1, omega_1, t_2, omega_2, *, mode: str = "fast", block_size: int | None = None,
                     max_gap_s: float | None = None) -> TrackHistory:
