@@ -68,8 +68,8 @@ def plot_history(history: TrackHistory, *, title: str | None = None):
     return fig
 
 
-def track_figure_for_report(run, *, seed_fraction: float = 0.2, rate_hz: float = 100.0, drift: DriftNoise = DriftNoise(),
-                            block_size: int | None = None):
+def track_figure_for_report(run, *, seed_fraction: float = 0.2, rate_hz: float = 100.0,
+                            drift: DriftNoise = DriftNoise(), block_size: int | None = None):
     """Drift-tracking figure for ``gyrocal report --track``: seed on the start, track the rest.
 
     Parameters
