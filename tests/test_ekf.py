@@ -11,8 +11,9 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from fusion_gyrocal import PairCalibration, calibrate_pair
-from fusion_gyrocal.online.tracker import DriftNoise, GyroPairTracker, plot_history, simulate_drifting_pair
-from fusion_gyrocal.errors import InputError
+from fusion_gyrocal.online.tracker import (DriftNoise, GyroPairTracker, TrackerConfig, plot_history,
+                                           simulate_drifting_pair)
+from fusion_gyrocal.errors import InputError, OptionError
 from fusion_gyrocal.evaluate.sim import DEG, HumanMotion, general_rotation, rotation_error, scale_error, shared_data_dir
 
 RATE = 100.0
@@ -105,6 +106,109 @@ def test_update_block_equals_stacked_update():
     # scale factors: same up to the gauge's (unobservable) common factor
     ratio = np.log(np.concatenate([tr.scale_1, tr.scale_2]) / np.concatenate([s10, s20])) - x[3:9]
     assert np.ptp(ratio) < 1e-3 * np.sqrt(P1[3, 3])
+
+
+# ---------------------------------------------------------------------------- configuration
+def test_GyroPairTracker_config_assignment_raises():
+    rng = np.random.default_rng(20)
+    t, w1, w2, _ = scenario(rng, 12.0)
+    tr = GyroPairTracker.from_samples(t[:1000], w1[:1000], w2[:1000], cusum_threshold=30.0)
+    assert tr.config.cusum_threshold == tr.cusum_threshold == 30.0
+    P0 = tr.error_covariance
+    with pytest.raises(AttributeError, match="frozen.*reconfigured"):
+        tr.drift = DriftNoise(1e-2, 1e-2, 1e-2)
+    with pytest.raises(AttributeError, match="frozen"):
+        tr.cusum_threshold = 5.0
+    with pytest.raises(AttributeError):
+        tr.config.drift = DriftNoise(1e-2, 1e-2, 1e-2)          # the configuration itself is frozen
+    with pytest.raises(AttributeError):
+        tr.cusum_treshold = 5.0                                # a misspelt option is no new attribute either
+    assert tr.drift == DriftNoise() and tr.config.cusum_threshold == 30.0
+    tr.predict(t[999] + 100.0)
+    drift = DriftNoise()
+    np.testing.assert_allclose(np.diag(tr.error_covariance - P0)[9:], drift.bias**2 * 100.0, rtol=1e-9)
+
+
+def test_reconfigured_drift_reaches_covariance():
+    rng = np.random.default_rng(21)
+    t, w1, w2, _ = scenario(rng, 20.0)
+    tr = GyroPairTracker.from_samples(t[:1000], w1[:1000], w2[:1000])
+    tr.run(t[1000:1500], w1[1000:1500], w2[1000:1500])
+    big = DriftNoise(rotation=1e-3, log_scale=1e-3, bias=1e-3)
+    same, new = tr.reconfigured(), tr.reconfigured(drift=big)
+    assert new.drift == big and tr.drift == same.drift == DriftNoise()     # the original is unchanged
+    np.testing.assert_array_equal(new.error_covariance, tr.error_covariance)   # continues from the state
+    np.testing.assert_array_equal(new.R_1_2, tr.R_1_2)
+    assert len(new.history()) == len(tr.history()) and new.n_samples == tr.n_samples == 500
+    # predicting 100 s: the covariance grows by the new densities (the default's for the original)
+    P0, t_end = tr.error_covariance, tr.t
+    for x in (tr, new):
+        x.predict(t_end + 100.0)
+    grown_default = np.diag(tr.error_covariance - P0)
+    grown_big = np.diag(new.error_covariance - P0)
+    np.testing.assert_allclose(grown_big[:3], big.rotation**2 * 100.0, rtol=1e-9)
+    np.testing.assert_allclose(grown_big[9:], big.bias**2 * 100.0, rtol=1e-9)
+    np.testing.assert_allclose(grown_default[9:], DriftNoise().bias**2 * 100.0, rtol=1e-9)
+    # the log-scales grow along the projected directions (off the gauge), by the ratio of the densities squared
+    np.testing.assert_allclose(grown_big[3:9], (big.log_scale / DriftNoise().log_scale) ** 2 * grown_default[3:9],
+                               rtol=1e-9)
+    # and in the updates that follow: tracking on, the bigger drift keeps wider bands
+    new = same.reconfigured(drift=big)
+    for x in (same, new):
+        x.run(t[1500:], w1[1500:], w2[1500:])
+    observable = [0, 1, 2, 9, 10, 11]
+    assert np.all(np.diag(new.error_covariance)[observable] > 2.0 * np.diag(same.error_covariance)[observable])
+
+
+def test_reconfigured_refuses_unknown_or_bad_options():
+    rng = np.random.default_rng(22)
+    t, w1, w2, _ = scenario(rng, 12.0)
+    tr = GyroPairTracker.from_samples(t[:1000], w1[:1000], w2[:1000])
+    with pytest.raises(OptionError, match="unknown tracker option"):
+        tr.reconfigured(cusum_treshold=5.0)
+    with pytest.raises(OptionError, match="gate_probability"):
+        tr.reconfigured(gate_probability=1.5)
+    with pytest.raises(OptionError, match="unknown tracker option"):
+        GyroPairTracker(tr.calibration, drfit=DriftNoise())
+    with pytest.raises(OptionError, match="expected a DriftNoise"):
+        TrackerConfig(drift=1e-4)
+
+
+def test_reconfigured_gauge_reexpresses_the_estimate():
+    rng = np.random.default_rng(23)
+    t, w1, w2, _ = scenario(rng, 20.0)
+    tr = GyroPairTracker.from_samples(t[:1000], w1[:1000], w2[:1000])
+    tr.run(t[1000:1500], w1[1000:1500], w2[1000:1500])
+    fixed = tr.reconfigured(gauge="fixed")
+    assert fixed.scale_1[0] == pytest.approx(1.0, abs=1e-12) and fixed.covariance[3, 3] < 1e-20
+    np.testing.assert_allclose(fixed.A, tr.A, rtol=1e-12)                  # what the data determine is kept
+    np.testing.assert_allclose(fixed.covariance[:3, :3], tr.covariance[:3, :3], rtol=1e-9)
+    assert fixed.gauge_description == "scale_1[0] == 1"
+
+
+# ---------------------------------------------------------------------------- modes
+def test_update_equals_update_block_of_one():
+    """A block of one sample is the per-sample mode: gate, CUSUM, alarm, replay and rows all agree."""
+    rng = np.random.default_rng(24)
+    t, w1, w2, _ = scenario(rng, 35.0)
+    w2 = w2.copy()
+    for s in (1520, 1733, 1980):                            # flex spikes: gated, with their neighbours
+        w2[s:s + 3] += rng.normal(0, 0.2, (3, 3))
+    burst = (t >= 20.0) & (t < 20.5)                        # a long flex burst: an alarm, then a replay
+    w2[burst] = w2[burst] @ Rotation.from_rotvec([0, 0, 2 * DEG]).as_matrix().T
+    a = GyroPairTracker.from_samples(t[:1000], w1[:1000], w2[:1000])
+    b = GyroPairTracker.from_samples(t[:1000], w1[:1000], w2[:1000])
+    used = [a.update(t[k], w1[k], w2[k]) for k in range(1000, t.size)]
+    n_used = [b.update_block(t[k:k + 1], w1[k:k + 1], w2[k:k + 1]) for k in range(1000, t.size)]
+    assert used == [n == 1 for n in n_used]
+    ha, hb = a.history(), b.history()
+    assert (ha.mode, hb.mode) == ("sample", "fast")
+    assert ha.n_rejected == hb.n_rejected >= 9 and len(ha.reseeds) == len(hb.reseeds) == 1
+    assert ha.reseeds == hb.reseeds and not ha.reseeds[0].accepted
+    for name in ("t", "R_1_2", "rotation_std", "scale_1", "scale_2", "scale_2_std", "bias", "bias_std", "nis",
+                 "n_used"):
+        np.testing.assert_array_equal(getattr(ha, name), getattr(hb, name), err_msg=name)
+    np.testing.assert_array_equal(a.error_covariance, b.error_covariance)
 
 
 # ---------------------------------------------------------------------------- tracking

@@ -1,0 +1,266 @@
+"""The tracker's filter: filterpy's EKF on a 12-d error state, folded into the nominal calibration.
+
+Measurement (Eq. 4-9 of the paper, one sample)::
+
+    z_k = omega_1_meas(k) = A(x) omega_2_meas(k) + b + n(k),
+    A(x) = diag(s_1) Exp(dtheta) R_ref diag(1 / s_2),   s_i = s_i,ref * exp(delta_i),
+    Cov n(k) = sigma_1^2 I + sigma_2^2 A A^T     (gyro 2's noise enters through A)
+
+Error state (12): ``[dtheta (3, rad, gyro 1 frame), delta_1 (3), delta_2 (3) log-scales, db (3, rad/s)]``.
+After every update the error is folded into the nominal estimate (``R <- Exp(dtheta) R``,
+``s <- s exp(delta)``, ``b <- b + db``) and reset to zero (multiplicative EKF). Process noise, step
+priors and every correction are projected off the directions the :class:`~.hold.ScaleHold` holds.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from filterpy.kalman import ExtendedKalmanFilter
+
+from ..core.model import BIAS, ROT, S1, S2
+from ..core.moments import Moments
+from ..core.observability import A_of
+from ..errors import InputError
+from ..lie import exp, skew
+from .hold import DIM, LOG, ScaleHold
+
+REFRESH = 50      # folds between re-linearisations of the gauge projector and the measurement noise
+                  # (they change at second order only: the scale factors move by < 1e-3 between them)
+_GENERATOR_RATES = np.vstack([np.eye(3), np.zeros((1, 3))])
+
+
+def measurement_jacobian(R, s1, s2, w2, A=None) -> np.ndarray:
+    """Measurement Jacobians ``dh/dx`` (B, 3, 12) at zero error for gyro-2 samples ``w2`` (B, 3)."""
+    u = (w2 / s2) @ R.T                      # R diag(1/s2) omega_2: gyro 2's rate in gyro 1's frame
+    A = A_of(R, s1, s2) if A is None else A
+    H = np.zeros((w2.shape[0], 3, DIM))
+    H[:, :, 0:3] = -s1[None, :, None] * skew(u)                  # d(diag(s1) Exp(th) u)/dth
+    idx = np.arange(3)
+    H[:, idx, 3 + idx] = s1 * u                                  # d/d delta_1 = diag(A omega_2)
+    H[:, :, 6:9] = -A[None, :, :] * w2[:, None, :]               # d/d delta_2 = -A diag(omega_2)
+    H[:, idx, 9 + idx] = 1.0                                     # d/d b
+    return H
+
+
+def _projected_cov(std, TT) -> np.ndarray:
+    """Independent per-parameter std (DriftNoise, StepPrior) as an error covariance off the held directions."""
+    C = np.zeros((DIM, DIM))
+    C[ROT, ROT] = std.rotation**2 * np.eye(3)
+    C[LOG, LOG] = std.log_scale**2 * TT
+    C[BIAS, BIAS] = std.bias**2 * np.eye(3)
+    return C
+
+
+class ErrorStateEKF:
+    """filterpy's :class:`~filterpy.kalman.ExtendedKalmanFilter` on the error state plus the nominal estimate.
+
+    Ready once constructed: nominal estimate in the hold, error state zero, covariance projected,
+    process noise, step prior and measurement noise linearised at the estimate.
+
+    Parameters
+    ----------
+    hold : ScaleHold
+    drift : DriftNoise
+        Process noise densities (``Q = q^2 dt``).
+    step_prior : StepPrior
+        Covariance added by :meth:`open_step`.
+    noise_std : (float, float)
+        White noise per sample of each gyro (rad/s).
+    R, s1, s2, b : the nominal estimate (``R_1_2``, scale factors, combined bias).
+    P : ndarray (12, 12)
+        Error covariance (projected here).
+    t : float
+        Time of the estimate (s).
+    inflate_s : float
+        The covariance is grown by the random walk over this many seconds (a seed that estimated an
+        average over a window is inflated to its end).
+    """
+
+    __slots__ = ("kf", "hold", "R", "s1", "s2", "b", "t", "noise_std", "drift", "step_prior",
+                 "_T", "_Pi", "_q", "_shock", "_G", "_folds")
+
+    def __init__(self, hold: ScaleHold, drift, step_prior, noise_std, R, s1, s2, b, P, t: float,
+                 inflate_s: float = 0.0):
+        self.kf = ExtendedKalmanFilter(dim_x=DIM, dim_z=3)
+        self.kf.F = np.eye(DIM)
+        self.kf.Q = np.zeros((DIM, DIM))
+        self.hold, self.drift, self.step_prior = hold, drift, step_prior
+        self.noise_std = (float(noise_std[0]), float(noise_std[1]))
+        self.R, self.b = np.array(R, dtype=float), np.array(b, dtype=float)
+        self.s1, self.s2 = hold.express(s1, s2)
+        self.t = float(t)
+        self.relinearise()
+        P = self.project(P)
+        if inflate_s > 0:
+            P = P + self.process_noise(inflate_s)
+        self.kf.x = np.zeros((DIM, 1))
+        self.kf.P = 0.5 * (P + P.T)
+
+    def copy(self, *, drift=None, step_prior=None) -> "ErrorStateEKF":
+        """An independent copy (same state and linearisation), with other noise densities if given."""
+        new = object.__new__(ErrorStateEKF)
+        new.kf = ExtendedKalmanFilter(dim_x=DIM, dim_z=3)
+        new.kf.F, new.kf.Q, new.kf.R = np.eye(DIM), self.kf.Q.copy(), self.kf.R.copy()
+        new.kf.x, new.kf.P = self.kf.x.copy(), self.kf.P.copy()
+        new.hold, new.noise_std = self.hold, self.noise_std
+        new.drift = self.drift if drift is None else drift
+        new.step_prior = self.step_prior if step_prior is None else step_prior
+        new.R, new.s1, new.s2, new.b, new.t = self.R, self.s1, self.s2, self.b, self.t   # never modified in place
+        new._T, new._Pi, new._G, new._folds = self._T, self._Pi, self._G, self._folds
+        TT = self._T @ self._T.T
+        new._q, new._shock = _projected_cov(new.drift, TT), _projected_cov(new.step_prior, TT)
+        return new
+
+    # ------------------------------------------------------------------ linearisation
+    @property
+    def A(self) -> np.ndarray:
+        return A_of(self.R, self.s1, self.s2)
+
+    def relinearise(self) -> None:
+        """Gauge projector, process noise, step prior and measurement noise at the current estimate."""
+        T = self.hold.projector(self.s1, self.s2)
+        Pi = np.eye(DIM)
+        Pi[LOG, LOG] = T
+        self._T, self._Pi = T, Pi
+        TT = T @ T.T
+        self._q = _projected_cov(self.drift, TT)          # process noise per second
+        self._shock = _projected_cov(self.step_prior, TT)
+        A = self.A
+        self.kf.R = self.noise_std[0] ** 2 * np.eye(3) + self.noise_std[1] ** 2 * (A @ A.T)
+        self._G = None
+        self._folds = 0
+
+    def project(self, P) -> np.ndarray:
+        """``P`` moved off the held directions, which get the hold's covariance."""
+        P = self._Pi @ P @ self._Pi.T + self.hold.held_cov
+        return 0.5 * (P + P.T)
+
+    def process_noise(self, dt: float) -> np.ndarray:
+        """Random-walk process noise over ``dt`` seconds, projected off the held directions."""
+        return self._q * max(dt, 0.0)
+
+    def linearise(self, w1, w2) -> tuple[np.ndarray, np.ndarray]:
+        """Jacobians ``H`` (B, 3, 12) and residuals ``r = omega_1 - A omega_2 - b`` (B, 3) of a block.
+
+        From two samples on, ``H_k = sum_m y_k[m] G[m]`` for ``y_k = [omega_2(k); 1]`` (``H`` is affine
+        in ``omega_2``) with the :meth:`generators` ``G``; one sample's Jacobian is computed directly.
+        """
+        A = self.A
+        if w2.shape[0] == 1:
+            H = measurement_jacobian(self.R, self.s1, self.s2, w2, A)
+        else:
+            G = self.generators()
+            H = (w2 @ G[:3].reshape(3, 3 * DIM)).reshape(w2.shape[0], 3, DIM) + G[3]
+        return H, w1 - w2 @ A.T - self.b
+
+    def generators(self) -> np.ndarray:
+        """``G`` (4, 3, 12) with ``H(omega_2) = sum_m omega_2[m] G[m] + G[3]``, once per estimate."""
+        if self._G is None:
+            J = measurement_jacobian(self.R, self.s1, self.s2, _GENERATOR_RATES)
+            self._G = np.concatenate([J[:3] - J[3], J[3:]], axis=0)
+        return self._G
+
+    def innovation_d2(self, H, r) -> np.ndarray:
+        """Per-sample ``r_k^T (H_k P H_k^T + R)^-1 r_k``."""
+        S = (H @ self.kf.P) @ np.swapaxes(H, 1, 2) + self.kf.R
+        return np.einsum("ka,ka->k", r, np.linalg.solve(S, r[:, :, None])[:, :, 0])
+
+    # ------------------------------------------------------------------ filter steps
+    def predict_to(self, t: float) -> None:
+        """Predict to time ``t`` (covariance grows by the random walk over ``t - self.t``)."""
+        dt = t - self.t
+        if not (np.isfinite(t) and dt >= 0):
+            raise InputError(f"t: expected finite, non-decreasing times, got {t!r} after {self.t!r} "
+                             f"(a step of {dt:.6g} s)")
+        if dt > 0:
+            self.kf.Q = self.process_noise(dt)
+            self.kf.predict()
+            self.t = float(t)
+
+    def update_sample(self, H, r) -> None:
+        """One sample's update (3-d measurement through filterpy), then the fold."""
+        self.kf.update(r[:, None], HJacobian=lambda x: H, Hx=lambda x: H @ x, R=self.kf.R)
+        self.fold()
+
+    def update_block(self, w1, w2, keep) -> float:
+        """ONE update from the samples ``keep`` of a block through their moments, then the fold.
+
+        With ``Y = sum_k y_k y_k^T`` of ``y_k = [omega_1; omega_2; 1]`` (from count, mean and centred
+        scatter), ``Lambda = sum_mn Y_mn G_m^T W G_n`` and ``eta = sum_m G_m^T W L Y[:, m]`` where
+        ``r_k = L y_k``, ``L = [I, -A, -b]``: exactly the stacked update of the block's samples. It
+        is applied through filterpy as a whitened 12-d pseudo-measurement (``H_p^T H_p = Lambda``,
+        ``H_p^T z_p = eta``, ``R = I``).
+
+        Returns
+        -------
+        float
+            The block's innovation statistic ``r^T S^-1 r`` (chi-square with 3 n dof).
+        """
+        A, b, P, G = self.A, self.b, self.kf.P, self.generators()
+        B = w1.shape[0]
+        m = Moments.from_samples(w1, w2, mask=None if keep.all() else keep, chunk_size=B)
+        W = np.linalg.inv(self.kf.R)
+        n = m.count
+        mu2 = m.mean_2
+        rbar = m.mean_1 - A @ mu2 - b                        # mean residual L ybar
+        Lc = np.hstack([np.eye(3), -A])                      # centred part of L
+        Yp = np.empty((4, 4))                                # Y restricted to the regressors [omega_2; 1] of H
+        Yp[:3, :3] = m.S22 + n * np.outer(mu2, mu2)
+        Yp[:3, 3] = Yp[3, :3] = n * mu2
+        Yp[3, 3] = n
+        Gf = G.reshape(12, DIM)
+        Lam = Gf.T @ np.kron(Yp, W) @ Gf
+        LY = np.empty((3, 4))                                # L Y[:, m'] for m' over [omega_2; 1]
+        LY[:, :3] = Lc @ m.scatter[:, 3:] + n * np.outer(rbar, mu2)
+        LY[:, 3] = n * rbar
+        eta = np.einsum("mai,am->i", G, W @ LY)
+        rWr = float(np.trace(W @ (Lc @ m.scatter @ Lc.T)) + n * rbar @ W @ rbar)
+        # block innovation statistic (Woodbury): r^T S^-1 r = rWr - eta^T P (I + Lam P)^-1 eta
+        stat = rWr - float(eta @ P @ np.linalg.solve(np.eye(DIM) + Lam @ P, eta))
+        lam, V = np.linalg.eigh(0.5 * (Lam + Lam.T))
+        ok = lam > 1e-12 * max(lam.max(), 1e-300)
+        sq = np.sqrt(np.where(ok, lam, 0.0))
+        Hp = sq[:, None] * V.T
+        zp = np.where(ok, (V.T @ eta) / np.where(ok, sq, 1.0), 0.0)
+        self.kf.update(zp[:, None], HJacobian=lambda x: Hp, Hx=lambda x: Hp @ x, R=np.eye(DIM))
+        self.fold()
+        return stat
+
+    def fold(self) -> None:
+        """Fold the error state into the nominal estimate and reset it (multiplicative EKF).
+
+        The correction is projected off the held directions (exact for the linear conditions of
+        a fixed scale and of the pairs' log-means). Every ``REFRESH`` folds the nonlinear gauge is
+        re-imposed and everything linearised is re-linearised at the new estimate.
+        """
+        x = self.kf.x[:, 0]
+        x[LOG] = self._T @ x[LOG]    # never move a held direction
+        self.R = exp(x[ROT]) @ self.R
+        self.s1 = self.s1 * np.exp(x[S1])
+        self.s2 = self.s2 * np.exp(x[S2])
+        self.b = self.b + x[BIAS]
+        self.kf.x = np.zeros((DIM, 1))
+        self.kf.P = self.project(self.kf.P)
+        self._G = None
+        self._folds += 1
+        if self._folds >= REFRESH:
+            self.s1, self.s2 = self.hold.express(self.s1, self.s2)
+            self.relinearise()
+
+    def open_step(self) -> None:
+        """Add the step prior to the covariance (a step change is suspected)."""
+        self.kf.P = self.project(self.kf.P + self._shock)
+
+    # ------------------------------------------------------------------ state
+    def state(self) -> tuple:
+        """``(R, s1, s2, b, P, t)`` (copies) for :meth:`restore`."""
+        return self.R.copy(), self.s1.copy(), self.s2.copy(), self.b.copy(), self.kf.P.copy(), self.t
+
+    def restore(self, state: tuple) -> None:
+        """Return to a :meth:`state` (error zero, everything re-linearised there)."""
+        R, s1, s2, b, P, t = state
+        self.R, self.s1, self.s2, self.b = R, s1, s2, b
+        self.kf.x = np.zeros((DIM, 1))
+        self.kf.P = P
+        self.t = t
+        self.relinearise()

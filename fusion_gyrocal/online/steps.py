@@ -1,0 +1,132 @@
+"""Screening the tracker's innovations: the gate (flex spikes), the CUSUM (step changes), recent samples.
+
+Each works on a block of per-sample normalised innovations ``d^2 = r^T S^-1 r`` (chi-square(3) when
+the filter is consistent); a block of one sample is the per-sample mode, so both modes share them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class InnovationGate:
+    """Chi-square gate on ``d^2`` that also drops the neighbours of a gated sample.
+
+    Inside a block the ``neighbours`` samples on each side of a gated one are dropped; the
+    ``neighbours`` samples after a gated one are dropped even when they fall in the next block
+    (``pending``): samples already folded into the filter are never revisited.
+    """
+
+    __slots__ = ("limit", "neighbours", "pending")
+
+    def __init__(self, limit: float, neighbours: int, pending: int = 0):
+        self.limit, self.neighbours, self.pending = float(limit), int(neighbours), int(pending)
+
+    def keep(self, d2: np.ndarray, *, fresh: bool = False) -> np.ndarray:
+        """Boolean mask of the samples to use; ``fresh`` forgets the drops owed by earlier blocks."""
+        B = d2.shape[0]
+        if fresh:
+            self.pending = 0
+        bad = ~(d2 <= self.limit)          # NaN is gated too
+        carry = max(self.pending - B, 0)
+        if bad.any():
+            carry = max(carry, self.neighbours - (B - 1 - int(np.flatnonzero(bad)[-1])))
+            for _ in range(self.neighbours):
+                bad[1:] |= bad[:-1].copy()
+                bad[:-1] |= bad[1:].copy()
+        if self.pending:
+            bad[:self.pending] = True
+        self.pending = carry
+        return ~bad
+
+
+class Cusum:
+    """One-sided CUSUM of ``min(d^2, clip) / 3 - 1 - allowance`` (a step raises the innovations).
+
+    The level restarts from zero whenever it would go negative; its last zero estimates the
+    onset of a change. :meth:`scan` runs the recursion sample by sample over a block (a plain loop:
+    as fast as a vectorised scan for blocks of a hundred, and ten times faster for one sample).
+    """
+
+    __slots__ = ("allowance", "threshold", "clip", "level", "zero_t")
+
+    def __init__(self, allowance: float, threshold: float, clip: float, t0: float):
+        self.allowance, self.threshold, self.clip = float(allowance), float(threshold), float(clip)
+        self.level, self.zero_t = 0.0, float(t0)
+
+    def reset(self, t: float) -> None:
+        """Start again from zero at time ``t``."""
+        self.level, self.zero_t = 0.0, float(t)
+
+    def scan(self, t: np.ndarray, d2: np.ndarray):
+        """Run over a block; ``(index, onset time)`` of the first alarm (the level then restarts), else None."""
+        level, clip, shift, threshold = self.level, self.clip, 1.0 + self.allowance, self.threshold
+        zero = -1
+        for k, x in enumerate(d2.tolist()):
+            level += (x if x <= clip else clip) / 3.0 - shift      # NaN counts as the clip
+            if level <= 0.0:
+                level, zero = 0.0, k
+            elif level > threshold:
+                onset = float(t[zero]) if zero >= 0 else self.zero_t
+                self.level = 0.0
+                return k, onset
+        if zero >= 0:
+            self.zero_t = float(t[zero])
+        self.level = level
+        return None
+
+
+class SampleRing:
+    """Fixed-capacity ring buffer of ``[t, omega_1, omega_2]`` rows (the re-seed window, replays)."""
+
+    __slots__ = ("buf", "cap", "n", "head")
+
+    def __init__(self, capacity: int):
+        self.buf = np.empty((capacity, 7))
+        self.cap = capacity
+        self.n = 0       # rows stored
+        self.head = 0    # next write position
+
+    def push(self, t, w1, w2) -> None:
+        """Append sample rows (``t`` (m,), ``w1``/``w2`` (m, 3)); the oldest are overwritten."""
+        m = t.shape[0]
+        rows = np.empty((m, 7))
+        rows[:, 0], rows[:, 1:4], rows[:, 4:7] = t, w1, w2
+        if m >= self.cap:
+            self.buf[:] = rows[-self.cap:]
+            self.head, self.n = 0, self.cap
+            return
+        end = self.head + m
+        if end <= self.cap:
+            self.buf[self.head:end] = rows
+        else:
+            k = self.cap - self.head
+            self.buf[self.head:] = rows[:k]
+            self.buf[: m - k] = rows[k:]
+        self.head = end % self.cap
+        self.n = min(self.cap, self.n + m)
+
+    def rows(self) -> np.ndarray:
+        """Every stored row, oldest first (a copy)."""
+        if self.n < self.cap:
+            return self.buf[: self.n].copy()
+        return np.concatenate([self.buf[self.head:], self.buf[: self.head]])
+
+    def since(self, t0: float) -> np.ndarray:
+        """Stored rows at or after ``t0``, oldest first."""
+        data = self.rows()
+        return data[data[:, 0] >= t0]
+
+    def oldest(self) -> float:
+        """Time of the oldest stored row (inf when empty)."""
+        if self.n == 0:
+            return np.inf
+        return float(self.buf[0 if self.n < self.cap else self.head, 0])
+
+    def resized(self, capacity: int) -> "SampleRing":
+        """A new ring of ``capacity`` holding the most recent rows of this one."""
+        new = SampleRing(capacity)
+        data = self.rows()
+        if data.shape[0]:
+            new.push(data[:, 0], data[:, 1:4], data[:, 4:7])
+        return new
