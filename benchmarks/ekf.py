@@ -28,7 +28,8 @@ import numpy as np  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
 from fusion_gyrocal import calibrate_pair  # noqa: E402
-from fusion_gyrocal.online.tracker import DriftNoise, GyroPairTracker, simulate_drifting_pair  # noqa: E402
+from fusion_gyrocal.evaluate.sim import simulate_drifting_pair  # noqa: E402
+from fusion_gyrocal.online.tracker import DriftNoise, GyroPairTracker  # noqa: E402
 from fusion_gyrocal.evaluate.sim import DEG, PAPER_NOISE_STD, general_rotation, rotation_error, scale_error  # noqa: E402
 
 RATE = 100.0

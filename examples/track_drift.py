@@ -18,7 +18,8 @@ import argparse
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from fusion_gyrocal.online.tracker import GyroPairTracker, plot_history, simulate_drifting_pair
+from fusion_gyrocal.evaluate.sim import simulate_drifting_pair
+from fusion_gyrocal.online.tracker import GyroPairTracker, plot_history
 from fusion_gyrocal.evaluate.sim import DEG, PAPER_NOISE_STD, general_rotation
 
 

@@ -22,7 +22,7 @@ __version__ = "0.1.0"
 _LAZY = {
     "calibrate_array": "core.array", "ArrayCalibration": "core.array",
     "StreamingCalibrator": "online.stream",
-    "GyroPairTracker": "online.tracker",
+    "GyroPairTracker": "online.tracker", "TrackerConfig": "online.config",
     "calibrate_pair_graph": "graph", "GyroPairGraph": "graph",
     "run_fleet": "distributed.fleet",
 }

@@ -15,6 +15,8 @@ True
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -42,7 +44,20 @@ def _coefficients(theta):
 
 def exp(theta) -> np.ndarray:
     """``Exp(theta)``: Rodrigues' formula; (..., 3) rad -> (..., 3, 3)."""
-    return exp_and_right_jacobian(theta)[0]
+    theta = np.asarray(theta, dtype=float)
+    if theta.shape != (3,):
+        return exp_and_right_jacobian(theta)[0]
+    x, y, z = theta.tolist()    # one vector (the trackers' per-sample path): scalar arithmetic
+    t2 = x * x + y * y + z * z
+    if t2 < 1e-8:
+        a, b = 1.0 - t2 / 6.0, 0.5 - t2 / 24.0
+    else:
+        t = math.sqrt(t2)
+        a, b = math.sin(t) / t, (1.0 - math.cos(t)) / t2
+    xx, yy, zz, xy, yz, zx = x * x, y * y, z * z, x * y, y * z, z * x
+    return np.array([[1.0 - b * (yy + zz), b * xy - a * z, b * zx + a * y],
+                     [b * xy + a * z, 1.0 - b * (xx + zz), b * yz - a * x],
+                     [b * zx - a * y, b * yz + a * x, 1.0 - b * (xx + yy)]])
 
 
 def exp_and_right_jacobian(theta) -> tuple[np.ndarray, np.ndarray]:
@@ -64,6 +79,13 @@ def log(R) -> np.ndarray:
     quaternion conversion, which is accurate up to and at pi.
     """
     R = np.asarray(R, dtype=float)
+    if R.shape == (3, 3):     # one matrix (the trackers' per-sample path): scalar arithmetic
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R.tolist()
+        if r00 + r11 + r22 > 2.0:   # cos > 0.5
+            v = (0.5 * (r21 - r12), 0.5 * (r02 - r20), 0.5 * (r10 - r01))
+            s = math.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
+            f = 1.0 if s < 1e-12 else math.asin(min(s, 1.0)) / s
+            return np.array([f * v[0], f * v[1], f * v[2]])
     v = 0.5 * np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
     cos = 0.5 * (np.trace(R, axis1=-2, axis2=-1) - 1.0)
     s = np.linalg.norm(v, axis=-1)

@@ -11,10 +11,10 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from fusion_gyrocal import PairCalibration, calibrate_pair
-from fusion_gyrocal.online.tracker import (DriftNoise, GyroPairTracker, TrackerConfig, plot_history,
-                                           simulate_drifting_pair)
 from fusion_gyrocal.errors import InputError, OptionError
-from fusion_gyrocal.evaluate.sim import DEG, HumanMotion, general_rotation, rotation_error, scale_error, shared_data_dir
+from fusion_gyrocal.evaluate.sim import (DEG, HumanMotion, general_rotation, rotation_error, scale_error, shared_data_dir,
+                                         simulate_drifting_pair)
+from fusion_gyrocal.online.tracker import DriftNoise, GyroPairTracker, TrackerConfig, plot_history
 
 RATE = 100.0
 NOISE = 0.1 * DEG          # the paper's white noise per sample (rad/s)

@@ -69,11 +69,10 @@ from .ekf import ErrorStateEKF
 from .figures import plot_history, track_figure_for_report
 from .history import HistoryRecorder, PairTruth, ReseedEvent, TrackHistory
 from .hold import DIM, ScaleHold
-from .simulate import simulate_drifting_pair
 from .steps import Cusum, InnovationGate, SampleRing
 
 __all__ = ["DriftNoise", "GyroPairTracker", "PairTruth", "ReseedEvent", "StepPrior", "TrackHistory",
-           "TrackerConfig", "plot_history", "simulate_drifting_pair", "track_figure_for_report"]
+           "TrackerConfig", "plot_history", "track_figure_for_report"]
 
 _REPLAY_BLOCK = 100      # samples per block when a false alarm's buffered samples are re-processed
 
@@ -168,7 +167,7 @@ class GyroPairTracker:
     --------
     >>> import numpy as np
     >>> from fusion_gyrocal import calibrate_pair
-    >>> from fusion_gyrocal.evaluate.sim import general_rotation
+    >>> from fusion_gyrocal.evaluate.sim import general_rotation, simulate_drifting_pair
     >>> rng = np.random.default_rng(0)
     >>> t = np.arange(0.0, 20.0, 0.01)
     >>> w1, w2, _ = simulate_drifting_pair(t, general_rotation(rng, 15.0), np.ones(3), np.ones(3), rng=rng)
