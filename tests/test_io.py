@@ -212,10 +212,13 @@ def test_read_csv_pandas_and_loadtxt_agree_on_integer_time_and_xsens(tmp_path, m
     ref, fast = _read_both_ways(monkeypatch, read_xsens, x)
     np.testing.assert_array_equal(fast.t, ref.t)
     np.testing.assert_array_equal(fast.omega, ref.omega)
-    x.write_text(_xsens_text(["1", "2.0", "3"], np.zeros((3, 3))))  # pandas would read 2.0 as a counter
+    x.write_text(_xsens_text(["1", "2.5", "3"], np.zeros((3, 3))))  # a counter must count whole packets
     assert _read_both_ways(monkeypatch, read_xsens, x) == [
-        "FormatError: x.txt: expected numeric data in columns [0], could not convert string '2.0' to int64 at "
-        "row 1, column 1."] * 2
+        "FormatError: x.txt: expected whole numbers in PacketCounter, got [2.5] in data row 2"] * 2
+    x.write_text(_xsens_text(["1", "2.0", "3"], np.zeros((3, 3))))  # 2.0 is packet 2 both ways
+    ref, fast = _read_both_ways(monkeypatch, read_xsens, x)
+    np.testing.assert_array_equal(fast.t, [0.01, 0.02, 0.03])
+    np.testing.assert_array_equal(fast.t, ref.t)
 
 
 @pytest.mark.parametrize("rows", [
@@ -281,8 +284,10 @@ def test_read_xsens_counter_wraparound(tmp_path):
 def test_read_xsens_missing_rate_message(tmp_path):
     p = tmp_path / "norate.txt"
     p.write_text(_xsens_text([1, 2, 3], np.zeros((3, 3))).replace("// Sample rate: 100.0Hz", "// nothing"))
-    with pytest.raises(FormatError, match=r"norate\.txt: expected a '// Sample rate: <rate>Hz'"):
+    with pytest.raises(FormatError, match=r"norate\.txt: no sample rate to time the samples by PacketCounter "
+                                          r"\(no '// Update Rate:' or '// Sample rate:' line\); pass rate_hz="):
         read_xsens(p)
+    np.testing.assert_array_equal(read_xsens(p, rate_hz=50.0).t, [0.02, 0.04, 0.06])
 
 
 # ----------------------------------------------------------------------------- npz

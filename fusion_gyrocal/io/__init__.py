@@ -1,9 +1,11 @@
 """Readers and writers at the library's edge (units are converted here and nowhere else).
 
-Readers return :class:`ImuStream` (``t`` in s, ``omega`` in rad/s, float64):
-:func:`read_imu` (any format, picked from suffix and content), :func:`read_csv` (generic and
-EuRoC / ASL ``imu0/data.csv``), :func:`read_xsens` (MT Manager export), :func:`read_npz` (generic and
+Readers return :class:`ImuStream` (``t`` in s, ``omega`` in rad/s, float64, ``notes`` saying what
+the reader dropped or chose): :func:`read_imu` (any format, picked from suffix and content),
+:func:`read_csv` (generic and EuRoC / ASL ``imu0/data.csv``), :func:`read_xsens` (MT Manager exports of
+every version and delimiter; ``rate_hz`` for exports that state none), :func:`read_npz` (generic and
 the MIMU array layout), :func:`read_bag` / :func:`list_imu_topics` (ROS1 and ROS2, via ``rosbags``).
+Every failure to read a file is a :class:`~fusion_gyrocal.errors.FormatError` naming the file.
 
 Writers are atomic (temp file, fsync, ``os.replace``): :func:`write_json` / :func:`read_json` for
 :class:`~fusion_gyrocal.core.model.PairCalibration`, :func:`write_kalibr_imu_yaml`,

@@ -30,14 +30,23 @@ _IMU_TYPES = (IMU_MSGTYPE, "sensor_msgs/Imu")
 
 
 def _bag_path(path) -> tuple[Path, int]:
-    """The path AnyReader wants and the bag generation (1 or 2)."""
+    """The path AnyReader wants and the bag generation (1 or 2).
+
+    A ROS2 storage file (``.db3`` / ``.mcap``) given directly is read through its folder when that
+    folder holds the bag's ``metadata.yaml``; ``rosbags`` reads ROS2 bags only with it.
+    """
     p = Path(path).expanduser()
     if not p.exists():
         raise FormatError(f"{p}: no such bag file or folder")
     if p.is_dir():
         return p, 2
+    if not p.is_file():
+        raise FormatError(f"{p}: expected a bag file or folder, got {'a FIFO' if p.is_fifo() else 'a special file'}")
     if p.suffix.lower() in (".db3", ".mcap"):
-        return p.parent, 2
+        if (p.parent / "metadata.yaml").is_file():
+            return p.parent, 2
+        raise FormatError(f"{p}: a ROS2 bag is read from its folder with metadata.yaml, and {p.parent} has none; "
+                          f"pass the bag folder (or recreate metadata.yaml with 'ros2 bag reindex {p.parent}')")
     if p.suffix.lower() == ".bag":
         return p, 1
     raise FormatError(f"{p}: expected a ROS1 '.bag' file or a ROS2 bag folder (with metadata.yaml), got "
@@ -45,12 +54,16 @@ def _bag_path(path) -> tuple[Path, int]:
 
 
 def _open_reader(path):
+    """``(path, AnyReader)``; every error of opening the bag is a :class:`FormatError`."""
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
     p, version = _bag_path(path)
     store = get_typestore(Stores.ROS2_HUMBLE if version == 2 else Stores.ROS1_NOETIC)
-    return p, AnyReader([p], default_typestore=store)
+    try:
+        return p, AnyReader([p], default_typestore=store)
+    except _reader_errors() as exc:
+        raise FormatError(f"{p}: could not read the bag: {' '.join(str(exc).split())}") from None
 
 
 def _imu_topics(reader) -> dict[str, list]:
@@ -62,8 +75,12 @@ def _imu_topics(reader) -> dict[str, list]:
 
 
 def _reader_errors():
+    import sqlite3
+
     from rosbags.highlevel import AnyReaderError
-    return (AnyReaderError, OSError, ValueError, KeyError)
+    from rosbags.rosbag1 import ReaderError as Reader1Error
+    from rosbags.rosbag2 import ReaderError as Reader2Error
+    return (AnyReaderError, Reader1Error, Reader2Error, sqlite3.Error, OSError, ValueError, KeyError, EOFError)
 
 
 def list_imu_topics(path) -> tuple[str, ...]:
@@ -84,7 +101,9 @@ def read_bag(path, topic: str | None = None, *, name: str | None = None) -> ImuS
     Parameters
     ----------
     path : str or Path
-        ROS1 ``.bag`` file, or ROS2 bag folder (a ``.db3`` / ``.mcap`` file inside it also works).
+        ROS1 ``.bag`` file, or ROS2 bag folder (a ``.db3`` / ``.mcap`` file inside it also works when
+        the folder holds the bag's ``metadata.yaml``; a lone storage file is refused with a FormatError
+        saying so).
     topic : str, optional
         The Imu topic. May be omitted when the bag holds exactly one Imu topic.
     name : str, optional

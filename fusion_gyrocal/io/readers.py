@@ -9,11 +9,18 @@ Text files of :data:`PANDAS_MIN_BYTES` or more have their float columns parsed b
 is installed (about 8x faster); the result is the same as ``np.loadtxt``'s, which reads everything
 else and reports every error.
 
+Text is read as UTF-8 with or without a byte-order mark. Lines without any number after the last
+data row (what spreadsheets leave: empty rows, rows of delimiters, a text line) are dropped and
+named in the stream's ``notes``; such lines between data rows are refused. Timestamps whose unit
+would give a sample rate outside :data:`PLAUSIBLE_RATE_HZ` while another unit gives one inside
+it are refused with the unit they look like (``time_unit=``), never silently misread. Only
+regular files are opened (a FIFO would block).
+
 Supported layouts
 -----------------
 * generic CSV / TSV / whitespace text, with or without a header (:func:`read_csv`);
 * the EuRoC / ASL ``mav0/imu0/data.csv`` layout, detected from its header (:func:`read_csv`);
-* the Xsens MT Manager text export (:func:`read_xsens`);
+* the Xsens MT Manager text export, every delimiter and time source (:func:`read_xsens`);
 * ``.npz`` archives with ``t`` and ``omega`` (or ``gyro``) arrays, and the MIMU4444 array layout
   (``t_s``, ``gyro_counts`` N x M x 3, ``gyro_lsb_per_dps``) (:func:`read_npz`);
 * ROS1 / ROS2 bags with ``sensor_msgs/msg/Imu`` (:mod:`fusion_gyrocal.io.bags`);
@@ -23,7 +30,11 @@ Supported layouts
 from __future__ import annotations
 
 import csv
+import io
 import re
+import warnings
+import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -86,6 +97,9 @@ class ImuStream:
     valid : ndarray (N,) of bool
         Samples usable for calibration: finite and, where the reader knows the sensor's range,
         not saturated. Always ANDed with finiteness of ``omega``.
+    notes : tuple of str
+        What the reader did that the numbers alone do not show (trailing junk rows dropped, the
+        time source of an Xsens export, a stated rate overridden). Empty when there is nothing to say.
 
     Raises
     ------
@@ -101,6 +115,7 @@ class ImuStream:
     rate_hz: float | None = None
     unit_in: str = "rad/s"
     valid: np.ndarray | None = None
+    notes: tuple = ()
 
     def __post_init__(self):
         name = self.name
@@ -126,6 +141,7 @@ class ImuStream:
         object.__setattr__(self, "omega", omega)
         object.__setattr__(self, "valid", valid)
         object.__setattr__(self, "rate_hz", rate)
+        object.__setattr__(self, "notes", tuple(str(n) for n in self.notes))
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
@@ -142,10 +158,18 @@ class ImuStream:
 
 
 # ----------------------------------------------------------------------------- helpers
-def _path(path, what: str = "file") -> Path:
+def _path(path, what: str = "file", *, folder: bool = False) -> Path:
+    """``path`` as a Path that exists and is a regular file (or a folder when ``folder``).
+
+    FIFOs, sockets and devices are refused before anything opens them (reading a FIFO blocks).
+    """
     p = Path(path).expanduser()
     if not p.exists():
         raise FormatError(f"{p}: no such {what}")
+    if not (p.is_file() or (folder and p.is_dir())):
+        kind = "a folder" if p.is_dir() else "a FIFO" if p.is_fifo() else "a device" if p.is_char_device() or \
+            p.is_block_device() else "a socket" if p.is_socket() else "not a regular file"
+        raise FormatError(f"{p}: expected a regular {what.replace('file or folder', 'file or a folder')}, got {kind}")
     return p
 
 
@@ -166,6 +190,42 @@ def _int_time_to_seconds(ticks: np.ndarray, decimals: int) -> np.ndarray:
     scale = 10 ** decimals
     whole, frac = np.divmod(ticks, scale)
     return whole.astype(np.float64) + frac.astype(np.float64) / scale
+
+
+#: Sample rates an IMU log can plausibly have; timestamps whose median step gives a rate outside
+#: this range in the unit they are read in are refused when another unit gives one inside it.
+PLAUSIBLE_RATE_HZ = (1.0, 1e5)
+_MAX_TIME_S = 1e10  # about the year 2286 as a Unix time: larger "seconds" are in a finer unit
+
+
+def _rates_by_unit(raw: np.ndarray) -> tuple[float, dict[str, float], dict[str, float]]:
+    """Median positive step of raw timestamps, the rate each time unit gives, and the plausible ones."""
+    raw = np.asarray(raw)
+    d = np.diff(raw)
+    d = d[d > 0]
+    if d.size == 0 or not np.isfinite(raw[[0, -1]]).all():
+        return float("nan"), {}, {}
+    step = float(np.median(d))
+    size = float(np.max(np.abs(raw[[0, -1]].astype(np.float64))))
+    rates = {u: 10.0 ** dec / step for u, dec in TIME_UNITS.items()}
+    lo, hi = PLAUSIBLE_RATE_HZ
+    ok = {u: r for u, r in rates.items() if lo <= r <= hi and size / 10.0 ** TIME_UNITS[u] < _MAX_TIME_S}
+    return step, rates, ok
+
+
+def _check_time_unit(raw: np.ndarray, unit: str, how: str, fname: str, column: str) -> None:
+    """Refuse timestamps whose unit makes an implausible rate when another unit makes a plausible one.
+
+    ``how`` says where ``unit`` came from (the option, the header, the default), for the message.
+    """
+    step, rates, ok = _rates_by_unit(raw)
+    if not ok or unit in ok:
+        return
+    likely = min(ok, key=lambda u: abs(np.log10(ok[u] / 200.0)))  # nearest to a typical IMU rate
+    raise InputError(f"{fname}: timestamps of column {column!r} read as {unit} ({how}) have a median step of "
+                     f"{step:g} {unit} = {rates[unit]:.3g} Hz, expected {PLAUSIBLE_RATE_HZ[0]:g} Hz to "
+                     f"{PLAUSIBLE_RATE_HZ[1]:g} Hz; they look like {likely} ({ok[likely]:.4g} Hz): pass "
+                     f"time_unit='{likely}' (CLI --time-unit {likely})")
 
 
 def _norm(name: str) -> str:
@@ -231,9 +291,54 @@ def _is_number(s: str) -> bool:
     return True
 
 
+#: Encoding of every text file read: UTF-8, with or without the byte-order mark that Excel on
+#: Windows writes ("CSV UTF-8"); undecodable bytes become U+FFFD and then fail as non-numbers.
+_ENCODING = "utf-8-sig"
+
+
+def _check_text(path: Path) -> None:
+    """Refuse UTF-16/32 text (Excel's "Unicode Text"), which would read as NUL-riddled garbage."""
+    with open(path, "rb") as f:
+        start = f.read(4)
+    if start[:2] in (b"\xff\xfe", b"\xfe\xff") or start in (b"\x00\x00\xfe\xff",):
+        raise FormatError(f"{path.name}: expected UTF-8 text, got UTF-16/32 (a byte-order mark "
+                          f"{start[:2].hex(' ')}); save it as 'CSV UTF-8'")
+
+
+class _Prefix(io.RawIOBase):
+    """The first ``end`` bytes of a binary file, as a raw stream (the data rows before a junk trailer)."""
+
+    def __init__(self, f, end: int):
+        self._f, self._left = f, end
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, b) -> int:
+        if self._left <= 0:
+            return 0
+        view = memoryview(b)[:self._left]
+        n = self._f.readinto(view)
+        self._left -= n or 0
+        return n or 0
+
+    def close(self) -> None:
+        self._f.close()
+        super().close()
+
+
+def _open_text(path: Path, end: int | None = None):
+    """``path`` opened as text (:data:`_ENCODING`, universal newlines), cut after ``end`` bytes if given."""
+    if end is None:
+        return open(path, "r", encoding=_ENCODING, errors="replace", newline=None)
+    raw = _Prefix(open(path, "rb", buffering=0), end)
+    return io.TextIOWrapper(io.BufferedReader(raw), encoding=_ENCODING, errors="replace", newline=None)
+
+
 def _head(path: Path, n: int = 64) -> list[str]:
+    _check_text(path)
     lines = []
-    with open(path, "r", encoding="utf-8", errors="replace", newline=None) as f:
+    with _open_text(path) as f:
         for line in f:
             lines.append(line.rstrip("\n").rstrip("\r"))
             if len(lines) >= n:
@@ -241,24 +346,86 @@ def _head(path: Path, n: int = 64) -> list[str]:
     return lines
 
 
+def _data_end(path: Path, delimiter: str | None, first_data_line: int) -> tuple[int | None, list[str]]:
+    """Where the data rows end: the byte offset before a trailer of lines without any number.
+
+    Spreadsheets that re-save a CSV leave empty rows, rows of delimiters only (``,,,,``) and text
+    lines ("Exported by ...") after the data. Those trailing lines are cut (their text is returned
+    for a note); anything without a number *between* data rows stays and is refused by the parser.
+    Returns ``(None, [])`` when there is no trailer.
+    """
+    size = path.stat().st_size
+    chunk = 1 << 16
+    with open(path, "rb") as f:
+        while True:
+            start = max(0, size - chunk)
+            f.seek(start)
+            buf = f.read(size - start)
+            lines = buf.split(b"\n")
+            if buf.endswith(b"\n"):
+                lines.pop()  # the terminator of the last line, not a line
+            first = 0 if start == 0 else 1  # the first piece of a chunk may be a partial line
+            junk = 0
+            for raw in reversed(lines[first:]):
+                text = raw.decode("utf-8", "replace").strip().lstrip("\ufeff")
+                if any(_is_number(x.strip()) for x in _split(text, delimiter) if x.strip()):
+                    break
+                junk += 1
+            if junk < len(lines) - first or start == 0:
+                break
+            chunk *= 4  # the whole chunk was junk: look further back
+    if junk == 0:
+        return None, []
+    kept = lines[:len(lines) - junk]
+    if start == 0 and len(kept) <= first_data_line:
+        return None, []  # nothing but header and junk: let the parser say "no data"
+    end = start + sum(len(x) + 1 for x in kept)
+    dropped = [x.decode("utf-8", "replace").strip() for x in lines[len(lines) - junk:]]
+    return end, dropped
+
+
+def _dropped_note(dropped: list[str]) -> str:
+    shown = next((d for d in dropped if d), "")
+    kinds = f", e.g. {shown[:40]!r}" if shown else ""
+    return (f"dropped {len(dropped)} trailing line{'s' if len(dropped) != 1 else ''} without numbers "
+            f"(empty, delimiters only or text{kinds}) after the last data row")
+
+
+def _empty_as_nan(field: str) -> float:
+    return float(field) if field.strip() else np.nan
+
+
 def _load_columns(path: Path, *, skiprows: int, delimiter: str | None, usecols: Sequence[int],
-                  dtype) -> np.ndarray:
-    """``np.loadtxt`` of some columns as ``(N, len(usecols))``; empty fields become NaN (floats)."""
+                  dtype, end: int | None = None) -> np.ndarray:
+    """``np.loadtxt`` of some columns as ``(N, len(usecols))``; empty fields become NaN (floats).
+
+    A delimiter is taken literally (two tabs are an empty field between them, as are two spaces
+    with ``delimiter=" "``); only ``delimiter=None`` merges runs of whitespace.
+    """
+    def load(converters=None):
+        with _open_text(path, end) as f:
+            return np.loadtxt(f, delimiter=delimiter, skiprows=skiprows, usecols=tuple(usecols), dtype=dtype,
+                              ndmin=2, comments="#", converters=converters)
+
     try:
-        with open(path, "r", encoding="utf-8", errors="replace", newline=None) as f:
-            return np.loadtxt(f, delimiter=delimiter, skiprows=skiprows, usecols=tuple(usecols),
-                              dtype=dtype, ndmin=2, comments="#")
-    except ValueError as exc:
-        if dtype is np.int64 or "''" not in str(exc):
-            raise FormatError(f"{path.name}: expected numeric data in columns {list(usecols)}, {exc}") from None
-    # Empty fields (e.g. a packet that lacked gyro data): read them as NaN, flagged later by ImuStream.valid.
-    with open(path, "r", encoding="utf-8", errors="replace", newline=None) as f:
-        data = np.genfromtxt(f, delimiter=delimiter, skip_header=skiprows, usecols=tuple(usecols),
-                             dtype=np.float64, comments="#", filling_values=np.nan, invalid_raise=True)
-    return np.atleast_2d(data).reshape(-1, len(usecols))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # "input contained no data": said below
+            try:
+                data = load()
+            except ValueError as exc:
+                if dtype is np.int64 or "''" not in str(exc):
+                    raise
+                # Empty fields (e.g. a packet that lacked gyro data): NaN, flagged later by ImuStream.valid.
+                data = load(_empty_as_nan)
+    except (ValueError, IndexError, OverflowError) as exc:
+        raise FormatError(f"{path.name}: expected numeric data in columns {list(usecols)}, {exc}") from None
+    if data.shape[0] == 0:
+        raise FormatError(f"{path.name}: expected data rows after the header, got none")
+    return data
 
 
-def _pandas_floats(path: Path, *, skiprows: int, delimiter: str | None, usecols: Sequence[int]) -> np.ndarray | None:
+def _pandas_floats(path: Path, *, skiprows: int, delimiter: str | None, usecols: Sequence[int],
+                   end: int | None = None) -> np.ndarray | None:
     """What ``_load_columns(..., dtype=np.float64)`` returns, parsed by pandas' C parser; or None.
 
     None (use ``np.loadtxt``) when pandas is not installed, the file is smaller than
@@ -279,17 +446,26 @@ def _pandas_floats(path: Path, *, skiprows: int, delimiter: str | None, usecols:
     exact = {} if tuple(int(v) for v in re.findall(r"\d+", pd.__version__)[:2]) >= (3, 1) else \
         {"float_precision": "round_trip"}
     try:
-        df = pd.read_csv(path, sep=r"\s+" if delimiter is None else delimiter, header=None, skiprows=skiprows,
-                         usecols=list(usecols), dtype=np.float64, comment="#", quoting=csv.QUOTE_NONE,
-                         skip_blank_lines=False, encoding="utf-8", encoding_errors="replace", **exact)
-    except (ValueError, TypeError, OverflowError):  # np.loadtxt then reads the file or says what is wrong
+        with _open_text(path, end) as f:
+            df = pd.read_csv(f, sep=r"\s+" if delimiter is None else delimiter, header=None, skiprows=skiprows,
+                             usecols=list(usecols), dtype=np.float64, comment="#", quoting=csv.QUOTE_NONE,
+                             skip_blank_lines=False, **exact)
+    except (ValueError, TypeError, OverflowError, IndexError):  # np.loadtxt then reads the file or says what is wrong
         return None
     x = df[list(usecols)].to_numpy(dtype=np.float64)
-    return None if np.isnan(x).any() else x
+    return None if x.shape[0] == 0 or np.isnan(x).any() else x
+
+
+def _read_floats(path: Path, *, skiprows: int, delimiter: str | None, usecols: Sequence[int],
+                 end: int | None = None) -> np.ndarray:
+    """Columns ``usecols`` as float64 ``(N, k)``: pandas when it reads them cleanly, else ``np.loadtxt``."""
+    kw = dict(skiprows=skiprows, delimiter=delimiter, usecols=usecols, end=end)
+    x = _pandas_floats(path, **kw)
+    return x if x is not None else _load_columns(path, dtype=np.float64, **kw)
 
 
 def _read_columns(path: Path, *, skiprows: int, delimiter: str | None, k_t: int, k_w: Sequence[int],
-                  int_time: bool) -> tuple[np.ndarray, np.ndarray]:
+                  int_time: bool, end: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Time column ``k_t`` ((N,), int64 when ``int_time``, else float64) and rate columns ``k_w`` ((N, 3) float64).
 
     Floats of big files are parsed by pandas when it is installed and reads them cleanly
@@ -297,16 +473,12 @@ def _read_columns(path: Path, *, skiprows: int, delimiter: str | None, k_t: int,
     through ``np.loadtxt`` (:func:`_load_columns`), which only takes plain integers as int64
     (pandas would also take ``6.0``).
     """
-    kw = dict(skiprows=skiprows, delimiter=delimiter)
+    kw = dict(skiprows=skiprows, delimiter=delimiter, end=end)
     if int_time:
         t = _load_columns(path, usecols=[k_t], dtype=np.int64, **kw)[:, 0]
-        w = _pandas_floats(path, usecols=k_w, **kw)
-        return t, (w if w is not None else _load_columns(path, usecols=k_w, dtype=np.float64, **kw))
-    x = _pandas_floats(path, usecols=[k_t, *k_w], **kw)
-    if x is not None:
-        return x[:, 0], x[:, 1:]
-    return (_load_columns(path, usecols=[k_t], dtype=np.float64, **kw)[:, 0],
-            _load_columns(path, usecols=k_w, dtype=np.float64, **kw))
+        return t, _read_floats(path, usecols=k_w, **kw)
+    x = _read_floats(path, usecols=[k_t, *k_w], **kw)
+    return x[:, 0], x[:, 1:]
 
 
 # ----------------------------------------------------------------------------- CSV and EuRoC
@@ -384,7 +556,7 @@ def read_csv(path, *, time_column=None, columns=None, unit: str | None = None, s
         On inconsistent options (unknown unit, counts without sensitivity, bad column indices)
         or timestamps that are not strictly increasing.
     """
-    path = _euroc_csv(_path(path, "file or folder"))
+    path = _euroc_csv(_path(path, "file or folder", folder=True))
     fname = path.name if path.name != "data.csv" else f"{path.parent.name}/{path.name}"
     lines = _head(path)
     # Leading blank lines and '//', '%', '#' comment lines are skipped; a '#' line right above the
@@ -459,99 +631,256 @@ def read_csv(path, *, time_column=None, columns=None, unit: str | None = None, s
         k_w = [_resolve_column(c, header, ncols, "a gyro column", fname) for c in columns]
 
     # units
-    if time_unit is None:
-        time_unit = (_time_unit_from_header(header[k_t]) if header is not None else None) or ("ns" if is_euroc else "s")
+    if time_unit is not None:
+        how = "time_unit= given"
+    elif header is not None and _time_unit_from_header(header[k_t]):
+        time_unit, how = _time_unit_from_header(header[k_t]), f"as the header {header[k_t]!r} says"
+    elif is_euroc:
+        time_unit, how = "ns", "the EuRoC layout"
+    else:
+        time_unit, how = "s", "the default"
     if time_unit not in TIME_UNITS:
         raise InputError(f"{fname}: expected time_unit in {tuple(TIME_UNITS)}, got {time_unit!r}")
     if unit is None:
         unit = (_rate_unit_from_header(header[k_w[0]]) if header is not None else None) or "rad/s"
     factor = _rate_factor(unit, sensitivity, fname)
 
+    # junk after the data (spreadsheets): cut, and said in a note
+    end, dropped = _data_end(path, delim, skip)
+    notes = [_dropped_note(dropped)] if dropped else []
+
     # timestamps: integer ticks keep every digit, decimals go through float64
-    first_t = _split(data_lines[0], delim)[k_t].strip() if k_t < len(_split(data_lines[0], delim)) else ""
-    integer_time = bool(re.fullmatch(r"[+-]?\d+", first_t))
-    t = None
-    if integer_time:
+    row0 = _split(data_lines[0], delim)
+    first_t = row0[k_t].strip() if k_t < len(row0) else ""
+    raw = None
+    if re.fullmatch(r"[+-]?\d+", first_t):
         try:
-            ticks, w = _read_columns(path, skiprows=skip, delimiter=delim, k_t=k_t, k_w=k_w, int_time=True)
-            t = _int_time_to_seconds(ticks, TIME_UNITS[time_unit])
+            raw, w = _read_columns(path, skiprows=skip, delimiter=delim, k_t=k_t, k_w=k_w, int_time=True, end=end)
         except FormatError:
-            t = None  # some rows are not integers: fall back to float parsing
-    if t is None:
-        t, w = _read_columns(path, skiprows=skip, delimiter=delim, k_t=k_t, k_w=k_w, int_time=False)
-        t = t / 10.0 ** TIME_UNITS[time_unit]
+            raw = None  # some rows are not integers: fall back to float parsing
+    if raw is None:
+        raw, w = _read_columns(path, skiprows=skip, delimiter=delim, k_t=k_t, k_w=k_w, int_time=False, end=end)
+        if not np.isfinite(raw).all():
+            j = int(np.argmax(~np.isfinite(raw)))
+            raise FormatError(f"{fname}: data row {j + 1} has no timestamp (an empty or non-finite field in the "
+                              f"time column); expected a number in every row")
+    column = header[k_t] if header is not None else f"#{k_t}"
+    _check_time_unit(raw, time_unit, how, fname, column)
+    if raw.dtype.kind == "i":
+        t = _int_time_to_seconds(raw, TIME_UNITS[time_unit])
+    else:
+        t = raw / 10.0 ** TIME_UNITS[time_unit]
     w = w * factor
     if name is None:
         name = path.parent.name if path.name == "data.csv" else path.stem
-    return ImuStream(t, w, name=name, source=str(path), unit_in=unit)
+    return ImuStream(t, w, name=name, source=str(path), unit_in=unit, notes=tuple(notes))
 
 
 # ----------------------------------------------------------------------------- Xsens
-def read_xsens(path, *, unit: str = "rad/s", name: str | None = None) -> ImuStream:
-    """Read an Xsens MT Manager text export (``// Sample rate: 120.0Hz`` comments, ``Gyr_X..Z``).
+#: ``SampleTimeFine``: a 32-bit count of 0.1 ms (10 kHz) ticks that wraps after about 119 h.
+XSENS_FINE_TICKS_PER_S = 10_000
+_XSENS_RATE = re.compile(r"//\s*(?:update|sample|output)\s*rate\s*:\s*(.*?)\s*$", re.IGNORECASE)
+_UTC_FIELDS = ("utc_nano", "utc_year", "utc_month", "utc_day", "utc_hour", "utc_minute", "utc_second")
+_UTC_VALID_BIT = 0x04  # UTC_Valid flag: "valid UTC" (0x01 time of week, 0x02 week number)
 
-    Timestamps come from the packet counter (``PacketCounter`` or ``Counter``) divided by the
-    sample rate stated in the ``// Sample rate:`` comment, so two files recorded on one device
-    share one clock. The 16-bit counter wraps at 65536 (at 120 Hz every ~9 min); wrap-arounds are
-    undone before the division. Dropped packets therefore leave gaps in ``t``, not shifts.
+
+def _xsens_delimiter(header: str) -> str:
+    """MT Manager's export delimiter (tab, semicolon, comma or a single space), from the header row."""
+    for d in ("\t", ";", ","):
+        if d in header:
+            return d
+    return " "
+
+
+def _unwrap_counter(values: np.ndarray, modulus: int, what: str, fname: str) -> np.ndarray:
+    """Integer ticks of a wrapping counter, made monotonic (int64). A step of more than half the
+    modulus is not a wrap but a step back, and a step of zero a repeated sample: both refused."""
+    ticks = values.astype(np.int64)
+    steps = np.mod(np.diff(ticks), modulus)
+    bad = (steps == 0) | (steps > modulus // 2)
+    if bad.any():
+        j = int(np.argmax(bad)) + 1
+        how = "repeats" if steps[j - 1] == 0 else "steps back"
+        raise InputError(f"{fname}: expected a strictly advancing {what}, but it {how} at data row {j + 1} "
+                         f"({int(ticks[j - 1])} -> {int(ticks[j])})")
+    return ticks[0] + np.concatenate(([0], np.cumsum(steps)))
+
+
+def _utc_ns(cols: np.ndarray) -> np.ndarray:
+    """Integer ns since 1970 of the columns UTC_Nano, _Year, _Month, _Day, _Hour, _Minute, _Second."""
+    nano, year, month, day, hour, minute, second = (cols[:, k].astype(np.int64) for k in range(7))
+    months = np.array((year - 1970) * 12 + (month - 1), dtype="datetime64[M]")
+    days = (months.astype("datetime64[D]") - np.datetime64("1970-01-01", "D")).astype(np.int64) + day - 1
+    seconds = days * 86400 + hour * 3600 + minute * 60 + second
+    return seconds * 1_000_000_000 + nano
+
+
+def read_xsens(path, *, unit: str = "rad/s", rate_hz: float | None = None, name: str | None = None) -> ImuStream:
+    """Read an Xsens MT Manager text export (``//`` comment lines, a header row, ``Gyr_X/Y/Z``).
+
+    Every variant MT Manager writes is read: tab, comma, semicolon or space delimiter (empty fields
+    are kept in place as NaN, also between spaces), with or without a ``// Update Rate: 100.0Hz``
+    (MT 4.x) or ``// Sample rate: 120.0Hz`` line (MT Manager 2019 and later state none), with or
+    without orientation columns (``Quat_q0..``, ``Mat[1][1]..``, ``Roll/Pitch/Yaw``, ``Euler_X..``).
+    Rows whose gyro fields are empty or ``NaN`` stay in place and are flagged in ``valid``.
+
+    The timestamps come from the first time source the file holds in every row:
+
+    1. ``SampleTimeFine``: the device's 10 kHz clock (a 32-bit count; wraps are undone);
+    2. the ``UTC_Nano, UTC_Year, ..., UTC_Second`` columns (when ``UTC_Valid`` is present, only
+       if every row has its valid-UTC bit 0x04);
+    3. ``PacketCounter`` (or ``Counter``), 16-bit, divided by the rate stated in the file or
+       ``rate_hz``; wraps at 65536 are undone, so dropped packets leave gaps, not shifts.
+
+    Sources that are present but empty are skipped, and the stream's ``notes`` say which source
+    timed it and why others were not used.
 
     Parameters
     ----------
     path : str or Path
     unit : {"rad/s", "deg/s"}
         Unit of the ``Gyr_*`` columns (MT Manager exports rad/s unless configured otherwise).
+    rate_hz : float, optional
+        Sample rate for packet-counter timing, for exports that state none (MT Manager 2019 and
+        later); overrides a stated rate (with a note). Not used when the file holds
+        ``SampleTimeFine`` or UTC time.
     name : str, optional
         Stream name (default: the file stem).
 
     Raises
     ------
     FormatError
-        Without a sample-rate comment, a counter column or the ``Gyr_X/Y/Z`` columns.
+        Without ``Gyr_X/Y/Z`` columns (the message lists the columns found), without any time
+        source, with a packet counter but no rate (the message names ``rate_hz``), with an
+        unreadable rate line or non-numeric fields.
+    InputError
+        When the chosen time source repeats or steps back.
+    OptionError
+        On a ``rate_hz`` that is not a positive finite number.
     """
     path = _path(path)
-    lines = _head(path)
-    rate = None
-    k = 0
+    fname = path.name
+    lines = _head(path, 256)
+    rate, k = None, 0
     while k < len(lines) and (lines[k].lstrip().startswith("//") or not lines[k].strip()):
-        m = re.search(r"sample\s*rate\s*:\s*([0-9.eE+-]+)\s*hz", lines[k], re.IGNORECASE)
+        m = _XSENS_RATE.match(lines[k].strip())
         if m:
-            rate = float(m.group(1))
+            v = re.fullmatch(r"(.*?)\s*hz", m.group(1), re.IGNORECASE)
+            try:
+                rate = float((v.group(1) if v else m.group(1)).strip())
+            except ValueError:
+                rate = float("nan")
+            if not (np.isfinite(rate) and rate > 0):
+                raise FormatError(f"{fname}: expected a positive rate in Hz in the line {lines[k].strip()!r}")
         k += 1
     if k >= len(lines):
-        raise FormatError(f"{path.name}: expected a header row after the '//' comment lines, got none")
-    delim = _sniff_delimiter(lines[k])
-    header = [h.strip() for h in _split(lines[k], delim)]
-    low = [h.lower() for h in header]
-    try:
-        k_w = [low.index(c) for c in ("gyr_x", "gyr_y", "gyr_z")]
-    except ValueError:
-        raise FormatError(f"{path.name}: expected Xsens columns 'Gyr_X', 'Gyr_Y', 'Gyr_Z', got header "
-                          f"{[h for h in header if h]}") from None
-    k_c = next((low.index(c) for c in ("packetcounter", "counter") if c in low), None)
-    if k_c is None:
-        raise FormatError(f"{path.name}: expected a 'PacketCounter' or 'Counter' column to time the samples, "
-                          f"got header {[h for h in header if h]}")
-    if rate is None or not rate > 0:
-        raise FormatError(f"{path.name}: expected a '// Sample rate: <rate>Hz' comment line before the header, "
-                          "got none (timestamps are derived from the packet counter and the sample rate)")
-    factor = _rate_factor(unit, None, path.name)
-    counter, w = _read_columns(path, skiprows=k + 1, delimiter=delim, k_t=k_c, k_w=k_w, int_time=True)
-    w = w * factor
-    modulus = 1 << 16 if counter.max(initial=0) < (1 << 16) else 1 << 32
-    steps = np.mod(np.diff(counter), modulus)
-    if (steps == 0).any():
-        j = int(np.argmax(steps == 0)) + 1
-        raise InputError(f"{path.name}: expected a strictly advancing packet counter, got a repeated value "
-                         f"{int(counter[j])} at sample {j}")
-    ticks = counter[0] + np.concatenate(([0], np.cumsum(steps)))
-    t = ticks.astype(np.float64) / rate
-    return ImuStream(t, w, name=name or path.stem, source=str(path), rate_hz=rate, unit_in=unit)
+        raise FormatError(f"{fname}: expected a header row (PacketCounter, Gyr_X, ...) after the '//' comment "
+                          "lines, got none")
+    if rate_hz is not None:
+        try:
+            rate_hz = float(rate_hz)
+        except (TypeError, ValueError):
+            rate_hz = float("nan")
+        if not (np.isfinite(rate_hz) and rate_hz > 0):
+            raise OptionError(f"rate_hz: expected a positive sample rate in Hz, got {rate_hz!r}")
+    delim = _xsens_delimiter(lines[k])
+    names = [h.strip() for h in lines[k].split(delim)]
+    while names and not names[-1]:
+        names.pop()  # a trailing delimiter
+    low = [h.lower() for h in names]
+    found = ", ".join(h for h in names if h)
+
+    def col(*candidates):
+        return next((low.index(c) for c in candidates if c in low), None)
+
+    k_w = [col("gyr_x"), col("gyr_y"), col("gyr_z")]
+    if None in k_w:
+        raise FormatError(f"{fname}: no gyro columns (Gyr_X/Gyr_Y/Gyr_Z); columns found: {found}")
+    skip = k + 1
+    data_head = [ln for ln in lines[skip:] if ln.strip()]
+    if not data_head:
+        raise FormatError(f"{fname}: expected data rows after the header row, got none")
+
+    def empty_in_head(cols) -> bool:  # every head row lacks one of these fields
+        def lacks(line):
+            f = line.split(delim)
+            return any(c >= len(f) or not f[c].strip() or f[c].strip().lower() == "nan" for c in cols)
+        return all(lacks(ln) for ln in data_head)
+
+    end, dropped = _data_end(path, delim, skip)
+    notes = [_dropped_note(dropped)] if dropped else []
+    w = _read_floats(path, skiprows=skip, delimiter=delim, usecols=k_w, end=end) * _rate_factor(unit, None, fname)
+
+    sources = []
+    if col("sampletimefine") is not None:
+        sources.append(("SampleTimeFine", [col("sampletimefine")]))
+    utc = [col(c) for c in _UTC_FIELDS]
+    if None not in utc:
+        sources.append(("UTC", utc + ([col("utc_valid")] if col("utc_valid") is not None else [])))
+    k_c = col("packetcounter", "counter")
+    if k_c is not None:
+        sources.append((names[k_c], [k_c]))
+    skipped = []
+    for what, cols in sources:
+        if empty_in_head(cols):
+            skipped.append(f"{what} is empty")
+            continue
+        x = _read_floats(path, skiprows=skip, delimiter=delim, usecols=cols, end=end)
+        missing = ~np.isfinite(x).all(axis=1)
+        if missing.any():
+            skipped.append(f"{what} is missing in {int(missing.sum())} of {len(x)} rows")
+            continue
+        if (x != np.round(x)).any():
+            j = int(np.argmax((x != np.round(x)).any(axis=1)))
+            raise FormatError(f"{fname}: expected whole numbers in {what}, got {x[j].tolist()} in data row {j + 1}")
+        if what == "SampleTimeFine":
+            ticks = _unwrap_counter(x[:, 0], 1 << 32, what, fname)
+            t, rate_out = _int_time_to_seconds(ticks, 4), None
+            notes.append(f"time from SampleTimeFine (the device's {XSENS_FINE_TICKS_PER_S // 1000} kHz clock)")
+        elif what == "UTC":
+            if x.shape[1] == 8 and ((x[:, 7].astype(np.int64) & _UTC_VALID_BIT) == 0).any():
+                skipped.append(f"UTC is not valid (UTC_Valid without bit 0x04) in "
+                               f"{int(((x[:, 7].astype(np.int64) & _UTC_VALID_BIT) == 0).sum())} rows")
+                continue
+            t, rate_out = _int_time_to_seconds(_utc_ns(x[:, :7]), 9), None
+            notes.append("time from the UTC columns")
+        else:
+            r = rate_hz if rate_hz is not None else rate
+            if r is None:
+                why = "; ".join(skipped + ["no '// Update Rate:' or '// Sample rate:' line"])
+                raise FormatError(f"{fname}: no sample rate to time the samples by {what} ({why}); pass rate_hz= "
+                                  f"(the update rate set in MT Manager)")
+            modulus = 1 << 16 if x.max(initial=0) < (1 << 16) else 1 << 32
+            t = _unwrap_counter(x[:, 0], modulus, what, fname).astype(np.float64) / r
+            rate_out = r
+            given = f"rate_hz={r:g}" if rate_hz is not None else f"the stated {r:g} Hz"
+            notes.append(f"time from {what} at {given}")
+            if rate_hz is not None and rate is not None and rate_hz != rate:
+                notes.append(f"rate_hz={rate_hz:g} overrides the file's stated {rate:g} Hz")
+        if skipped:
+            notes[-1] += f" ({'; '.join(skipped)})"
+        if rate_hz is not None and what in ("SampleTimeFine", "UTC"):
+            notes.append(f"rate_hz={rate_hz:g} not used: the file holds {what} time")
+        return ImuStream(t, w, name=name or path.stem, source=str(path), rate_hz=rate_out, unit_in=unit,
+                         notes=tuple(notes))
+    why = "; ".join(skipped) if skipped else "none of these columns"
+    raise FormatError(f"{fname}: no time source: expected SampleTimeFine, UTC_* columns or a PacketCounter in "
+                      f"every row ({why}); columns found: {found}")
 
 
 def _looks_like_xsens(lines: list[str]) -> bool:
-    if any(re.search(r"sample\s*rate\s*:", ln, re.IGNORECASE) for ln in lines if ln.lstrip().startswith("//")):
+    """An MT Manager export: its '//' comment lines, or a header naming Xsens' counter or clock columns."""
+    comments = [ln for ln in lines if ln.lstrip().startswith("//")]
+    if any(re.search(r"(update|sample)\s*rate\s*:|mt manager|xda version|deviceid", ln, re.IGNORECASE)
+           for ln in comments):
         return True
-    return any("gyr_x" in ln.lower() and ("counter" in ln.lower()) for ln in lines[:20])
+    for ln in lines[:64]:
+        if ln.lstrip().startswith("//") or not ln.strip():
+            continue
+        tokens = {x.strip().lower() for x in re.split(r"[\t,; ]", ln)}
+        clock = tokens & {"packetcounter", "sampletimefine", "counter"}
+        return bool(clock) and any(x.startswith(("gyr_", "acc_", "mag_", "quat_", "mat[")) for x in tokens)
+    return False
 
 
 # ----------------------------------------------------------------------------- npz
@@ -585,11 +914,20 @@ def read_npz(path, imu: int | None = None, *, unit: str = "rad/s", name: str | N
         All IMUs in the file (one element for an (N, 3) file) when ``imu`` is None.
     """
     path = _path(path)
+    with open(path, "rb") as f:
+        magic = f.read(4)
+    if magic not in (b"PK\x03\x04", b"PK\x05\x06"):
+        got = "an empty file" if not magic else "a .npy array" if magic.startswith(b"\x93NUM") else \
+            "a file that is not a zip archive"
+        raise FormatError(f"{path.name}: expected a numpy .npz archive (zip), got {got}")
     try:
         with np.load(path, allow_pickle=False) as z:
             d = {k: z[k] for k in z.files}
-    except (OSError, ValueError) as exc:
-        raise FormatError(f"{path.name}: expected a numpy .npz archive, {exc}") from None
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
+        why = "an object array (pickled data), which is not read" if "pickle" in str(exc) else \
+            " ".join(str(exc).split())
+        raise FormatError(f"{path.name}: expected a complete numpy .npz archive of numeric arrays, got {why}") \
+            from None
     valid = None
     if {"t_s", "gyro_counts", "gyro_lsb_per_dps"} <= d.keys():
         t = np.asarray(d["t_s"], dtype=np.float64)
@@ -645,7 +983,7 @@ FORMATS = ("auto", "csv", "euroc", "xsens", "npz", "bag")
 
 def detect_format(path) -> str:
     """Guess the layout of ``path``: one of ``"csv"``, ``"euroc"``, ``"xsens"``, ``"npz"``, ``"bag"``."""
-    p = _path(path, "file or folder")
+    p = _path(path, "file or folder", folder=True)
     if p.is_dir():
         if (p / "metadata.yaml").is_file() or any(p.glob("*.db3")) or any(p.glob("*.mcap")):
             return "bag"
@@ -661,11 +999,11 @@ def detect_format(path) -> str:
         return "bag"
     if magic.startswith(b"PK"):
         return "npz"
-    lines = _head(p, 32)
+    lines = _head(p, 256)
     if _looks_like_xsens(lines):
         return "xsens"
     first = next((ln for ln in lines if ln.strip()), "")
-    if first.startswith("#") and "w_RS_S_x" in first:
+    if first.startswith("#") and "w_rs_s_x" in first.lower():
         return "euroc"
     return "csv"
 
@@ -682,7 +1020,7 @@ def read_imu(path, *, format: str = "auto", **options) -> ImuStream:
         Force a reader instead of :func:`detect_format`.
     **options
         Passed to the reader: :func:`read_csv` (``columns``, ``unit``, ``time_unit``, ...),
-        :func:`read_xsens` (``unit``), :func:`read_npz` (``imu``, ``unit``),
+        :func:`read_xsens` (``unit``, ``rate_hz``), :func:`read_npz` (``imu``, ``unit``),
         :func:`fusion_gyrocal.io.read_bag` (``topic``).
 
     Raises
