@@ -131,7 +131,7 @@ def _raise(exc):
 @pytest.mark.parametrize("exc, code, line", [
     (ExcitationError("too little motion"), 1, "gyrocal: error: too little motion\n"),
     (OptionError("min_snr: expected a positive number, got 0"), 1,
-     "gyrocal: error: min_snr: expected a positive number, got 0\n"),
+     "gyrocal: error: min_snr: expected a positive number, got 0 (command line: min_snr is --min-snr)\n"),
     (NotRigidError("the pair is not rigid"), 3, "gyrocal: the pair is not rigid\n"),
     (PermissionError("denied"), 1, "gyrocal: error: denied\n"),
     (KeyboardInterrupt(), 130, "gyrocal: interrupted\n"),

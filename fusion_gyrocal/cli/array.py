@@ -113,7 +113,7 @@ def align_to_reference(streams, settings: ArraySettings) -> AlignedArray:
         valid = np.logical_and.reduce(ok)
         omegas = np.stack([np.where(valid[:, None], wk, 0.0) for wk in w], axis=1)
         return AlignedArray(t1, omegas, valid, np.zeros(n), np.zeros(n),
-                            ("reference",) + ("sample-aligned (one clock)",) * (n - 1))
+                            ("reference",) + ("one clock",) * (n - 1))
     tau, std, source = np.zeros(n), np.zeros(n), ["reference"]
     for k in range(1, n):
         pair = align_streams(t1, w[0], streams[k].t, w[k], time_offset_s=o.time_offset_s,

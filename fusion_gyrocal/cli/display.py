@@ -59,7 +59,7 @@ def array_table(cal):
     configs = sorted({c for row in cal.configurations for c in row if c})
     t = Table(title=f"joint calibration of {cal.n_gyros} gyros (reference gyro {cal.reference + 1}): "
                     f"{', '.join(configs)}, {cal.n_samples} samples")
-    for col in ("gyro", "R_ref_k rotvec (deg)", "+- (deg)", "scale x, y, z", "bias vs ref (deg/s)",
+    for col in ("gyro", "R_ref_k rotvec (deg)", "+- (deg, norm)", "scale x, y, z", "bias vs ref (deg/s)",
                 "time offset (ms)", "noise (deg/s)"):
         t.add_column(col, justify="left" if col == "gyro" else "right")
     deg = np.rad2deg
@@ -69,7 +69,7 @@ def array_table(cal):
         scales = ", ".join(f"{s:.5f}" if ok else f"({s:.5f})" for s, ok in zip(cal.scale[k], cal.scale_observable[k]))
         off = cal.time_offset_s[k] * 1e3
         off_text = f"{off:+.3f} +- {cal.time_offset_std_s[k] * 1e3:.3f}" if cal.time_offset_std_s[k] > 0 else f"{off:+.3f}"
-        t.add_row(f"{k + 1}", ", ".join(f"{v:.4f}" for v in rv), ", ".join(f"{v:.4f}" for v in rot_sd[k]), scales,
+        t.add_row(f"{k + 1}", ", ".join(f"{v:.4f}" for v in rv), f"{np.linalg.norm(rot_sd[k]):.4f}", scales,
                   ", ".join(f"{v:.4f}" for v in deg(cal.bias[k])), f"{off_text} ({cal.time_offset_source[k]})",
                   f"{deg(cal.noise_std[k]):.4f}")
     t.caption = (f"gauge: {cal.gauge}; scale factors in parentheses: only ratios within a group of linked axes are "

@@ -302,8 +302,9 @@ class ArrayCalibration:
         Standard deviation of ``time_offset_s`` (0 where it was given, not estimated).
     time_offset_source : tuple of str (N,)
         Where each offset came from: ``"reference"``, ``"estimated"`` (rate-norm correlation refined by
-        the rigid-model misfit, :func:`~fusion_gyrocal.pipeline.alignment.align_streams`), ``"given"``
-        or ``"sample-aligned"`` (input without timestamps, or one shared clock).
+        the rigid-model misfit, :func:`~fusion_gyrocal.pipeline.alignment.align_streams`), ``"given"``,
+        ``"one clock"`` (recordings with identical timestamps) or ``"sample-aligned"`` (input without
+        timestamps).
     """
 
     R_ref_k: np.ndarray
