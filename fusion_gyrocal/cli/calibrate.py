@@ -15,10 +15,15 @@ from .app import EXAMPLES, EXIT_OK
 from .recording import add_recording_args, gyro_sources, read_sources
 
 
+DESCRIPTION = ("Two gyros go through the pair pipeline (time offset, flex gate, rigidity verdict, every option). "
+               "More than two, or two with --array, are calibrated jointly (one maximum likelihood over all gyros, "
+               "gyro 1 the reference; each gyro's clock aligned to gyro 1's unless they share one).")
+
+
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add ``calibrate`` (every option's flag, see :mod:`fusion_gyrocal.options`)."""
     p = subparsers.add_parser("calibrate", help="recordings of two or more gyros in, calibration out",
-                              description=__doc__.split("\n\n", 1)[1].replace("``", ""), epilog=EXAMPLES,
+                              description=DESCRIPTION, epilog=EXAMPLES,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
     add_recording_args(p, many=True)
     out = p.add_argument_group("outputs")
