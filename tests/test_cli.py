@@ -29,13 +29,21 @@ def test_cli_calibrate_writes_json_kalibr_openvins(tmp_path, capsys):
     p1, p2, R, offset = _write_pair(tmp_path)
     out = tmp_path / "cal.json"
     code = main(["calibrate", str(p1), str(p2), "--unit2", "deg/s", "--output", str(out),
-                 "--kalibr", str(tmp_path / "imu.yaml"), "--openvins", str(tmp_path / "chain.yaml")])
+                 "--kalibr", str(tmp_path / "kalibr"), "--openvins", str(tmp_path / "chain.yaml")])
     assert code == 0
     d = json.loads(out.read_text())
     assert np.allclose(np.array(d["R_1_2"]), R, atol=1e-3)
     assert abs(d["time_offset_s"] - offset) < 1e-4
-    assert (tmp_path / "imu.yaml").exists() and (tmp_path / "chain.yaml").read_text().startswith("%YAML:1.0")
+    assert sorted(p.name for p in (tmp_path / "kalibr").iterdir()) == ["imu0.yaml", "imu1.yaml", "imu_chain.yaml"]
+    assert (tmp_path / "chain.yaml").read_text().startswith("%YAML:1.0")
     assert "general" in capsys.readouterr().out
+
+
+def test_cli_calibrate_kalibr_file_name_refused_naming_the_flag(tmp_path, capsys):
+    p1, p2, _, _ = _write_pair(tmp_path)
+    assert main(["calibrate", str(p1), str(p2), "--unit2", "deg/s", "--kalibr", str(tmp_path / "imu.yaml")]) == 1
+    assert capsys.readouterr().err.startswith("gyrocal: error: --kalibr: expected a folder")
+    assert not (tmp_path / "imu.yaml").exists()
 
 
 def test_cli_known_error_is_one_line_exit_1(tmp_path, capsys):
@@ -48,7 +56,8 @@ def test_cli_known_error_is_one_line_exit_1(tmp_path, capsys):
 def test_cli_bad_csv_reports_expected_columns(tmp_path, capsys):
     bad = tmp_path / "bad.csv"
     bad.write_text("a,b\n1,2\n3,4\n")
-    code = main(["calibrate", str(bad), str(bad)])
+    (tmp_path / "bad2.csv").write_text("a,b\n1,2\n3,4\n")
+    code = main(["calibrate", str(bad), str(tmp_path / "bad2.csv")])
     err = capsys.readouterr().err
     assert code == 1 and "Traceback" not in err and "bad.csv" in err
 
@@ -122,7 +131,7 @@ def _raise(exc):
 @pytest.mark.parametrize("exc, code, line", [
     (ExcitationError("too little motion"), 1, "gyrocal: error: too little motion\n"),
     (OptionError("min_snr: expected a positive number, got 0"), 1,
-     "gyrocal: error: min_snr: expected a positive number, got 0\n"),
+     "gyrocal: error: min_snr: expected a positive number, got 0 (command line: min_snr is --min-snr)\n"),
     (NotRigidError("the pair is not rigid"), 3, "gyrocal: the pair is not rigid\n"),
     (PermissionError("denied"), 1, "gyrocal: error: denied\n"),
     (KeyboardInterrupt(), 130, "gyrocal: interrupted\n"),

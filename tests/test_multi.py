@@ -355,3 +355,49 @@ def test_example_mimu_array_runs_and_reports_both_estimates(capsys):
     assert dev.shape == (1, 7, 3) and ratios.shape == (1, 7, 3)
     assert np.linalg.norm(dev, axis=2).max() < 0.5
     assert "session 3:" in capsys.readouterr().out
+
+
+# ------------------------------------------------------------------------------------------- serialisation
+def test_array_calibration_json_roundtrip_keeps_nan_and_inf_apart(tmp_path):
+    import dataclasses
+    import json
+
+    from fusion_gyrocal.io import read_json, write_json
+
+    R = _rotations(60, 3)
+    w, _ = _simulate(61, R, SCALES[:3], PAPER_NOISE_STD)
+    cal = calibrate_array(w)
+    rms = np.array([np.inf, np.nan, cal.residual_rms[2]])
+    cal = dataclasses.replace(cal, residual_rms=rms, time_offset_s=np.array([0.0, 0.031, -0.052]),
+                              time_offset_std_s=np.array([0.0, 4e-6, 5e-6]),
+                              time_offset_source=("reference", "estimated", "given"))
+    p = write_json(cal, tmp_path / "array.json")
+    d = json.loads(p.read_text())
+    assert d["kind"] == "array_calibration" and d["format_version"] == "1.0"
+    assert d["residual_rms"][:2] == ["Infinity", "NaN"]
+    back = read_json(p)
+    assert isinstance(back, ArrayCalibration)
+    assert np.isposinf(back.residual_rms[0]) and np.isnan(back.residual_rms[1])
+    for name in ("R_ref_k", "scale", "bias", "scale_observable", "covariance", "noise_std", "time_offset_s",
+                 "time_offset_std_s"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(cal, name))
+    assert back.scale_groups == cal.scale_groups and back.configurations == cal.configurations
+    assert back.time_offset_source == ("reference", "estimated", "given") and back.notes == cal.notes
+    # the moments travel too: the pair view of the loaded result equals the original's
+    a, b = cal.pair(1, 2), back.pair(1, 2)
+    np.testing.assert_array_equal(a.A, b.A)
+    assert b.time_offset_s == pytest.approx(-0.083, abs=1e-15)
+
+
+def test_array_calibration_from_dict_wrong_version_or_kind_raises_format_error():
+    from fusion_gyrocal import FormatError
+
+    R = _rotations(62, 3)
+    w, _ = _simulate(63, R, SCALES[:3], PAPER_NOISE_STD)
+    d = calibrate_array(w).to_dict()
+    with pytest.raises(FormatError, match="expected format_version '1.0', got '0.9'"):
+        ArrayCalibration.from_dict({**d, "format_version": "0.9"})
+    with pytest.raises(FormatError, match="expected kind 'array_calibration'"):
+        ArrayCalibration.from_dict({k: v for k, v in d.items() if k != "kind"})
+    with pytest.raises(FormatError, match=r"expected the fields \['scale'\]"):
+        ArrayCalibration.from_dict({k: v for k, v in d.items() if k != "scale"})

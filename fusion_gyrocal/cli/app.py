@@ -31,7 +31,7 @@ EXIT_MEANINGS = (
     (EXIT_OK, "calibrated"),
     (EXIT_ERROR, "a known error (one line on stderr says what was expected and what arrived)"),
     (EXIT_USAGE, "a bad command line (usage)"),
-    (EXIT_NOT_RIGID, "the pair is not rigid"),
+    (EXIT_NOT_RIGID, "the gyros are not rigid (--allow-not-rigid: a flagged result and exit 0, pairs only)"),
     (EXIT_SOME_FAILED, "(fleet) some devices failed"),
     (EXIT_INTERNAL, "an unexpected error (--debug shows the traceback)"),
     (EXIT_INTERRUPTED, "interrupted"),
@@ -62,14 +62,35 @@ COMMANDS = ("calibrate", "report", "demo", "compare", "fleet")
 
 EXAMPLES = """examples:
   gyrocal demo
-  gyrocal calibrate imu_a.csv imu_b.csv --output cal.json --kalibr imu.yaml
+  gyrocal calibrate imu_a.csv imu_b.csv --output cal.json --kalibr kalibr/
   gyrocal calibrate run.bag --topic1 /imu0 --topic2 /imu1 --openvins kalibr_imu_chain.yaml
-  gyrocal calibrate mav0/imu0 other/data.csv --unit2 deg/s --noise-std 0.0017
+  gyrocal calibrate mav0/imu0 other/data.csv --unit2 deg/s --time-unit2 ms --noise-std 0.0017
   gyrocal calibrate exp_1.npz --imu1 0 --imu2 3 --method direct
+  gyrocal calibrate exp_1.npz --output array.json --openvins kalibr_imu_chain.yaml   (all IMUs, jointly)
+  gyrocal calibrate a.csv b.csv c.csv --time-unit ms,s,s --kalibr kalibr/            (N recordings, jointly)
   gyrocal report imu_a.csv imu_b.csv --out report/
 
 """ + textwrap.fill("exit codes: " + "; ".join(f"{code} {meaning}" for code, meaning in EXIT_MEANINGS),
                     width=118, break_on_hyphens=False) + "\n"
+
+
+def flag_hint(message: str) -> str:
+    """``message`` with the command-line flags of the API keywords it names appended.
+
+    The library names its options and reader keywords (``max_offset_s``, ``pass topic=``); at the command
+    line the user needs the flag (``--max-offset``, ``--topic1/--topic2 or --topics``). Options are
+    recognised at the start of the message (``name: expected ...``) or, for names with an underscore,
+    anywhere; reader keywords in their ``name=`` form.
+    """
+    import re
+
+    from ..options import FLAGS
+    from .recording import READER_FLAGS
+
+    hints = [f"{name} is {flag}" for name, flag in FLAGS.items()
+             if re.match(rf"{name}\b", message) or ("_" in name and re.search(rf"\b{name}\b", message))]
+    hints += [f"{key}= is {flags}" for key, flags in READER_FLAGS.items() if re.search(rf"\b{key}=", message)]
+    return f"{message} (command line: {'; '.join(hints)})" if hints else message
 
 
 def run_command(func, args, *, prog: str = "gyrocal", debug: bool | None = None) -> int:
@@ -93,7 +114,8 @@ def run_command(func, args, *, prog: str = "gyrocal", debug: bool | None = None)
         rule = next((r for r in ERROR_EXIT_CODES if isinstance(exc, r.errors)), None)
         if rule is None or (debug and rule.debug_raises):
             raise
-        line = rule.message.format(prog=prog, exc=exc, kind=type(exc).__name__)
+        text = flag_hint(str(exc)) if isinstance(exc, GyroCalError) else exc
+        line = rule.message.format(prog=prog, exc=text, kind=type(exc).__name__)
         print(" ".join(line.splitlines()), file=sys.stderr)
         return rule.code
 

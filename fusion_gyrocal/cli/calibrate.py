@@ -1,4 +1,9 @@
-"""``gyrocal calibrate``: two recordings in, calibration out (table, JSON, Kalibr, OpenVINS)."""
+"""``gyrocal calibrate``: recordings of two or more gyros in, calibration out (table, JSON, Kalibr, OpenVINS).
+
+Two gyros go through the pair pipeline (:func:`~fusion_gyrocal.pipeline.pipeline.run_pipeline`: time
+offset, flex gate, rigidity verdict, every option). More than two, or two with ``--array``, are calibrated
+jointly (:func:`~fusion_gyrocal.core.array.calibrate_array`, see :mod:`fusion_gyrocal.cli.array`).
+"""
 
 from __future__ import annotations
 
@@ -6,48 +11,94 @@ import argparse
 import sys
 
 from ..options import add_option_arguments
-from .app import EXAMPLES, EXIT_NOT_RIGID, EXIT_OK
-from .recording import add_recording_args, read_recording
+from .app import EXAMPLES, EXIT_OK
+from .recording import add_recording_args, gyro_sources, read_sources
+
+
+DESCRIPTION = ("Two gyros go through the pair pipeline (time offset, flex gate, rigidity verdict, every option). "
+               "More than two, or two with --array, are calibrated jointly (one maximum likelihood over all gyros, "
+               "gyro 1 the reference; each gyro's clock aligned to gyro 1's unless they share one).")
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add ``calibrate`` (every option's flag, see :mod:`fusion_gyrocal.options`)."""
-    p = subparsers.add_parser("calibrate", help="two recordings in, calibration out", epilog=EXAMPLES,
+    p = subparsers.add_parser("calibrate", help="recordings of two or more gyros in, calibration out",
+                              description=DESCRIPTION, epilog=EXAMPLES,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_recording_args(p)
-    p.add_argument("--output", "-o", help="write the full result as JSON")
-    p.add_argument("--kalibr", help="write a Kalibr-style imu.yaml")
-    p.add_argument("--openvins", help="write an OpenVINS kalibr_imu_chain.yaml")
+    add_recording_args(p, many=True)
+    out = p.add_argument_group("outputs")
+    out.add_argument("--output", "-o", help="write the full result as JSON (every gyro)")
+    out.add_argument("--kalibr", metavar="FOLDER",
+                     help="write Kalibr files into FOLDER (created): imu0.yaml, imu1.yaml, ... (what "
+                          "kalibr_calibrate_imu_camera --imu reads) and imu_chain.yaml (Kalibr's result layout)")
+    out.add_argument("--openvins", metavar="FILE", help="write an OpenVINS kalibr_imu_chain.yaml (every gyro)")
+    p.add_argument("--array", action="store_true",
+                   help="calibrate two gyros with the joint N-gyro solver too (default: the pair pipeline)")
     add_option_arguments(p)
     p.set_defaults(func=run)
     return p
 
 
+def _kalibr_folder(path: str):
+    from pathlib import Path
+
+    from ..errors import OptionError
+
+    p = Path(path)
+    if p.suffix.lower() in (".yaml", ".yml"):
+        raise OptionError(f"--kalibr: expected a folder (Kalibr reads one file per IMU: imu0.yaml, imu1.yaml, ... "
+                          f"are written into it), got the file name {path!r}")
+    return p
+
+
+def _topics(args, sources) -> list[str]:
+    return [s.options.get("topic") or f"/imu{k}" for k, s in enumerate(sources)]
+
+
 def run(args) -> int:
-    """Calibrate the pair; exit code 0, or 3 when it is flagged not rigid (``--allow-not-rigid``)."""
+    """Calibrate; exit code 0 (a pair flagged not rigid with ``--allow-not-rigid`` too, with a warning)."""
     from rich.progress import Progress
 
-    from ..io import write_json, write_kalibr_imu_yaml, write_openvins_imu_chain
-    from ..pipeline.pipeline import run_pipeline
-    from .display import console as make_console, summary_table
+    from ..io.writers import (write_json, write_kalibr_imu_chain, write_kalibr_imu_configs,
+                              write_openvins_imu_chain)
+    from .display import array_table, console as make_console, summary_table
 
+    kalibr = _kalibr_folder(args.kalibr) if args.kalibr else None
     console = make_console()
+    sources = gyro_sources(args)
+    joint = len(sources) > 2 or args.array
     with Progress(transient=True, disable=not sys.stderr.isatty()) as progress:
-        task = progress.add_task("reading", total=3)
-        s1, s2, options = read_recording(args, lambda: progress.advance(task))
+        task = progress.add_task("reading", total=len(sources) + 1)
+        streams = read_sources(sources, lambda: progress.advance(task))
         progress.update(task, description="aligning and solving")
-        run_ = run_pipeline(s1.masked_omega, s2.masked_omega, t_1=s1.t, t_2=s2.t, options=options)
+        if joint:
+            from .array import calibrate_streams
+
+            cal, notes = calibrate_streams(streams, args)
+        else:
+            from ..options import options_from_args
+            from ..pipeline.pipeline import run_pipeline
+
+            s1, s2 = streams
+            options = options_from_args(args, rate_hz=s1.rate_hz)
+            cal = run_pipeline(s1.masked_omega, s2.masked_omega, t_1=s1.t, t_2=s2.t, options=options).calibration
+            notes = []
         progress.advance(task)
-    cal = run_.calibration
-    console.print(summary_table(cal))
-    for n in cal.notes:
-        console.print(f"note: {n}")
-    topics = (args.topic1 or "/imu0", args.topic2 or "/imu1")
-    rates = (s1.rate_hz, s2.rate_hz)
+    console.print(array_table(cal) if joint else summary_table(cal))
+    for note in tuple(cal.notes) + tuple(notes):
+        console.print(f"note: {note}")
+    if not joint and cal.rigid is False:
+        print(f"gyrocal: warning: NOT RIGID ({100 * cal.unexplained_fraction:.1f}% of gyro 1's motion unexplained): "
+              "the result is flagged (--allow-not-rigid), not a calibration; every file written says so",
+              file=sys.stderr)
+    topics = _topics(args, sources)
+    rates = [s.rate_hz for s in streams]
     if args.output:
         console.print(f"wrote {write_json(cal, args.output)}")
-    if args.kalibr:
-        console.print(f"wrote {write_kalibr_imu_yaml(cal, args.kalibr, topics=topics, update_rate=rates)}")
+    if kalibr is not None:
+        for p in write_kalibr_imu_configs(cal, kalibr, topics=topics, update_rate=rates):
+            console.print(f"wrote {p}")
+        console.print(f"wrote {write_kalibr_imu_chain(cal, kalibr / 'imu_chain.yaml', topics=topics, update_rate=rates)}")
     if args.openvins:
         console.print(f"wrote {write_openvins_imu_chain(cal, args.openvins, topics=topics, update_rate=rates)}")
-    return EXIT_OK if cal.rigid else EXIT_NOT_RIGID
+    return EXIT_OK

@@ -70,7 +70,7 @@ def run(args) -> int:
     console = Console(highlight=False)
     names = tuple(n.strip() for n in args.estimators.split(",") if n.strip())
     progress = not args.no_progress
-    if args.gyro1:
+    if args.recordings:
         w1, w2, rate = _load_recording(args)
         tables = [compare((w1, w2), estimators=names, rate_hz=rate, progress=progress)]
         sweep = None

@@ -1,4 +1,7 @@
-"""What ``calibrate`` and ``demo`` print: the console and the per-axis summary table."""
+"""What ``calibrate`` and ``demo`` print: the console, the per-axis table of a pair and the table of N gyros.
+
+Rotations are printed as canonical rotation vectors (:func:`fusion_gyrocal.lie.canonical_rotvec`).
+"""
 
 from __future__ import annotations
 
@@ -15,6 +18,8 @@ def summary_table(cal, truth=None):
     """Per-axis table: estimate +- 1-sigma (and the truth when known)."""
     import numpy as np
     from rich.table import Table
+
+    from ..lie import canonical_rotvec
 
     t = Table(title=f"gyro pair calibration: {cal.configuration}, method {cal.method}, {cal.n_samples} samples, "
                     f"rigid {cal.rigid}")
@@ -33,11 +38,40 @@ def summary_table(cal, truth=None):
     for name, v, sd, f, key, conv in rows:
         t.add_row(name, *cells(v, sd, f.format))
         if truth is not None:
-            tv = truth[key] if conv is None else conv(truth[key])
+            tv = canonical_rotvec(truth[key]) if key == "rotvec" else truth[key]
+            tv = tv if conv is None else conv(tv)
             t.add_row("  truth", *[f.format(x) for x in tv], style="dim")
     t.add_row("per-axis SNR", *[f"{x:.0f}" for x in cal.snr])
     t.caption = (f"time offset {cal.time_offset_s * 1e3:+.4f} +- {cal.time_offset_std_s * 1e3:.4f} ms"
                  + (f" (truth {truth['time_offset_s'] * 1e3:+.4f} ms)" if truth is not None else "")
                  + f"; gauge: {cal.gauge}; unexplained {100 * cal.unexplained_fraction:.3g}%, "
                    f"rejected {100 * cal.rejected_fraction:.2f}%")
+    return t
+
+
+def array_table(cal):
+    """One row per gyro of a joint calibration: rotation into gyro 1's frame, scales, bias, time offset, noise."""
+    import numpy as np
+    from rich.table import Table
+
+    from ..lie import canonical_rotvec, log
+
+    configs = sorted({c for row in cal.configurations for c in row if c})
+    t = Table(title=f"joint calibration of {cal.n_gyros} gyros (reference gyro {cal.reference + 1}): "
+                    f"{', '.join(configs)}, {cal.n_samples} samples")
+    for col in ("gyro", "R_ref_k rotvec (deg)", "+- (deg, norm)", "scale x, y, z", "bias vs ref (deg/s)",
+                "time offset (ms)", "noise (deg/s)"):
+        t.add_column(col, justify="left" if col == "gyro" else "right")
+    deg = np.rad2deg
+    rot_sd = deg(cal.rotation_std_rad)
+    for k in range(cal.n_gyros):
+        rv = deg(canonical_rotvec(log(cal.R_ref_k[k])))
+        scales = ", ".join(f"{s:.5f}" if ok else f"({s:.5f})" for s, ok in zip(cal.scale[k], cal.scale_observable[k]))
+        off = cal.time_offset_s[k] * 1e3
+        off_text = f"{off:+.3f} +- {cal.time_offset_std_s[k] * 1e3:.3f}" if cal.time_offset_std_s[k] > 0 else f"{off:+.3f}"
+        t.add_row(f"{k + 1}", ", ".join(f"{v:.4f}" for v in rv), f"{np.linalg.norm(rot_sd[k]):.4f}", scales,
+                  ", ".join(f"{v:.4f}" for v in deg(cal.bias[k])), f"{off_text} ({cal.time_offset_source[k]})",
+                  f"{deg(cal.noise_std[k]):.4f}")
+    t.caption = (f"gauge: {cal.gauge}; scale factors in parentheses: only ratios within a group of linked axes are "
+                 f"determined ({len(cal.scale_groups)} group(s)); noise: {cal.noise_source}")
     return t

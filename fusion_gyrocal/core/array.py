@@ -34,16 +34,16 @@ assembled.
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, field
+from dataclasses import MISSING, dataclass, field, fields
 from typing import Iterable, Sequence
 
 import numpy as np
 from scipy.optimize import nnls
 
 from .solve import pair_covariance, solve
-from ..errors import ConfigurationError, GyroCalError, InputError, OptionError
+from ..errors import ConfigurationError, FormatError, GyroCalError, InputError, OptionError
 from .gauge import Gauge, constrained_inverse
-from .model import PairCalibration, mark_undetermined
+from .model import PairCalibration, _from_json_list, _to_json_list, _to_json_number, mark_undetermined
 from .moments import Moments, as_rates, window_moments
 from .observability import A_of, classify, dA_dp, per_axis_snr
 from ..lie import exp, skew
@@ -238,6 +238,18 @@ def _checked_rates(omegas, mask):
 
 
 # ---------------------------------------------------------------------------------------- result
+ARRAY_KIND = "array_calibration"
+#: Format of :meth:`ArrayCalibration.to_dict` (``kind`` tells it from a pair's JSON).
+ARRAY_FORMAT_VERSION = "1.0"
+_ARRAY_FIELDS = ("R_ref_k", "scale", "bias", "scale_observable", "covariance", "snr", "noise_std", "residual_rms",
+                 "time_offset_s", "time_offset_std_s")
+
+
+def _json_ready(v):
+    """Nested tuples as lists (for JSON)."""
+    return [_json_ready(x) for x in v] if isinstance(v, (tuple, list)) else v
+
+
 @dataclass(frozen=True)
 class ArrayCalibration:
     """Joint calibration of N rigidly mounted gyroscopes (indices from 0).
@@ -283,6 +295,16 @@ class ArrayCalibration:
     notes : tuple of str
     moments : ArrayMoments
         The statistics the calibration was computed from (used by :meth:`pair`).
+    time_offset_s : ndarray (N,)
+        Seconds ADDED to gyro k's timestamps to put them on the reference gyro's clock (0 for the
+        reference and for sample-aligned input).
+    time_offset_std_s : ndarray (N,)
+        Standard deviation of ``time_offset_s`` (0 where it was given, not estimated).
+    time_offset_source : tuple of str (N,)
+        Where each offset came from: ``"reference"``, ``"estimated"`` (rate-norm correlation refined by
+        the rigid-model misfit, :func:`~fusion_gyrocal.pipeline.alignment.align_streams`), ``"given"``,
+        ``"one clock"`` (recordings with identical timestamps) or ``"sample-aligned"`` (input without
+        timestamps).
     """
 
     R_ref_k: np.ndarray
@@ -303,11 +325,24 @@ class ArrayCalibration:
     bias_segments: int
     notes: tuple
     moments: ArrayMoments = field(repr=False)
+    time_offset_s: np.ndarray | None = None
+    time_offset_std_s: np.ndarray | None = None
+    time_offset_source: tuple | None = None
 
     def __post_init__(self):
         n = np.asarray(self.scale).shape[0]
+        if self.time_offset_s is None:
+            object.__setattr__(self, "time_offset_s", np.zeros(n))
+        if self.time_offset_std_s is None:
+            object.__setattr__(self, "time_offset_std_s", np.zeros(n))
+        if self.time_offset_source is None:
+            object.__setattr__(self, "time_offset_source", tuple(
+                "reference" if k == self.reference else "sample-aligned" for k in range(n)))
+        if len(self.time_offset_source) != n:
+            raise InputError(f"time_offset_source: expected {n} entries, got {len(self.time_offset_source)}")
         shapes = {"R_ref_k": (n, 3, 3), "scale": (n, 3), "bias": (n, 3), "scale_observable": (n, 3),
-                  "covariance": (9 * n, 9 * n), "snr": (3,), "noise_std": (n,), "residual_rms": (n,)}
+                  "covariance": (9 * n, 9 * n), "snr": (3,), "noise_std": (n,), "residual_rms": (n,),
+                  "time_offset_s": (n,), "time_offset_std_s": (n,)}
         for name, shape in shapes.items():
             arr = np.array(getattr(self, name), dtype=bool if name == "scale_observable" else np.float64)
             if arr.shape != shape:
@@ -315,6 +350,7 @@ class ArrayCalibration:
             arr.flags.writeable = False
             object.__setattr__(self, name, arr)
         object.__setattr__(self, "notes", tuple(self.notes))
+        object.__setattr__(self, "time_offset_source", tuple(str(x) for x in self.time_offset_source))
 
     @property
     def n_gyros(self) -> int:
@@ -380,8 +416,74 @@ class ArrayCalibration:
             noise_source=self.noise_source,
             residual_rms=float(np.sqrt(max(np.trace(M), 0.0) / (3.0 * max(m.dof, 1.0)))),
             method="ml_array", iterations=self.iterations, bias_segments=m.segments,
+            time_offset_s=float(self.time_offset_s[j] - self.time_offset_s[i]),
+            time_offset_std_s=float(np.hypot(self.time_offset_std_s[i], self.time_offset_std_s[j])),
             notes=(f"view of the joint calibration of {n} gyros (gyro {i} as gyro 1, gyro {j} as gyro 2)",)
             + self.notes)
+
+    # ------------------------------------------------------------------ serialisation
+    def to_dict(self) -> dict:
+        """JSON-ready dictionary with ``kind`` and ``format_version`` (:data:`ARRAY_FORMAT_VERSION`).
+
+        Non-finite numbers become ``"NaN"``, ``"Infinity"``, ``"-Infinity"`` as in
+        :meth:`PairCalibration.to_dict`; the moments are kept, so :meth:`pair` works on a loaded result.
+        """
+        out = {"kind": ARRAY_KIND, "format_version": ARRAY_FORMAT_VERSION, "units": {"rate": "rad/s", "time": "s"},
+               "convention": "omega_ref = R_ref_k[k] @ omega_k; omega_k_meas = diag(scale[k]) omega_k + b_k; "
+                             "time_offset_s[k] is added to gyro k's timestamps",
+               "covariance_order": "[dtheta_0..dtheta_N-1, scale_0..scale_N-1, bias_0..bias_N-1], 3 entries each"}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if f.name == "moments":
+                v = {"n_gyros": v.n_gyros, "pairs": [m.to_dict() for m in v.pairs]}
+            elif isinstance(v, np.ndarray):
+                v = _to_json_list(v)
+            elif isinstance(v, (float, np.floating)):
+                v = _to_json_number(float(v))
+            elif isinstance(v, (int, np.integer)):
+                v = int(v)
+            elif isinstance(v, tuple):
+                v = _json_ready(v)
+            out[f.name] = v
+        return out
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ArrayCalibration":
+        """Rebuild a result written by :meth:`to_dict`.
+
+        Raises
+        ------
+        FormatError
+            Another ``kind`` or ``format_version``, a missing field, or values of the wrong shape.
+        """
+        if d.get("kind") != ARRAY_KIND:
+            raise FormatError(f"array calibration: expected kind {ARRAY_KIND!r}, got {d.get('kind')!r}")
+        if d.get("format_version") != ARRAY_FORMAT_VERSION:
+            raise FormatError(f"array calibration: expected format_version {ARRAY_FORMAT_VERSION!r}, "
+                              f"got {d.get('format_version')!r}")
+        missing = [f.name for f in fields(cls) if f.default is MISSING and f.name not in d]
+        if missing:
+            raise FormatError(f"array calibration: expected the fields {missing}, got none of them")
+        kw = {}
+        for f in fields(cls):
+            if f.name not in d:
+                continue
+            v = d[f.name]
+            if f.name == "moments":
+                v = ArrayMoments(int(v["n_gyros"]), tuple(Moments.from_dict(m) for m in v["pairs"]))
+            elif f.name in _ARRAY_FIELDS:
+                v = _from_json_list(v, bool if f.name == "scale_observable" else np.float64)
+            elif f.name == "scale_groups":
+                v = tuple(tuple((int(g), int(a)) for g, a in group) for group in v)
+            elif f.name == "configurations":
+                v = tuple(tuple(str(c) for c in row) for row in v)
+            elif f.name in ("notes", "time_offset_source"):
+                v = tuple(v)
+            kw[f.name] = v
+        try:
+            return cls(**kw)
+        except InputError as exc:
+            raise FormatError(f"array calibration: {exc}") from None
 
 
 def _log_parameter_covariance(cal: ArrayCalibration) -> np.ndarray:

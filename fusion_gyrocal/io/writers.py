@@ -4,14 +4,23 @@ Every writer is atomic: the bytes go to a temporary file in the destination fold
 and fsync'ed, and only then renamed over the destination with :func:`os.replace`. A crash or an
 exception mid-write leaves the previous file untouched and no half-written file behind.
 
+Which file for which consumer
+-----------------------------
+* :func:`write_kalibr_imu_configs`: one ``imu<k>.yaml`` per gyro, what Kalibr reads
+  (``kalibr_calibrate_imu_camera --imu imu0.yaml imu1.yaml ...``, its ``ImuParameters``);
+* :func:`write_kalibr_imu_chain`: every gyro in Kalibr's multi-IMU RESULT layout (``imu0``, ``imu1``,
+  ... with ``T_i_b``, ``time_offset``, intrinsics), which tools built on Kalibr results read;
+* :func:`write_openvins_imu_chain`: OpenVINS' ``kalibr_imu_chain.yaml`` (OpenCV ``%YAML:1.0``).
+
 Frame and time conventions of the YAML exports (``ARCHITECTURE.md``)
 --------------------------------------------------------------------
-* gyro 1 is the body / reference frame ``b``: ``imu0`` has ``T_i_b = I``;
-* gyro 2 is ``imu1`` with ``T_i_b = [R_2_1 | 0]``, ``R_2_1 = R_1_2^T`` mapping body (gyro 1)
-  vectors into gyro 2's frame. The translation is NOT estimated (gyro-only calibration): it is
-  written as zeros and flagged by a comment and ``translation_estimated: false``;
-* ``time_offset`` of ``imu1`` is :attr:`PairCalibration.time_offset_s`, the seconds ADDED to gyro
-  2's timestamps to put them on gyro 1's clock. Kalibr uses the same sign (it evaluates imu N at
+* the reference gyro (gyro 1) is the body frame ``b``: ``imu0`` has ``T_i_b = I``;
+* every other gyro k is ``imu<i>`` with ``T_i_b = [R_k_b | 0]``, ``R_k_b = R_b_k^T`` (for a pair,
+  ``R_2_1 = R_1_2^T``) mapping body vectors into gyro k's frame. The translation is NOT estimated
+  (gyro-only calibration): it is written as zeros and flagged by a comment and
+  ``translation_estimated: false``;
+* ``time_offset`` is the seconds ADDED to the IMU's timestamps to put them on imu0's clock
+  (:attr:`PairCalibration.time_offset_s`). Kalibr uses the same sign (it evaluates imu N at
   ``t_N + time_offset`` on the reference clock), so the value is written unchanged;
 * the measurement model ``omega_i_meas = S_i R_i_b omega_b + b_i`` (Eq. 1) is Kalibr's
   ``scale-misalignment`` gyro model ``omega = M C_gyro_i C_i_b omega_b + b`` with ``M = S_i``
@@ -19,7 +28,13 @@ Frame and time conventions of the YAML exports (``ARCHITECTURE.md``)
   OpenVINS' ``omega_m = Tw R_IMUtoGYRO omega_I + Tg a + b`` with ``Tw = S_i``,
   ``R_IMUtoGYRO = I``, ``Tg = 0``;
 * scale factors are known only up to one global factor (Theorem 2): the files carry the values in
-  the calibration's gauge, named in a comment.
+  the calibration's gauge, named in a comment; scale factors the data do not determine at all
+  (axis-parallel gyros, Lemmas 2-3) are written as 1 and named in a comment;
+* noise figures: the library identifies no noise model, so unless measured figures are passed
+  (:class:`ImuNoise`) the files carry placeholders marked ``PLACEHOLDER`` with how to measure them
+  (never 0, which Kalibr rejects);
+* a pair flagged not rigid gets a WARNING comment at the top of every file;
+* topic names are written double-quoted, so ``#`` and ``:`` in them stay text.
 """
 
 from __future__ import annotations
@@ -33,8 +48,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import FormatError, InputError
+from ..core.array import ARRAY_KIND, ArrayCalibration
 from ..core.model import PairCalibration
+from ..errors import FormatError, InputError
+from ..lie import canonical_rotvec, log
 from .readers import ImuStream
 
 # Placeholder noise figures (the ADIS16448 values of OpenVINS' EuRoC kalibr_imu_chain.yaml), written
@@ -149,20 +166,23 @@ def _json_default(o):
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
-def write_json(cal: PairCalibration, path) -> Path:
+def write_json(cal, path) -> Path:
     """Write the full calibration (``cal.to_dict()``, with ``format_version``) as JSON, atomically.
 
-    Non-finite numbers are written as the strings ``"NaN"``, ``"Infinity"``, ``"-Infinity"``
-    (``PairCalibration.to_dict``); the file is strict JSON (no NaN / Infinity literals).
+    ``cal`` is a :class:`PairCalibration` or an :class:`~fusion_gyrocal.core.array.ArrayCalibration`
+    (every gyro; its dict carries ``kind: "array_calibration"``). Non-finite numbers are written as
+    the strings ``"NaN"``, ``"Infinity"``, ``"-Infinity"``; the file is strict JSON (no NaN / Infinity
+    literals).
     """
-    if not isinstance(cal, PairCalibration):
-        raise InputError(f"cal: expected a PairCalibration, got {type(cal).__name__}")
+    if not isinstance(cal, (PairCalibration, ArrayCalibration)):
+        raise InputError(f"cal: expected a PairCalibration or an ArrayCalibration, got {type(cal).__name__}")
     text = json.dumps(cal.to_dict(), indent=2, allow_nan=False, default=_json_default) + "\n"
     return atomic_write(path, text)
 
 
-def read_json(path) -> PairCalibration:
-    """Read a calibration written by :func:`write_json`.
+def read_json(path):
+    """Read a calibration written by :func:`write_json`: a :class:`PairCalibration`, or an
+    :class:`~fusion_gyrocal.core.array.ArrayCalibration` when the file's ``kind`` says so.
 
     Raises
     ------
@@ -181,10 +201,12 @@ def read_json(path) -> PairCalibration:
     if not isinstance(d, dict):
         raise FormatError(f"{p.name}: expected a JSON object, got {type(d).__name__}")
     try:
+        if d.get("kind") == ARRAY_KIND:
+            return ArrayCalibration.from_dict(d)
         return PairCalibration.from_dict(d)
     except FormatError as exc:
         raise FormatError(f"{p.name}: {exc}") from None
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, KeyError) as exc:
         raise FormatError(f"{p.name}: expected a calibration written by write_json, {exc}") from None
 
 
@@ -238,190 +260,306 @@ def _matrix(key: str, m: np.ndarray, indent: str) -> list[str]:
     return out
 
 
-def _pair(value, name: str, conv) -> tuple:
+# ----------------------------------------------------------------------------- IMU chains (Kalibr, OpenVINS)
+_NOISE_UNITS = {"accelerometer_noise_density": "m/s^2/sqrt(Hz)", "accelerometer_random_walk": "m/s^3/sqrt(Hz)",
+                "gyroscope_noise_density": "rad/s/sqrt(Hz)", "gyroscope_random_walk": "rad/s^2/sqrt(Hz)"}
+_PLACEHOLDER_HOWTO = ("# PLACEHOLDER noise figures (marked below): fusion_gyrocal does not identify a noise model. Measure "
+                      "them with an Allan-variance\n# analysis of a long static recording of this IMU (white noise at "
+                      "tau = 1 s, random walk from the +1/2 slope) and\n# replace them before estimating with them.")
+
+
+@dataclass(frozen=True)
+class _ChainImu:
+    """One IMU of an export: its rotation into the body frame (the reference gyro), scales, clock."""
+
+    gyro: int
+    R_b_i: np.ndarray
+    scale: np.ndarray
+    observable: np.ndarray
+    time_offset: float
+    time_offset_source: str
+    rotation_std_deg: np.ndarray
+
+
+@dataclass(frozen=True)
+class _Chain:
+    """What every YAML export needs of a calibration (pair or array), the reference first."""
+
+    imus: tuple
+    what: str
+    gauge: str
+    configuration: str
+    warning: tuple
+
+
+def _finite(name: str, v) -> None:
+    if not np.isfinite(v).all():
+        raise FormatError(f"{name}: Kalibr/OpenVINS files need finite values, got {np.asarray(v).tolist()}")
+
+
+def _chain_of(cal) -> _Chain:
+    """The :class:`_Chain` of a :class:`PairCalibration` or an :class:`ArrayCalibration` (finite values checked)."""
+    if isinstance(cal, PairCalibration):
+        for nm in ("R_1_2", "scale_1", "scale_2"):
+            _finite(f"cal.{nm}", getattr(cal, nm))
+        if not np.isfinite(cal.time_offset_s):
+            raise FormatError(f"cal.time_offset_s: expected a finite time offset, got {cal.time_offset_s}")
+        rot_std = np.degrees(cal.rotation_std_rad)
+        src = "estimated" if cal.time_offset_std_s > 0 else "given or sample-aligned"
+        imus = (_ChainImu(0, np.eye(3), cal.scale_1, cal.scale_observable[0], 0.0, "reference", np.zeros(3)),
+                _ChainImu(1, cal.R_1_2, cal.scale_2, cal.scale_observable[1], float(cal.time_offset_s), src, rot_std))
+        warning = ()
+        if cal.rigid is False:
+            warning = (f"WARNING: NOT RIGID. A single rotation and scale factors leave "
+                       f"{100 * cal.unexplained_fraction:.1f}% of gyro 1's motion unexplained: the gyros move "
+                       "relative to each other.",
+                       "WARNING: the values below are NOT a calibration (nearest rotation, unit scales); do not use "
+                       "them for estimation.")
+        what = f"a gyro-pair calibration ({cal.method}, {cal.n_samples} samples)"
+        return _Chain(imus, what, cal.gauge, cal.configuration, warning)
+    if isinstance(cal, ArrayCalibration):
+        _finite("cal.R_ref_k", cal.R_ref_k)
+        _finite("cal.scale", cal.scale)
+        _finite("cal.time_offset_s", cal.time_offset_s)
+        ref = cal.reference
+        order = [ref] + [k for k in range(cal.n_gyros) if k != ref]
+        rot_std = np.degrees(cal.rotation_std_rad)
+        imus = tuple(_ChainImu(k, cal.R_ref_k[k], cal.scale[k], cal.scale_observable[k],
+                               float(cal.time_offset_s[k] - cal.time_offset_s[ref]), cal.time_offset_source[k],
+                               rot_std[k]) for k in order)
+        configs = sorted({c for row in cal.configurations for c in row if c})
+        what = f"a joint calibration of {cal.n_gyros} gyros (ml_array, {cal.n_samples} samples)"
+        return _Chain(imus, what, cal.gauge, "pairs: " + ", ".join(configs), ())
+    raise InputError(f"cal: expected a PairCalibration or an ArrayCalibration, got {type(cal).__name__}")
+
+
+def _per_imu(value, n: int, name: str) -> list:
+    """One value for every IMU, or a sequence of ``n``."""
     if isinstance(value, (tuple, list)):
-        if len(value) != 2:
-            raise InputError(f"{name}: expected one value or a pair (imu0, imu1), got {len(value)} values")
-        return conv(value[0]), conv(value[1])
-    v = conv(value)
-    return v, v
+        if len(value) != n:
+            raise InputError(f"{name}: expected one value or one per IMU ({n}), got {len(value)} values")
+        return list(value)
+    return [value] * n
 
 
-def _noise_for(cal: PairCalibration, noise, rates) -> tuple[list[dict], list[list[str]]]:
-    """Per-IMU noise dicts and, per IMU, the names of fields that are placeholders."""
-    out, flags = [], []
-    given = _pair(noise, "noise", lambda v: v) if noise is not None else (None, None)
-    for i in range(2):
-        g = given[i]
-        if g is not None:
-            if not isinstance(g, ImuNoise):
-                raise InputError(f"noise: expected ImuNoise or a pair of them, got {type(g).__name__}")
-            out.append({k: getattr(g, k) for k in _PLACEHOLDER})
-            flags.append([])
-            continue
-        d = dict(_PLACEHOLDER)
-        placeholders = [k for k in _PLACEHOLDER if k != "gyroscope_noise_density"]
-        sigma = float(cal.noise_std[i])
-        if np.isfinite(sigma) and sigma > 0:
-            d["gyroscope_noise_density"] = sigma / np.sqrt(rates[i])  # discrete std = density * sqrt(rate)
-        else:
-            placeholders.insert(0, "gyroscope_noise_density")
-        out.append(d)
-        flags.append(placeholders)
-    return out, flags
+def _rates(update_rate, n: int) -> list[float]:
+    out = []
+    for v in _per_imu(update_rate, n, "update_rate"):
+        v = float(v)
+        if not (np.isfinite(v) and v > 0):
+            raise InputError(f"update_rate: expected a positive rate in Hz, got {v!r}")
+        out.append(v)
+    return out
 
 
-def _check_cal(cal: PairCalibration) -> None:
-    if not isinstance(cal, PairCalibration):
-        raise InputError(f"cal: expected a PairCalibration, got {type(cal).__name__}")
-    for nm in ("R_1_2", "scale_1", "scale_2"):
-        v = getattr(cal, nm)
-        if not np.isfinite(v).all():
-            raise FormatError(f"cal.{nm}: Kalibr/OpenVINS files need finite values, got {v.tolist()}")
-    if not np.isfinite(cal.time_offset_s):
-        raise FormatError(f"cal.time_offset_s: expected a finite time offset, got {cal.time_offset_s}")
+def _topics(topics, n: int) -> list[str]:
+    topics = [f"/imu{k}" for k in range(n)] if topics is None else list(topics)
+    if len(topics) != n:
+        raise InputError(f"topics: expected {n} topic names (imu0..imu{n - 1}), got {len(topics)}: {topics!r}")
+    for t in topics:
+        if not isinstance(t, str) or not t or any(c in t for c in '"\\') or not t.isprintable():
+            raise InputError(f"topics: expected non-empty printable names without '\"' or '\\', got {t!r}")
+    return topics
 
 
-def _header_lines(cal: PairCalibration, what: str, topics, flags) -> list[str]:
-    axes = "xyz"
-    unobs = [f"scale_{g + 1}_{axes[a]}" for g in range(2) for a in range(3) if not cal.scale_observable[g, a]]
-    lines = [
-        f"# {what} written by fusion_gyrocal from a gyro-pair calibration ({cal.method}, {cal.n_samples} samples).",
-        f"# imu0 = gyro 1 ({topics[0]}), the body/reference frame: T_i_b = identity.",
-        f"# imu1 = gyro 2 ({topics[1]}): T_i_b = [R_2_1 | t], R_2_1 = R_1_2^T maps body (gyro 1) vectors into imu1.",
+def _noises(noise, n: int) -> list[dict | None]:
+    """Per IMU: the four figures of a given :class:`ImuNoise`, or None (placeholders)."""
+    out = []
+    for g in _per_imu(noise, n, "noise"):
+        if g is not None and not isinstance(g, ImuNoise):
+            raise InputError(f"noise: expected ImuNoise, None or one per IMU, got {type(g).__name__}")
+        out.append(None if g is None else {k: getattr(g, k) for k in _PLACEHOLDER})
+    return out
+
+
+def _quoted(s: str) -> str:
+    """A YAML double-quoted scalar (PyYAML and OpenCV read it back unchanged; ``#`` and ``:`` stay text)."""
+    return f'"{s}"'
+
+
+def _header(chain: _Chain, what: str, topics, placeholders: bool) -> list[str]:
+    lines = [f"# {w}" for w in chain.warning]
+    lines += [f"# {what} written by fusion_gyrocal from {chain.what}."]
+    for i, (imu, topic) in enumerate(zip(chain.imus, topics)):
+        role = "the body/reference frame: T_i_b = identity" if i == 0 else "T_i_b = [R_i_b | t], R_i_b maps body " \
+            "(imu0) vectors into this IMU's frame"
+        lines.append(f"# imu{i} = gyro {imu.gyro + 1} ({topic}), {role}.")
+    lines += [
         "# TRANSLATION IS NOT ESTIMATED (gyro-only calibration): t = 0 is a placeholder (translation_estimated: false).",
         "# time_offset [s] is ADDED to this IMU's timestamps to put them on imu0's clock.",
-        f"# Scale factors are relative (Theorem 2): gauge = {cal.gauge}; configuration = {cal.configuration}.",
+        f"# Scale factors are relative (Theorem 2): gauge = {chain.gauge}; configuration = {chain.configuration}.",
     ]
+    unobs = [f"imu{i} {'xyz'[a]}" for i, imu in enumerate(chain.imus) for a in range(3) if not imu.observable[a]]
     if unobs:
-        lines.append(f"# Not determined by the data (gauge/prior values only): {', '.join(unobs)}.")
-    rot_std_deg = np.degrees(cal.rotation_std_rad)
-    if np.isfinite(rot_std_deg).all():
-        lines.append("# 1-sigma rotation uncertainty (deg, gyro-1 axes): "
-                     + ", ".join(f"{v:.3g}" for v in rot_std_deg) + ".")
-    for i, f in enumerate(flags):
-        if f:
-            lines.append(f"# imu{i}: {', '.join(f)} = PLACEHOLDER values (not estimated; replace with Allan-variance figures).")
+        lines.append(f"# Scale factors the data do not determine are written as 1 (not estimated): {', '.join(unobs)}.")
+    for i, imu in enumerate(chain.imus[1:], start=1):
+        if np.isfinite(imu.rotation_std_deg).all():
+            lines.append(f"# imu{i}: 1-sigma rotation uncertainty (deg, body axes) "
+                         + ", ".join(f"{v:.3g}" for v in imu.rotation_std_deg)
+                         + f"; time offset {imu.time_offset_source}.")
+    if placeholders:
+        lines.append(_PLACEHOLDER_HOWTO)
     return lines
 
 
-def _imu_block(i: int, T_i_b: np.ndarray, noise: dict, flags: list[str], topic: str, rate: float,
-               time_offset: float, model: str) -> list[str]:
+def _noise_lines(noise: dict | None, indent: str) -> list[str]:
+    values = dict(_PLACEHOLDER) if noise is None else noise
+    note = "  PLACEHOLDER, not measured" if noise is None else ""
+    return [f"{indent}{k}: {_yf(values[k])}  # [{_NOISE_UNITS[k]}]{note}" for k in _PLACEHOLDER]
+
+
+def _determined(imu: _ChainImu) -> np.ndarray:
+    """Diagonal scale matrix: the scale factors the data determine, 1 where they do not."""
+    return np.diag(np.where(imu.observable, imu.scale, 1.0))
+
+
+def _chain_block(i: int, imu: _ChainImu, noise, topic: str, rate: float, model: str) -> list[str]:
+    T = np.eye(4)
+    T[:3, :3] = imu.R_b_i.T  # R_i_b: body (reference gyro) -> this IMU
     lines = [f"imu{i}:"]
-    lines += _matrix("T_i_b", T_i_b, "  ")
-    units = {"accelerometer_noise_density": "m/s^2/sqrt(Hz)", "accelerometer_random_walk": "m/s^3/sqrt(Hz)",
-             "gyroscope_noise_density": "rad/s/sqrt(Hz)", "gyroscope_random_walk": "rad/s^2/sqrt(Hz)"}
-    for k in ("accelerometer_noise_density", "accelerometer_random_walk",
-              "gyroscope_noise_density", "gyroscope_random_walk"):
-        note = "  # PLACEHOLDER, not estimated" if k in flags else ""
-        lines.append(f"  {k}: {_yf(noise[k])}  # [{units[k]}]{note}")
+    lines += _matrix("T_i_b", T, "  ")
+    lines += _noise_lines(noise, "  ")
     lines += [f"  model: {model}",
-              f"  rostopic: {topic}",
-              f"  time_offset: {_yf(time_offset)}",
+              f"  rostopic: {_quoted(topic)}",
+              f"  time_offset: {_yf(imu.time_offset)}",
               f"  update_rate: {_yf(rate)}"]
     return lines
 
 
-def _common(cal, topics, update_rate, noise):
-    _check_cal(cal)
-    topics = tuple(topics)
-    if len(topics) != 2 or not all(isinstance(t, str) and t for t in topics):
-        raise InputError(f"topics: expected two topic names (imu0, imu1), got {topics!r}")
-
-    def rate_conv(v):
-        v = float(v)
-        if not (np.isfinite(v) and v > 0):
-            raise InputError(f"update_rate: expected a positive rate in Hz, got {v!r}")
-        return v
-
-    rates = _pair(update_rate, "update_rate", rate_conv)
-    noises, flags = _noise_for(cal, noise, rates)
-    T0 = np.eye(4)
-    T1 = np.eye(4)
-    T1[:3, :3] = cal.R_1_2.T  # R_2_1: body (gyro 1) -> imu1 (gyro 2)
-    return topics, rates, noises, flags, (T0, T1), (0.0, float(cal.time_offset_s))
-
-
-def _validate_yaml(text: str, path) -> None:
+def _check_yaml(text: str, path, topics) -> None:
+    """Refuse to write a file that does not read back (a bug here, never the user's)."""
     import yaml
     try:
-        yaml.safe_load(text)
-    except yaml.YAMLError as exc:  # a bug here, never the user's: refuse to write a broken file
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
         raise FormatError(f"{path}: generated YAML does not parse: {exc}") from None
+    got = [data[f"imu{i}"]["rostopic"] for i in range(len(topics))] if "imu0" in data else [data["rostopic"]]
+    if got != list(topics):
+        raise FormatError(f"{path}: generated YAML reads back topics {got}, expected {list(topics)}")
 
 
-def write_kalibr_imu_yaml(cal: PairCalibration, path, *, topics=("/imu0", "/imu1"), update_rate=200.0,
-                          noise=None) -> Path:
-    """Write a Kalibr multi-IMU ``imu.yaml`` (``imu0`` = gyro 1, ``imu1`` = gyro 2), atomically.
+def _prepare(cal, topics, update_rate, noise):
+    chain = _chain_of(cal)
+    n = len(chain.imus)
+    return chain, _topics(topics, n), _rates(update_rate, n), _noises(noise, n)
 
-    The keys per IMU are those of Kalibr's ``ImuParameters`` / ``IccScaledMisalignedImu`` results:
-    ``T_i_b`` (4x4), ``accelerometer_noise_density``, ``accelerometer_random_walk``,
-    ``gyroscope_noise_density``, ``gyroscope_random_walk``, ``model: scale-misalignment``,
-    ``rostopic``, ``time_offset``, ``update_rate`` and the intrinsics ``gyroscopes: {M, A, C_gyro_i}``
-    and ``accelerometers: {M}``. With Kalibr's gyro model ``omega = M C_gyro_i C_i_b omega_b + A a + b``,
-    ``M = diag(scale_i)`` (Eq. 1), ``C_gyro_i = I``, ``A = 0``; the accelerometer ``M = I`` is not
-    estimated. See the module docstring for frames, sign of ``time_offset`` and the gauge.
+
+def write_kalibr_imu_configs(cal, folder, *, topics=None, update_rate=200.0, noise=None) -> tuple[Path, ...]:
+    """Write one Kalibr IMU configuration per gyro, ``folder/imu0.yaml`` ... (``imu0`` = the reference gyro).
+
+    These are the files ``kalibr_calibrate_imu_camera --imu imu0.yaml imu1.yaml ...`` reads with its
+    ``ImuParameters``: top-level ``rostopic`` (a string), ``update_rate`` (Hz, > 0),
+    ``accelerometer_noise_density``, ``accelerometer_random_walk``, ``gyroscope_noise_density`` and
+    ``gyroscope_random_walk`` (all > 0). Kalibr estimates rotations, time offsets and intrinsics
+    itself; fusion_gyrocal's estimates of them are in comments (and in :func:`write_kalibr_imu_chain`).
+    Without ``noise`` the four noise figures are placeholders, marked as such in the file.
 
     Parameters
     ----------
-    cal : PairCalibration
-    path : str or Path
-    topics : (str, str)
-        ``rostopic`` of imu0 and imu1.
-    update_rate : float or (float, float)
-        IMU rates in Hz. Also used to turn ``cal.noise_std`` (per sample) into a noise density
-        (``std / sqrt(rate)``) when ``noise`` is not given, so pass the real sensor rates.
-    noise : ImuNoise or (ImuNoise, ImuNoise), optional
-        Noise figures. When omitted, the gyro noise density comes from ``cal.noise_std`` and the
-        other three figures are placeholders, flagged as such in the file.
+    cal : PairCalibration or ArrayCalibration
+    folder : str or Path
+        Created when missing (its parent must exist).
+    topics : sequence of str, optional
+        ``rostopic`` of every IMU in gyro order with the reference first (default ``/imu0``, ``/imu1``, ...).
+    update_rate : float or sequence of float
+        IMU rates in Hz.
+    noise : ImuNoise or sequence of (ImuNoise or None), optional
+        Measured noise figures; None writes placeholders.
 
     Returns
     -------
-    Path
+    tuple of Path
     """
-    topics, rates, noises, flags, Ts, offsets = _common(cal, topics, update_rate, noise)
-    lines = _header_lines(cal, "Kalibr IMU configuration", topics, flags)
-    for i, scale in enumerate((cal.scale_1, cal.scale_2)):
+    chain, topics, rates, noises = _prepare(cal, topics, update_rate, noise)
+    folder = Path(folder).expanduser()
+    try:
+        folder.mkdir(exist_ok=True)
+    except OSError as exc:
+        raise FormatError(f"{folder}: could not create the folder: {exc}") from None
+    paths = []
+    for i, imu in enumerate(chain.imus):
+        path = folder / f"imu{i}.yaml"
+        lines = [f"# {w}" for w in chain.warning]
+        lines += [f"# Kalibr IMU configuration (kalibr_calibrate_imu_camera --imu ...) of imu{i} = gyro {imu.gyro + 1}, "
+                  f"written by fusion_gyrocal from {chain.what}."]
+        if i:
+            rv = np.degrees(canonical_rotvec(log(imu.R_b_i)))
+            lines.append(f"# fusion_gyrocal's estimate against imu0 (Kalibr estimates its own): R_b_i rotation vector "
+                         f"[deg] {', '.join(f'{v:.4f}' for v in rv)}; time offset "
+                         f"{imu.time_offset:+.6g} s ({imu.time_offset_source}).")
+        lines.append(f"# Scale factors (relative, gauge {chain.gauge}): "
+                     + ", ".join(f"{'xyz'[a]} {imu.scale[a]:.6f}" if imu.observable[a] else f"{'xyz'[a]} undetermined"
+                                 for a in range(3)) + ".")
+        if noises[i] is None:
+            lines.append(_PLACEHOLDER_HOWTO)
+        lines += [f"rostopic: {_quoted(topics[i])}", f"update_rate: {_yf(rates[i])}  # [Hz]"]
+        lines += _noise_lines(noises[i], "")
+        text = "\n".join(lines) + "\n"
+        _check_yaml(text, path, [topics[i]])
+        paths.append(path)
+        atomic_write(path, text)
+    return tuple(paths)
+
+
+def write_kalibr_imu_chain(cal, path, *, topics=None, update_rate=200.0, noise=None) -> Path:
+    """Write the IMU chain in Kalibr's multi-IMU result layout (``imu0``, ``imu1``, ...), atomically.
+
+    This is the layout Kalibr writes after a multi-IMU calibration and that tools reading Kalibr
+    results take (OpenVINS, maplab's exporter); Kalibr itself reads :func:`write_kalibr_imu_configs`.
+    Per IMU: ``T_i_b`` (4x4, body = the reference gyro, translation NOT estimated: zeros and
+    ``translation_estimated: false``), the four noise figures (placeholders unless ``noise``),
+    ``model: scale-misalignment``, ``rostopic`` (quoted), ``time_offset``, ``update_rate``,
+    ``gyroscopes: {M, A, C_gyro_i}`` and ``accelerometers: {M}``. With Kalibr's gyro model
+    ``omega = M C_gyro_i C_i_b omega_b + A a + b``, ``M = diag(scale)`` (Eq. 1) for the scale factors
+    the data determine (1 elsewhere, named in a comment), ``C_gyro_i = I``, ``A = 0``; the
+    accelerometer ``M = I`` is not estimated. Parameters as :func:`write_kalibr_imu_configs`.
+    """
+    chain, topics, rates, noises = _prepare(cal, topics, update_rate, noise)
+    lines = _header(chain, "Kalibr IMU chain (result layout)", topics, any(x is None for x in noises))
+    for i, imu in enumerate(chain.imus):
         lines.append("")
-        lines += _imu_block(i, Ts[i], noises[i], flags[i], topics[i], rates[i], offsets[i], "scale-misalignment")
+        lines += _chain_block(i, imu, noises[i], topics[i], rates[i], "scale-misalignment")
         lines.append("  gyroscopes:")
-        lines += _matrix("M", np.diag(scale), "    ")
+        lines += _matrix("M", _determined(imu), "    ")
         lines += _matrix("A", np.zeros((3, 3)), "    ")
         lines += _matrix("C_gyro_i", np.eye(3), "    ")
         lines.append("  accelerometers:  # not estimated (gyro-only calibration)")
         lines += _matrix("M", np.eye(3), "    ")
         lines.append("  translation_estimated: false")
     text = "\n".join(lines) + "\n"
-    _validate_yaml(text, path)
+    _check_yaml(text, path, topics)
     return atomic_write(path, text)
 
 
-def write_openvins_imu_chain(cal: PairCalibration, path, *, topics=("/imu0", "/imu1"), update_rate=200.0,
-                             noise=None) -> Path:
-    """Write an OpenVINS ``kalibr_imu_chain.yaml`` (``imu0`` = gyro 1, ``imu1`` = gyro 2), atomically.
+#: The name this writer had when it wrote pairs only (kept for ``fusion_gyrocal.io``'s imports).
+write_kalibr_imu_yaml = write_kalibr_imu_chain
 
-    The first line is the ``%YAML:1.0`` directive OpenCV's ``cv::FileStorage`` needs; the rest is
-    plain YAML (PyYAML reads it once that line is dropped). Keys per IMU follow OpenVINS'
-    ``config/*/kalibr_imu_chain.yaml`` and ``VioManagerOptions::print_and_load_state``: ``T_i_b``,
-    the four noise figures, ``rostopic``, ``time_offset``, ``update_rate``, ``model: calibrated``
-    (the intrinsics are fixed, not refined online), ``Tw``, ``R_IMUtoGYRO``, ``Ta``, ``R_IMUtoACC``,
-    ``Tg``. With OpenVINS' model ``omega_m = Tw R_IMUtoGYRO omega_I + Tg a + b``:
-    ``Tw = diag(scale_i)``, ``R_IMUtoGYRO = I``, ``Tg = 0``; ``Ta = R_IMUtoACC = I`` (accelerometer not
-    estimated). OpenVINS itself reads only ``imu0``; ``imu1`` documents gyro 2 in the same terms.
 
-    Parameters are those of :func:`write_kalibr_imu_yaml`.
+def write_openvins_imu_chain(cal, path, *, topics=None, update_rate=200.0, noise=None) -> Path:
+    """Write an OpenVINS ``kalibr_imu_chain.yaml`` for every gyro (``imu0`` = the reference), atomically.
+
+    The first line is the ``%YAML:1.0`` directive OpenCV's ``cv::FileStorage`` (OpenVINS'
+    ``YamlParser``) needs; the rest is plain YAML. Keys per IMU follow OpenVINS'
+    ``config/*/kalibr_imu_chain.yaml``: ``T_i_b``, the four noise figures (placeholders unless
+    ``noise``), ``rostopic`` (quoted), ``time_offset``, ``update_rate``, ``model: kalibr`` (OpenVINS
+    exits on ``calibrated`` when it is asked to refine the intrinsics), ``Tw``, ``R_IMUtoGYRO``,
+    ``Ta``, ``R_IMUtoACC``, ``Tg``. With OpenVINS' model ``omega_m = Tw R_IMUtoGYRO omega_I + Tg a + b``:
+    ``Tw = diag(scale)`` for the scale factors the data determine and 1 where they do not (a comment
+    names them), ``R_IMUtoGYRO = I``, ``Tg = 0``, ``Ta = R_IMUtoACC = I`` (accelerometer not
+    estimated). OpenVINS reads ``imu0`` only; the others document the rest of the array in the same
+    terms. Parameters as :func:`write_kalibr_imu_configs`.
     """
-    topics, rates, noises, flags, Ts, offsets = _common(cal, topics, update_rate, noise)
-    lines = ["%YAML:1.0"] + _header_lines(cal, "OpenVINS kalibr_imu_chain", topics, flags)
-    for i, scale in enumerate((cal.scale_1, cal.scale_2)):
+    chain, topics, rates, noises = _prepare(cal, topics, update_rate, noise)
+    lines = ["%YAML:1.0"] + _header(chain, "OpenVINS kalibr_imu_chain", topics, any(x is None for x in noises))
+    for i, imu in enumerate(chain.imus):
         lines.append("")
-        lines += _imu_block(i, Ts[i], noises[i], flags[i], topics[i], rates[i], offsets[i], "calibrated")
-        lines += _matrix("Tw", np.diag(scale), "  ")
+        lines += _chain_block(i, imu, noises[i], topics[i], rates[i], "kalibr")
+        lines += _matrix("Tw", _determined(imu), "  ")
         lines += _matrix("R_IMUtoGYRO", np.eye(3), "  ")
         lines += _matrix("Ta", np.eye(3), "  ")
         lines += _matrix("R_IMUtoACC", np.eye(3), "  ")
         lines += _matrix("Tg", np.zeros((3, 3)), "  ")
         lines.append("  translation_estimated: false")
     text = "\n".join(lines) + "\n"
-    _validate_yaml(text.split("\n", 1)[1], path)
+    _check_yaml(text.split("\n", 1)[1], path, topics)
     return atomic_write(path, text)

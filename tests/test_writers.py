@@ -1,0 +1,208 @@
+"""The YAML exports as their consumers read them: Kalibr's ImuParameters rules, OpenCV's FileStorage (OpenVINS)."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+import yaml
+from scipy.spatial.transform import Rotation
+
+from fusion_gyrocal import FormatError, InputError, PairCalibration
+from fusion_gyrocal.core.array import calibrate_array
+from fusion_gyrocal.evaluate.sim import DEG, HumanMotion, random_rotation
+from fusion_gyrocal.io.writers import (ImuNoise, write_kalibr_imu_chain, write_kalibr_imu_configs,
+                                       write_openvins_imu_chain)
+
+NOISE_KEYS = ("accelerometer_noise_density", "accelerometer_random_walk", "gyroscope_noise_density",
+              "gyroscope_random_walk")
+
+
+# --------------------------------------------------------------------------------- the consumers' reading rules
+def kalibr_imu_parameters(path) -> dict:
+    """Kalibr's ``kalibr_common.ConfigReader.ImuParameters`` restated (what ``kalibr_calibrate_imu_camera --imu``
+    does with each file): ``yaml.safe_load``; the top-level keys ``rostopic`` (must be a str),
+    ``update_rate`` (> 0), ``accelerometer_noise_density``, ``accelerometer_random_walk``,
+    ``gyroscope_noise_density``, ``gyroscope_random_walk`` (each > 0; a missing one is "Field ... missing");
+    the discrete noise is ``density / sqrt(1 / update_rate)``. Raises ``RuntimeError`` as Kalibr does."""
+    with open(path) as f:
+        data = yaml.safe_load(f)
+    try:
+        if not isinstance(data["rostopic"], str):
+            raise RuntimeError("[ImuConfig Reader]: rostopic has to be a string")
+        rate = data["update_rate"]
+        if not rate > 0.0:
+            raise RuntimeError("[ImuConfig Reader]: invalid update_rate")
+        for key in NOISE_KEYS:
+            if not data[key] > 0.0:
+                raise RuntimeError(f"[ImuConfig Reader]: invalid {key}")
+    except KeyError as e:
+        raise RuntimeError(f"[ImuConfig Reader]: Field {e} missing in file: {path}") from None
+    return {"rostopic": data["rostopic"], "update_rate": rate,
+            "gyro_discrete": data["gyroscope_noise_density"] / math.sqrt(1.0 / rate),
+            **{k: data[k] for k in NOISE_KEYS}}
+
+
+def opencv_imu_chain(path, n):
+    """The IMU chain as OpenVINS' ``ov_core::YamlParser`` reads it: ``cv::FileStorage`` on the ``%YAML:1.0``
+    file, then per ``imu<k>`` node: matrices as nested sequences (``T_i_b`` 4x4, ``Tw`` ... 3x3), reals and
+    strings (``model``, ``rostopic``)."""
+    cv2 = pytest.importorskip("cv2", reason="opencv-python-headless not installed (test extra)")
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    assert fs.isOpened()
+    out = []
+    for k in range(n):
+        node = fs.getNode(f"imu{k}")
+        assert not node.empty(), f"imu{k} missing"
+
+        def mat(name, size, node=node):
+            m = node.getNode(name)
+            assert m.size() == size, f"imu{k}.{name}: expected {size} rows, got {m.size()}"
+            return np.array([[m.at(r).at(c).real() for c in range(size)] for r in range(size)])
+
+        out.append({"T_i_b": mat("T_i_b", 4), **{m: mat(m, 3) for m in ("Tw", "R_IMUtoGYRO", "Ta", "R_IMUtoACC",
+                                                                      "Tg")},
+                    "model": node.getNode("model").string(), "rostopic": node.getNode("rostopic").string(),
+                    "time_offset": node.getNode("time_offset").real(),
+                    "update_rate": node.getNode("update_rate").real(),
+                    **{k2: node.getNode(k2).real() for k2 in NOISE_KEYS}})
+    fs.release()
+    return out
+
+
+# --------------------------------------------------------------------------------- fixtures
+def _pair(rng, **over):
+    cov = np.diag(rng.uniform(1e-8, 1e-6, 12))
+    kw = dict(R_1_2=Rotation.from_rotvec(rng.normal(0, 0.5, 3)).as_matrix(), scale_1=[1.0, 1.003, 0.997],
+              scale_2=[1.01, 0.99, 1.002], bias=rng.normal(0, 0.01, 3), configuration="general",
+              scale_observable=[[True] * 3] * 2, covariance=cov, gauge="scale_1[0] == 1", snr=[500.0] * 3,
+              n_samples=6000, noise_std=[0.1 * DEG, 0.2 * DEG], time_offset_s=-0.0123, time_offset_std_s=1e-4,
+              rigid=True, unexplained_fraction=0.001)
+    kw.update(over)
+    return PairCalibration(**kw)
+
+
+def _array(seed, R=None, n=4):
+    rng = np.random.default_rng(seed)
+    omega = HumanMotion(1.0, rng=rng)(np.arange(4000) / 100.0)
+    R = [np.eye(3)] + [random_rotation(rng) for _ in range(n - 1)] if R is None else R
+    scales = 1.0 + rng.normal(0, 0.01, (len(R), 3))
+    omegas = [(omega @ Rk) * sk + rng.normal(0, 1e-3, omega.shape) for Rk, sk in zip(R, scales)]
+    return calibrate_array(omegas), R
+
+
+TOPICS = ["/imu#0", "/a:b", "/plain", "/x/y"]
+
+
+# --------------------------------------------------------------------------------- Kalibr
+def test_write_kalibr_imu_configs_pass_kalibr_imu_parameters(tmp_path):
+    cal, _ = _array(1)
+    paths = write_kalibr_imu_configs(cal, tmp_path / "kalibr", topics=TOPICS, update_rate=[200.0, 100.0, 400, 50])
+    assert [p.name for p in paths] == ["imu0.yaml", "imu1.yaml", "imu2.yaml", "imu3.yaml"]
+    for p, topic, rate in zip(paths, TOPICS, (200.0, 100.0, 400.0, 50.0)):
+        got = kalibr_imu_parameters(p)
+        assert got["rostopic"] == topic and got["update_rate"] == rate
+        text = p.read_text()
+        assert text.count("PLACEHOLDER, not measured") == 4 and "Allan-variance" in text
+
+
+def test_kalibr_imu_parameters_rules_reject_the_chain_layout(tmp_path):
+    # the chain (Kalibr's result layout) is what a user once passed to --imu: the restated rules refuse it
+    cal, _ = _array(2, n=3)
+    p = write_kalibr_imu_chain(cal, tmp_path / "imu_chain.yaml")
+    with pytest.raises(RuntimeError, match="Field 'rostopic' missing"):
+        kalibr_imu_parameters(p)
+
+
+def test_write_kalibr_imu_configs_measured_noise_written_unmarked(tmp_path):
+    cal = _pair(np.random.default_rng(3))
+    noise = ImuNoise(1e-4, 2e-5, 3e-3, 4e-4)
+    p0, p1 = write_kalibr_imu_configs(cal, tmp_path / "k", noise=[noise, None])
+    got = kalibr_imu_parameters(p0)
+    assert (got["gyroscope_noise_density"], got["gyroscope_random_walk"]) == (1e-4, 2e-5)
+    assert "PLACEHOLDER" not in p0.read_text() and "PLACEHOLDER" in p1.read_text()
+    # a residual-derived figure is never written as a noise density: imu1 carries the placeholder
+    assert kalibr_imu_parameters(p1)["gyroscope_noise_density"] == 1.6968e-4
+
+
+def test_write_kalibr_imu_chain_T_i_b_and_M_reproduce_every_pair(tmp_path):
+    cal, _ = _array(4)
+    y = yaml.safe_load(write_kalibr_imu_chain(cal, tmp_path / "c.yaml", topics=TOPICS).read_text())
+    M0C0 = np.array(y["imu0"]["gyroscopes"]["M"]) @ np.array(y["imu0"]["T_i_b"])[:3, :3]
+    for k in range(1, 4):
+        imu = y[f"imu{k}"]
+        T = np.array(imu["T_i_b"])
+        np.testing.assert_array_equal(T[:3, :3], cal.R_ref_k[k].T)
+        np.testing.assert_array_equal(T[:3, 3], np.zeros(3))
+        assert imu["translation_estimated"] is False and imu["model"] == "scale-misalignment"
+        A = M0C0 @ np.linalg.inv(np.array(imu["gyroscopes"]["M"]) @ T[:3, :3])
+        np.testing.assert_allclose(A, cal.pair(0, k).A, rtol=0, atol=1e-14)
+        assert imu["rostopic"] == TOPICS[k]
+
+
+def test_write_kalibr_imu_configs_pair_time_offset_in_comment_only(tmp_path):
+    cal = _pair(np.random.default_rng(5))
+    _, p1 = write_kalibr_imu_configs(cal, tmp_path / "k")
+    assert "time offset -0.0123 s" in p1.read_text()
+    assert set(yaml.safe_load(p1.read_text())) == {"rostopic", "update_rate", *NOISE_KEYS}
+
+
+# --------------------------------------------------------------------------------- OpenVINS
+def test_write_openvins_imu_chain_read_by_opencv_gives_each_T_i_b(tmp_path):
+    cal, R = _array(6)
+    p = write_openvins_imu_chain(cal, tmp_path / "kalibr_imu_chain.yaml", topics=TOPICS, update_rate=200.0)
+    imus = opencv_imu_chain(p, 4)
+    for k, imu in enumerate(imus):
+        np.testing.assert_allclose(imu["T_i_b"][:3, :3], cal.R_ref_k[k].T, rtol=0, atol=1e-15)
+        assert np.degrees(np.linalg.norm(Rotation.from_matrix(imu["T_i_b"][:3, :3] @ R[k]).as_rotvec())) < 0.05
+        np.testing.assert_array_equal(imu["T_i_b"][3], [0, 0, 0, 1])
+        np.testing.assert_allclose(imu["Tw"], np.diag(cal.scale[k]), rtol=0, atol=1e-15)
+        assert imu["model"] == "kalibr" and imu["rostopic"] == TOPICS[k] and imu["update_rate"] == 200.0
+        assert all(imu[key] > 0 for key in NOISE_KEYS)
+        np.testing.assert_array_equal(imu["Tg"], np.zeros((3, 3)))
+
+
+def test_write_openvins_imu_chain_undetermined_scales_are_identity(tmp_path):
+    # axis-parallel gyros (Lemma 2): no scale factor is determined, so Tw stays the identity
+    flip = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    cal, _ = _array(7, R=[np.eye(3), flip, np.eye(3)])
+    assert not cal.scale_observable.any()
+    p = write_openvins_imu_chain(cal, tmp_path / "c.yaml")
+    for imu in opencv_imu_chain(p, 3):
+        np.testing.assert_array_equal(imu["Tw"], np.eye(3))
+    assert "do not determine are written as 1" in p.read_text()
+
+
+def test_write_openvins_imu_chain_pair_time_offset_and_model(tmp_path):
+    cal = _pair(np.random.default_rng(8))
+    imus = opencv_imu_chain(write_openvins_imu_chain(cal, tmp_path / "c.yaml", update_rate=[200.0, 100.0]), 2)
+    assert imus[1]["time_offset"] == cal.time_offset_s and imus[0]["time_offset"] == 0.0
+    assert [i["model"] for i in imus] == ["kalibr", "kalibr"]
+    np.testing.assert_array_equal(imus[1]["Tw"], np.diag(cal.scale_2))
+
+
+# --------------------------------------------------------------------------------- honesty
+def test_writers_warn_in_every_file_for_a_not_rigid_pair(tmp_path):
+    cal = _pair(np.random.default_rng(9), rigid=False, unexplained_fraction=0.31)
+    files = [*write_kalibr_imu_configs(cal, tmp_path / "k"), write_kalibr_imu_chain(cal, tmp_path / "c.yaml"),
+             write_openvins_imu_chain(cal, tmp_path / "o.yaml")]
+    for p in files:
+        head = p.read_text().splitlines()[:3]
+        assert any(line.startswith("# WARNING: NOT RIGID") and "31.0%" in line for line in head), p.name
+    assert "WARNING" not in write_openvins_imu_chain(dataclasses.replace(cal, rigid=True), tmp_path / "r.yaml").read_text()
+
+
+def test_writers_refuse_topics_that_cannot_be_quoted(tmp_path):
+    cal = _pair(np.random.default_rng(10))
+    with pytest.raises(InputError, match="topics: expected non-empty printable names"):
+        write_openvins_imu_chain(cal, tmp_path / "c.yaml", topics=["/a", 'b"c'])
+    with pytest.raises(InputError, match=r"topics: expected 2 topic names"):
+        write_kalibr_imu_chain(cal, tmp_path / "c.yaml", topics=["/a"])
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_writers_refuse_non_finite_array_rotation(tmp_path):
+    cal, _ = _array(11, n=3)
+    bad = dataclasses.replace(cal, time_offset_s=np.array([0.0, np.nan, 0.0]))
+    with pytest.raises(FormatError, match=r"cal\.time_offset_s: Kalibr/OpenVINS files need finite values"):
+        write_kalibr_imu_configs(bad, tmp_path / "k")
