@@ -194,3 +194,16 @@ def test_cli_same_json_as_calibrate_pair_with_the_same_options(tmp_path):
     cal = run_pipeline(s1.masked_omega, s2.masked_omega, t_1=s1.t, t_2=s2.t, method="direct", noise_std=0.0017,
                        bias_window=int(round(5 * s1.rate_hz))).calibration
     assert json.loads(out.read_text()) == json.loads(cal.to_json())
+
+
+def test_main_xsens_without_rate_needs_sample_rate_flag(tmp_path, capsys):
+    folder = shared_data_dir() / "xsens_mt_exports" if shared_data_dir() else None
+    if folder is None or not folder.is_dir():
+        pytest.skip("../shared/data/xsens_mt_exports is absent (a user's own clone)")
+    f = folder / "MT_01200454_000-000_00B40DE4.txt"       # MT Manager 2019.2: no rate line, PacketCounter only
+    g = tmp_path / f.name
+    g.write_bytes(f.read_bytes())
+    assert main(["calibrate", str(f), str(g), "--sample-rate1", "-3"]) == 1
+    assert "--sample-rate1: expected a positive sample rate in Hz" in capsys.readouterr().err
+    assert main(["calibrate", str(f), str(g)]) == 1
+    assert "rate_hz" in capsys.readouterr().err      # the reader names what the file lacks

@@ -12,9 +12,9 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from fusion_gyrocal.errors import FormatError, InputError, OptionError
-from fusion_gyrocal.io import (ImuNoise, ImuStream, detect_format, list_imu_topics, read_bag, read_csv, read_imu,
+from fusion_gyrocal.io import (ImuStream, detect_format, list_imu_topics, read_bag, read_csv, read_imu,
                                read_json, read_npz, read_xsens, write_csv, write_imu_bag, write_json,
-                               write_kalibr_imu_yaml, write_npz, write_openvins_imu_chain)
+                               write_kalibr_imu_chain, write_npz, write_openvins_imu_chain)
 from fusion_gyrocal.io import readers as readers_mod
 from fusion_gyrocal.io import writers as writers_mod
 from fusion_gyrocal.core.model import PairCalibration
@@ -532,9 +532,9 @@ def test_write_json_keeps_file_mode(tmp_path):
 
 
 # ----------------------------------------------------------------------------- YAML exports
-def test_write_kalibr_imu_yaml_matrices_parse_back(tmp_path):
+def test_write_kalibr_imu_chain_matrices_parse_back(tmp_path):
     cal = _cal(np.random.default_rng(30))
-    p = write_kalibr_imu_yaml(cal, tmp_path / "imu.yaml", topics=("/a", "/b"), update_rate=(100.0, 200.0))
+    p = write_kalibr_imu_chain(cal, tmp_path / "imu.yaml", topics=("/a", "/b"), update_rate=(100.0, 200.0))
     y = yaml.safe_load(p.read_text())
     T0, T1 = np.array(y["imu0"]["T_i_b"]), np.array(y["imu1"]["T_i_b"])
     np.testing.assert_array_equal(T0, np.eye(4))
@@ -542,7 +542,9 @@ def test_write_kalibr_imu_yaml_matrices_parse_back(tmp_path):
     np.testing.assert_array_equal(T1[:3, 3], np.zeros(3))
     np.testing.assert_array_equal(T1[3], [0, 0, 0, 1])
     np.testing.assert_array_equal(np.array(y["imu0"]["gyroscopes"]["M"]), np.diag(cal.scale_1))
-    np.testing.assert_array_equal(np.array(y["imu1"]["gyroscopes"]["M"]), np.diag(cal.scale_2))
+    # an undetermined scale factor (scale_2 z here) is not written as measured: 1 in its place
+    np.testing.assert_array_equal(np.array(y["imu1"]["gyroscopes"]["M"]),
+                                  np.diag(np.where(cal.scale_observable[1], cal.scale_2, 1.0)))
     np.testing.assert_array_equal(np.array(y["imu1"]["gyroscopes"]["C_gyro_i"]), np.eye(3))
     np.testing.assert_array_equal(np.array(y["imu1"]["gyroscopes"]["A"]), np.zeros((3, 3)))
     assert y["imu0"]["time_offset"] == 0.0 and y["imu1"]["time_offset"] == cal.time_offset_s
@@ -552,33 +554,20 @@ def test_write_kalibr_imu_yaml_matrices_parse_back(tmp_path):
     assert "TRANSLATION IS NOT ESTIMATED" in p.read_text()
 
 
-def test_write_kalibr_imu_yaml_reproduces_A(tmp_path):
+def test_write_kalibr_imu_chain_reproduces_A(tmp_path):
     """Kalibr's gyro models M_i C_i_b chained from imu1 to imu0 give A = S_1 R_1_2 S_2^-1 (Eq. 4)."""
-    cal = _cal(np.random.default_rng(31))
-    y = yaml.safe_load(write_kalibr_imu_yaml(cal, tmp_path / "imu.yaml").read_text())
+    cal = _cal(np.random.default_rng(31), scale_observable=[[True] * 3] * 2)   # every scale determined
+    y = yaml.safe_load(write_kalibr_imu_chain(cal, tmp_path / "imu.yaml").read_text())
     M0, M1 = np.array(y["imu0"]["gyroscopes"]["M"]), np.array(y["imu1"]["gyroscopes"]["M"])
     C0, C1 = np.array(y["imu0"]["T_i_b"])[:3, :3], np.array(y["imu1"]["T_i_b"])[:3, :3]
     A = (M0 @ C0) @ np.linalg.inv(M1 @ C1)  # omega_0 = M0 C0 w_b, omega_1 = M1 C1 w_b
     np.testing.assert_allclose(A, cal.A, rtol=0, atol=1e-14)
 
 
-def test_write_kalibr_imu_yaml_noise_density_from_noise_std(tmp_path):
-    cal = _cal(np.random.default_rng(32))
-    y = yaml.safe_load(write_kalibr_imu_yaml(cal, tmp_path / "imu.yaml", update_rate=100.0).read_text())
-    assert y["imu0"]["gyroscope_noise_density"] == pytest.approx(0.1 * DEG / 10.0, rel=1e-15)
-    assert y["imu1"]["gyroscope_noise_density"] == pytest.approx(0.2 * DEG / 10.0, rel=1e-15)
-    noise = ImuNoise(1e-4, 2e-5, 3e-3, 4e-4)
-    text = write_kalibr_imu_yaml(cal, tmp_path / "imu2.yaml", noise=noise).read_text()
-    y2 = yaml.safe_load(text)
-    assert y2["imu1"]["gyroscope_random_walk"] == 2e-5 and y2["imu1"]["accelerometer_noise_density"] == 3e-3
-    assert "PLACEHOLDER" not in text
-    assert "PLACEHOLDER" in (tmp_path / "imu.yaml").read_text()
-
-
-def test_write_kalibr_imu_yaml_rejects_nonfinite_scale(tmp_path):
+def test_write_kalibr_imu_chain_rejects_nonfinite_scale(tmp_path):
     cal = _cal(np.random.default_rng(33), scale_2=[1.0, np.nan, 1.0])
     with pytest.raises(FormatError, match=r"cal\.scale_2: Kalibr/OpenVINS files need finite values"):
-        write_kalibr_imu_yaml(cal, tmp_path / "imu.yaml")
+        write_kalibr_imu_chain(cal, tmp_path / "imu.yaml")
     assert list(tmp_path.iterdir()) == []
 
 
@@ -590,12 +579,12 @@ def test_write_openvins_imu_chain_parses_back(tmp_path):
     y = yaml.safe_load(text.split("\n", 1)[1])
     for i, scale in enumerate((cal.scale_1, cal.scale_2)):
         imu = y[f"imu{i}"]
-        np.testing.assert_array_equal(np.array(imu["Tw"]), np.diag(scale))
+        np.testing.assert_array_equal(np.array(imu["Tw"]), np.diag(np.where(cal.scale_observable[i], scale, 1.0)))
         np.testing.assert_array_equal(np.array(imu["R_IMUtoGYRO"]), np.eye(3))
         np.testing.assert_array_equal(np.array(imu["Ta"]), np.eye(3))
         np.testing.assert_array_equal(np.array(imu["R_IMUtoACC"]), np.eye(3))
         np.testing.assert_array_equal(np.array(imu["Tg"]), np.zeros((3, 3)))
-        assert imu["model"] == "calibrated" and imu["update_rate"] == 400.0
+        assert imu["model"] == "kalibr" and imu["update_rate"] == 400.0
         for key in ("accelerometer_noise_density", "accelerometer_random_walk", "gyroscope_noise_density",
                     "gyroscope_random_walk", "rostopic", "time_offset", "T_i_b"):
             assert key in imu, key
@@ -616,7 +605,7 @@ def test_kalibr_T_i_b_maps_gyro1_rates_to_gyro2(tmp_path):
     from fusion_gyrocal.evaluate.sim import simulate_pair
     sim = simulate_pair(n=200, noise_std=0.0, bias_walk_std=0.0, bias_1=np.zeros(3), bias_2=np.zeros(3), rng=36)
     cal = _cal(np.random.default_rng(36), R_1_2=sim.R_1_2, scale_1=np.ones(3), scale_2=np.ones(3))
-    y = yaml.safe_load(write_kalibr_imu_yaml(cal, tmp_path / "imu.yaml").read_text())
+    y = yaml.safe_load(write_kalibr_imu_chain(cal, tmp_path / "imu.yaml").read_text())
     R_i_b = np.array(y["imu1"]["T_i_b"])[:3, :3]
     np.testing.assert_allclose(sim.omega_true_1 @ R_i_b.T, sim.omega_2, rtol=0, atol=1e-12)
 
@@ -656,7 +645,7 @@ def test_read_bag_feeds_calibrate_pair_with_time_offset(tmp_path):
     cal = calibrate_pair(g1.omega, g2.omega, t_1=g1.t, t_2=g2.t, noise_std=PAPER_NOISE_STD)
     assert abs(cal.time_offset_s - offset) < 5 * cal.time_offset_std_s + 1e-9  # + ns rounding of the stamps
     assert rotation_error(cal.R_1_2, sim.R_1_2) < 5 * np.linalg.norm(cal.rotation_std_rad)
-    y = yaml.safe_load(write_kalibr_imu_yaml(cal, tmp_path / "imu.yaml").read_text())
+    y = yaml.safe_load(write_kalibr_imu_chain(cal, tmp_path / "imu.yaml").read_text())
     assert y["imu1"]["time_offset"] == cal.time_offset_s
     np.testing.assert_array_equal(read_json(write_json(cal, tmp_path / "cal.json")).R_1_2, cal.R_1_2)
 
@@ -672,3 +661,14 @@ def test_read_npz_one_valid_mask_applies_to_every_imu(tmp_path):
     np.savez(tmp_path / "bad.npz", t=t, omega=w, valid=np.ones((50, 2), bool))
     with pytest.raises(FormatError, match=r"expected 'valid' of shape \(50,\) or \(50, 3\)"):
         read_npz(tmp_path / "bad.npz", 0)
+
+
+def test_read_json_not_utf8_or_not_a_regular_file_is_format_error(tmp_path):
+    p = tmp_path / "cal.json"
+    p.write_bytes(b'{"format_version": "1.1", "gauge": "\xff\xfe"}')
+    with pytest.raises(FormatError, match=r"cal\.json: expected UTF-8 JSON, got undecodable bytes at offset"):
+        read_json(p)
+    fifo = tmp_path / "pipe.json"
+    os.mkfifo(fifo)
+    with pytest.raises(FormatError, match="a FIFO"):
+        read_json(fifo)       # refused before opening (opening a FIFO would block)

@@ -87,9 +87,11 @@ def flag_hint(message: str) -> str:
     from ..options import FLAGS
     from .recording import READER_FLAGS
 
+    reader = [f"{key}= is {flags}" for key, flags in READER_FLAGS.items() if re.search(rf"\b{key}=", message)]
     hints = [f"{name} is {flag}" for name, flag in FLAGS.items()
-             if re.match(rf"{name}\b", message) or ("_" in name and re.search(rf"\b{name}\b", message))]
-    hints += [f"{key}= is {flags}" for key, flags in READER_FLAGS.items() if re.search(rf"\b{key}=", message)]
+             if (re.match(rf"{name}\b", message) or ("_" in name and re.search(rf"\b{name}\b", message)))
+             and not (name in READER_FLAGS and re.search(rf"\b{name}=", message))]   # "rate_hz=": the reader's
+    hints += reader
     return f"{message} (command line: {'; '.join(hints)})" if hints else message
 
 

@@ -87,6 +87,9 @@ def run(args) -> int:
     console.print(array_table(cal) if joint else summary_table(cal))
     for note in tuple(cal.notes) + tuple(notes):
         console.print(f"note: {note}")
+    for source, stream in zip(sources, streams):   # what each reader dropped or chose
+        for note in stream.notes:
+            console.print(f"note ({source.describe()}): {note}")
     if not joint and cal.rigid is False:
         print(f"gyrocal: warning: NOT RIGID ({100 * cal.unexplained_fraction:.1f}% of gyro 1's motion unexplained): "
               "the result is flagged (--allow-not-rigid), not a calibration; every file written says so",

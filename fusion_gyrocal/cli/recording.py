@@ -11,6 +11,7 @@ flag wins over the list.
 from __future__ import annotations
 
 import argparse
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,7 +22,7 @@ ALIGNMENT_OPTIONS = ("time_offset_s", "max_offset_s", "rate_hz")
 
 READER_OPTIONS = {"csv": {"columns", "unit", "sensitivity", "time_column", "time_unit"},
                   "euroc": {"columns", "unit", "sensitivity", "time_column", "time_unit"},
-                  "xsens": {"unit"}, "npz": {"imu", "unit"}, "bag": {"topic"}}
+                  "xsens": {"unit", "rate_hz"}, "npz": {"imu", "unit"}, "bag": {"topic"}}
 """The keywords of :func:`fusion_gyrocal.io.read_imu` that each detected format accepts."""
 
 RATE_UNITS = ("rad/s", "deg/s", "counts")
@@ -36,6 +37,7 @@ _READER_FLAGS = {
     "columns": ("--columns", "--columns", ";"),
     "time_column": ("--time-column", "--time-column", ","),
     "time_unit": ("--time-unit", "--time-unit", ","),
+    "rate_hz": ("--sample-rate", "--sample-rate", ","),
 }
 
 READER_FLAGS = {key: f"{stem}1/{stem}2 or {every}" for key, (stem, every, _) in _READER_FLAGS.items()}
@@ -76,6 +78,8 @@ def add_recording_args(p: argparse.ArgumentParser, *, optional: bool = False, ma
         g.add_argument(f"--columns{k}", help=f"comma-separated rate columns of gyro {k} in a CSV (names or indices)")
         g.add_argument(f"--time-column{k}", help=f"timestamp column of gyro {k}'s CSV (name or index)")
         g.add_argument(f"--time-unit{k}", choices=TIME_UNITS, help=f"timestamp unit of gyro {k}'s CSV")
+        g.add_argument(f"--sample-rate{k}", metavar="HZ",
+                       help=f"sample rate of gyro {k}'s Xsens export when the file states none (MT Manager 2019+)")
     if many:
         g.add_argument("--topics", help="Imu topics of every gyro in a bag, comma-separated (gyro 1 first)")
         g.add_argument("--imus", help="IMU indices (from 0) of every gyro, comma-separated (gyro 1 first); "
@@ -85,6 +89,8 @@ def add_recording_args(p: argparse.ArgumentParser, *, optional: bool = False, ma
     g.add_argument("--columns", help="rate columns of every CSV (comma-separated), or one set per gyro separated by ';'")
     g.add_argument("--time-column", help="timestamp column in CSV files (name or index), or one per gyro")
     g.add_argument("--time-unit", help=f"timestamp unit in CSV files ({', '.join(TIME_UNITS)}), or one per gyro")
+    g.add_argument("--sample-rate", metavar="HZ", help="sample rate (Hz) of Xsens exports that state none, or one "
+                                                        "per gyro")
 
 
 def add_alignment_args(p: argparse.ArgumentParser) -> None:
@@ -111,11 +117,14 @@ def _convert(key: str, text: str, flag: str):
         raise OptionError(f"{flag}: expected one of {RATE_UNITS}, got {text!r}")
     if key == "time_unit" and text not in TIME_UNITS:
         raise OptionError(f"{flag}: expected one of {TIME_UNITS}, got {text!r}")
-    if key in ("imu", "sensitivity"):
+    if key in ("imu", "sensitivity", "rate_hz"):
         try:
-            return int(text) if key == "imu" else float(text)
+            value = int(text) if key == "imu" else float(text)
         except ValueError:
             raise OptionError(f"{flag}: expected {'an integer' if key == 'imu' else 'a number'}, got {text!r}") from None
+        if key == "rate_hz" and not (math.isfinite(value) and value > 0):
+            raise OptionError(f"{flag}: expected a positive sample rate in Hz, got {text!r}")
+        return value
     return text
 
 

@@ -43,7 +43,7 @@ from scipy.optimize import nnls
 from .solve import pair_covariance, solve
 from ..errors import ConfigurationError, FormatError, GyroCalError, InputError, OptionError
 from .gauge import Gauge, constrained_inverse
-from .model import PairCalibration, _from_json_list, _to_json_list, _to_json_number, mark_undetermined
+from .model import PairCalibration, from_json_list, to_json_list, to_json_number, mark_undetermined
 from .moments import Moments, as_rates, window_moments
 from .observability import A_of, classify, dA_dp, per_axis_snr
 from ..lie import exp, skew
@@ -437,9 +437,9 @@ class ArrayCalibration:
             if f.name == "moments":
                 v = {"n_gyros": v.n_gyros, "pairs": [m.to_dict() for m in v.pairs]}
             elif isinstance(v, np.ndarray):
-                v = _to_json_list(v)
+                v = to_json_list(v)
             elif isinstance(v, (float, np.floating)):
-                v = _to_json_number(float(v))
+                v = to_json_number(float(v))
             elif isinstance(v, (int, np.integer)):
                 v = int(v)
             elif isinstance(v, tuple):
@@ -472,7 +472,7 @@ class ArrayCalibration:
             if f.name == "moments":
                 v = ArrayMoments(int(v["n_gyros"]), tuple(Moments.from_dict(m) for m in v["pairs"]))
             elif f.name in _ARRAY_FIELDS:
-                v = _from_json_list(v, bool if f.name == "scale_observable" else np.float64)
+                v = from_json_list(v, bool if f.name == "scale_observable" else np.float64)
             elif f.name == "scale_groups":
                 v = tuple(tuple((int(g), int(a)) for g, a in group) for group in v)
             elif f.name == "configurations":

@@ -204,9 +204,9 @@ class PairCalibration:
         for f in fields(self):
             v = getattr(self, f.name)
             if isinstance(v, np.ndarray):
-                v = _to_json_list(v)
+                v = to_json_list(v)
             elif isinstance(v, float):
-                v = _to_json_number(v)
+                v = to_json_number(v)
             elif isinstance(v, tuple):
                 v = list(v)
             out[f.name] = v
@@ -228,27 +228,27 @@ class PairCalibration:
                 continue
             v = d[f.name]
             if f.name in _ARRAY_SHAPES:
-                v = _from_json_list(v, bool if f.name == "scale_observable" else np.float64, legacy)
+                v = from_json_list(v, bool if f.name == "scale_observable" else np.float64, legacy)
             elif f.name != "rigid" and (v is None or isinstance(v, str) and v in NON_FINITE):
                 v = float("nan") if v is None else NON_FINITE[v]
             kwargs[f.name] = v
         return cls(**kwargs)
 
 
-def _to_json_number(x: float):
+def to_json_number(x: float):
     """``x`` itself when finite, else its :data:`NON_FINITE` string."""
     if np.isfinite(x):
         return float(x)
     return "NaN" if np.isnan(x) else ("Infinity" if x > 0 else "-Infinity")
 
 
-def _to_json_list(a: np.ndarray):
+def to_json_list(a: np.ndarray):
     if a.dtype == bool:
         return a.tolist()
-    return np.vectorize(_to_json_number, otypes=[object])(a).tolist() if a.size else a.tolist()
+    return np.vectorize(to_json_number, otypes=[object])(a).tolist() if a.size else a.tolist()
 
 
-def _from_json_list(v, dtype, legacy: bool = False):
+def from_json_list(v, dtype, legacy: bool = False):
     if dtype is bool:
         return np.array(v, dtype=bool)
     arr = np.array(v, dtype=object)

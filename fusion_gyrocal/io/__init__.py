@@ -8,19 +8,20 @@ the MIMU array layout), :func:`read_bag` / :func:`list_imu_topics` (ROS1 and ROS
 Every failure to read a file is a :class:`~fusion_gyrocal.errors.FormatError` naming the file.
 
 Writers are atomic (temp file, fsync, ``os.replace``): :func:`write_json` / :func:`read_json` for
-:class:`~fusion_gyrocal.core.model.PairCalibration`, :func:`write_kalibr_imu_yaml`,
-:func:`write_openvins_imu_chain`, and for streams :func:`write_csv`, :func:`write_npz`,
-:func:`write_imu_bag`.
+:class:`~fusion_gyrocal.core.model.PairCalibration` and :class:`~fusion_gyrocal.core.array.ArrayCalibration`,
+:func:`write_kalibr_imu_configs` (one Kalibr IMU configuration per gyro, what ``kalibr_calibrate_imu_camera
+--imu`` reads), :func:`write_kalibr_imu_chain`, :func:`write_openvins_imu_chain`, and for streams
+:func:`write_csv`, :func:`write_npz`, :func:`write_imu_bag`.
 """
 
 from .bags import list_imu_topics, read_bag, write_imu_bag
 from .readers import ImuStream, detect_format, read_csv, read_imu, read_npz, read_xsens
-from .writers import (ImuNoise, read_json, write_csv, write_json, write_kalibr_imu_yaml, write_npz,
-                      write_openvins_imu_chain)
+from .writers import (ImuNoise, read_json, write_csv, write_json, write_kalibr_imu_chain, write_kalibr_imu_configs,
+                      write_npz, write_openvins_imu_chain)
 
 __all__ = [
     "ImuStream", "ImuNoise",
     "read_imu", "detect_format", "read_csv", "read_xsens", "read_npz", "read_bag", "list_imu_topics",
-    "write_json", "read_json", "write_kalibr_imu_yaml", "write_openvins_imu_chain",
+    "write_json", "read_json", "write_kalibr_imu_configs", "write_kalibr_imu_chain", "write_openvins_imu_chain",
     "write_csv", "write_npz", "write_imu_bag",
 ]

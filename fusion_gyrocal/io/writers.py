@@ -52,7 +52,7 @@ from ..core.array import ARRAY_KIND, ArrayCalibration
 from ..core.model import PairCalibration
 from ..errors import FormatError, InputError
 from ..lie import canonical_rotvec, log
-from .readers import ImuStream
+from .readers import ImuStream, _path
 
 # Placeholder noise figures (the ADIS16448 values of OpenVINS' EuRoC kalibr_imu_chain.yaml), written
 # only where nothing better is known, and always flagged as placeholders in the file.
@@ -189,12 +189,12 @@ def read_json(path):
     FormatError
         When the file is not JSON, has another ``format_version`` or lacks required fields.
     """
-    p = Path(path).expanduser()
+    p = _path(path)   # exists and is a regular file (a FIFO would block)
     try:
         with open(p, "r", encoding="utf-8") as f:
             d = json.load(f)
-    except FileNotFoundError:
-        raise FormatError(f"{p}: no such file") from None
+    except UnicodeDecodeError as exc:
+        raise FormatError(f"{p.name}: expected UTF-8 JSON, got undecodable bytes at offset {exc.start}") from None
     except json.JSONDecodeError as exc:
         raise FormatError(f"{p.name}: expected JSON, got a syntax error at line {exc.lineno} column {exc.colno}: "
                           f"{exc.msg}") from None
@@ -529,10 +529,6 @@ def write_kalibr_imu_chain(cal, path, *, topics=None, update_rate=200.0, noise=N
     text = "\n".join(lines) + "\n"
     _check_yaml(text, path, topics)
     return atomic_write(path, text)
-
-
-#: The name this writer had when it wrote pairs only (kept for ``fusion_gyrocal.io``'s imports).
-write_kalibr_imu_yaml = write_kalibr_imu_chain
 
 
 def write_openvins_imu_chain(cal, path, *, topics=None, update_rate=200.0, noise=None) -> Path:
