@@ -316,3 +316,18 @@ def test_calibrate_pair_bias_walk_model_is_efficient_under_drift():
     lo, hi = chi2.ppf([0.005, 0.995], 3 * runs) / runs
     assert lo < np.mean(nees) < 2 * hi, (lo, np.mean(nees), hi)
     assert np.sqrt(np.mean(np.square(err_walk))) < 0.3 * np.sqrt(np.mean(np.square(err_const)))
+
+
+def test_calibrate_pair_mirrored_or_swapped_axis_names_the_cause():
+    sim = simulate_pair(rng=11, n=3000)
+    for w2 in (sim.omega_2 * [1.0, -1.0, 1.0], sim.omega_2[:, [1, 0, 2]]):
+        with pytest.raises(InputError, match="left-handed frame"):
+            calibrate_pair(sim.omega_1, w2)
+
+
+def test_calibrate_pair_unit_mismatch_names_the_units():
+    sim = simulate_pair(rng=12, n=3000)
+    with pytest.raises(InputError, match=r"gyro 1 in rad/s, gyro 2 in deg/s\?.*--unit1/--unit2"):
+        calibrate_pair(sim.omega_1, np.rad2deg(sim.omega_2))
+    with pytest.raises(InputError, match="gyro 1 in deg/s, gyro 2 in rad/s"):
+        calibrate_pair(np.rad2deg(sim.omega_1), sim.omega_2)

@@ -211,3 +211,14 @@ def test_fleet_main_has_no_bias_window_flag(capsys):
     with pytest.raises(SystemExit):
         fleet_main(["dev.parquet", "--bias-window", "2"])
     assert "unrecognized arguments: --bias-window" in capsys.readouterr().err
+
+
+def test_run_fleet_dead_worker_fails_only_its_device(tmp_path):
+    from fusion_gyrocal.distributed.fleet import _gathered
+
+    class Future:      # what client.map returns for a device whose worker was killed (e.g. out of memory)
+        def result(self):
+            raise RuntimeError("KilledWorker: Attempted to run task on 3 different workers, all died")
+    row = _gathered(Future(), tmp_path / "dev_x.parquet")
+    assert row["device"] == "dev_x" and row["ok"] is False
+    assert row["error_type"] == "RuntimeError" and "all died" in row["error"]

@@ -57,8 +57,11 @@ def run(args) -> int:
     cluster = client = None
     try:
         if args.scheduler or args.workers > 0:
+            import dask
             from distributed import Client, LocalCluster
 
+            # a device that kills its worker (out of memory) fails alone: not re-run on every other worker in turn
+            dask.config.set({"distributed.scheduler.allowed-failures": 0})
             if args.scheduler:
                 client = Client(args.scheduler)
             else:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import NotRigidError
+from ..errors import InputError, NotRigidError
 from ..lie import log, nearest_rotation
 from ..options import Options
 from .direct import decompose, solve_A
@@ -39,6 +39,33 @@ def _skew_compensation(intrinsics):
     S = np.asarray(intrinsics, dtype=float)
     U = S / np.diag(S)[None, :]
     return np.linalg.inv(U)
+
+
+#: Largest plausible ratio of the two gyros' rate magnitudes (scale factors of real gyros differ by percent).
+MAX_GAIN_RATIO = 1.5
+
+
+def _check_plausible_A(A) -> None:
+    """Refuse an ``A`` no rigid pair of gyros in the same unit gives: a mirrored frame or a unit mismatch.
+
+    ``A = S_1 R S_2^-1`` (Eq. 4) has ``det(A) > 0`` and singular values near 1 for any real pair; a
+    negative determinant is a left-handed frame (an axis sign-inverted or two axes swapped), and a
+    common gain far from 1 is one gyro in other units (57.3 for deg/s read as rad/s).
+    """
+    gain = float(np.prod(np.linalg.svd(A, compute_uv=False)) ** (1.0 / 3.0))   # |det A|^(1/3)
+    if np.linalg.det(A) < 0:
+        raise InputError("gyro 2's axes form a left-handed frame relative to gyro 1's (det(A) < 0, no rotation "
+                         "maps one onto the other): one axis is sign-inverted or two axes are swapped (wiring, "
+                         "driver or export error); fix gyro 2's axis mapping (negate or swap its columns)")
+    if not 1.0 / MAX_GAIN_RATIO <= gain <= MAX_GAIN_RATIO:
+        hint = ""
+        for name, factor in (("deg/s", np.rad2deg(1.0)), ("rad/s", np.deg2rad(1.0))):
+            if abs(np.log(gain / factor)) < np.log(1.15):
+                hint = (f" (x{gain:.4g}: gyro 1 in {name}, gyro 2 in {'rad/s' if name == 'deg/s' else 'deg/s'}?"
+                        " pass the unit of each gyro, --unit1/--unit2)")
+        raise InputError(f"gyro 1's rates are {gain:.4g} times gyro 2's (expected near 1 for two gyros in the same "
+                         f"unit: scale factors differ by percent){hint}; check the units (rad/s, deg/s, raw counts "
+                         "with their sensitivity) of both recordings")
 
 
 def _transform(moments: Moments, T1, T2) -> Moments:
@@ -109,6 +136,7 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         noise_source = "user"
     if rigid:
         check_excitation(moments, noise, min_snr=o.min_snr)
+        _check_plausible_A(A_ls)
     # classify from the polar factor of A (scales ~1), then again from the decomposed rotation
     config = classify(nearest_rotation(A_ls), parallel_tol_deg)
     notes = []

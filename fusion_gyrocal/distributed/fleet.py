@@ -282,8 +282,8 @@ def run_fleet(devices, *, client=None, output=None, chunked: bool = False, split
     else:
         task = functools.partial(device_row, options=options)
         if client is not None:
-            futures = client.map(task, [str(p) for p in paths], pure=False)
-            rows = client.gather(futures)
+            futures = client.map(task, [str(p) for p in paths], pure=False, retries=0)
+            rows = [_gathered(f, p) for f, p in zip(futures, paths)]
         else:
             import dask
 
@@ -292,6 +292,15 @@ def run_fleet(devices, *, client=None, output=None, chunked: bool = False, split
     if output is not None:
         write_results(df, output)
     return df
+
+
+def _gathered(future, path: Path) -> dict:
+    """The row of one device's future; a device whose worker died (out of memory, killed) gets a failed row
+    instead of taking every other device's result down with it."""
+    try:
+        return future.result()
+    except Exception as exc:  # noqa: BLE001 - e.g. distributed.KilledWorker: recorded for this device only
+        return _row(path.stem, str(path), None, exc, float("nan"))
 
 
 def write_results(df, path) -> Path:
