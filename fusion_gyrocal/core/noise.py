@@ -47,7 +47,7 @@ SIGNIFICANT_CHI2 = 9.0                # chi-square drop for a term to be kept (3
 WALK_Z = 3.0                          # significance of K for a random-walk bias
 SETTLE_FRACTION = 1.0 / 20.0          # Kalman time constant of the walk, at most this fraction of the log
 MIN_STEADY_WINDOWS = 5
-COLOURED_FACTOR = 2.0                 # Allan variance at the shortest tau off the fit by more: coloured
+COLOURED_FACTOR = 1.5                 # Allan variance at the shortest tau off the fit by more: coloured
 #: correlation of the overlapping Allan variance at neighbouring octave taus, by the dominant noise
 #: (white, flicker, random walk), measured on simulated noise
 NEIGHBOUR_CORRELATION = np.array([0.5, 0.7, 0.85])
@@ -350,8 +350,8 @@ def _wls(taus, avar, edf, terms):
 def _fit_allan(taus, avar, edf):
     """Forward selection of the terms (white first, then the walk and the flicker term while each lowers
     the chi-square by more than :data:`SIGNIFICANT_CHI2`). While the shortest tau is off the fitted curve by
-    more than a factor :data:`COLOURED_FACTOR` in variance (coloured noise: the standard terms do not
-    describe it), it is dropped and the fit repeated. Returns coefficients, covariance, the index of the
+    more than a factor :data:`COLOURED_FACTOR` in variance, or the white term does not dominate the three shortest (coloured
+    noise: the standard terms do not describe it), it is dropped and the fit repeated. Returns coefficients, covariance, the index of the
     first tau used, the predicted AVAR."""
     lo = 0
     while True:
@@ -364,7 +364,9 @@ def _fit_allan(taus, avar, edf):
             if trial[0][0] > 0 and trial[0][extra] > 0 and best[2] - trial[2] > SIGNIFICANT_CHI2 * red:
                 terms, best = terms + [extra], trial
         ratio = a[0] / best[3][0] if best[3][0] > 0 else np.inf
-        if t.size <= 5 or 1.0 / COLOURED_FACTOR <= ratio <= COLOURED_FACTOR:
+        # a white-noise fit: white dominates its three shortest taus (else the white level is not measured)
+        white_first = bool(np.all(best[0][0] / t[:3] >= 0.5 * best[3][:3]))
+        if t.size <= 5 or (white_first and 1.0 / COLOURED_FACTOR <= ratio <= COLOURED_FACTOR):
             return best[0], best[1], lo, best[3]
         lo += 1
 
