@@ -177,23 +177,27 @@ class _Windows:
 
 
 def _windows(r, w1, aw2, valid, w) -> _Windows:
+    """Statistics of consecutive windows of ``w`` samples with at least half of them valid (the invalid
+    samples are zero in ``r``, ``w1`` and ``aw2`` and left out of every sum)."""
     n_win = r.shape[0] // w
     m = n_win * w
-    ok = valid[:m].reshape(n_win, w).all(axis=1)
-    idx = np.flatnonzero(ok)
-    pick = slice(None) if idx.size == n_win else idx  # no copy when every window is valid
+    cnt = valid[:m].reshape(n_win, w).sum(axis=1)
+    idx = np.flatnonzero(cnt >= max(w // 2, 4))
+    pick = slice(None) if idx.size == n_win else idx  # no copy when every window is kept
+    cnt = cnt[pick].astype(float)
     R = r[:m].reshape(n_win, w, 3)[pick]
     X1 = w1[:m].reshape(n_win, w, 3)[pick]
     X2 = aw2[:m].reshape(n_win, w, 3)[pick]
-    v_r = np.einsum("jki,jki->j", R, R) / (3.0 * w)
+    v_r = np.einsum("jki,jki->j", R, R) / (3.0 * cnt)
     sq = np.einsum("jki,jki->jk", X1, X1)
-    rate_powers = np.column_stack([sq.sum(axis=1), (sq * np.sqrt(sq)).sum(axis=1), (sq * sq).sum(axis=1)]) / (3.0 * w)
+    rate_powers = (np.column_stack([sq.sum(axis=1), (sq * np.sqrt(sq)).sum(axis=1), (sq * sq).sum(axis=1)])
+                   / (3.0 * cnt[:, None]))  # per axis
     # centred (co)variances per axis from window sums (rates and biases are far below 1e8 x the noise)
     m1, m2 = X1.sum(axis=1), X2.sum(axis=1)
-    k = 3.0 * (w - 1)
-    v1 = (sq.sum(axis=1) - np.einsum("ji,ji->j", m1, m1) / w) / k
-    v2 = (np.einsum("jki,jki->j", X2, X2) - np.einsum("ji,ji->j", m2, m2) / w) / k
-    c = (np.einsum("jki,jki->j", X1, X2) - np.einsum("ji,ji->j", m1, m2) / w) / k
+    k = 3.0 * (cnt - 1.0)
+    v1 = (sq.sum(axis=1) - np.einsum("ji,ji->j", m1, m1) / cnt) / k
+    v2 = (np.einsum("jki,jki->j", X2, X2) - np.einsum("ji,ji->j", m2, m2) / cnt) / k
+    c = (np.einsum("jki,jki->j", X1, X2) - np.einsum("ji,ji->j", m1, m2) / cnt) / k
     return _Windows(idx * w, v_r, rate_powers, v1 - c, v2 - c, c, w)
 
 
@@ -434,10 +438,12 @@ def identify_noise(omega_1, omega_2, A, bias, *, rate_hz: float, mask=None, wind
     aw2 = w2 @ A.T
     r = w1 - aw2
     r -= bias
+    if not everything:
+        r[~valid] = 0.0
     w = max(8, int(round(window_s * rate_hz)))
     win = _windows(r, w1, aw2, valid, w)
     if win.start.size < 16:
-        raise InputError(f"omega_1/omega_2: expected at least 16 full windows of {w} valid samples "
+        raise InputError(f"omega_1/omega_2: expected at least 16 windows of {w} samples, half of them valid "
                          f"({window_s:g} s) to identify the noise, got {win.start.size}")
     notes, sources = [], {}
 
@@ -454,6 +460,7 @@ def identify_noise(omega_1, omega_2, A, bias, *, rate_hz: float, mask=None, wind
             quiet[np.argsort(excess)[:16]] = True
         use = np.zeros(n, bool)
         use[:w * (n // w)].reshape(-1, w)[win.start[quiet] // w] = True
+        use &= valid
         everything = False
         sources["misfit"] = (f"residual variance grows with the rate: {100 * share:.0f}% of it is explained by "
                              f"|omega| (a gain error {gain_a:+.3g} {gain_b:+.3g}/(rad/s) |omega|); the noise "
