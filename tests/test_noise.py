@@ -133,7 +133,7 @@ def test_identify_noise_rejects_bad_input():
     A, b = np.eye(3), np.zeros(3)
     with pytest.raises(OptionError, match="rate_hz"):
         identify_noise(sim.omega_1, sim.omega_2, A, b, rate_hz=0.0)
-    with pytest.raises(InputError, match="16 full windows"):
+    with pytest.raises(InputError, match="at least 16 windows"):
         identify_noise(sim.omega_1[:500], sim.omega_2[:500], A, b, rate_hz=RATE)
     with pytest.raises(InputError, match="mask"):
         identify_noise(sim.omega_1, sim.omega_2, A, b, rate_hz=RATE, mask=np.ones(5, bool))
