@@ -451,7 +451,12 @@ def identify_noise(omega_1, omega_2, A, bias, *, rate_hz: float, mask=None, wind
     (v0, gain_a, gain_b), pred, drop = _misfit_fit(win)
     excess = pred - v0
     share = float(excess.mean() / pred.mean()) if pred.mean() > 0 else 0.0
-    misfit = share > MISFIT_SHARE and drop > 25.0
+    # significant: the chi-square drop (scaled by the fit's reduced chi-square), or, robust to heavy-tailed
+    # windows, the fastest quarter of the windows with twice the median mean square of the slowest quarter
+    order = np.argsort(win.rate_powers[:, 0])
+    q = max(order.size // 4, 1)
+    contrast = float(np.median(win.v_r[order[-q:]]) / max(np.median(win.v_r[order[:q]]), 1e-300))
+    misfit = share > MISFIT_SHARE and (drop > 25.0 or contrast > 2.0)
     use = valid.copy()
     if misfit:
         quiet = excess <= MISFIT_SHARE * v0
