@@ -1,0 +1,573 @@
+"""The noise of a moving rigid pair, identified from its own residual: :func:`identify_noise`.
+
+The residual of a rigid pair, ``r_k = omega_1(k) - A omega_2(k) - b`` (Eq. 4-5 with ``A`` and ``b``
+from the direct solve, Eq. 12-17), removes the motion and keeps what the calibration has to weigh:
+the white noise of both gyros, ``n_1 - A n_2``, the drift of the combined bias ``b_1(k) - A b_2(k)``
+about its mean, and any model error. Three questions are answered from it, each in O(N):
+
+* **Is it noise at all?** In windows of about a second the residual variance is regressed on the
+  window's mean squared rate, ``var = sigma_0^2 + c_1 |omega|^2 + c_2 |omega|^4`` (non-negative
+  least squares). A significant rate term that explains more than a tenth of the variance is model
+  error (a rate-dependent scale or cross-axis error, timing, flex), not sensor noise: the result says
+  so (``kind = "not white noise: rate-dependent misfit"``) and the noise is then taken from the
+  windows where the fitted misfit is negligible.
+* **How much white noise, how much bias drift?** The overlapping Allan deviation of the residual
+  (allantools, the residual as a rate signal) is fitted with the standard terms of a gyro (IEEE Std
+  952): ``AVAR(tau) = N^2 / tau + (2 ln 2 / pi) B^2 + K^2 tau / 3`` with white rate noise ``N``
+  (slope -1/2, rad/s/sqrt(Hz)), bias instability ``B`` (flat) and bias random walk ``K`` (slope +1/2,
+  rad/s^1.5), each term kept only where it lowers the chi-square significantly. The weights are the
+  equivalent degrees of freedom of each point (Greenhall's formula for the dominant noise at that
+  tau). A per-sample white std ``sigma`` is ``N sqrt(rate_hz)``; a random walk of step std ``q`` per
+  sample is ``K / sqrt(rate_hz)``. Where the standard terms do not fit the short taus (coloured
+  noise), those taus are dropped and the residual is reported as coloured.
+* **Which gyro?** The residual only sees ``sigma_1^2 + sigma_2^2``. Where both gyros are steady (the
+  motion's variance within a window below the noise's, e.g. the static poses many logs start
+  with), each gyro's own noise is observable: ``var(omega_1) - cov(omega_1, A omega_2)`` is gyro 1's
+  and ``var(A omega_2) - cov`` gyro 2's. Else each stream's third differences give the ratio, else
+  the split is equal. The bias walk is split equally (only the sum is observable).
+
+The bias model is chosen from the fit: a random walk when ``K`` is significant (z >= 3) and its
+steady-state Kalman filter settles within a twentieth of the log (otherwise the constant-bias model
+loses nothing and keeps every sample). :attr:`NoiseModel.calibrate_keywords` gives ``noise_std`` and
+``bias_walk_std`` as :func:`~fusion_gyrocal.calibrate_pair` takes them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import InputError, OptionError
+from .moments import as_rates
+
+FLICKER = 2.0 * np.log(2.0) / np.pi   # AVAR of bias instability B: (2 ln 2 / pi) B^2 (IEEE Std 952)
+MISFIT_SHARE = 0.1                    # rate-explained share of the residual variance that is flagged
+SIGNIFICANT_CHI2 = 9.0                # chi-square drop for a term to be kept (3 sigma)
+WALK_Z = 3.0                          # significance of K for a random-walk bias
+SETTLE_FRACTION = 1.0 / 20.0          # Kalman time constant of the walk, at most this fraction of the log
+MIN_STEADY_WINDOWS = 5
+COLOURED_FACTOR = 1.5                 # Allan variance at the shortest tau off the fit by more: coloured
+#: correlation of the overlapping Allan variance at neighbouring octave taus, by the dominant noise
+#: (white, flicker, random walk), measured on simulated noise
+NEIGHBOUR_CORRELATION = np.array([0.5, 0.7, 0.85])
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Noise of a gyro pair identified from its residual (:func:`identify_noise`).
+
+    Attributes
+    ----------
+    rate_hz : float
+        Sample rate the per-sample numbers refer to.
+    noise_std : tuple of float
+        White-noise std per sample of gyro 1 and gyro 2 (rad/s), as ``calibrate_pair(noise_std=...)``
+        takes it.
+    noise_std_uncertainty : tuple of float
+        Their standard uncertainties (statistical; an equal split carries none, see ``sources``).
+    bias_walk_std : tuple of float or None
+        Bias random-walk step std per sample of gyro 1 and gyro 2 (rad/s), as
+        ``calibrate_pair(bias_walk_std=...)`` takes it; None when ``bias_model == "constant"``.
+    bias_model : {"constant", "random walk"}
+        The bias model chosen from the data.
+    residual_noise_std, residual_noise_std_uncertainty : float
+        White std per sample of the residual per axis, ``sqrt(sigma_1^2 + sigma_2^2 |A|_F^2 / 3)``.
+    residual_walk_std, residual_walk_std_uncertainty : float
+        Random-walk step std per sample of the combined bias ``b_1 - A b_2`` per axis (0 when the fit
+        has no walk term); reported even when the constant model is chosen.
+    bias_instability, bias_instability_uncertainty : float
+        ``B`` (rad/s) of the residual, 0 when the fit has no flicker term.
+    white_std_at_rest : float
+        Intercept ``sigma_0`` of the heteroscedastic regression (the residual's std at zero rate).
+    misfit_gain : tuple of float
+        ``(a, b)`` of the misfit ``(a + b |omega|) omega`` fitted to the windows' mean square residual:
+        ``a`` dimensionless (a leftover scale or cross-axis error), ``b`` per rad/s (a rate-dependent
+        scale error).
+    misfit_share : float
+        Share of the residual variance that the rate terms explain.
+    kind : str
+        ``"white noise"``, ``"white noise + bias random walk"``, ``"coloured noise"`` or
+        ``"not white noise: rate-dependent misfit"``.
+    taus : ndarray (T,)
+        Averaging times of the Allan curve (s).
+    adev : ndarray (T, 3)
+        Overlapping Allan deviation of the residual per axis (rad/s), on the samples of the fit.
+    adev_fit : ndarray (T,)
+        The fitted model's Allan deviation (rad/s).
+    fit_taus : tuple of float
+        The range of taus the fit used.
+    sources : dict
+        Where each number came from (keys ``noise``, ``split``, ``bias``, ``misfit``).
+    notes : tuple of str
+    """
+
+    rate_hz: float
+    noise_std: tuple
+    noise_std_uncertainty: tuple
+    bias_walk_std: tuple | None
+    bias_model: str
+    residual_noise_std: float
+    residual_noise_std_uncertainty: float
+    residual_walk_std: float
+    residual_walk_std_uncertainty: float
+    bias_instability: float
+    bias_instability_uncertainty: float
+    white_std_at_rest: float
+    misfit_gain: tuple
+    misfit_share: float
+    kind: str
+    taus: np.ndarray
+    adev: np.ndarray
+    adev_fit: np.ndarray
+    fit_taus: tuple
+    sources: dict = field(default_factory=dict)
+    notes: tuple = ()
+
+    @property
+    def is_white(self) -> bool:
+        """True when the residual is white noise (with or without a bias random walk)."""
+        return self.kind.startswith("white")
+
+    @property
+    def noise_density(self) -> tuple:
+        """White rate noise density of each gyro, ``noise_std / sqrt(rate_hz)`` (rad/s/sqrt(Hz))."""
+        return tuple(float(s / np.sqrt(self.rate_hz)) for s in self.noise_std)
+
+    @property
+    def random_walk(self) -> tuple | None:
+        """Bias random walk of each gyro, ``bias_walk_std * sqrt(rate_hz)`` (rad/s^1.5, the Allan ``K``)."""
+        if self.bias_walk_std is None:
+            return None
+        return tuple(float(q * np.sqrt(self.rate_hz)) for q in self.bias_walk_std)
+
+    @property
+    def calibrate_keywords(self) -> dict:
+        """``noise_std`` (and ``bias_walk_std`` for a random-walk bias) for :func:`~fusion_gyrocal.calibrate_pair`."""
+        out = {"noise_std": self.noise_std}
+        if self.bias_walk_std is not None:
+            out["bias_walk_std"] = self.bias_walk_std
+        return out
+
+    def describe(self) -> str:
+        """One line per number with its source (for reports and the CLI)."""
+        deg = 180.0 / np.pi
+        lines = [f"residual: {self.kind}"]
+        for i in (0, 1):
+            lines.append(f"gyro {i + 1}: white {self.noise_std[i] * deg:.4g} +- {self.noise_std_uncertainty[i] * deg:.2g} "
+                         f"deg/s per sample ({self.noise_density[i] * deg * 3600 / 60:.4g} deg/sqrt(h))")
+        if self.bias_walk_std is not None:
+            lines.append(f"bias random walk {self.bias_walk_std[0] * deg:.3g} deg/s per sample per gyro")
+        else:
+            lines.append("bias: constant")
+        lines += [f"{k}: {v}" for k, v in self.sources.items()]
+        return "\n".join(lines + list(self.notes))
+
+
+# ---------------------------------------------------------------------------------------------- windows
+@dataclass(frozen=True)
+class _Windows:
+    start: np.ndarray     # first sample of each full, valid window
+    v_r: np.ndarray       # residual mean square per axis (about the log's bias, so slow misfit counts)
+    rate_powers: np.ndarray  # (W, 3) window means of |omega_1|^2, |omega_1|^3, |omega_1|^4
+    e_1: np.ndarray       # var(omega_1) - cov(omega_1, A omega_2), per axis
+    e_2: np.ndarray       # var(A omega_2) - cov, per axis
+    cov: np.ndarray       # cov(omega_1, A omega_2) per axis (motion variance)
+    length: int
+
+
+def _windows(r, w1, aw2, valid, w) -> _Windows:
+    """Statistics of consecutive windows of ``w`` samples with at least half of them valid (the invalid
+    samples are zero in ``r``, ``w1`` and ``aw2`` and left out of every sum)."""
+    n_win = r.shape[0] // w
+    m = n_win * w
+    cnt = valid[:m].reshape(n_win, w).sum(axis=1)
+    idx = np.flatnonzero(cnt >= max(w // 2, 4))
+    pick = slice(None) if idx.size == n_win else idx  # no copy when every window is kept
+    cnt = cnt[pick].astype(float)
+    R = r[:m].reshape(n_win, w, 3)[pick]
+    X1 = w1[:m].reshape(n_win, w, 3)[pick]
+    X2 = aw2[:m].reshape(n_win, w, 3)[pick]
+    v_r = np.einsum("jki,jki->j", R, R) / (3.0 * cnt)
+    sq = np.einsum("jki,jki->jk", X1, X1)
+    rate_powers = (np.column_stack([sq.sum(axis=1), (sq * np.sqrt(sq)).sum(axis=1), (sq * sq).sum(axis=1)])
+                   / (3.0 * cnt[:, None]))  # per axis
+    # centred (co)variances per axis from window sums (rates and biases are far below 1e8 x the noise)
+    m1, m2 = X1.sum(axis=1), X2.sum(axis=1)
+    k = 3.0 * (cnt - 1.0)
+    v1 = (sq.sum(axis=1) - np.einsum("ji,ji->j", m1, m1) / cnt) / k
+    v2 = (np.einsum("jki,jki->j", X2, X2) - np.einsum("ji,ji->j", m2, m2) / cnt) / k
+    c = (np.einsum("jki,jki->j", X1, X2) - np.einsum("ji,ji->j", m1, m2) / cnt) / k
+    return _Windows(idx * w, v_r, rate_powers, v1 - c, v2 - c, c, w)
+
+
+def _misfit_fit(win: _Windows):
+    """Heteroscedastic regression of the windows' mean square residual on their rate.
+
+    The model is white noise plus a gain error that grows linearly with the rate,
+    ``r = n + (a + b |omega|) omega``: ``E r^2 = sigma_0^2 + a^2 |omega|^2 + 2 a b |omega|^3 + b^2 |omega|^4``
+    averaged over each window (``a`` is a scale or cross-axis error left over, ``b`` a rate-dependent
+    scale error per rad/s; the direct solve absorbs the mean gain, so ``a`` and ``b`` usually have
+    opposite signs). Weighted by the chi-square spread of a mean square, reweighted with the model.
+
+    Returns
+    -------
+    params : (sigma_0^2, a, b)
+    pred : ndarray, the fitted mean square of each window
+    drop : float
+        Chi-square drop against a constant, divided by the reduced chi-square of the fit when above 1.
+    """
+    v, P = win.v_r, win.rate_powers
+    dof = 3.0 * win.length
+    phi = np.linspace(0.0, np.pi, 61)[:-1]  # direction of (a, b); the fit is linear in (sigma_0^2, g^2)
+    U = (np.cos(phi)[:, None] ** 2 * P[:, 0] + 2.0 * (np.cos(phi) * np.sin(phi))[:, None] * P[:, 1]
+         + np.sin(phi)[:, None] ** 2 * P[:, 2])  # (directions, windows)
+    pred = np.full_like(v, max(float(np.median(v)), 1e-300))
+    for _ in range(3):
+        wt2 = (dof / 2.0) / np.maximum(pred, 1e-300) ** 2
+        # weighted two-parameter least squares for every direction at once, clipped to g^2 >= 0
+        S0, Sv, Svv = wt2.sum(), wt2 @ v, wt2 @ (v * v)
+        Su, Suu, Suv = U @ wt2, (U * U) @ wt2, U @ (wt2 * v)
+        det = S0 * Suu - Su * Su
+        g2 = np.where(det > 0, (S0 * Suv - Su * Sv) / np.where(det > 0, det, 1.0), 0.0)
+        g2 = np.maximum(g2, 0.0)
+        c0 = np.maximum((Sv - g2 * Su) / S0, 0.0)
+        chi = Svv - 2 * c0 * Sv - 2 * g2 * Suv + c0 * c0 * S0 + 2 * c0 * g2 * Su + g2 * g2 * Suu
+        k = int(np.argmin(chi))
+        pred = c0[k] + g2[k] * U[k]
+    g = np.sqrt(g2[k])
+    x = (np.sqrt(c0[k]), g * np.cos(phi[k]), g * np.sin(phi[k]))
+    wt = np.sqrt(dof / 2.0) / np.maximum(pred, 1e-300)
+    chi2 = float(np.sum(((v - pred) * wt) ** 2))
+    mean0 = float(np.mean(v))
+    chi2_0 = float(np.sum(((v - mean0) * np.sqrt(dof / 2.0) / mean0) ** 2))
+    red = max(1.0, chi2 / max(v.size - 3, 1))
+    return (float(x[0] ** 2), float(x[1]), float(x[2])), pred, (chi2_0 - chi2) / red
+
+
+def _steady_split(win: _Windows, rate_hz: float):
+    """Each gyro's own variance from the windows where the motion is below the noise; None if too few."""
+    steady = win.cov <= win.v_r
+    n = int(steady.sum())
+    if n < MIN_STEADY_WINDOWS:
+        return None
+    e1, e2 = win.e_1[steady], win.e_2[steady]
+    m1, m2 = float(e1.mean()), float(e2.mean())
+    if m1 <= 0 or m2 <= 0:
+        return None
+    sd1, sd2 = float(e1.std(ddof=1)) / np.sqrt(n), float(e2.std(ddof=1)) / np.sqrt(n)
+    starts = win.start[steady]
+    runs = np.split(starts, np.flatnonzero(np.diff(starts) != win.length) + 1)
+    longest = max(runs, key=len)
+    t0, t1 = longest[0] / rate_hz, (longest[-1] + win.length) / rate_hz
+    text = (f"steady stretches (both gyros' motion below their noise): {n * win.length / rate_hz:.1f} s in "
+            f"{len(runs)} stretch(es), longest {t0:.1f}-{t1:.1f} s")
+    # ratio^2 = m1 / m2 and its relative variance (delta method)
+    return m1 / m2, (sd1 / m1) ** 2 + (sd2 / m2) ** 2, text, (np.sqrt(m1), np.sqrt(m2))
+
+
+# ---------------------------------------------------------------------------------------------- Allan
+def _allan(y: np.ndarray, rate_hz: float):
+    """Overlapping Allan deviation per axis at octave taus (allantools), with the phase subsampled by
+    ``m // 4`` at ``tau = m / rate_hz`` (the overlapping estimator evaluated every ``m / 4`` samples: the
+    cost of all taus together is about four passes). Returns taus, adev (T, 3), and per tau the length
+    and averaging factor of the subsampled phase (for the degrees of freedom)."""
+    import allantools
+
+    n = y.shape[0]
+    ms = 2 ** np.arange(0, int(np.floor(np.log2(max(n / 4.0, 1.0)))) + 1)
+    # phase (integrated rate) of the three axes in one pass, as allantools.frequency2phase makes it
+    ph = np.empty((n + 1, 3))
+    ph[0] = 0.0
+    np.cumsum(y - y.mean(axis=0), axis=0, out=ph[1:])
+    ph /= rate_hz
+    phase = [np.ascontiguousarray(ph[:, a]) for a in range(3)]
+    del ph
+    adev = np.empty((ms.size, 3))
+    sub_n, sub_m = np.empty(ms.size), np.empty(ms.size)
+    for i, m in enumerate(ms):
+        b = max(1, int(m) // 4)
+        for a in range(3):
+            p = phase[a][::b]
+            _, dev, _, _ = allantools.oadev(p, rate=rate_hz / b, data_type="phase", taus=np.array([m / rate_hz]))
+            adev[i, a] = dev[0]
+        sub_n[i], sub_m[i] = p.size, m // b
+    return ms / rate_hz, adev, sub_n, sub_m
+
+
+def _edf_table(sub_n, sub_m):
+    """Equivalent degrees of freedom of each tau (3 independent axes) for white, flicker and random-walk
+    rate noise (alpha = 0, -1, -2), Greenhall's formula for the overlapping Allan variance."""
+    from allantools import edf_greenhall
+
+    out = np.empty((sub_n.size, 3))
+    for i, (n, m) in enumerate(zip(sub_n, sub_m)):
+        for j, alpha in enumerate((0, -1, -2)):
+            out[i, j] = 3.0 * edf_greenhall(alpha=alpha, d=2, m=int(m), N=int(n), overlapping=True)
+    return np.maximum(out, 1.0)
+
+
+def _wls(taus, avar, edf, terms):
+    """Non-negative generalised least squares of AVAR on the chosen terms (0: N^2/tau, 1: B^2, 2: K^2 tau/3).
+
+    The variance of each point is ``2 AVAR^2 / edf`` with the degrees of freedom of the dominant noise at
+    that tau; neighbouring octaves of the overlapping estimator are correlated (measured for octave taus:
+    about 0.5 for white, 0.7 for flicker and 0.85 for random-walk rate noise, decaying geometrically), so
+    the points are whitened with that correlation before the fit (without it the uncertainties come out
+    about twice too small). Iterated with the weights of the model.
+    """
+    from scipy.optimize import nnls
+
+    X = np.column_stack([1.0 / taus, np.full_like(taus, FLICKER), taus / 3.0])
+    Xs = X[:, terms]
+    scale = np.abs(Xs).max(axis=0)
+    pred = avar.copy()
+    coef = np.zeros(3)
+    T = taus.size
+    for _ in range(5):
+        parts = X * np.where(coef > 0, coef, 0.0)
+        dom = np.argmax(parts, axis=1) if coef.any() else np.zeros(T, int)
+        e = edf[np.arange(T), dom]
+        sd = np.maximum(pred, 1e-300) * np.sqrt(2.0 / e)
+        rho = np.minimum(NEIGHBOUR_CORRELATION[dom[:-1]], NEIGHBOUR_CORRELATION[dom[1:]])
+        logc = np.concatenate([[0.0], np.cumsum(np.log(rho))])
+        C = np.exp(-np.abs(logc[:, None] - logc[None, :]))  # prod of the neighbour correlations between i and j
+        L = np.linalg.cholesky(C * np.outer(sd, sd))
+        Jw = np.linalg.solve(L, Xs / scale)
+        yw = np.linalg.solve(L, avar)
+        c = nnls(Jw, yw)[0] / scale
+        coef = np.zeros(3)
+        coef[terms] = c
+        pred = X @ coef
+    res = np.linalg.solve(L, avar - pred)
+    chi2 = float(res @ res)
+    cov = np.full((3, 3), np.nan)
+    act = [t for t in terms if coef[t] > 0]
+    if act:
+        J = np.linalg.solve(L, X[:, act])
+        red = max(1.0, chi2 / max(T - len(act), 1))
+        cov = np.zeros((3, 3))
+        cov[np.ix_(act, act)] = np.linalg.pinv(J.T @ J) * red
+    return coef, cov, chi2, pred
+
+
+def _fit_allan(taus, avar, edf):
+    """Forward selection of the terms (white first, then the walk and the flicker term while each lowers
+    the chi-square by more than :data:`SIGNIFICANT_CHI2`). While the shortest tau is off the fitted curve by
+    more than a factor :data:`COLOURED_FACTOR` in variance, or the white term does not dominate the three shortest (coloured
+    noise: the standard terms do not describe it), it is dropped and the fit repeated. Returns coefficients, covariance, the index of the
+    first tau used, the predicted AVAR."""
+    lo = 0
+    while True:
+        t, a, e = taus[lo:], avar[lo:], edf[lo:]
+        terms = [0]
+        best = _wls(t, a, e, terms)
+        for extra in (2, 1):
+            trial = _wls(t, a, e, terms + [extra])
+            red = max(1.0, trial[2] / max(t.size - len(terms) - 1, 1))
+            if trial[0][0] > 0 and trial[0][extra] > 0 and best[2] - trial[2] > SIGNIFICANT_CHI2 * red:
+                terms, best = terms + [extra], trial
+        ratio = a[0] / best[3][0] if best[3][0] > 0 else np.inf
+        # a white-noise fit: white dominates its three shortest taus (else the white level is not measured)
+        white_first = bool(np.all(best[0][0] / t[:3] >= 0.5 * best[3][:3]))
+        if t.size <= 5 or (white_first and 1.0 / COLOURED_FACTOR <= ratio <= COLOURED_FACTOR):
+            return best[0], best[1], lo, best[3]
+        lo += 1
+
+
+# ---------------------------------------------------------------------------------------------- entry point
+def identify_noise(omega_1, omega_2, A, bias, *, rate_hz: float, mask=None, window_s: float = 1.0) -> NoiseModel:
+    """Identify white noise, bias drift and model error of a rigid pair from its residual.
+
+    Parameters
+    ----------
+    omega_1, omega_2 : array_like, shape (N, 3)
+        Sample-aligned rates (rad/s) of gyro 1 and gyro 2 at ``rate_hz``.
+    A : array_like (3, 3)
+        ``S_1 R_1_2 S_2^-1`` (Eq. 4), e.g. from :func:`~fusion_gyrocal.core.direct.solve_A`.
+    bias : array_like (3,)
+        The combined bias ``b_1 - A b_2`` (Eq. 5) that goes with ``A``.
+    rate_hz : float
+        Sample rate (Hz): converts per-sample numbers to densities and sets the windows.
+    mask : array_like of bool (N,), optional
+        Samples to use (non-finite samples are always left out). Masked samples are skipped in the
+        Allan computation (the kept samples are joined; the walk is corrected for the time left out).
+    window_s : float
+        Length of the windows of the heteroscedastic regression and the steady-stretch search (s).
+
+    Returns
+    -------
+    NoiseModel
+
+    Raises
+    ------
+    InputError
+        Wrong shapes, or fewer than 16 full windows of valid samples.
+    OptionError
+        A non-positive ``rate_hz`` or ``window_s``.
+
+    Examples
+    --------
+    >>> from fusion_gyrocal.core.direct import solve_A
+    >>> from fusion_gyrocal.core.moments import Moments
+    >>> from fusion_gyrocal.evaluate.sim import simulate_pair
+    >>> sim = simulate_pair(n=6000, rng=0, bias_walk_std=0.0)
+    >>> A, b = solve_A(Moments.from_samples(sim.omega_1, sim.omega_2))
+    >>> nm = identify_noise(sim.omega_1, sim.omega_2, A, b, rate_hz=100.0)
+    >>> nm.kind, nm.bias_model
+    ('white noise', 'constant')
+    """
+    if not (np.isfinite(rate_hz) and rate_hz > 0):
+        raise OptionError(f"rate_hz: expected a positive sample rate in Hz, got {rate_hz!r}")
+    if not (np.isfinite(window_s) and window_s > 0):
+        raise OptionError(f"window_s: expected a positive window length in s, got {window_s!r}")
+    w1 = np.asarray(as_rates("omega_1", omega_1), dtype=np.float64)
+    w2 = np.asarray(as_rates("omega_2", omega_2, length=w1.shape[0]), dtype=np.float64)
+    A = np.asarray(A, dtype=float).reshape(3, 3)
+    bias = np.asarray(bias, dtype=float).reshape(3)
+    n = w1.shape[0]
+    valid = np.isfinite(w1).all(axis=1) & np.isfinite(w2).all(axis=1)
+    if mask is not None:
+        mask = np.asarray(mask, dtype=bool)
+        if mask.shape != (n,):
+            raise InputError(f"mask: expected shape ({n},), got {mask.shape}")
+        valid &= mask
+    everything = bool(valid.all())
+    if not everything:
+        w1, w2 = np.where(valid[:, None], w1, 0.0), np.where(valid[:, None], w2, 0.0)
+    aw2 = w2 @ A.T
+    r = w1 - aw2
+    r -= bias
+    if not everything:
+        r[~valid] = 0.0
+    w = max(8, int(round(window_s * rate_hz)))
+    win = _windows(r, w1, aw2, valid, w)
+    if win.start.size < 16:
+        raise InputError(f"omega_1/omega_2: expected at least 16 windows of {w} samples, half of them valid "
+                         f"({window_s:g} s) to identify the noise, got {win.start.size}")
+    notes, sources = [], {}
+
+    # 1. rate-dependent misfit (heteroscedastic regression)
+    (v0, gain_a, gain_b), pred, drop = _misfit_fit(win)
+    excess = pred - v0
+    share = float(excess.mean() / pred.mean()) if pred.mean() > 0 else 0.0
+    # significant: the chi-square drop (scaled by the fit's reduced chi-square), or, robust to heavy-tailed
+    # windows, the fastest quarter of the windows with twice the median mean square of the slowest quarter
+    order = np.argsort(win.rate_powers[:, 0])
+    q = max(order.size // 4, 1)
+    contrast = float(np.median(win.v_r[order[-q:]]) / max(np.median(win.v_r[order[:q]]), 1e-300))
+    misfit = share > MISFIT_SHARE and (drop > 25.0 or contrast > 2.0)
+    use = valid.copy()
+    if misfit:
+        quiet = excess <= MISFIT_SHARE * v0
+        if quiet.sum() < 16:  # too few quiet windows: keep the lowest-misfit sixteen
+            quiet = np.zeros_like(quiet)
+            quiet[np.argsort(excess)[:16]] = True
+        use = np.zeros(n, bool)
+        use[:w * (n // w)].reshape(-1, w)[win.start[quiet] // w] = True
+        use &= valid
+        everything = False
+        sources["misfit"] = (f"residual variance grows with the rate: {100 * share:.0f}% of it is explained by "
+                             f"|omega| (a gain error {gain_a:+.3g} {gain_b:+.3g}/(rad/s) |omega|); the noise "
+                             f"is from the {int(quiet.sum())} windows of {w / rate_hz:g} s where the misfit is below "
+                             f"{100 * MISFIT_SHARE:g}% of the white variance")
+        notes.append("the residual is NOT white noise: it is mostly rate-dependent model error (scale or cross-axis "
+                     "error, timing, flex); its standard deviation is no sensor noise figure")
+    else:
+        sources["misfit"] = (f"no significant rate-dependent misfit ({100 * share:.1f}% of the residual variance "
+                             "explained by the rate)")
+
+    # 2. Allan deviation of the residual (on the samples kept) and its fit
+    if everything:
+        idx, y, span = None, r, n
+        kept = n
+    else:
+        idx = np.flatnonzero(use)
+        y = r[idx]
+        span, kept = int(idx[-1] - idx[0] + 1), idx.size
+    taus, adev, sub_n, sub_m = _allan(y, rate_hz)
+    avar = (adev ** 2).mean(axis=1)
+    edf = _edf_table(sub_n, sub_m)
+    c, cov, lo, pred_avar = _fit_allan(taus, avar, edf)
+    compress = kept / span  # joined samples: the walk per joined step covers span / size samples
+    Nsq, Bsq, Ksq = c
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0)) if np.isfinite(cov).all() else np.full(3, np.nan)
+    R_r = Nsq * rate_hz
+    R_sd = sd[0] * rate_hz
+    sigma_r = float(np.sqrt(R_r))
+    sigma_r_sd = float(R_sd / (2.0 * sigma_r)) if sigma_r > 0 else float("inf")
+    q2 = Ksq / rate_hz * compress
+    q2_sd = sd[2] / rate_hz * compress
+    q_r = float(np.sqrt(q2))
+    q_r_sd = float(q2_sd / (2.0 * q_r)) if q_r > 0 else 0.0
+    B = float(np.sqrt(Bsq))
+    B_sd = float(sd[1] / (2.0 * B)) if B > 0 else 0.0
+    tau_fit = (float(taus[lo]), float(taus[-1]))
+    coloured = lo > 0
+    where = "samples kept" if misfit else "valid samples"
+    sources["noise"] = (f"white rate noise (slope -1/2) of the residual's Allan fit at tau {tau_fit[0]:.3g}-"
+                        f"{tau_fit[1]:.3g} s on {kept / rate_hz:.0f} s of {where}")
+    if coloured:
+        notes.append(f"the residual is coloured below tau = {tau_fit[0]:.3g} s (its Allan deviation there is not "
+                     "that of white noise): noise_std is the white level of the longer taus, where the motion is")
+
+    # 3. bias model
+    z = Ksq / sd[2] if Ksq > 0 and sd[2] > 0 else 0.0
+    settle = np.sqrt(R_r / q2) if q2 > 0 else np.inf  # samples: Kalman time constant of the walk
+    walk = bool(z >= WALK_Z and settle <= SETTLE_FRACTION * span)
+    if walk:
+        sources["bias"] = (f"random walk: the Allan fit's K term (slope +1/2) is {z:.1f} sigma, and the Kalman "
+                           f"filter of the walk settles in {settle / rate_hz:.3g} s; split equally between the gyros "
+                           "(only the sum is observable)")
+    elif Ksq > 0 and z < WALK_Z:
+        sources["bias"] = (f"constant: the Allan fit's walk term is only {z:.1f} sigma (a random walk needs "
+                           f"{WALK_Z:g})")
+    elif Ksq > 0:
+        sources["bias"] = (f"constant: the walk ({z:.1f} sigma) is too slow to matter: its Kalman filter would take "
+                           f"{settle / rate_hz:.3g} s to settle, against {span / rate_hz:.0f} s of log")
+    else:
+        sources["bias"] = "constant: no random-walk term in the residual's Allan deviation"
+    if Bsq > 0:
+        notes.append(f"the residual has a bias-instability (flicker) floor B = {B:.3g} rad/s, which neither bias model "
+                     "describes exactly")
+
+    # 4. split between the gyros
+    a = float(np.sum(A * A) / 3.0)  # Var(A n_2) per axis = sigma_2^2 |A|_F^2 / 3
+    split = _steady_split(win, rate_hz)
+    if split is not None:
+        rho2, rho2_relvar, text, _ = split
+        sources["split"] = text
+    else:
+        from ..pipeline.pipeline import difference_noise_std  # TODO(lead): move into this module
+        head = slice(0, 200_000) if idx is None else idx[:200_000]  # plenty for a noise level
+        d1, d2 = difference_noise_std(w1[head]), difference_noise_std(w2[head])
+        if d1 > 0 and d2 > 0:
+            rho2 = (d1 / d2) ** 2
+            rho2_relvar = 2.0 * (2.0 * 1.3 ** 2 / min(kept, 200_000))  # MAD of third differences, both streams
+            sources["split"] = (f"third differences of each stream (ratio {np.sqrt(rho2):.3g}; fast motion at a low "
+                                "sample rate biases it)")
+        else:
+            rho2, rho2_relvar = 1.0, 0.0
+            sources["split"] = "equal split (no steady stretch, third differences unusable)"
+    s2_sq = R_r / (rho2 + a)
+    s1_sq = rho2 * s2_sq
+    rel_R = (R_sd / R_r) ** 2 if R_r > 0 else np.inf
+    f1, f2 = a / (rho2 + a), rho2 / (rho2 + a)
+    sd1 = np.sqrt(s1_sq) * 0.5 * np.sqrt(rel_R + f1 ** 2 * rho2_relvar)
+    sd2 = np.sqrt(s2_sq) * 0.5 * np.sqrt(rel_R + f2 ** 2 * rho2_relvar)
+    noise_std = (float(np.sqrt(s1_sq)), float(np.sqrt(s2_sq)))
+    q_each = q_r / np.sqrt(1.0 + a)
+    bias_walk = (float(q_each), float(q_each)) if walk else None
+
+    kind = ("not white noise: rate-dependent misfit" if misfit else "coloured noise" if coloured
+            else "white noise + bias random walk" if walk else "white noise")
+    return NoiseModel(
+        rate_hz=float(rate_hz), noise_std=noise_std, noise_std_uncertainty=(float(sd1), float(sd2)),
+        bias_walk_std=bias_walk, bias_model="random walk" if walk else "constant",
+        residual_noise_std=sigma_r, residual_noise_std_uncertainty=sigma_r_sd,
+        residual_walk_std=q_r, residual_walk_std_uncertainty=q_r_sd,
+        bias_instability=B, bias_instability_uncertainty=B_sd,
+        white_std_at_rest=float(np.sqrt(v0)), misfit_gain=(gain_a, gain_b), misfit_share=share, kind=kind,
+        taus=taus, adev=adev, adev_fit=np.sqrt(np.maximum(
+            np.column_stack([1.0 / taus, np.full_like(taus, FLICKER), taus / 3.0]) @ c, 0.0)),
+        fit_taus=tau_fit, sources=sources, notes=tuple(notes))
