@@ -53,7 +53,7 @@ def test_write_report_failed_write_keeps_the_old_files_and_names_the_folder(run,
         return real(src, dst)
 
     monkeypatch.setattr(os, "replace", refuse_second)
-    with pytest.raises(FormatError, match=f"^cannot write the report to {out}: permission denied$"):
+    with pytest.raises(FormatError, match=f"^cannot write the report to {out}: Permission denied$"):
         write_report(run, out)
     assert (out / os.path.basename(calls[1])).read_bytes() == before[os.path.basename(calls[1])]
     assert sorted(os.listdir(out)) == sorted(NAMES)   # the temp file of the refused write is removed
@@ -73,7 +73,7 @@ def test_write_report_folder_that_cannot_be_created_raises_format_error(run, tmp
         raise PermissionError(13, "Permission denied")
 
     monkeypatch.setattr(Path, "mkdir", refuse)
-    with pytest.raises(FormatError, match=r"^cannot write the report to .*new: permission denied$"):
+    with pytest.raises(FormatError, match=r"^cannot write the report to .*new: Permission denied$"):
         write_report(run, tmp_path / "new")
 
 
@@ -83,7 +83,7 @@ def test_write_report_read_only_folder_raises_format_error(run, tmp_path):
     out.mkdir()
     out.chmod(0o555)
     try:
-        with pytest.raises(FormatError, match=f"^cannot write the report to {out}: permission denied$"):
+        with pytest.raises(FormatError, match=f"^cannot write the report to {out}: Permission denied$"):
             write_report(run, out)
     finally:
         out.chmod(0o755)

@@ -158,7 +158,7 @@ def write_report(run: PipelineRun, out_dir, *, extra_figures=None) -> list[Path]
     Raises
     ------
     FormatError
-        ``out_dir`` cannot be created or written ("cannot write the report to OUT: permission
+        ``out_dir`` cannot be created or written ("cannot write the report to OUT: Permission
         denied"); the files already in it are left as they were.
     """
     from ..errors import FormatError

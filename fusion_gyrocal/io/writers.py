@@ -120,9 +120,8 @@ def _fsync_dir(d: Path) -> None:
 
 
 def os_reason(exc: OSError) -> str:
-    """The cause of an :class:`OSError` in words (``"permission denied"``), without errno and path."""
-    text = exc.strerror or str(exc) or type(exc).__name__
-    return text[:1].lower() + text[1:]
+    """The cause of an :class:`OSError` in words (``"Permission denied"``), without errno and path."""
+    return exc.strerror or str(exc) or type(exc).__name__
 
 
 def atomic_write(path, data: bytes | str) -> Path:
