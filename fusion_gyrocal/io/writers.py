@@ -135,7 +135,7 @@ def atomic_write(path, data: bytes | str) -> Path:
     ------
     FormatError
         When the folder does not exist or the write fails (the old file is left as it was); the message
-        names the file and the cause (``"cal.json: could not write: permission denied"``).
+        names the file and the cause (``"cal.json: could not write: Permission denied"``).
     """
     path = Path(path).expanduser()
     if isinstance(data, str):
