@@ -178,8 +178,10 @@ def test_main_help_lists_every_exit_code(capsys):
 
 def test_cli_compare_alignment_flags_without_recordings_exit_1(capsys):
     assert main(["compare", "--offset", "0", "--no-progress"]) == 1
-    assert capsys.readouterr().err == ("gyrocal: error: --offset: expected recordings (gyro1 [gyro2]) to align; "
-                                       "a simulated scenario has none\n")
+    assert capsys.readouterr().err == ("gyrocal: error: --offset: expected recordings (gyro1 [gyro2]) to align and "
+                                       "mask; a simulated scenario has none\n")
+    assert main(["compare", "--saturation-limit", "30", "--no-progress"]) == 1
+    assert capsys.readouterr().err.startswith("gyrocal: error: --saturation-limit: expected recordings")
 
 
 def test_cli_same_json_as_calibrate_pair_with_the_same_options(tmp_path):

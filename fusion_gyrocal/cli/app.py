@@ -6,6 +6,12 @@ raise into one line on stderr and an exit code by :data:`ERROR_EXIT_CODES`, for 
 standalone entry points (:func:`fusion_gyrocal.cli.fleet.fleet_main`,
 :func:`fusion_gyrocal.cli.compare.compare_main`) alike.
 
+Stderr carries one line per error: the message of what a command raised is folded into one line
+(:func:`one_line`), an exception without a message is named by its type, and the warnings a command's
+numerics emit (numpy's floating-point ``RuntimeWarning``) are captured by :func:`run_command` instead of
+reaching stderr as a file:line pair (``--debug`` prints them, one line each); other warnings are printed
+as one ``PROG: warning: ...`` line each.
+
 Imports stay light here: a command imports what it needs when it runs.
 """
 
@@ -13,8 +19,10 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import re
 import sys
 import textwrap
+import warnings
 from typing import NamedTuple
 
 from ..errors import GyroCalError, NotRigidError
@@ -51,11 +59,26 @@ ERROR_EXIT_CODES = (
     ExitRule(NotRigidError, EXIT_NOT_RIGID, "{prog}: {exc}"),
     ExitRule(GyroCalError, EXIT_ERROR, "{prog}: error: {exc}"),
     ExitRule(KeyboardInterrupt, EXIT_INTERRUPTED, "{prog}: interrupted"),
-    ExitRule((OSError, MemoryError), EXIT_ERROR, "{prog}: error: {exc}", debug_raises=True),
+    ExitRule(MemoryError, EXIT_ERROR, "{prog}: error: out of memory ({what}): the recording is too large for this "
+             "machine or its timestamps are corrupt (a huge span or gap makes a huge time grid)", debug_raises=True),
+    ExitRule(OSError, EXIT_ERROR, "{prog}: error: {exc}", debug_raises=True),
     ExitRule(Exception, EXIT_INTERNAL,
-             "{prog}: internal error: {kind}: {exc} (rerun with --debug for the traceback)", debug_raises=True),
+             "{prog}: internal error: {what} (rerun with --debug for the traceback)", debug_raises=True),
 )
-"""The error -> exit-code map of every command; the first row whose ``errors`` match wins."""
+"""The error -> exit-code map of every command; the first row whose ``errors`` match wins.
+
+A row's ``message`` may use ``{prog}``, ``{exc}`` (the error's message, or its type when it has none),
+``{kind}`` (its type) and ``{what}`` (``kind: message``, or the type alone).
+"""
+
+_CARETS = re.compile(r"^\s*\^+\s*(\(line: \d+\))?\s*$")   # a parser's marker line under a quoted snippet
+
+
+def one_line(text: str) -> str:
+    """``text`` as one line: lines joined by a space, runs of blanks collapsed, a parser's caret lines
+    (YAML's ``^`` under the quoted source line) dropped."""
+    return " ".join(" ".join(line.split()) for line in str(text).splitlines()
+                    if line.strip() and not _CARETS.match(line))
 
 COMMANDS = ("calibrate", "report", "demo", "compare", "fleet")
 """The command modules of this package, in the order ``gyrocal --help`` lists them."""
@@ -110,16 +133,35 @@ def run_command(func, args, *, prog: str = "gyrocal", debug: bool | None = None)
     """
     if debug is None:
         debug = bool(getattr(args, "debug", False))
-    try:
-        return int(func(args) or 0)
-    except BaseException as exc:  # noqa: BLE001 - mapped by the table; SystemExit and the like pass through
-        rule = next((r for r in ERROR_EXIT_CODES if isinstance(exc, r.errors)), None)
-        if rule is None or (debug and rule.debug_raises):
-            raise
-        text = flag_hint(str(exc)) if isinstance(exc, GyroCalError) else exc
-        line = rule.message.format(prog=prog, exc=text, kind=type(exc).__name__)
-        print(" ".join(line.splitlines()), file=sys.stderr)
-        return rule.code
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            return int(func(args) or 0)
+        except BaseException as exc:  # noqa: BLE001 - mapped by the table; SystemExit and the like pass through
+            rule = next((r for r in ERROR_EXIT_CODES if isinstance(exc, r.errors)), None)
+            if rule is None or (debug and rule.debug_raises):
+                raise
+            message = one_line(exc)
+            kind = type(exc).__name__
+            text = flag_hint(message) if isinstance(exc, GyroCalError) else message
+            line = rule.message.format(prog=prog, exc=text or kind, kind=kind,
+                                       what=f"{kind}: {text}" if text else kind)
+            print(one_line(line), file=sys.stderr)
+            return rule.code
+        finally:
+            _report_warnings(caught, prog, debug)
+
+
+def _report_warnings(caught, prog: str, debug: bool) -> None:
+    """One stderr line per distinct warning a command emitted; numerical ``RuntimeWarning`` only with
+    ``--debug`` (the command's result or error already says what went wrong with the data)."""
+    seen = set()
+    for w in caught:
+        numeric = issubclass(w.category, RuntimeWarning)
+        line = f"{prog}: {'debug: ' if numeric else ''}warning: {one_line(w.message)} ({w.category.__name__})"
+        if (debug or not numeric) and line not in seen:
+            seen.add(line)
+            print(line, file=sys.stderr)
 
 
 def command_modules():

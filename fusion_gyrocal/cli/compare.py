@@ -10,7 +10,7 @@ from ..evaluate.compare import (DEFAULT_ESTIMATORS, ESTIMATORS, SNR_FACTORS, com
                                 snr_sweep)
 from ..options import FLAGS
 from .app import EXIT_OK, run_command
-from .recording import ALIGNMENT_OPTIONS, add_alignment_args, add_recording_args, read_recording
+from .recording import RECORDING_OPTIONS, add_alignment_args, add_recording_args, aligned_samples, read_recording
 
 
 def add_parser(subparsers):
@@ -42,7 +42,8 @@ def add_parser(subparsers):
     p.add_argument("--csv", metavar="PATH", help="write the table(s) as CSV")
     p.add_argument("--figure", metavar="PATH", help="with --sweep: write the RMSE-versus-SNR figure")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    add_alignment_args(p)  # recordings only: the estimators run with their own settings
+    add_alignment_args(p)  # recordings only (aligned and masked as calibrate does); the estimators run with
+    # their own settings
     p.set_defaults(func=run)
     return p
 
@@ -50,15 +51,13 @@ def add_parser(subparsers):
 add_compare_parser = add_parser  # the name fusion_gyrocal.evaluate.compare's documentation and tests use
 
 
-def _load_recording(args):
-    """Read and align the recording pair: ``(omega_1, omega_2, rate_hz)`` of the valid aligned samples."""
-    from ..pipeline.alignment import align_streams
-
+def load_recording(args):
+    """Read, align and mask the recording pair as ``calibrate`` does: ``(omega_1, omega_2, rate_hz)`` of the
+    valid aligned samples (:func:`~fusion_gyrocal.cli.recording.aligned_samples`: the streams' validity, the
+    saturated and non-finite samples, ``--saturation-limit``, ``--max-rate``)."""
     s1, s2, o = read_recording(args)
-    pair = align_streams(s1.t, s1.omega, s2.t, s2.omega, time_offset_s=o.time_offset_s, max_offset_s=o.max_offset_s,
-                         rate_hz=o.rate_hz, valid_1=s1.valid, valid_2=s2.valid)
-    keep = pair.valid
-    return pair.omega_1[keep], pair.omega_2[keep], float(o.rate_hz or s1.rate_hz)
+    w1, w2 = aligned_samples(s1, s2, o)
+    return w1, w2, float(o.rate_hz or s1.rate_hz)
 
 
 def run(args) -> int:
@@ -71,14 +70,14 @@ def run(args) -> int:
     names = tuple(n.strip() for n in args.estimators.split(",") if n.strip())
     progress = not args.no_progress
     if args.recordings:
-        w1, w2, rate = _load_recording(args)
+        w1, w2, rate = load_recording(args)
         tables = [compare((w1, w2), estimators=names, rate_hz=rate, progress=progress)]
         sweep = None
     else:
-        given = [FLAGS[n] for n in ALIGNMENT_OPTIONS if getattr(args, f"option_{n}", None) is not None]
+        given = [FLAGS[n] for n in RECORDING_OPTIONS if getattr(args, f"option_{n}", None) is not None]
         if given:
-            raise InputError(f"{'/'.join(given)}: expected recordings (gyro1 [gyro2]) to align; a simulated "
-                             f"scenario has none")
+            raise InputError(f"{'/'.join(given)}: expected recordings (gyro1 [gyro2]) to align and mask; a "
+                             f"simulated scenario has none")
         if args.sweep:
             sweep = snr_sweep(args.scenario, via=args.snr_via or "rate", runs=args.runs, estimators=names,
                               seed=args.seed, workers=args.workers, progress=progress)

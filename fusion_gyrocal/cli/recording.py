@@ -20,6 +20,12 @@ from ..options import add_option_arguments, options_from_args
 ALIGNMENT_OPTIONS = ("time_offset_s", "max_offset_s", "rate_hz")
 """The options that act on reading and aligning recordings (``--offset``, ``--max-offset``, ``--rate``)."""
 
+MASK_OPTIONS = ("saturation_limit", "max_rate")
+"""The options that mask samples of recordings (``--saturation-limit``, ``--max-rate``)."""
+
+RECORDING_OPTIONS = ALIGNMENT_OPTIONS + MASK_OPTIONS
+"""Every option that acts on recordings before a solve: what ``compare`` takes for its recording pair."""
+
 READER_OPTIONS = {"csv": {"columns", "unit", "sensitivity", "time_column", "time_unit"},
                   "euroc": {"columns", "unit", "sensitivity", "time_column", "time_unit"},
                   "xsens": {"unit", "rate_hz"}, "npz": {"imu", "unit"}, "bag": {"topic"}}
@@ -94,8 +100,9 @@ def add_recording_args(p: argparse.ArgumentParser, *, optional: bool = False, ma
 
 
 def add_alignment_args(p: argparse.ArgumentParser) -> None:
-    """Only the alignment options' flags (for commands that read a pair but run their own estimators)."""
-    add_option_arguments(p, names=ALIGNMENT_OPTIONS)
+    """Only the flags of the options that align and mask recordings (:data:`RECORDING_OPTIONS`), for commands
+    that read a pair but run their own estimators."""
+    add_option_arguments(p, names=RECORDING_OPTIONS)
 
 
 # ---------------------------------------------------------------------------------------------- values
@@ -267,3 +274,29 @@ def read_recording(args, progress=None):
     flags, ``--bias-window`` converted at gyro 1's rate (or ``--rate``'s)."""
     s1, s2 = read_streams(args, progress)
     return s1, s2, options_from_args(args, rate_hz=s1.rate_hz)
+
+
+def aligned_samples(s1, s2, options):
+    """The sample-aligned rates of a recording pair with the masks of ``calibrate``: ``(omega_1, omega_2)``.
+
+    The same samples as :func:`~fusion_gyrocal.pipeline.pipeline.run_pipeline` uses before its flex
+    gate: each stream's :attr:`~fusion_gyrocal.io.ImuStream.masked_omega` (what the reader could not
+    measure is NaN), masked by :func:`~fusion_gyrocal.pipeline.streams.valid_mask` (non-finite,
+    saturated: ``options.saturation_limit`` or the flat-top heuristic), aligned by
+    :func:`~fusion_gyrocal.pipeline.alignment.align_streams` with the options' offset, search range
+    and rate, and ``options.max_rate`` applied by
+    :func:`~fusion_gyrocal.pipeline.selection.informative_mask`. Only the valid samples are returned.
+    """
+    from ..pipeline.alignment import align_streams
+    from ..pipeline.selection import informative_mask
+    from ..pipeline.streams import valid_mask
+
+    o = options
+    lim = (None, None) if o.saturation_limit is None else o.saturation_limit
+    w1, w2 = s1.masked_omega, s2.masked_omega
+    pair = align_streams(s1.t, w1, s2.t, w2, time_offset_s=o.time_offset_s, max_offset_s=o.max_offset_s,
+                         rate_hz=o.rate_hz, valid_1=valid_mask(w1, limit=lim[0]), valid_2=valid_mask(w2, limit=lim[1]))
+    keep = pair.valid
+    if o.max_rate is not None:
+        keep = keep & informative_mask(pair.omega_1, pair.omega_2, keep, 1.0, min_rate=0.0, max_rate=o.max_rate)
+    return pair.omega_1[keep], pair.omega_2[keep]

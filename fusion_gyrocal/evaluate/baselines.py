@@ -19,7 +19,7 @@ from scipy.spatial.transform import Rotation
 
 from ..core.moments import Moments, as_rates
 from ..core.observability import A_of
-from ..errors import ConvergenceError
+from ..errors import ConvergenceError, OptionError
 from ..lie import skew
 
 __all__ = ["AppendixCResult", "solve_appendix_c", "rotation_only"]
@@ -27,10 +27,9 @@ __all__ = ["AppendixCResult", "solve_appendix_c", "rotation_only"]
 
 @dataclass(frozen=True)
 class AppendixCResult:
-    """Result of :func:`solve_appendix_c`.
+    """Result of :func:`solve_appendix_c` (a converged iteration; one that does not converge raises).
 
     ``scale_1[0]`` keeps its initial value (the paper fixes ``1s_x`` to remove the global scale).
-    ``converged`` is False when ``max_iter`` was reached before the step fell below ``tol``.
     """
 
     R_1_2: np.ndarray
@@ -38,7 +37,6 @@ class AppendixCResult:
     scale_2: np.ndarray
     bias: np.ndarray
     iterations: int
-    converged: bool
 
 
 _GAMMA_INDEX = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
@@ -80,8 +78,11 @@ def _gauss_newton_step(H, g, iteration, s1, s2) -> np.ndarray:
         except np.linalg.LinAlgError:
             pass  # exactly singular: reported below
     raise ConvergenceError(f"appendix C: the Gauss-Newton iteration diverged at iteration {iteration} (singular or "
-                       f"non-finite normal matrix; scale_1 {np.array2string(s1, precision=3)}, scale_2 "
-                       f"{np.array2string(s2, precision=3)})")
+                           f"non-finite normal matrix; {_scales_text(s1, s2)})")
+
+
+def _scales_text(s1, s2) -> str:
+    return f"scale_1 {np.array2string(s1, precision=3)}, scale_2 {np.array2string(s2, precision=3)}"
 
 
 def solve_appendix_c(moments: Moments, R_1_2=None, scale_1=None, scale_2=None, *, max_iter: int = 10,
@@ -116,8 +117,11 @@ def solve_appendix_c(moments: Moments, R_1_2=None, scale_1=None, scale_2=None, *
     Raises
     ------
     ConvergenceError
-        The iteration diverged: its normal matrix became singular or not finite (from a poor start,
-        e.g. identity far from the truth, the scale factors can change sign and run away).
+        The iteration diverged: its normal matrix became singular or not finite, or a scale factor
+        left (0, inf) (from a poor start, e.g. identity far from the truth, or in a degenerate
+        configuration, the scale factors can change sign and run away); or it did not converge in
+        ``max_iter`` iterations. A result is returned only when the iteration converged to
+        positive finite scale factors.
 
     Notes
     -----
@@ -129,8 +133,10 @@ def solve_appendix_c(moments: Moments, R_1_2=None, scale_1=None, scale_2=None, *
     s1 = np.ones(3) if scale_1 is None else np.array(scale_1, dtype=float)
     s2 = np.ones(3) if scale_2 is None else np.array(scale_2, dtype=float)
     Sc = moments.scatter
+    if int(max_iter) < 1:
+        raise OptionError(f"max_iter: expected at least 1 iteration, got {max_iter!r}")
     converged = False
-    it = 0
+    it, step = 0, np.inf
     for it in range(1, int(max_iter) + 1):
         d1, d2 = 1.0 / s1, 1.0 / s2
         S11 = Sc[:3, :3] * np.outer(d1, d1)
@@ -145,11 +151,19 @@ def solve_appendix_c(moments: Moments, R_1_2=None, scale_1=None, scale_2=None, *
         s_err[1:] = np.linalg.lstsq(Phi[:, 1:], gamma, rcond=1e-8)[0]   # 1s~_x = 0
         C = Rotation.from_rotvec(-theta).as_matrix() @ C
         s1, s2 = s1 * (1.0 + s_err[:3]), s2 * (1.0 + s_err[3:])
-        if max(np.abs(theta).max(), np.abs(s_err).max()) < tol:
+        if not (np.isfinite(C).all() and np.isfinite(s1).all() and np.isfinite(s2).all()
+                and (s1 > 0).all() and (s2 > 0).all()):
+            raise ConvergenceError(f"appendix C: the Gauss-Newton iteration diverged at iteration {it} (a scale "
+                                   f"factor left (0, inf): {_scales_text(s1, s2)})")
+        step = max(np.abs(theta).max(), np.abs(s_err).max())
+        if step < tol:
             converged = True
             break
+    if not converged:
+        raise ConvergenceError(f"appendix C: no convergence in {it} iterations (last step {step:.3g}, expected "
+                               f"below {tol:g}; {_scales_text(s1, s2)})")
     bias = moments.mean_1 - A_of(C, s1, s2) @ moments.mean_2
-    return AppendixCResult(C, s1, s2, bias, it, converged)
+    return AppendixCResult(C, s1, s2, bias, it)
 
 
 def rotation_only(omega_1, omega_2) -> tuple[np.ndarray, np.ndarray]:

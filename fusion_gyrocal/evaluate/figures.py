@@ -30,9 +30,18 @@ def _style(name: str):
 
 
 def _save(fig, path):
+    """Write ``fig`` to ``path`` (folder created) atomically, when a path is given; returns ``fig``."""
     if path is not None:
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=130, bbox_inches="tight")
+        from ..errors import FormatError
+        from ..io.report import write_figure
+        from ..io.writers import os_reason
+
+        folder = Path(path).expanduser().parent
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise FormatError(f"{path}: cannot create the folder {folder}: {os_reason(exc)}") from exc
+        write_figure(fig, path, dpi=130, bbox_inches="tight")
     return fig
 
 

@@ -10,6 +10,7 @@ a progress bar. The results are :class:`RunRecord` objects, which
 from __future__ import annotations
 
 import os
+import warnings
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 
@@ -75,6 +76,17 @@ def _task(spec, seed, estimators, options) -> RunRecord:
     return evaluate(sc, sc.omega_1, sc.omega_2, estimators, seed, options=options)
 
 
+def _pool_task(spec, seed, estimators, options):
+    """:func:`_task` in a worker process, with the warnings it emitted (relayed to the parent by
+    :func:`monte_carlo`, so that the caller's warning filters decide, as for runs in its own process)."""
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        record = _task(spec, seed, estimators, options)
+    return record, [(str(w.message), w.category, w.filename, w.lineno) for w in caught]
+
+
 def _progress(enabled: bool):
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
     return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
@@ -101,7 +113,8 @@ def monte_carlo(specs, runs: int, estimators, seed: int, workers: int | None, pr
         numbers: the same truth and motion at every SNR point); else spec ``s`` uses
         ``(seed, s + 1, i)`` (independent realisations).
     workers : int, optional
-        Processes (default: all cores; 1 runs in this process). Each worker uses one BLAS thread.
+        Processes (default: all cores; 1 runs in this process). Each worker uses one BLAS thread; the warnings
+        of the workers are re-emitted in this process.
     progress : bool
         Show a progress bar.
     options : Options, optional
@@ -130,10 +143,13 @@ def monte_carlo(specs, runs: int, estimators, seed: int, workers: int | None, pr
             os.environ.update({k: "1" for k in _THREAD_VARS})  # one BLAS thread per worker process
             try:
                 with ProcessPoolExecutor(min(workers, len(tasks)), mp_context=mp.get_context("spawn")) as pool:
-                    futures = {pool.submit(_task, specs[s], sd, estimators, options): (s, j) for s, j, sd in tasks}
+                    futures = {pool.submit(_pool_task, specs[s], sd, estimators, options): (s, j)
+                               for s, j, sd in tasks}
                     for fut in as_completed(futures):
                         s, j = futures[fut]
-                        out[s][j] = fut.result()
+                        out[s][j], caught = fut.result()
+                        for message, category, filename, lineno in caught:
+                            warnings.warn_explicit(message, category, filename, lineno)
                         bar.advance(job)
             finally:
                 for k, v in saved.items():

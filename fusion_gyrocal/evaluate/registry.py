@@ -46,9 +46,11 @@ Every run function takes the comparison's :class:`~fusion_gyrocal.options.Option
 
 Failures
 --------
-An estimator fails (its row says so) only with a :class:`~fusion_gyrocal.errors.GyroCalError`, the
-library's errors raised on purpose, or when its module is not available. Anything else (a
-``ValueError``, a singular matrix) is a bug and propagates.
+An estimator fails (its row says so) with a :class:`~fusion_gyrocal.errors.GyroCalError`, the
+library's errors raised on purpose, when its module is not available, or when what it returns is not
+physical (:func:`check_estimate`, applied to every estimator in :func:`run_estimator`: a rotation
+that is not one, scale factors outside (0, inf), a non-finite bias). Anything else (a ``ValueError``,
+a singular matrix) is a bug and propagates.
 """
 
 from __future__ import annotations
@@ -60,12 +62,12 @@ from typing import Callable
 import numpy as np
 
 from ..core.moments import Moments, as_rates
-from ..errors import GyroCalError, InputError
+from ..errors import ConvergenceError, GyroCalError, InputError
 from ..options import Options
 from .baselines import rotation_only, solve_appendix_c
 
 __all__ = ["Estimator", "Estimate", "REGISTRY", "ESTIMATORS", "DEFAULT_ESTIMATORS", "estimator", "estimator_names",
-           "estimator_available", "run_estimator"]
+           "estimator_available", "check_estimate", "run_estimator"]
 
 
 # ============================================================================================ the run functions
@@ -271,6 +273,48 @@ class Estimate:
         return cls(estimator, np.full((3, 3), np.nan), nan, nan, nan, seconds, 0, error)
 
 
+_ROTATION_TOL = 1e-6   # |R^T R - I| and |det R - 1| of an estimate that is a rotation
+
+
+def check_estimate(name: str, R_1_2, scale_1, scale_2, bias) -> None:
+    """Refuse an estimate that is not physical (one check for every estimator of :data:`REGISTRY`).
+
+    Parameters
+    ----------
+    name : str
+        The estimator (for the message).
+    R_1_2 : array_like (3, 3)
+        Must be a rotation: finite, orthonormal and right-handed (within 1e-6).
+    scale_1, scale_2 : array_like (3,)
+        Must be finite and positive, or all NaN (an estimator without scale factors).
+    bias : array_like (3,)
+        Must be finite.
+
+    Raises
+    ------
+    ConvergenceError
+        Naming what is wrong and the values (e.g. a scale factor of -3.3e6 from a diverged iteration).
+    """
+    R = np.asarray(R_1_2, dtype=float).reshape(3, 3)
+    s = np.concatenate([np.asarray(scale_1, dtype=float).ravel(), np.asarray(scale_2, dtype=float).ravel()])
+    b = np.asarray(bias, dtype=float).ravel()
+    problem = ""
+    if not np.isfinite(R).all():
+        problem = "a non-finite R_1_2"
+    else:
+        off = max(float(np.abs(R.T @ R - np.eye(3)).max()), abs(float(np.linalg.det(R)) - 1.0))
+        if off > _ROTATION_TOL:
+            problem = (f"an R_1_2 that is not a rotation (|R^T R - I| or |det R - 1| = {off:.3g}, "
+                       f"det {np.linalg.det(R):+.3g})")
+    if not problem and not np.isnan(s).all() and not (np.isfinite(s).all() and (s > 0).all()):
+        problem = (f"scale factors outside (0, inf): scale_1 {np.array2string(s[:3], precision=4)}, "
+                   f"scale_2 {np.array2string(s[3:], precision=4)}")
+    if not problem and not np.isfinite(b).all():
+        problem = f"a non-finite bias {np.array2string(b, precision=4)}"
+    if problem:
+        raise ConvergenceError(f"{name}: expected a physical estimate, got {problem}")
+
+
 _WARM: set = set()  # estimators already run once in this process
 
 
@@ -296,8 +340,8 @@ def run_estimator(name: str, omega_1, omega_2, *, rate_hz: float = 100.0, option
         ``seconds`` is the wall time of the solve; the first call of each estimator in a process
         is run once untimed before (one-time costs such as lazy imports are not a solve).
         ``error`` is set (and the estimates are NaN) when the estimator raised a
-        :class:`~fusion_gyrocal.errors.GyroCalError` or is not available. Any other exception is
-        a bug and propagates.
+        :class:`~fusion_gyrocal.errors.GyroCalError`, returned an estimate that is not physical
+        (:func:`check_estimate`) or is not available. Any other exception is a bug and propagates.
     """
     entry = estimator(name)
     options = Options.of(options, **keywords)
@@ -317,6 +361,7 @@ def run_estimator(name: str, omega_1, omega_2, *, rate_hz: float = 100.0, option
     t0 = time.perf_counter()
     try:
         R, s1, s2, bias, iterations = entry.run(w1, w2, rate_hz, options)
+        check_estimate(name, R, s1, s2, bias)
     except GyroCalError as exc:
         return Estimate.failed(name, time.perf_counter() - t0, f"{type(exc).__name__}: {exc}")
     return Estimate(name, R, s1, s2, bias, time.perf_counter() - t0, iterations)

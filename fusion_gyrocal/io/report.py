@@ -1,7 +1,8 @@
 """Figures a person can read: residual versus rate norm, SNR accumulation, alignment, rejections.
 
 Every function returns a :class:`matplotlib.figure.Figure` (Agg backend, no display needed);
-:func:`write_report` saves them as PNG files beside a short Markdown summary.
+:func:`write_report` saves them as PNG files beside a short Markdown summary, each file written
+atomically (:func:`fusion_gyrocal.io.writers.atomic_write`).
 """
 
 from __future__ import annotations
@@ -126,23 +127,61 @@ def summary_markdown(cal: PairCalibration) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_report(run: PipelineRun, out_dir, *, extra_figures=None) -> list[Path]:
-    """Write the summary (``report.md``) and every figure as PNG into ``out_dir``."""
+def write_figure(fig, path, **savefig) -> Path:
+    """Write ``fig`` to ``path`` atomically, in the format of its suffix (PNG without one).
+
+    The figure is rendered in memory and written with :func:`~fusion_gyrocal.io.writers.atomic_write`
+    (temp file in the same folder, then ``os.replace``): a reader never sees half a figure.
+    ``savefig`` are keywords of :meth:`matplotlib.figure.Figure.savefig` (``dpi``, ``bbox_inches``).
+
+    Raises
+    ------
+    FormatError
+        The folder does not exist or cannot be written (the message names the file and the cause).
+    """
+    import io
+
     from .writers import atomic_write
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    path = Path(path).expanduser()
+    buf = io.BytesIO()
+    fig.savefig(buf, format=path.suffix.lstrip(".").lower() or "png", **savefig)
+    return atomic_write(path, buf.getvalue())
+
+
+def write_report(run: PipelineRun, out_dir, *, extra_figures=None) -> list[Path]:
+    """Write the summary (``report.md``) and every figure as PNG into ``out_dir`` (created).
+
+    Every file is written atomically (:func:`~fusion_gyrocal.io.writers.atomic_write`): a figure or
+    summary being replaced is never seen half-written.
+
+    Raises
+    ------
+    FormatError
+        ``out_dir`` cannot be created or written ("cannot write the report to OUT: Permission
+        denied"); the files already in it are left as they were.
+    """
+    from ..errors import FormatError
+    from .writers import atomic_write, os_reason
+
+    out = Path(out_dir).expanduser()
     figs = {"residual_vs_rate": residual_vs_rate(run), "snr_accumulation": snr_accumulation(run),
             "alignment": alignment_curve(run), "rejected_stretches": rejected_stretches(run)}
     figs.update(extra_figures or {})
     paths = []
     md = summary_markdown(run.calibration)
-    for name, fig in figs.items():
-        if fig is None:
-            continue
-        p = out / f"{name}.png"
-        fig.savefig(p, dpi=110)
-        paths.append(p)
-        md += f"\n![{name}]({p.name})\n"
-    paths.append(atomic_write(out / "report.md", md))
+    if out.exists() and not out.is_dir():
+        raise FormatError(f"cannot write the report to {out}: it is a file, expected a folder (--out)")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        for name, fig in figs.items():
+            if fig is None:
+                continue
+            paths.append(write_figure(fig, out / f"{name}.png", dpi=110))
+            md += f"\n![{name}]({name}.png)\n"
+        paths.append(atomic_write(out / "report.md", md))
+    except (OSError, FormatError) as exc:
+        cause = exc if isinstance(exc, OSError) else exc.__cause__
+        why = os_reason(cause) if isinstance(cause, OSError) else str(exc)
+        raise FormatError(f"cannot write the report to {out}: {why}") from exc
     return paths

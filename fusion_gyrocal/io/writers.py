@@ -119,15 +119,23 @@ def _fsync_dir(d: Path) -> None:
         os.close(fd)
 
 
+def os_reason(exc: OSError) -> str:
+    """The cause of an :class:`OSError` in words (``"Permission denied"``), without errno and path."""
+    return exc.strerror or str(exc) or type(exc).__name__
+
+
 def atomic_write(path, data: bytes | str) -> Path:
     """Write ``data`` to ``path`` atomically (temp file in the same folder, fsync, ``os.replace``).
 
-    The file keeps the permissions of the file it replaces (new files get ``0o666 & ~umask``).
+    The one mechanism for every file the library writes, text (``str``, UTF-8) and binary (``bytes``,
+    e.g. a PNG rendered in memory) alike: a reader never sees a half-written file. The file keeps the
+    permissions of the file it replaces (new files get ``0o666 & ~umask``).
 
     Raises
     ------
     FormatError
-        When the folder does not exist or the write fails (the old file is left as it was).
+        When the folder does not exist or the write fails (the old file is left as it was); the message
+        names the file and the cause (``"cal.json: could not write: Permission denied"``).
     """
     path = Path(path).expanduser()
     if isinstance(data, str):
@@ -139,7 +147,7 @@ def atomic_write(path, data: bytes | str) -> Path:
         mode = (os.stat(path).st_mode & 0o7777) if path.exists() else (0o666 & ~_umask())
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
     except OSError as exc:
-        raise FormatError(f"{path}: could not write: {exc}") from exc
+        raise FormatError(f"{path}: could not write: {os_reason(exc)}") from exc
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
@@ -153,7 +161,7 @@ def atomic_write(path, data: bytes | str) -> Path:
         except OSError:
             pass
         if isinstance(exc, OSError):
-            raise FormatError(f"{path}: could not write: {exc}") from exc
+            raise FormatError(f"{path}: could not write: {os_reason(exc)}") from exc
         raise
     _fsync_dir(folder)
     return path
