@@ -98,17 +98,26 @@ def log(R) -> np.ndarray:
     return out
 
 
-def canonical_rotvec(v) -> np.ndarray:
-    """The same rotations as ``v`` (..., 3) with a unique representative: angle in [0, pi], and at pi the
-    first non-zero component of the axis positive (``Log(Exp(v))`` is ambiguous there)."""
+HALF_TURN_BAND = np.deg2rad(1.0)
+"""Half-width (rad) of the band about a half turn in which :func:`canonical_rotvec` fixes the axis's sign."""
+
+
+def canonical_rotvec(v, band: float = HALF_TURN_BAND) -> np.ndarray:
+    """The same rotations as ``v`` (..., 3) with a unique representative that does not flip near a half turn.
+
+    Below ``pi - band`` it is ``Log(Exp(v))``. Within ``band`` of a half turn the axis is the one whose first
+    component larger than 0.1 in magnitude is positive, the angle then in (pi - band, pi + band): estimates of
+    one half-turn mounting scattered about 180 deg read as nearby vectors instead of opposite ones.
+    """
     v = log(exp(v))
     n = np.linalg.norm(v, axis=-1)
-    near_pi = n > np.pi - 1e-9
-    if np.any(near_pi):
-        w = v[near_pi]
-        first = np.argmax(np.abs(w) > 1e-9 * np.pi, axis=-1)
-        sign = np.sign(w[np.arange(len(w)), first])
-        v[near_pi] = w * sign[:, None]
+    near = n > np.pi - band
+    if np.any(near):
+        ang = n[near]
+        u = v[near] / ang[:, None]
+        first = np.argmax(np.abs(u) > 0.1, axis=-1)
+        flip = u[np.arange(len(u)), first] < 0
+        v[near] = np.where(flip[:, None], -u, u) * np.where(flip, 2.0 * np.pi - ang, ang)[:, None]
     return v
 
 

@@ -57,3 +57,14 @@ def test_nearest_rotation_projects_and_keeps_rotations():
     P = lie.nearest_rotation(noisy)
     np.testing.assert_allclose(P @ np.swapaxes(P, 1, 2), np.broadcast_to(np.eye(3), P.shape), atol=1e-12)
     assert np.all(np.linalg.det(P) > 0)
+
+
+def test_canonical_rotvec_does_not_flip_across_a_half_turn():
+    u = np.array([0.707, -0.708, 0.003]) / np.linalg.norm([0.707, -0.708, 0.003])
+    below, above = lie.exp(np.deg2rad(179.997) * u), lie.exp(np.deg2rad(180.003) * u)
+    assert np.linalg.norm(lie.log(below) - lie.log(above)) > 6.0          # Log itself jumps across pi
+    a, b = lie.canonical_rotvec(lie.log(below)), lie.canonical_rotvec(lie.log(above))
+    assert np.linalg.norm(a - b) < np.deg2rad(0.01)
+    np.testing.assert_allclose(lie.exp(b), above, atol=1e-12)
+    v = np.deg2rad(170.0) * u
+    np.testing.assert_allclose(lie.canonical_rotvec(-v), -v, atol=1e-12)

@@ -182,8 +182,6 @@ def calibrate_device(path, options: Options | None = None, **keywords) -> PairCa
 
 # ---------------------------------------------------------------------------------------- rows
 def _row(name: str, path: str, cal: PairCalibration | None, exc: BaseException | None, seconds: float) -> dict:
-    from scipy.spatial.transform import Rotation
-
     row = {c: None for c in RESULT_COLUMNS}
     row.update(device=name, path=path, ok=cal is not None, seconds=float(seconds))
     for c in RESULT_COLUMNS[6:-2]:
@@ -194,7 +192,7 @@ def _row(name: str, path: str, cal: PairCalibration | None, exc: BaseException |
         row["error_type"] = type(exc).__name__
         row["error"] = str(exc) if known else f"unexpected {type(exc).__name__}: {exc}"
         return row
-    rv = Rotation.from_matrix(cal.R_1_2).as_rotvec()
+    rv = cal.rotvec   # canonical_rotvec(log(R_1_2)), as every table
     std = cal.rotation_std_rad
     for a, ax in enumerate("xyz"):
         row[f"rotvec_{ax}"] = float(rv[a])

@@ -472,7 +472,15 @@ class GyroPairGraph:
         nb = len(self._bias_keys)
         dx = 10 if self.global_scale else 9
         if nb <= MARGINALS_MAX_SEGMENTS:
-            P = np.asarray(marginals().jointMarginalCovariance(x_keys + self._bias_keys).fullMatrix())
+            try:
+                P = np.asarray(marginals().jointMarginalCovariance(x_keys + self._bias_keys).fullMatrix())
+            except RuntimeError as exc:
+                if "Indeterminate linear system" not in str(exc):
+                    raise
+                raise ConfigurationError(
+                    "graph: the covariance is undetermined (gtsam: indeterminate linear system); the graph's "
+                    "linearisation leaves a direction free on this data (seen on axis-parallel boards, Lemmas 2-3): "
+                    "use calibrate_pair, which reports undetermined scale factors as ratios") from None
             T = np.zeros((dx + 3, dx + 3 * nb))
             T[:dx, :dx] = np.eye(dx)
             T[dx:, dx:] = np.kron(weights[None, :], np.eye(3))
