@@ -119,8 +119,8 @@ def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: 
 class PipelineRun:
     """Everything :func:`calibrate_pair` saw and decided, for reports and plots.
 
-    ``omega_1``/``omega_2`` are the sample-aligned rates the solver used (zero where ``valid`` is
-    False), ``t`` their times on gyro 1's clock (None for sample-aligned input), ``used`` the
+    ``omega_1``/``omega_2`` are the sample-aligned rates the solver used (for timestamped input the
+    aligned rates, NaN where ``valid`` is False: no copy of a long record is made), ``t`` their times on gyro 1's clock (None for sample-aligned input), ``used`` the
     samples kept after masking and flex rejection, and ``aligned`` the
     :class:`~fusion_gyrocal.pipeline.alignment.AlignedPair` (None for sample-aligned input).
     """
@@ -152,8 +152,7 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
         pair = align_streams(t_1, omega_1, t_2, omega_2, time_offset_s=o.time_offset_s, max_offset_s=o.max_offset_s,
                              rate_hz=o.rate_hz, valid_1=valid_mask(omega_1, limit=lim[0]),
                              valid_2=valid_mask(omega_2, limit=lim[1]))
-        w1 = np.where(pair.valid[:, None], pair.omega_1, 0.0)
-        w2 = np.where(pair.valid[:, None], pair.omega_2, 0.0)
+        w1, w2 = pair.omega_1, pair.omega_2     # NaN where not valid: every step below reads them through mask
         mask = pair.valid
         t_grid = pair.t
         offset = pair.time_offset_s
