@@ -20,7 +20,7 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from filterpy.kalman import update as kalman_update
 
-from ..core.model import BIAS, ROT, S1, S2
+from ..core.model import BIAS, ROT
 from ..core.moments import Moments
 from ..core.observability import A_of
 from ..errors import InputError

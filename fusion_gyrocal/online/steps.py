@@ -91,7 +91,7 @@ class Cusum:
 
     def scan_one(self, t: float, d2: float):
         """:meth:`scan` for a block of one sample: ``(0, onset time)`` on an alarm, else None."""
-        level = self.level + (d2 if d2 <= self.clip else self.clip) / 3.0 - (1.0 + self.allowance)
+        level = self.level + ((d2 if d2 <= self.clip else self.clip) / 3.0 - (1.0 + self.allowance))
         if level <= 0.0:
             self.level, self.zero_t = 0.0, t
             return None
