@@ -462,16 +462,22 @@ def test_resample_block_by_block_equals_whole_record_splines(monkeypatch):
     np.testing.assert_allclose(blocked[in_whole], whole[in_whole], rtol=0, atol=1e-13)
 
 
-def test_masked_correlation_blocks_equal_one_block(monkeypatch):
+@pytest.mark.parametrize("masked", [True, False])
+def test_masked_correlation_blocks_equal_one_block(monkeypatch, masked):
     import fusion_gyrocal.pipeline.alignment as al
 
     rng = np.random.default_rng(12)
     f = rng.standard_normal(50000)
-    g = rng.standard_normal(48000)
+    g = rng.standard_normal(48000) + 0.7
     g[100:] += 0.5 * f[:47900]                         # g[k] follows f[k - 100]: the peak at lag -100
-    mf, mg = rng.random(f.size) > 0.1, rng.random(g.size) > 0.1
+    mf, mg = np.ones(f.size, bool), np.ones(g.size, bool)
+    if masked:                                         # masked samples everywhere: the six-FFT blocks
+        mf, mg = rng.random(f.size) > 0.1, rng.random(g.size) > 0.1
+    else:                                              # one gap: the other blocks take the cumsum form
+        mg[20000:20300] = False
     f, g = f * mf, g * mg
     one = al._masked_correlation(f, mf, g, mg, -300, 300, 8)
+    monkeypatch.setattr(al, "_XC_ONE_FFT", 1000)
     monkeypatch.setattr(al, "_XC_BLOCK", 4096)
     blocks = al._masked_correlation(f, mf, g, mg, -300, 300, 8)
     np.testing.assert_allclose(blocks, one, rtol=0, atol=1e-12)

@@ -30,7 +30,9 @@ _AMBIGUITY_RATIO = 1.5         # a second lobe with misfit (1 - r) below this ti
 _MIN_OVERLAP_FRACTION = 0.5    # lags overlapping fewer valid grid points than this fraction are ignored
 _EVAL_STEP = 2.0 / (1.0 + 5.0 ** 0.5)  # refinement instants every 0.618 grid steps (golden ratio: equidistributed)
 _STD_BLOCK_S = 0.25            # block length of the sandwich estimate of the offset's std
-_XC_BLOCK = 1 << 16            # grid points per block of the coarse correlation and the norms (bounded memory)
+_XC_ONE_FFT = 1 << 17          # grid points up to which the coarse correlation is one FFT
+_XC_BLOCK = 1 << 13            # beyond: blocks of f of this length (small FFTs, measured fastest)
+_NORM_BLOCK = 1 << 16          # grid points (and samples) per block of the norms and the window scores
 MAX_EVAL = 1 << 17             # refinement instants: longer logs use their most excited windows
 
 
@@ -79,7 +81,7 @@ def _masked_correlation(f, mf, g, mg, d_lo, d_hi, min_overlap):
     """
     d = np.arange(d_lo, d_hi + 1)
     nf, ng = f.size, g.size
-    if nf + ng - 1 <= 2 * _XC_BLOCK:
+    if nf + ng - 1 <= _XC_ONE_FFT:
         spans = [(0, nf, 0, ng)]
     else:
         spans = [(k0, min(k0 + _XC_BLOCK, nf), max(0, k0 - d_hi), min(ng, min(k0 + _XC_BLOCK, nf) - d_lo))
@@ -90,12 +92,27 @@ def _masked_correlation(f, mf, g, mg, d_lo, d_hi, min_overlap):
         if la <= 0 or lb <= 0:
             continue
         nfft = 1 << int(np.ceil(np.log2(max(la + lb - 1, 2))))
-        a, ma, b, mb = f[k0:k1], mf[k0:k1].astype(float), g[j0:j1], mg[j0:j1].astype(float)
+        a, b = f[k0:k1], g[j0:j1]
+        lag = d - (k0 - j0)                    # lag within the block pair: sum_m a[m] b[m - lag]
+        sel = np.mod(lag, nfft)
+        whole = len(spans) > 1 and lag.max() <= 0 and la - lag.min() <= lb   # every lag sees all of a
+        if whole and mf[k0:k1].all() and mg[j0:j1].all():
+            # a block without masked samples (the usual case): only the cross sum needs an FFT; the
+            # counts, sums and sums of squares are those of a and of sliding windows of b (cumsums)
+            xc = np.fft.irfft(np.fft.rfft(a, nfft) * np.conj(np.fft.rfft(b, nfft)), nfft)
+            cb = np.concatenate(([0.0], np.cumsum(b)))
+            cq = np.concatenate(([0.0], np.cumsum(b * b)))
+            acc[0] += la
+            acc[1] += a.sum()
+            acc[2] += cb[la - lag] - cb[-lag]
+            acc[3] += (a * a).sum()
+            acc[4] += cq[la - lag] - cq[-lag]
+            acc[5] += xc[sel]
+            continue
+        ma, mb = mf[k0:k1].astype(float), mg[j0:j1].astype(float)
         F = np.fft.rfft(np.stack((ma, a, a * a)), nfft)
         G = np.conj(np.fft.rfft(np.stack((mb, b, b * b)), nfft))
-        lag = d - (k0 - j0)                    # lag within the block pair
         inside = (lag >= -(lb - 1)) & (lag <= la - 1)
-        sel = np.mod(lag, nfft)
         xc = np.fft.irfft(np.stack((F[0] * G[0], F[1] * G[0], F[0] * G[1], F[2] * G[0], F[0] * G[2],
                                     F[1] * G[1])), nfft)
         acc += np.where(inside, xc[:, sel], 0.0)
@@ -122,8 +139,8 @@ def _norm_on_grid(t, w, ok, k_lo: int, k_hi: int, h: float, gap):
     size = k_hi - k_lo + 1
     x = np.zeros(size)
     inside = np.zeros(size, dtype=bool)
-    for lo in range(0, size, _XC_BLOCK):
-        grid = np.arange(k_lo + lo, min(k_lo + lo + _XC_BLOCK, k_hi + 1)) * h
+    for lo in range(0, size, _NORM_BLOCK):
+        grid = np.arange(k_lo + lo, min(k_lo + lo + _NORM_BLOCK, k_hi + 1)) * h
         i0 = max(int(np.searchsorted(t, grid[0], side="right")) - 2, 0)
         i1 = min(int(np.searchsorted(t, grid[-1], side="left")) + 2, t.size)
         tl, wl, okl = t[i0:i1], w[i0:i1], ok[i0:i1]
@@ -182,8 +199,8 @@ def _excited_instants(t1, w1, ok1, he: float, max_eval: int) -> np.ndarray:
     the best windows are kept, whole, in time order.
     """
     score = np.zeros(int(np.floor((t1[-1] - t1[0]) / _STD_BLOCK_S)) + 1)
-    for lo in range(0, t1.size - 1, _XC_BLOCK):
-        hi = min(lo + _XC_BLOCK + 1, t1.size)
+    for lo in range(0, t1.size - 1, _NORM_BLOCK):
+        hi = min(lo + _NORM_BLOCK + 1, t1.size)
         dt = np.diff(t1[lo:hi])
         dw = np.diff(w1[lo:hi], axis=0)
         e = np.einsum("ij,ij->i", dw, dw) / (dt * dt)
@@ -351,6 +368,12 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.
     """
     t1, w1, ok1 = _stream("t_1", t_1, "omega_1", omega_1, valid_1)
     t2, w2, ok2 = _stream("t_2", t_2, "omega_2", omega_2, valid_2)
+    return _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, min_correlation, max_eval)
+
+
+def _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, min_correlation, max_eval) -> TimeOffset:
+    """:func:`estimate_time_offset` on checked streams (``_stream``), so a caller that has checked them
+    (:func:`align_streams`) does not pay for the checks twice."""
     if not (np.isfinite(max_offset_s) and max_offset_s > 0):
         raise OptionError(f"max_offset_s: expected a positive duration in seconds, got {max_offset_s!r}")
     for name, ok in (("omega_1", ok1), ("omega_2", ok2)):
@@ -527,7 +550,7 @@ def align_streams(t_1, omega_1, t_2, omega_2, *, time_offset_s: float | None = N
     t2, w2, ok2 = _stream("t_2", t_2, "omega_2", omega_2, valid_2)
     est = None
     if time_offset_s is None:
-        est = estimate_time_offset(t1, w1, t2, w2, max_offset_s=max_offset_s, valid_1=ok1, valid_2=ok2)
+        est = _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, 0.5, MAX_EVAL)
         tau = est.offset_s
     else:
         tau = float(time_offset_s)
