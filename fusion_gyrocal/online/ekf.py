@@ -30,6 +30,8 @@ from .hold import DIM, LOG, ScaleHold
 REFRESH = 50      # folds between re-linearisations of the gauge projector and the measurement noise
                   # (they change at second order only: the scale factors move by < 1e-3 between them)
 _GENERATOR_RATES = np.vstack([np.eye(3), np.zeros((1, 3))])
+_ZERO_X = np.zeros((DIM, 1))
+_ZERO_X.flags.writeable = False    # the error state after every fold (read-only: never modified in place)
 
 
 def measurement_jacobian(R, s1, s2, w2, A=None) -> np.ndarray:
@@ -290,13 +292,12 @@ class ErrorStateEKF:
         re-imposed and everything linearised is re-linearised at the new estimate.
         """
         x = self.kf.x[:, 0]
-        x[LOG] = self._T @ x[LOG]    # never move a held direction
+        e = np.exp(self._T @ x[LOG])   # never move a held direction
         self.R = exp(x[ROT]) @ self.R
-        e = np.exp(x[3:9])
         self.s1 = self.s1 * e[:3]
         self.s2 = self.s2 * e[3:]
         self.b = self.b + x[BIAS]
-        self.kf.x = np.zeros((DIM, 1))
+        self.kf.x = _ZERO_X            # filterpy's updates return a new state: sharing the zero is safe
         self.kf.P = self.project(self.kf.P)
         self._G = None
         self._folds += 1
