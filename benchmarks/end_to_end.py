@@ -102,7 +102,7 @@ def main(argv=None):
     t_ref = dict(rows).get("pandas.read_csv of both files")
     if t_ref:
         print(f"whole command / pandas read                   {t_cli / t_ref:8.2f} x (target <= 3)")
-        print(f"(alignment + solving) / pandas read           {(t_align + t_solve) / t_ref:8.2f} x  (the pipeline's part)")
+        print(f"(alignment + solving) / pandas read           {(t_align + t_solve) / t_ref:8.2f} x  (the pipeline)")
         print(f"reading (fusion_gyrocal.io) / pandas read     {t_read / t_ref:8.2f} x  (the readers' part)")
 
 

@@ -430,7 +430,7 @@ def _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, min_correlation, max_eval)
     else:  # the most excited windows carry the offset information: a bounded subsample of them
         x1 = _excited_instants(t1, w1, ok1, he, int(max_eval))
         reach = np.array([lags[c] for c in cands])
-        pad = 8.0 * h                                      # room for the refinement's bracket to move
+        pad = 12.0 * h                                     # room for the refinement bracket to move (6 x 1.5 steps)
         spl1 = _RunSplines(*_near(t1, w1, ok1, x1, x1), gap1)
         spl2 = _RunSplines(*_near(t2, w2, ok2, x1 - reach.max() - pad, x1 - reach.min() + pad), gap2)
     x1 = x1[spl1.run_of(x1) >= 0]

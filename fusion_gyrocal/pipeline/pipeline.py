@@ -120,9 +120,10 @@ class PipelineRun:
     """Everything :func:`calibrate_pair` saw and decided, for reports and plots.
 
     ``omega_1``/``omega_2`` are the sample-aligned rates the solver used (for timestamped input the
-    aligned rates, NaN where ``valid`` is False: no copy of a long record is made), ``t`` their times on gyro 1's clock (None for sample-aligned input), ``used`` the
-    samples kept after masking and flex rejection, and ``aligned`` the
-    :class:`~fusion_gyrocal.pipeline.alignment.AlignedPair` (None for sample-aligned input).
+    aligned rates, NaN where ``valid`` is False: no copy of a long record is made), ``t`` their
+    times on gyro 1's clock (None for sample-aligned input), ``used`` the samples kept after masking
+    and flex rejection, and ``aligned`` the :class:`~fusion_gyrocal.pipeline.alignment.AlignedPair`
+    (None for sample-aligned input).
     """
 
     calibration: PairCalibration
