@@ -515,7 +515,8 @@ class AlignedPair:
 
 
 def align_streams(t_1, omega_1, t_2, omega_2, *, time_offset_s: float | None = None, max_offset_s: float = 1.0,
-                  rate_hz: float | None = None, valid_1=None, valid_2=None) -> AlignedPair:
+                  rate_hz: float | None = None, valid_1=None, valid_2=None,
+                  max_eval: int | None = MAX_EVAL) -> AlignedPair:
     """Put two gyroscope streams on one time grid on gyro 1's clock.
 
     The offset is estimated with :func:`estimate_time_offset` unless ``time_offset_s`` is given.
@@ -535,6 +536,8 @@ def align_streams(t_1, omega_1, t_2, omega_2, *, time_offset_s: float | None = N
         (gyro 1 is not interpolated).
     valid_1, valid_2 : array_like of bool, optional
         Usable samples of each stream (non-finite samples are always excluded).
+    max_eval : int or None
+        Most instants of the offset refinement (see :func:`estimate_time_offset`).
 
     Returns
     -------
@@ -550,7 +553,7 @@ def align_streams(t_1, omega_1, t_2, omega_2, *, time_offset_s: float | None = N
     t2, w2, ok2 = _stream("t_2", t_2, "omega_2", omega_2, valid_2)
     est = None
     if time_offset_s is None:
-        est = _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, 0.5, MAX_EVAL)
+        est = _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, 0.5, max_eval)
         tau = est.offset_s
     else:
         tau = float(time_offset_s)
