@@ -101,23 +101,45 @@ def drift_and_step(runs):
     return np.array(fractions), np.array(delays), np.array(nees), reseeds, h.nees_dof
 
 
+def history_memory(n=20000):
+    """Bytes a sample the tracker keeps (tracemalloc growth over n per-sample updates after a warm-up)."""
+    import tracemalloc
+
+    rng = np.random.default_rng(3)
+    t, w1, w2, *_ = pair(rng, (2 * n + 1000) / RATE + 1.0)
+    k = 1000
+    out = {}
+    for max_rows in (None, 10_000):
+        tracemalloc.start()                   # from the start: buffers freed later are subtracted
+        tr = GyroPairTracker.from_samples(t[:k], w1[:k], w2[:k], history_max_rows=max_rows)
+        tr.run(t[k:k + n], w1[k:k + n], w2[k:k + n], mode="sample")      # warm-up (and fill the bound)
+        before = tracemalloc.get_traced_memory()[0]
+        tr.run(t[k + n:k + 2 * n], w1[k + n:k + 2 * n], w2[k + n:k + 2 * n], mode="sample")
+        grown = tracemalloc.get_traced_memory()[0] - before
+        tracemalloc.stop()
+        out[max_rows] = grown / n
+    return out
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--runs", type=int, default=40, help="Monte Carlo runs for the fast-mode accuracy")
     p.add_argument("--sample-runs", type=int, default=8, help="runs that also use the (slow) per-sample mode")
     p.add_argument("--drift-runs", type=int, default=10)
+    p.add_argument("--throughput-only", action="store_true", help="only section 2 (rates and history memory)")
     args = p.parse_args(argv)
 
-    print("1. Accuracy with constant parameters (60 s at 100 Hz, seed on 10 s, paper noise, general configuration)")
-    for runs, modes in ((args.runs, ("fast",)), (args.sample_runs, ("fast", "sample"))):
-        rm = accuracy(runs, modes)
-        print(f"   {runs} runs:")
-        print(f"   {'estimator':>14} {'rot RMSE deg':>13} {'scale RMSE %':>13} {'rot / direct':>13} "
-              f"{'scale / direct':>15} {'rot / ml':>9} {'scale / ml':>11}")
-        d, m = rm["batch direct"], rm["batch ml"]
-        for name, (r, s) in rm.items():
-            print(f"   {name:>14} {r / DEG:13.5f} {100 * s:13.5f} {r / d[0]:13.3f} {s / d[1]:15.3f} "
-                  f"{r / m[0]:9.3f} {s / m[1]:11.3f}")
+    if not args.throughput_only:
+        print("1. Accuracy with constant parameters (60 s at 100 Hz, seed on 10 s, paper noise, general configuration)")
+        for runs, modes in ((args.runs, ("fast",)), (args.sample_runs, ("fast", "sample"))):
+            rm = accuracy(runs, modes)
+            print(f"   {runs} runs:")
+            print(f"   {'estimator':>14} {'rot RMSE deg':>13} {'scale RMSE %':>13} {'rot / direct':>13} "
+                  f"{'scale / direct':>15} {'rot / ml':>9} {'scale / ml':>11}")
+            d, m = rm["batch direct"], rm["batch ml"]
+            for name, (r, s) in rm.items():
+                print(f"   {name:>14} {r / DEG:13.5f} {100 * s:13.5f} {r / d[0]:13.3f} {s / d[1]:15.3f} "
+                      f"{r / m[0]:9.3f} {s / m[1]:11.3f}")
 
     print("\n2. Throughput on one core (samples/s of tracker.run; one BLAS thread)")
     print(f"   {'mode':>7} {'block':>6} {'CPU-time samples/s':>19} {'wall samples/s':>15} {'x real time @200 Hz':>20}")
@@ -126,6 +148,14 @@ def main(argv=None):
         cpu, wall = throughput(mode, block, dur)
         print(f"   {mode:>7} {block:6d} {cpu:19.0f} {wall:15.0f} {cpu / 200.0:20.1f}")
 
+    print("\n   history kept per sample (tracemalloc growth over 20k per-sample updates after 20k; the unbounded rows"
+          " grow by doubling,\n   264 to 528 bytes a row), extrapolated to 1e7 samples:")
+    for max_rows, per in history_memory().items():
+        name = "history_max_rows=None (one row per update)" if max_rows is None else f"history_max_rows={max_rows}"
+        print(f"   {name:44} {per:8.1f} bytes/sample -> {per * 1e7 / 2**20:9.1f} MiB over 1e7 samples")
+
+    if args.throughput_only:
+        return
     print(f"\n3. Drift 0.5 %/10 min on scale_2[y] + 0.5 deg rotation step at 300 s ({args.drift_runs} runs, fast mode)")
     fr, delays, nees, reseeds, dof = drift_and_step(args.drift_runs)
     print(f"   fraction of estimates inside 2 sigma: pooled {fr.mean():.3f}, worst component in any run {fr.min():.3f}")

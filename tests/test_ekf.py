@@ -548,3 +548,79 @@ def test_example_track_drift_runs(tmp_path, capsys):
     text = capsys.readouterr().out
     assert out.exists() and out.stat().st_size > 10_000
     assert "re-seeded" in text and "within 2 sigma" in text
+
+
+# ---------------------------------------------------------------------------- per-sample hot path, history bound
+def test_linearise_one_equals_block_linearisation():
+    rng = np.random.default_rng(31)
+    t, w1, w2, _ = scenario(rng, 20.0)
+    tr = GyroPairTracker.from_samples(t[:1000], w1[:1000], w2[:1000])
+    f = tr._filter
+    for k in (1000, 1500, 1999):
+        H, r = f.linearise(w1[k:k + 1], w2[k:k + 1])
+        d2 = f.innovation_d2(H, r)
+        H1, r1, S1, d21 = f.linearise_one(w1[k], w2[k])
+        np.testing.assert_allclose(H1, H[0], rtol=1e-14, atol=1e-15)
+        np.testing.assert_allclose(r1, r[0], rtol=1e-14, atol=1e-17)
+        assert d21 == pytest.approx(float(d2[0]), rel=1e-10)
+
+
+def test_gate_and_cusum_one_sample_equal_block_of_one():
+    from fusion_gyrocal.online.steps import Cusum, InnovationGate
+
+    rng = np.random.default_rng(32)
+    d2 = rng.chisquare(3, 3000) * np.where(rng.random(3000) < 0.05, 8.0, 1.0)   # spikes and steps
+    d2[1000:1200] *= 4.0
+    d2[rng.integers(0, 3000, 10)] = np.nan
+    for neighbours in (0, 1, 3):
+        ga, gb = InnovationGate(11.3, neighbours), InnovationGate(11.3, neighbours)
+        ca, cb = Cusum(0.5, 25.0, 11.3, 0.0), Cusum(0.5, 25.0, 11.3, 0.0)
+        for k, x in enumerate(d2):
+            fresh = k % 500 == 0
+            assert ga.keep_one(float(x), fresh=fresh) == bool(gb.keep(d2[k:k + 1], fresh=fresh)[0])
+            assert ca.scan_one(float(k), float(x)) == cb.scan(np.array([float(k)]), d2[k:k + 1])
+            assert (ga.pending, ca.level, ca.zero_t) == (gb.pending, cb.level, cb.zero_t)
+
+
+def test_run_history_max_rows_bounds_rows_and_keeps_them_spread():
+    rng = np.random.default_rng(33)
+    t, w1, w2, _ = scenario(rng, 60.0)
+    tr = GyroPairTracker.from_samples(t[:1000], w1[:1000], w2[:1000], history_max_rows=64)
+    h = tr.run(t[1000:], w1[1000:], w2[1000:], mode="sample")
+    full = GyroPairTracker.from_samples(t[:1000], w1[:1000], w2[:1000]).run(t[1000:], w1[1000:], w2[1000:],
+                                                                            mode="sample")
+    assert len(full) == 5000 and 32 <= len(h) <= 64
+    assert h.t[0] == full.t[0] and np.all(np.diff(h.t) > 0)
+    step = np.diff(h.t)
+    assert step.max() == pytest.approx(step.min(), rel=1e-6)      # evenly spread over the run
+    k = np.searchsorted(full.t, h.t)
+    np.testing.assert_array_equal(h.scale_2, full.scale_2[k])     # the kept rows are the full history's rows
+    assert h.n_samples == full.n_samples
+
+
+def test_run_history_max_rows_memory_flat():
+    import tracemalloc
+
+    rng = np.random.default_rng(34)
+    t, w1, w2, _ = scenario(rng, 80.0)
+    tr = GyroPairTracker.from_samples(t[:1000], w1[:1000], w2[:1000], history_max_rows=256)
+    tr.run(t[1000:3000], w1[1000:3000], w2[1000:3000], mode="sample")
+    tracemalloc.start()
+    try:
+        tr.run(t[3000:5000], w1[3000:5000], w2[3000:5000], mode="sample")
+        first = tracemalloc.get_traced_memory()[0]
+        tr.run(t[5000:8000], w1[5000:8000], w2[5000:8000], mode="sample")
+        grown = tracemalloc.get_traced_memory()[0] - first
+    finally:
+        tracemalloc.stop()
+    assert grown < 3000 * 16                  # < 16 bytes a sample (unbounded rows cost 264 a sample)
+
+
+def test_run_history_max_rows_refuses_truth_and_bad_values():
+    rng = np.random.default_rng(35)
+    t, w1, w2, truth = scenario(rng, 15.0)
+    tr = GyroPairTracker.from_samples(t[:1000], w1[:1000], w2[:1000], history_max_rows=100)
+    with pytest.raises(OptionError, match="history_max_rows"):
+        tr.run(t[1000:], w1[1000:], w2[1000:], truth=truth[1000:])
+    with pytest.raises(OptionError, match="history_max_rows"):
+        TrackerConfig(history_max_rows=1)

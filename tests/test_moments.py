@@ -100,3 +100,35 @@ def test_moments_dict_round_trip():
     m2 = Moments.from_dict(m.to_dict())
     np.testing.assert_array_equal(m.scatter, m2.scatter)
     assert m2.count == m.count
+
+
+def test_moments_from_samples_two_arrays_equal_stacked_centred_scatter():
+    # the one-pass Gram sum over two separate arrays, several threads and chunks, against numpy
+    w1, w2 = _data(300001, bias=3.0, seed=4)
+    m = Moments.from_samples(w1, w2, chunk_size=4096, threads=2)
+    X = np.hstack([w1, w2]).astype(np.longdouble)    # an extended-precision reference
+    Xc = X - X.mean(axis=0)
+    np.testing.assert_allclose(m.scatter, np.asarray(Xc.T @ Xc, dtype=np.float64), rtol=1e-12, atol=1e-8)
+    np.testing.assert_allclose(m.mean, np.asarray(X.mean(axis=0), dtype=np.float64), rtol=0, atol=1e-14)
+
+
+def test_moments_from_samples_drift_far_from_first_chunk_keeps_precision():
+    # the mean wanders 1e5 spreads away from the first chunk's mean: the one-shift sum would cancel,
+    # the chunk-by-chunk fallback must keep the digits
+    rng = np.random.default_rng(5)
+    n = 40000
+    drift = np.linspace(0.0, 1e5, n)[:, None]
+    w1, w2 = rng.standard_normal((n, 3)) + drift, rng.standard_normal((n, 3)) - drift
+    m = Moments.from_samples(w1, w2, chunk_size=1000, threads=1)
+    X = np.hstack([w1, w2]).astype(np.longdouble)
+    Xc = X - X.mean(axis=0)
+    ref = np.asarray(Xc.T @ Xc, dtype=np.float64)
+    np.testing.assert_allclose(m.scatter, ref, rtol=1e-9)
+
+
+def test_moments_from_samples_nan_after_first_chunk_names_row():
+    w1, w2 = _data(50000)
+    w2 = w2.copy()
+    w2[43210, 1] = np.nan
+    with pytest.raises(InputError, match="omega_2.*sample 43210"):
+        Moments.from_samples(w1, w2, chunk_size=4096, threads=1)

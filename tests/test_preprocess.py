@@ -442,3 +442,72 @@ def test_excitation_report_skips_invalid_samples():
     rep = excitation_report(bad, PAPER_NOISE_STD, valid=valid)
     np.testing.assert_allclose(rep.snr, excitation_report(w[valid], PAPER_NOISE_STD).snr)
     assert rep.n_used == valid.sum()
+
+
+# ------------------------------------------------------------------------------------------------ bounded memory
+def test_resample_block_by_block_equals_whole_record_splines(monkeypatch):
+    import fusion_gyrocal.pipeline.resample as rs
+
+    rng = np.random.default_rng(11)
+    t = np.cumsum(rng.uniform(0.0075, 0.0125, 40000))
+    w = np.sin(np.outer(t, [1.0, 2.3, 3.1])) + rng.normal(0, 1e-3, (t.size, 3))
+    ok = rng.random(t.size) > 0.002
+    ok[5000:5100] = False
+    grid = np.arange(t[0] - 1.0, t[-1] + 1.0, 0.0037)
+    monkeypatch.setattr(rs, "_GRID_BLOCK", 1000)         # about 270 blocks
+    blocked, in_blocked = resample(t, w, grid, valid=ok)
+    monkeypatch.setattr(rs, "_GRID_BLOCK", 10**9)        # one spline over the whole record
+    whole, in_whole = resample(t, w, grid, valid=ok)
+    assert np.array_equal(in_blocked, in_whole)
+    np.testing.assert_allclose(blocked[in_whole], whole[in_whole], rtol=0, atol=1e-13)
+
+
+@pytest.mark.parametrize("masked", [True, False])
+def test_masked_correlation_blocks_equal_one_block(monkeypatch, masked):
+    import fusion_gyrocal.pipeline.alignment as al
+
+    rng = np.random.default_rng(12)
+    f = rng.standard_normal(50000)
+    g = rng.standard_normal(48000) + 0.7
+    g[100:] += 0.5 * f[:47900]                         # g[k] follows f[k - 100]: the peak at lag -100
+    mf, mg = np.ones(f.size, bool), np.ones(g.size, bool)
+    if masked:                                         # masked samples everywhere: the six-FFT blocks
+        mf, mg = rng.random(f.size) > 0.1, rng.random(g.size) > 0.1
+    else:                                              # one gap: the other blocks take the cumsum form
+        mg[20000:20300] = False
+    f, g = f * mf, g * mg
+    one = al._masked_correlation(f, mf, g, mg, -300, 300, 8)
+    monkeypatch.setattr(al, "_XC_ONE_FFT", 1000)
+    monkeypatch.setattr(al, "_XC_BLOCK", 4096)
+    blocks = al._masked_correlation(f, mf, g, mg, -300, 300, 8)
+    np.testing.assert_allclose(blocks, one, rtol=0, atol=1e-12)
+    assert np.nanargmax(blocks) - 300 == -100
+
+
+def test_estimate_time_offset_subsample_of_excited_windows_keeps_accuracy():
+    # 10 minutes at 100/200 Hz: the refinement on a bounded subsample (a twelfth of the instants) of
+    # the most excited windows stays unbiased, its std honest and within a small factor of the full one
+    # (a random twelfth would have sqrt(12) = 3.5 times the std)
+    t1, w1, t2, w2, _, _ = simulate_streams(13, duration=600.0, offset=0.0731)
+    full = estimate_time_offset(t1, w1, t2, w2, max_eval=None)
+    sub = estimate_time_offset(t1, w1, t2, w2, max_eval=16384)
+    assert sub.n_samples <= 16384 < full.n_samples
+    assert abs(sub.offset_s - 0.0731) <= 4 * sub.std_s
+    assert abs(full.offset_s - 0.0731) <= 4 * full.std_s
+    assert full.std_s < sub.std_s < 3 * full.std_s
+
+
+def test_align_streams_long_record_memory_is_bounded():
+    import tracemalloc
+
+    t1, w1, t2, w2, _, _ = simulate_streams(14, rate_1=200.0, rate_2=200.0, duration=2000.0, offset=0.02)
+    n = t1.size                                        # 400k samples per gyro
+    tracemalloc.start()
+    try:
+        pair = align_streams(t1, w1, t2, w2)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert abs(pair.time_offset_s - 0.02) <= 5 * pair.time_offset.std_s
+    # the aligned output is 57 bytes a sample; everything else is blocks of bounded size
+    assert peak / n <= 57 + 80 + 64e6 / n

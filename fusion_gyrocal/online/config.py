@@ -128,6 +128,10 @@ class TrackerConfig:
     block_size : int
         Samples per block of :meth:`~fusion_gyrocal.online.tracker.GyroPairTracker.run` in the fast
         mode when the call does not give one.
+    history_max_rows : int or None
+        Bound on the rows of the tracker's history (264 bytes each). When reached, every other row
+        is dropped and then only every 2nd (4th, ...) update is recorded: memory stays flat over
+        any run, the rows evenly spread over it. None (default): one row per update, unbounded.
     gate : float
         Derived: the chi-square(3) quantile of ``gate_probability`` (not a constructor argument).
     """
@@ -146,6 +150,7 @@ class TrackerConfig:
     buffer_samples: int = 1 << 15
     reseed_solver: Callable | None = None
     block_size: int = 100
+    history_max_rows: int | None = None
     gate: float = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
@@ -170,6 +175,11 @@ class TrackerConfig:
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
                 raise OptionError(f"{name}: expected an integer >= {low}, got {v!r}")
             object.__setattr__(self, name, int(v))
+        v = self.history_max_rows
+        if v is not None:
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 2:
+                raise OptionError(f"history_max_rows: expected an integer >= 2 or None, got {v!r}")
+            object.__setattr__(self, "history_max_rows", int(v))
         if self.reseed_solver is not None and not callable(self.reseed_solver):
             raise OptionError(f"reseed_solver: expected a callable or None, got {type(self.reseed_solver).__name__}")
         for name in ("scale_prior_std", "gate_probability", "cusum_drift", "cusum_threshold", "reseed_window_s",

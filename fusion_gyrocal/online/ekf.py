@@ -14,10 +14,13 @@ priors and every correction are projected off the directions the :class:`~.hold.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
+from filterpy.kalman import update as kalman_update
 
-from ..core.model import BIAS, ROT, S1, S2
+from ..core.model import BIAS, ROT
 from ..core.moments import Moments
 from ..core.observability import A_of
 from ..errors import InputError
@@ -27,6 +30,8 @@ from .hold import DIM, LOG, ScaleHold
 REFRESH = 50      # folds between re-linearisations of the gauge projector and the measurement noise
                   # (they change at second order only: the scale factors move by < 1e-3 between them)
 _GENERATOR_RATES = np.vstack([np.eye(3), np.zeros((1, 3))])
+_ZERO_X = np.zeros((DIM, 1))
+_ZERO_X.flags.writeable = False    # the error state after every fold (read-only: never modified in place)
 
 
 def measurement_jacobian(R, s1, s2, w2, A=None) -> np.ndarray:
@@ -39,6 +44,32 @@ def measurement_jacobian(R, s1, s2, w2, A=None) -> np.ndarray:
     H[:, idx, 3 + idx] = s1 * u                                  # d/d delta_1 = diag(A omega_2)
     H[:, :, 6:9] = -A[None, :, :] * w2[:, None, :]               # d/d delta_2 = -A diag(omega_2)
     H[:, idx, 9 + idx] = 1.0                                     # d/d b
+    return H
+
+
+def _quadratic_3(S, r) -> float:
+    """``r^T S^-1 r`` for a symmetric positive 3x3 ``S`` in scalar arithmetic (LDL^T; NaN if not positive)."""
+    (a, b, c), (_, d, e), (_, _, f) = S.tolist()
+    x, y, z = r.tolist()
+    if not a > 0:
+        return float("nan")
+    l1, l2 = b / a, c / a                       # S = L D L^T, L unit lower triangular
+    d2 = d - b * l1
+    if not d2 > 0:
+        return float("nan")
+    l3 = (e - c * l1) / d2
+    d3 = f - c * l2 - d2 * l3 * l3
+    if not d3 > 0:
+        return float("nan")
+    y1 = y - l1 * x                             # forward substitution L v = r
+    z1 = z - l2 * x - l3 * y1
+    return x * x / a + y1 * y1 / d2 + z1 * z1 / d3
+
+
+def _one_sample_jacobian() -> np.ndarray:
+    """A (3, 12) Jacobian buffer with the constant bias block (``d/d b = I``) already in place."""
+    H = np.zeros((3, DIM))
+    H[:, 9:12] = np.eye(3)
     return H
 
 
@@ -77,7 +108,7 @@ class ErrorStateEKF:
     """
 
     __slots__ = ("kf", "hold", "R", "s1", "s2", "b", "t", "noise_std", "drift", "step_prior",
-                 "_T", "_Pi", "_q", "_shock", "_G", "_folds")
+                 "_T", "_Pi", "_q", "_shock", "_G", "_folds", "_H1")
 
     def __init__(self, hold: ScaleHold, drift, step_prior, noise_std, R, s1, s2, b, P, t: float,
                  inflate_s: float = 0.0):
@@ -89,6 +120,7 @@ class ErrorStateEKF:
         self.R, self.b = np.array(R, dtype=float), np.array(b, dtype=float)
         self.s1, self.s2 = hold.express(s1, s2)
         self.t = float(t)
+        self._H1 = _one_sample_jacobian()
         self.relinearise()
         P = self.project(P)
         if inflate_s > 0:
@@ -107,6 +139,7 @@ class ErrorStateEKF:
         new.step_prior = self.step_prior if step_prior is None else step_prior
         new.R, new.s1, new.s2, new.b, new.t = self.R, self.s1, self.s2, self.b, self.t   # never modified in place
         new._T, new._Pi, new._G, new._folds = self._T, self._Pi, self._G, self._folds
+        new._H1 = _one_sample_jacobian()
         TT = self._T @ self._T.T
         new._q, new._shock = _projected_cov(new.drift, TT), _projected_cov(new.step_prior, TT)
         return new
@@ -169,13 +202,38 @@ class ErrorStateEKF:
     def predict_to(self, t: float) -> None:
         """Predict to time ``t`` (covariance grows by the random walk over ``t - self.t``)."""
         dt = t - self.t
-        if not (np.isfinite(t) and dt >= 0):
+        if not (math.isfinite(t) and dt >= 0):
             raise InputError(f"t: expected finite, non-decreasing times, got {t!r} after {self.t!r} "
                              f"(a step of {dt:.6g} s)")
         if dt > 0:
+            # filterpy's predict with F = I and the error state at zero (reset by every fold) is exactly
+            # P + Q: done directly, without its per-call copies of the prior (the per-sample hot path)
             self.kf.Q = self.process_noise(dt)
-            self.kf.predict()
+            self.kf.P = self.kf.P + self.kf.Q
             self.t = float(t)
+
+    def linearise_one(self, w1, w2) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        """One sample's ``(H, r, S, d2)``: Jacobian (3, 12), residual (3,), innovation covariance and
+        ``r^T S^-1 r``, with scalar arithmetic and a reused Jacobian buffer (the per-sample hot path;
+        the same values as :meth:`linearise` and :meth:`innovation_d2`)."""
+        R, s1, s2 = self.R, self.s1, self.s2
+        u = R @ (w2 / s2)                          # R diag(1/s2) omega_2
+        A = (s1[:, None] * R) / s2[None, :]
+        H = self._H1
+        u0, u1, u2 = u.tolist()
+        a0, a1, a2 = s1.tolist()
+        H[:, 0:6] = ((0.0, a0 * u2, -a0 * u1, a0 * u0, 0.0, 0.0),       # -diag(s1) skew(u), diag(s1 u)
+                     (-a1 * u2, 0.0, a1 * u0, 0.0, a1 * u1, 0.0),
+                     (a2 * u1, -a2 * u0, 0.0, 0.0, 0.0, a2 * u2))
+        np.multiply(A, -w2, out=H[:, 6:9])
+        r = w1 - A @ w2 - self.b
+        S = H @ self.kf.P @ H.T + self.kf.R
+        return H, r, S, _quadratic_3(S, r)
+
+    def update_one(self, H, r) -> None:
+        """One sample's update through filterpy's Kalman update (Joseph form), then the fold."""
+        self.kf.x, self.kf.P = kalman_update(self.kf.x, self.kf.P, r[:, None], self.kf.R, H)
+        self.fold()
 
     def update_sample(self, H, r) -> None:
         """One sample's update (3-d measurement through filterpy), then the fold."""
@@ -234,12 +292,12 @@ class ErrorStateEKF:
         re-imposed and everything linearised is re-linearised at the new estimate.
         """
         x = self.kf.x[:, 0]
-        x[LOG] = self._T @ x[LOG]    # never move a held direction
+        e = np.exp(self._T @ x[LOG])   # never move a held direction
         self.R = exp(x[ROT]) @ self.R
-        self.s1 = self.s1 * np.exp(x[S1])
-        self.s2 = self.s2 * np.exp(x[S2])
+        self.s1 = self.s1 * e[:3]
+        self.s2 = self.s2 * e[3:]
         self.b = self.b + x[BIAS]
-        self.kf.x = np.zeros((DIM, 1))
+        self.kf.x = _ZERO_X            # filterpy's updates return a new state: sharing the zero is safe
         self.kf.P = self.project(self.kf.P)
         self._G = None
         self._folds += 1

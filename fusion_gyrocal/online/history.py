@@ -200,37 +200,70 @@ _T, _R, _S1, _S2, _B, _SD, _NIS, _USED, _WIDTH = 0, slice(1, 10), slice(10, 13),
 class HistoryRecorder:
     """Rows of a :class:`TrackHistory` as the tracker makes them (one per filter update).
 
-    ``paused`` suppresses recording (a replay re-processes samples whose rows already exist).
+    Rows live in one preallocated float array (33 numbers, 264 bytes a row, grown by doubling).
+    With ``max_rows``, memory is bounded: when the array holds ``max_rows`` rows, every other row
+    is dropped and from then on only every 2nd (then 4th, ...) update is recorded, so the rows
+    stay evenly spread over the whole run. ``paused`` suppresses recording (a replay re-processes
+    samples whose rows already exist).
     """
 
-    __slots__ = ("_rows", "_modes", "paused")
+    __slots__ = ("_buf", "_n", "_modes", "paused", "max_rows", "every", "_count")
 
-    def __init__(self):
-        self._rows: list[np.ndarray] = []
+    def __init__(self, max_rows: int | None = None):
+        self._buf = np.empty((64 if max_rows is None else min(64, max_rows), _WIDTH))
+        self._n = 0
         self._modes: set[str] = set()
         self.paused = False
+        self.max_rows = max_rows
+        self.every = 1          # record one update in ``every``
+        self._count = 0         # updates offered so far
 
     def __len__(self) -> int:
-        return len(self._rows)
+        return self._n
 
-    def copy(self) -> "HistoryRecorder":
-        new = HistoryRecorder()
-        new._rows, new._modes = list(self._rows), set(self._modes)   # rows are never modified
+    def copy(self, max_rows: int | None) -> "HistoryRecorder":
+        """An independent copy bounded by ``max_rows`` (None: unbounded from now on)."""
+        new = HistoryRecorder(max_rows)
+        new._buf = self._buf[: max(self._n, 1)].copy()
+        new._n, new._modes, new.every, new._count = self._n, set(self._modes), self.every, self._count
+        while new.max_rows is not None and new._n > new.max_rows:
+            new._decimate()
         return new
+
+    def _decimate(self) -> None:
+        kept = self._buf[: self._n: 2].copy()
+        self._buf[: kept.shape[0]] = kept
+        self._n = kept.shape[0]
+        self.every *= 2
 
     def add(self, t: float, R, s1, s2, b, P, nis: float, n_used: int, mode: str) -> None:
         """Record the estimate ``(R, s1, s2, b)`` with the error covariance ``P`` after an update."""
         if self.paused:
             return
         self._modes.add(mode)
-        sd = np.sqrt(np.maximum(P.diagonal(), 0.0))
-        self._rows.append(np.concatenate(((t,), R.ravel(), s1, s2, b, sd, (nis, n_used))))
+        k = self._count
+        self._count += 1
+        if k % self.every:
+            return
+        if self._n == self._buf.shape[0]:
+            if self.max_rows is not None and self._n >= self.max_rows:
+                self._decimate()
+                if k % self.every:
+                    return
+            else:
+                cap = 2 * self._buf.shape[0] if self.max_rows is None else min(2 * self._buf.shape[0], self.max_rows)
+                grown = np.empty((cap, _WIDTH))
+                grown[: self._n] = self._buf[: self._n]
+                self._buf = grown
+        np.concatenate(((t,), R.ravel(), s1, s2, b, np.sqrt(np.maximum(P.diagonal(), 0.0)), (nis, n_used)),
+                       out=self._buf[self._n])
+        self._n += 1
 
     def build(self, *, reseeds, n_samples: int, n_rejected: int, gauge: str, nees_dof: int, nees=None,
               truth=None) -> TrackHistory:
         """The frozen history; ``nees`` (M,) and ``truth`` ``(R_1_2, scale_1, scale_2, bias)`` per row, if given."""
-        M = len(self._rows)
-        a = np.array(self._rows, dtype=float).reshape(M, _WIDTH)
+        M = self._n
+        a = self._buf[:M].copy()
         sd = a[:, _SD]
         modes = self._modes
         mode = "mixed" if len(modes) > 1 else (next(iter(modes)) if modes else "none")

@@ -40,6 +40,19 @@ class InnovationGate:
         return ~bad
 
 
+    def keep_one(self, d2: float, *, fresh: bool = False) -> bool:
+        """:meth:`keep` for a block of one sample (scalar; the per-sample hot path)."""
+        if fresh:
+            self.pending = 0
+        if not d2 <= self.limit:           # NaN is gated too
+            self.pending = self.neighbours
+            return False
+        if self.pending:
+            self.pending -= 1
+            return False
+        return True
+
+
 class Cusum:
     """One-sided CUSUM of ``min(d^2, clip) / 3 - 1 - allowance`` (a step raises the innovations).
 
@@ -76,6 +89,19 @@ class Cusum:
         return None
 
 
+    def scan_one(self, t: float, d2: float):
+        """:meth:`scan` for a block of one sample: ``(0, onset time)`` on an alarm, else None."""
+        level = self.level + ((d2 if d2 <= self.clip else self.clip) / 3.0 - (1.0 + self.allowance))
+        if level <= 0.0:
+            self.level, self.zero_t = 0.0, t
+            return None
+        if level > self.threshold:
+            self.level = 0.0
+            return 0, self.zero_t
+        self.level = level
+        return None
+
+
 class SampleRing:
     """Fixed-capacity ring buffer of ``[t, omega_1, omega_2]`` rows (the re-seed window, replays)."""
 
@@ -105,6 +131,16 @@ class SampleRing:
             self.buf[: m - k] = rows[k:]
         self.head = end % self.cap
         self.n = min(self.cap, self.n + m)
+
+    def push_one(self, t: float, w1, w2) -> None:
+        """Append one sample row (the per-sample hot path of :meth:`push`)."""
+        row = self.buf[self.head]
+        row[0] = t
+        row[1:4] = w1
+        row[4:7] = w2
+        self.head = (self.head + 1) % self.cap
+        if self.n < self.cap:
+            self.n += 1
 
     def rows(self) -> np.ndarray:
         """Every stored row, oldest first (a copy)."""

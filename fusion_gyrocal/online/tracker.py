@@ -201,7 +201,7 @@ class GyroPairTracker:
         self._gate = InnovationGate(config.gate, config.gate_neighbours)
         self._cusum = Cusum(config.cusum_drift, config.cusum_threshold, config.gate, float(t0))
         self._ring = SampleRing(config.buffer_samples)
-        self._history = HistoryRecorder()
+        self._history = HistoryRecorder(config.history_max_rows)
         self._events: list[ReseedEvent] = []
         self._alarm: _Alarm | None = None
         self._replaying = False
@@ -264,7 +264,7 @@ class GyroPairTracker:
         new._cusum = Cusum(config.cusum_drift, config.cusum_threshold, config.gate, self._cusum.zero_t)
         new._cusum.level = self._cusum.level
         new._ring = self._ring.resized(config.buffer_samples)
-        new._history = self._history.copy()
+        new._history = self._history.copy(config.history_max_rows)
         new._events, new._alarm, new._replaying = list(self._events), alarm, False
         new._n_samples, new._n_rejected = self._n_samples, self._n_rejected
         return new
@@ -470,6 +470,8 @@ class GyroPairTracker:
         """The one update path: predict, gate, CUSUM, ONE filter update, record, maybe re-seed."""
         f = self._filter
         B = t.shape[0]
+        if B == 1:
+            return self._step_one(float(t[0]), w1[0], w2[0], mode)
         t_mid = float(t.sum()) / B if B > 1 else float(t[0])      # the block's mean time
         f.predict_to(t_mid)
         if not self._replaying:
@@ -496,6 +498,30 @@ class GyroPairTracker:
             if self._alarm is not None:
                 self._maybe_reseed()
         return n_used
+
+    def _step_one(self, t: float, w1, w2, mode: str) -> int:
+        """:meth:`_step` for a block of one sample, in scalar form (the per-sample hot path): the same
+        predict, gate, CUSUM, filterpy update and record, without the block machinery."""
+        f = self._filter
+        f.predict_to(t)
+        if not self._replaying:
+            self._ring.push_one(t, w1, w2)
+            self._n_samples += 1
+        H, r, S, d2 = f.linearise_one(w1, w2)
+        alarm = None if (self._alarm is not None or self._replaying) else self._cusum.scan_one(t, d2)
+        if alarm is not None:
+            self._raise_alarm(t, alarm[1])
+            H, r, S, d2 = f.linearise_one(w1, w2)    # covariance opened by the step prior
+        used = self._gate.keep_one(d2, fresh=alarm is not None)
+        if used:
+            f.update_one(H, r)
+        else:
+            self._n_rejected += 1
+        if not self._replaying:
+            self._history.add(t, f.R, f.s1, f.s2, f.b, f.kf.P, d2 / 3.0 if used else np.nan, int(used), mode)
+            if self._alarm is not None:
+                self._maybe_reseed()
+        return int(used)
 
     # ------------------------------------------------------------------ step changes
     def _raise_alarm(self, t_detected: float, onset: float) -> None:
@@ -603,9 +629,16 @@ class GyroPairTracker:
             bad = int(np.flatnonzero(~(np.isfinite(w1).all(1) & np.isfinite(w2).all(1)))[0])
             raise InputError(f"omega_1/omega_2: expected finite rates, got a non-finite value at sample {bad}; "
                              "mask or drop it first")
+        if truth is not None and self._config.history_max_rows is not None:
+            raise OptionError("truth: the truth columns need one history row per update; expected "
+                              f"history_max_rows=None, got {self._config.history_max_rows}")
         if truth is not None and len(truth) != t.shape[0]:
             raise InputError(f"truth: expected {t.shape[0]} rows (one per sample), got {len(truth)}")
         self._check_start(t[0])
+        if mode == "sample" and truth is None:     # the per-sample hot path: no per-sample slicing
+            for k, tk in enumerate(t.tolist()):
+                self._step_one(tk, w1[k], w2[k], mode)
+            return self.history()
         spans = [(k, k + 1) for k in range(t.shape[0])] if mode == "sample" else _blocks(t, B, max_gap_s)
         truth_idx, nees_rows = [], []
         for s, e in spans:

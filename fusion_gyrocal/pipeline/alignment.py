@@ -23,13 +23,17 @@ from scipy.optimize import minimize_scalar
 
 from ..core.moments import Moments
 from ..errors import OptionError, TimeAlignmentError
-from .resample import _RunSplines, _runs, resample
+from .resample import _MARGIN, _RunSplines, _runs, resample
 from .streams import DEFAULT_GAP_PERIODS, _freeze, _nominal_period, _stream
 
 _AMBIGUITY_RATIO = 1.5         # a second lobe with misfit (1 - r) below this times the peak's is ambiguous
 _MIN_OVERLAP_FRACTION = 0.5    # lags overlapping fewer valid grid points than this fraction are ignored
 _EVAL_STEP = 2.0 / (1.0 + 5.0 ** 0.5)  # refinement instants every 0.618 grid steps (golden ratio: equidistributed)
 _STD_BLOCK_S = 0.25            # block length of the sandwich estimate of the offset's std
+_XC_ONE_FFT = 1 << 17          # grid points up to which the coarse correlation is one FFT
+_XC_BLOCK = 1 << 13            # beyond: blocks of f of this length (small FFTs, measured fastest)
+_NORM_BLOCK = 1 << 16          # grid points (and samples) per block of the norms and the window scores
+MAX_EVAL = 1 << 17             # refinement instants: longer logs use their most excited windows
 
 
 # ---------------------------------------------------------------------------------------------- time offset
@@ -72,24 +76,48 @@ def _masked_correlation(f, mf, g, mg, d_lo, d_hi, min_overlap):
 
     Each lag uses only the samples valid in both (masked normalised cross-correlation): six FFT
     cross-correlations give, per lag, the overlap count, both sums and sums of squares, and the
-    cross sum.
+    cross sum. Long series are cut into blocks of ``f`` (each with the stretch of ``g`` its lags
+    reach) whose sums are added, so memory stays bounded and time linear in the length.
     """
-    n = f.size + g.size - 1
-    nfft = 1 << int(np.ceil(np.log2(max(n, 2))))
-    F = [np.fft.rfft(x, nfft) for x in (mf, f, f * f)]
-    G = [np.conj(np.fft.rfft(x, nfft)) for x in (mg, g, g * g)]
-
-    def xc(a, b):
-        return np.fft.irfft(a * b, nfft)
-
     d = np.arange(d_lo, d_hi + 1)
-    sel = np.mod(d, nfft)
-    cnt = np.rint(xc(F[0], G[0])[sel])
-    s1 = xc(F[1], G[0])[sel]
-    s2 = xc(F[0], G[1])[sel]
-    q1 = xc(F[2], G[0])[sel]
-    q2 = xc(F[0], G[2])[sel]
-    p = xc(F[1], G[1])[sel]
+    nf, ng = f.size, g.size
+    if nf + ng - 1 <= _XC_ONE_FFT:
+        spans = [(0, nf, 0, ng)]
+    else:
+        spans = [(k0, min(k0 + _XC_BLOCK, nf), max(0, k0 - d_hi), min(ng, min(k0 + _XC_BLOCK, nf) - d_lo))
+                 for k0 in range(0, nf, _XC_BLOCK)]
+    acc = np.zeros((6, d.size))
+    for k0, k1, j0, j1 in spans:
+        la, lb = k1 - k0, j1 - j0
+        if la <= 0 or lb <= 0:
+            continue
+        nfft = 1 << int(np.ceil(np.log2(max(la + lb - 1, 2))))
+        a, b = f[k0:k1], g[j0:j1]
+        lag = d - (k0 - j0)                    # lag within the block pair: sum_m a[m] b[m - lag]
+        sel = np.mod(lag, nfft)
+        whole = len(spans) > 1 and lag.max() <= 0 and la - lag.min() <= lb   # every lag sees all of a
+        if whole and mf[k0:k1].all() and mg[j0:j1].all():
+            # a block without masked samples (the usual case): only the cross sum needs an FFT; the
+            # counts, sums and sums of squares are those of a and of sliding windows of b (cumsums)
+            xc = np.fft.irfft(np.fft.rfft(a, nfft) * np.conj(np.fft.rfft(b, nfft)), nfft)
+            cb = np.concatenate(([0.0], np.cumsum(b)))
+            cq = np.concatenate(([0.0], np.cumsum(b * b)))
+            acc[0] += la
+            acc[1] += a.sum()
+            acc[2] += cb[la - lag] - cb[-lag]
+            acc[3] += (a * a).sum()
+            acc[4] += cq[la - lag] - cq[-lag]
+            acc[5] += xc[sel]
+            continue
+        ma, mb = mf[k0:k1].astype(float), mg[j0:j1].astype(float)
+        F = np.fft.rfft(np.stack((ma, a, a * a)), nfft)
+        G = np.conj(np.fft.rfft(np.stack((mb, b, b * b)), nfft))
+        inside = (lag >= -(lb - 1)) & (lag <= la - 1)
+        xc = np.fft.irfft(np.stack((F[0] * G[0], F[1] * G[0], F[0] * G[1], F[2] * G[0], F[0] * G[2],
+                                    F[1] * G[1])), nfft)
+        acc += np.where(inside, xc[:, sel], 0.0)
+    cnt = np.rint(acc[0])
+    s1, s2, q1, q2, p = acc[1:]
     with np.errstate(invalid="ignore", divide="ignore"):
         cov = p - s1 * s2 / cnt
         v1 = q1 - s1 * s1 / cnt
@@ -99,27 +127,41 @@ def _masked_correlation(f, mf, g, mg, d_lo, d_hi, min_overlap):
     return np.clip(r, -1.0, 1.0)
 
 
-def _norm_on_grid(t, w, ok, grid, gap):
-    """Standardised rate norm on ``grid`` (linear interpolation inside runs; 0 elsewhere) and its mask.
+def _norm_on_grid(t, w, ok, k_lo: int, k_hi: int, h: float, gap):
+    """Standardised rate norm on the grid ``k h``, ``k_lo <= k <= k_hi`` (linear interpolation inside runs;
+    0 elsewhere) and its mask.
 
     Linear interpolation is enough for the coarse search (the refinement uses splines) and
-    stays cheap for records split into many runs by masked samples.
+    stays cheap for records split into many runs by masked samples. The grid is filled block by
+    block from the samples each block reaches, so no per-sample intermediate of the whole record
+    is kept.
     """
-    norm = np.linalg.norm(np.where(ok[:, None], w, 0.0), axis=1)
-    x = np.zeros(grid.size)
-    inside = np.zeros(grid.size, dtype=bool)
-    runs = _runs(t, ok, gap)
-    if runs:
+    size = k_hi - k_lo + 1
+    x = np.zeros(size)
+    inside = np.zeros(size, dtype=bool)
+    for lo in range(0, size, _NORM_BLOCK):
+        grid = np.arange(k_lo + lo, min(k_lo + lo + _NORM_BLOCK, k_hi + 1)) * h
+        i0 = max(int(np.searchsorted(t, grid[0], side="right")) - 2, 0)
+        i1 = min(int(np.searchsorted(t, grid[-1], side="left")) + 2, t.size)
+        tl, wl, okl = t[i0:i1], w[i0:i1], ok[i0:i1]
+        runs = _runs(tl, okl, gap)
+        if not runs:
+            continue
         first = np.array([r[0] for r in runs])
         last = np.array([r[-1] for r in runs])
-        k = np.searchsorted(t[first], grid, side="right") - 1
-        inside = (k >= 0) & (grid <= t[last[np.clip(k, 0, None)]])
-        sel = np.flatnonzero(ok)
-        x[inside] = np.interp(grid[inside], t[sel], norm[sel])
+        k = np.searchsorted(tl[first], grid, side="right") - 1
+        ins = (k >= 0) & (grid <= tl[last[np.clip(k, 0, None)]])
+        sel = np.flatnonzero(okl)
+        x[lo:lo + grid.size][ins] = np.interp(grid[ins], tl[sel], np.linalg.norm(wl[sel], axis=1))
+        inside[lo:lo + grid.size] = ins
     if inside.sum() < 2:
         return x, inside
-    mu, sd = x[inside].mean(), x[inside].std()
-    x = np.where(inside, (x - mu) / (sd if sd > 0 else 1.0), 0.0)
+    xin = x[inside]
+    mu, sd = xin.mean(), xin.std()
+    del xin
+    x -= mu
+    x /= sd if sd > 0 else 1.0
+    x[~inside] = 0.0
     return x, inside
 
 
@@ -146,6 +188,53 @@ def _span_misfit(spl2: _RunSplines, x1, y1, lo: float, hi: float):
         return float(np.trace(m.S11) - np.trace(A @ m.S12.T))
 
     return xe, ye, cost
+
+
+def _excited_instants(t1, w1, ok1, he: float, max_eval: int) -> np.ndarray:
+    """Refinement instants (multiples of ``he``) inside the most excited windows of gyro 1, at most ``max_eval``.
+
+    The information about the offset is in the rate's derivative (the misfit's curvature is
+    ``sum |A d/dt omega_2|^2``): the record is cut into windows of ``_STD_BLOCK_S`` seconds, each
+    scored by ``sum |d omega_1 / dt|^2`` of its consecutive valid samples (one chunked pass), and
+    the best windows are kept, whole, in time order.
+    """
+    score = np.zeros(int(np.floor((t1[-1] - t1[0]) / _STD_BLOCK_S)) + 1)
+    for lo in range(0, t1.size - 1, _NORM_BLOCK):
+        hi = min(lo + _NORM_BLOCK + 1, t1.size)
+        dt = np.diff(t1[lo:hi])
+        dw = np.diff(w1[lo:hi], axis=0)
+        e = np.einsum("ij,ij->i", dw, dw) / (dt * dt)
+        e[~(ok1[lo:hi - 1] & ok1[lo + 1:hi])] = 0.0
+        k = ((t1[lo:hi - 1] - t1[0]) / _STD_BLOCK_S).astype(np.int64)
+        score += np.bincount(k, weights=e, minlength=score.size)
+    per = _STD_BLOCK_S / he
+    n_win = max(1, int(max_eval / (per + 1.0)))
+    best = np.sort(np.argsort(score)[::-1][:n_win])
+    a = np.ceil((t1[0] + best * _STD_BLOCK_S) / he).astype(np.int64)
+    b = np.ceil((t1[0] + (best + 1) * _STD_BLOCK_S) / he).astype(np.int64)
+    idx = np.concatenate([np.arange(p, q) for p, q in zip(a, b)])
+    return idx * he
+
+
+def _near(t, w, ok, lo, hi):
+    """``(t, w, ok)`` restricted to the samples within ``_MARGIN`` samples of the spans ``[lo_i, hi_i]``.
+
+    Overlapping or close spans are merged; the first sample of every later stretch is marked
+    invalid so that a spline never bridges two stretches. A spline on these samples equals the
+    one on the whole record (to rounding) at every query inside the spans.
+    """
+    i0 = np.clip(np.searchsorted(t, lo, side="left") - _MARGIN, 0, t.size)
+    i1 = np.clip(np.searchsorted(t, hi, side="right") + _MARGIN, 0, t.size)
+    order = np.argsort(i0, kind="stable")
+    i0, i1 = i0[order], np.maximum.accumulate(i1[order])
+    new = np.r_[True, i0[1:] > i1[:-1] + 2 * _MARGIN]      # a new stretch starts here
+    starts = i0[new]
+    stops = np.r_[i1[np.flatnonzero(new)[1:] - 1], i1[-1]]
+    sel = np.concatenate([np.arange(p, q) for p, q in zip(starts, stops)])
+    keep = ok[sel].copy()
+    first = np.cumsum(np.r_[0, stops[:-1] - starts[:-1]])
+    keep[first[1:]] = False
+    return t[sel], w[sel], keep
 
 
 def _parabolic_peak(r, i) -> float:
@@ -212,7 +301,7 @@ def _offset_std(spl2: _RunSplines, x1, y1, tau: float, h: float) -> float:
 
 
 def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.0, valid_1=None, valid_2=None,
-                         min_correlation: float = 0.5) -> TimeOffset:
+                         min_correlation: float = 0.5, max_eval: int | None = MAX_EVAL) -> TimeOffset:
     """Estimate the time offset between two rigidly mounted gyroscopes from their rates alone.
 
     1. Coarse: the rate norms ``|omega_i|`` (invariant to the unknown rotation, as in the paper's
@@ -255,6 +344,12 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.
         always excluded.
     min_correlation : float
         Smallest accepted peak of the normalised norm correlation.
+    max_eval : int or None
+        Most refinement instants (default ``MAX_EVAL`` = 131072, about 400 s of a 200 Hz stream). A
+        longer record is refined on its most excited 0.25 s windows (largest ``|d omega_1/dt|``,
+        where the offset information is), with splines built locally around them, so the
+        refinement's time and memory do not grow with the length; the reported std is that of
+        the subsample. None: every instant.
 
     Returns
     -------
@@ -273,6 +368,12 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.
     """
     t1, w1, ok1 = _stream("t_1", t_1, "omega_1", omega_1, valid_1)
     t2, w2, ok2 = _stream("t_2", t_2, "omega_2", omega_2, valid_2)
+    return _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, min_correlation, max_eval)
+
+
+def _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, min_correlation, max_eval) -> TimeOffset:
+    """:func:`estimate_time_offset` on checked streams (``_stream``), so a caller that has checked them
+    (:func:`align_streams`) does not pay for the checks twice."""
     if not (np.isfinite(max_offset_s) and max_offset_s > 0):
         raise OptionError(f"max_offset_s: expected a positive duration in seconds, got {max_offset_s!r}")
     for name, ok in (("omega_1", ok1), ("omega_2", ok2)):
@@ -293,15 +394,13 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.
             f"the streams do not overlap within max_offset_s={max_offset_s:g} s: gyro 1 covers "
             f"[{t1[0]:.6g}, {t1[-1]:.6g}] s and gyro 2 [{t2[0]:.6g}, {t2[-1]:.6g}] s relative to gyro 1's first "
             "valid sample (pass a larger max_offset_s or shift t_2 first)")
-    g1 = np.arange(k1_lo, k1_hi + 1) * h
-    g2 = np.arange(k2_lo, k2_hi + 1) * h
-    f, mf = _norm_on_grid(t1, w1, ok1, g1, gap1)
-    g, mg = _norm_on_grid(t2, w2, ok2, g2, gap2)
+    f, mf = _norm_on_grid(t1, w1, ok1, k1_lo, k1_hi, h, gap1)
+    g, mg = _norm_on_grid(t2, w2, ok2, k2_lo, k2_hi, h, gap2)
     L = int(np.ceil(max_offset_s / h))
     # gyro 2 at own time t - tau matches gyro 1 at t: index j = k - lag  ->  d = lag + (k2_lo - k1_lo)
     shift = k2_lo - k1_lo
     min_overlap = max(8.0, _MIN_OVERLAP_FRACTION * min(mf.sum(), mg.sum()))
-    r = _masked_correlation(f, mf.astype(float), g, mg.astype(float), -L + shift, L + shift, min_overlap)
+    r = _masked_correlation(f, mf, g, mg, -L + shift, L + shift, min_overlap)
     lags = np.arange(-L, L + 1) * h
     if not np.isfinite(r).any():
         raise TimeAlignmentError("no trial offset within max_offset_s overlaps enough valid samples of both "
@@ -322,10 +421,18 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.
     # evaluation instants: gyro 1 spline-interpolated at a step incommensurate with both sample
     # periods, so their phases w.r.t. gyro 2's samples stay uniformly spread for every trial offset
     # and the variance of the interpolated noise (lowest between samples) cannot pull the offset
-    spl1 = _RunSplines(t1, w1, ok1, gap1)
-    spl2 = _RunSplines(t2, w2, ok2, gap2)
     he = h * _EVAL_STEP
-    x1 = np.arange(int(np.ceil(t1[0] / he)), int(np.floor(t1[-1] / he)) + 1) * he
+    j_lo, j_hi = int(np.ceil(t1[0] / he)), int(np.floor(t1[-1] / he)) + 1
+    if max_eval is None or j_hi - j_lo <= max_eval:
+        spl1 = _RunSplines(t1, w1, ok1, gap1)
+        spl2 = _RunSplines(t2, w2, ok2, gap2)
+        x1 = np.arange(j_lo, j_hi) * he
+    else:  # the most excited windows carry the offset information: a bounded subsample of them
+        x1 = _excited_instants(t1, w1, ok1, he, int(max_eval))
+        reach = np.array([lags[c] for c in cands])
+        pad = 12.0 * h                                     # room for the refinement bracket to move (6 x 1.5 steps)
+        spl1 = _RunSplines(*_near(t1, w1, ok1, x1, x1), gap1)
+        spl2 = _RunSplines(*_near(t2, w2, ok2, x1 - reach.max() - pad, x1 - reach.min() + pad), gap2)
     x1 = x1[spl1.run_of(x1) >= 0]
     y1 = spl1(x1, inside=np.ones(x1.size, dtype=bool))[0]
 
@@ -408,7 +515,8 @@ class AlignedPair:
 
 
 def align_streams(t_1, omega_1, t_2, omega_2, *, time_offset_s: float | None = None, max_offset_s: float = 1.0,
-                  rate_hz: float | None = None, valid_1=None, valid_2=None) -> AlignedPair:
+                  rate_hz: float | None = None, valid_1=None, valid_2=None,
+                  max_eval: int | None = MAX_EVAL) -> AlignedPair:
     """Put two gyroscope streams on one time grid on gyro 1's clock.
 
     The offset is estimated with :func:`estimate_time_offset` unless ``time_offset_s`` is given.
@@ -428,6 +536,8 @@ def align_streams(t_1, omega_1, t_2, omega_2, *, time_offset_s: float | None = N
         (gyro 1 is not interpolated).
     valid_1, valid_2 : array_like of bool, optional
         Usable samples of each stream (non-finite samples are always excluded).
+    max_eval : int or None
+        Most instants of the offset refinement (see :func:`estimate_time_offset`).
 
     Returns
     -------
@@ -443,7 +553,7 @@ def align_streams(t_1, omega_1, t_2, omega_2, *, time_offset_s: float | None = N
     t2, w2, ok2 = _stream("t_2", t_2, "omega_2", omega_2, valid_2)
     est = None
     if time_offset_s is None:
-        est = estimate_time_offset(t1, w1, t2, w2, max_offset_s=max_offset_s, valid_1=ok1, valid_2=ok2)
+        est = _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, 0.5, max_eval)
         tau = est.offset_s
     else:
         tau = float(time_offset_s)
@@ -456,7 +566,7 @@ def align_streams(t_1, omega_1, t_2, omega_2, *, time_offset_s: float | None = N
     if rate_hz is None:
         keep = (t1 >= lo) & (t1 <= hi)
         grid = t1[keep]
-        o1 = np.array(w1[keep], dtype=np.float64)
+        o1 = w1[keep].astype(np.float64, copy=False)
         v1 = ok1[keep]
     else:
         if not (np.isfinite(rate_hz) and rate_hz > 0):
@@ -464,4 +574,7 @@ def align_streams(t_1, omega_1, t_2, omega_2, *, time_offset_s: float | None = N
         grid = lo + np.arange(int(np.floor((hi - lo) * rate_hz + 1e-9)) + 1) / float(rate_hz)
         o1, v1 = resample(t1, w1, grid, valid=ok1)
     o2, v2 = resample(t2, w2, grid - tau, valid=ok2)
-    return AlignedPair(grid, o1, o2, v1 & v2, est, tau)
+    v2 &= v1
+    for arr in (grid, o1, o2, v2):       # ours alone: frozen in place, not copied
+        arr.flags.writeable = False
+    return AlignedPair(grid, o1, o2, v2, est, tau)

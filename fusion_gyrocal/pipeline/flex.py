@@ -32,6 +32,16 @@ def block_ranges(n: int, window: int | None, *, max_points: int | None = None, b
     return [(int(s), int(min(s + size, n))) for s in starts]
 
 
+def gather(ranges, *arrays):
+    """The rows of ``ranges`` of each array, concatenated into one contiguous copy (None stays None).
+
+    The decisions on the subsample then run as one vectorised block (``[(0, size)]``); blocks of
+    :func:`block_ranges` are whole bias windows, so the windows stay aligned in the copy.
+    """
+    return tuple(None if a is None else np.concatenate([np.asarray(a[lo:hi]) for lo, hi in ranges])
+                 for a in arrays)
+
+
 def residual_blocks(w1, w2, A, bias, mask, window, ranges):
     """Yield ``(start, r, used)`` with ``r = omega_1 - A omega_2 - b`` per block (per-window bias if windowed)."""
     At = np.ascontiguousarray(np.asarray(A, float).T)

@@ -20,18 +20,44 @@ from ..errors import InputError, OptionError
 from ..options import TIMESTAMP_OPTIONS, Options
 
 
-def difference_noise_std(omega) -> float:
+NOISE_SPLIT_SAMPLES = 16384   # samples behind the noise split: 16 blocks of 1024 spread over the log
+_NOISE_BLOCK = 1024
+
+
+def difference_noise_std(omega, mask=None, *, max_samples: int = NOISE_SPLIT_SAMPLES) -> float:
     """White-noise std per sample of one stream from its third differences (robust, MAD).
 
     ``Var(Delta^3 n) = 20 sigma^2`` for white noise, while smooth motion contributes little to the
     third difference; fast motion at a low sample rate biases the value upwards, so the library
     uses it only to split the residual variance between the gyros, never for its level.
+
+    A log longer than ``max_samples`` is subsampled: blocks of 1024 consecutive samples spread evenly
+    over it (differences never cross a block), so the cost is bounded whatever the length.
+    Masked (``mask`` False) and non-finite samples are dropped before differencing.
     """
-    w = np.asarray(omega, dtype=float)
-    d = np.diff(w[np.isfinite(w).all(axis=1)], n=3, axis=0)
-    if d.shape[0] < 10:
+    w = np.asarray(omega)
+    n = w.shape[0]
+    if n > max_samples:
+        nb = max(1, max_samples // _NOISE_BLOCK)
+        starts = np.linspace(0, n - _NOISE_BLOCK, nb).astype(np.int64)
+        spans = [(int(a), int(a) + _NOISE_BLOCK) for a in starts]
+    else:
+        spans = [(0, n)]
+    parts = []
+    for a, b in spans:
+        x = np.asarray(w[a:b], dtype=np.float64)
+        ok = np.isfinite(x).all(axis=1)
+        if mask is not None:
+            ok &= np.asarray(mask[a:b], dtype=bool)
+        x = (x if ok.all() else x[ok]).T              # (3, m): rows contiguous for the partitions below
+        if x.shape[1] > 3:
+            parts.append((x[:, 3:] - x[:, :-3]) - 3.0 * (x[:, 2:-1] - x[:, 1:-2]))
+    d = np.concatenate(parts, axis=1) if parts else np.zeros((3, 0))
+    if d.shape[1] < 10:
         return float("nan")
-    return float(np.median(1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0)) / np.sqrt(20.0))
+    d -= np.median(d, axis=1)[:, None]
+    np.abs(d, out=d)
+    return float(np.median(1.4826 * np.median(d, axis=1, overwrite_input=True)) / np.sqrt(20.0))
 
 
 def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Options | None = None,
@@ -93,10 +119,11 @@ def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: 
 class PipelineRun:
     """Everything :func:`calibrate_pair` saw and decided, for reports and plots.
 
-    ``omega_1``/``omega_2`` are the sample-aligned rates the solver used (zero where ``valid`` is
-    False), ``t`` their times on gyro 1's clock (None for sample-aligned input), ``used`` the
-    samples kept after masking and flex rejection, and ``aligned`` the
-    :class:`~fusion_gyrocal.pipeline.alignment.AlignedPair` (None for sample-aligned input).
+    ``omega_1``/``omega_2`` are the sample-aligned rates the solver used (for timestamped input the
+    aligned rates, NaN where ``valid`` is False: no copy of a long record is made), ``t`` their
+    times on gyro 1's clock (None for sample-aligned input), ``used`` the samples kept after masking
+    and flex rejection, and ``aligned`` the :class:`~fusion_gyrocal.pipeline.alignment.AlignedPair`
+    (None for sample-aligned input).
     """
 
     calibration: PairCalibration
@@ -126,8 +153,7 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
         pair = align_streams(t_1, omega_1, t_2, omega_2, time_offset_s=o.time_offset_s, max_offset_s=o.max_offset_s,
                              rate_hz=o.rate_hz, valid_1=valid_mask(omega_1, limit=lim[0]),
                              valid_2=valid_mask(omega_2, limit=lim[1]))
-        w1 = np.where(pair.valid[:, None], pair.omega_1, 0.0)
-        w2 = np.where(pair.valid[:, None], pair.omega_2, 0.0)
+        w1, w2 = pair.omega_1, pair.omega_2     # NaN where not valid: every step below reads them through mask
         mask = pair.valid
         t_grid = pair.t
         offset = pair.time_offset_s
@@ -168,9 +194,7 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
 
     noise_ratio = None
     if o.noise_std is None:  # split the residual variance by each stream's high-frequency noise
-        head = slice(0, 200_000)  # plenty for a noise level; no copy of a long log
-        v = slice(None) if mask is None else mask[head]
-        d1, d2 = (difference_noise_std(np.asarray(w[head])[v]) for w in (w1, w2))
+        d1, d2 = (difference_noise_std(w, mask) for w in (w1, w2))  # a bounded subsample of the log
         noise_ratio = d1 / d2 if d1 > 0 and d2 > 0 else None
     valid_in = mask
     mom = mom0 = moments_of(mask)
@@ -182,10 +206,16 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
 
         n, n_used, keep = len(w1), cal.n_samples, mask
         sub = flex.block_ranges(n, gate_window, max_points=30_000)
+        g1, g2 = flex.gather(sub, w1, w2)           # the subsample, copied once (about 30k samples)
+        whole = [(0, g1.shape[0])]
+
+        def on_sub(m):
+            return flex.gather(sub, m)[0]
+
         A_ls, b_ls = solve_A(mom)
-        L = flex.robust_whitener(w1, w2, A_ls, b_ls, keep, gate_window, sub)
-        n_sub = sum(b - a for a, b in sub) if mask is None else sum(int(mask[a:b].sum()) for a, b in sub)
-        frac = flex.outliers(w1, w2, A_ls, b_ls, keep, gate_window, sub, L).size / max(n_sub, 1)
+        L = flex.robust_whitener(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole)
+        n_sub = g1.shape[0] if mask is None else int(np.count_nonzero(on_sub(mask)))
+        frac = flex.outliers(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole, L).size / max(n_sub, 1)
         if o.flex_rejection is True or frac > 0.01:  # the paper's gate, iterated until nothing new is rejected
             everything = flex.block_ranges(n, gate_window)
             for _ in range(5):
@@ -197,8 +227,8 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
                 keep = gate
                 mom = moments_of(keep)
                 A_ls, b_ls = solve_A(mom)
-                L = flex.robust_whitener(w1, w2, A_ls, b_ls, keep, gate_window, sub)
-        cut = flex.flex_rate_cut(*flex.normalised_residuals(w1, w2, A_ls, b_ls, keep, gate_window, sub, L))
+                L = flex.robust_whitener(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole)
+        cut = flex.flex_rate_cut(*flex.normalised_residuals(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole, L))
         if cut is not None:
             fast = flex.above_rate(w1, cut, n)
             keep = ~fast if keep is None else (keep & ~fast)
@@ -212,7 +242,7 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
             cal = _replace(cal, notes=cal.notes + (
                 f"the residual grows with the rate across the motion (model error or flex everywhere): rejecting it "
                 f"would keep only {100 * kept_energy:.0f}% of the motion energy, so no sample was rejected",))
-        d2, rate = flex.normalised_residuals(w1, w2, cal.A, cal.bias, mask, gate_window, sub, np.eye(3))
+        d2, rate = flex.normalised_residuals(g1, g2, cal.A, cal.bias, on_sub(mask), gate_window, whole, np.eye(3))
         corr = flex.spearman(np.sqrt(d2), rate)
     cal = _replace(cal, time_offset_s=offset, time_offset_std_s=offset_std, rejected_fraction=rejected,
                    rate_residual_correlation=corr)

@@ -13,10 +13,18 @@ DEFAULT_GAP_PERIODS = 2.5      # default max_gap_s in nominal sample periods
 
 
 def _freeze(obj, names, dtype=None) -> None:
-    """Replace the array fields ``names`` of a frozen dataclass by read-only copies."""
+    """Replace the array fields ``names`` of a frozen dataclass by read-only copies.
+
+    An array that is already read-only and owns its data (the library's own results, e.g. of
+    :func:`~fusion_gyrocal.pipeline.alignment.align_streams`) is kept as it is: no second copy of a
+    long record.
+    """
     for name in names:
-        arr = np.array(getattr(obj, name), dtype=dtype)
-        arr.flags.writeable = False
+        arr = getattr(obj, name)
+        if not (isinstance(arr, np.ndarray) and arr.base is None and not arr.flags.writeable
+                and (dtype is None or arr.dtype == dtype)):
+            arr = np.array(arr, dtype=dtype)
+            arr.flags.writeable = False
         object.__setattr__(obj, name, arr)
 
 
