@@ -28,7 +28,7 @@ import argparse
 
 from fusion_gyrocal import Moments, calibrate_pair, solve
 from fusion_gyrocal.evaluate.sim import PAPER_NOISE_STD, random_rotation
-from fusion_gyrocal.pipeline.pipeline import difference_noise_std
+from fusion_gyrocal.core.noise import difference_noise_std
 
 
 def best_of(f, k=3):

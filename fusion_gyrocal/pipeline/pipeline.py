@@ -15,49 +15,10 @@ import numpy as np
 from ..core.direct import solve_A
 from ..core.model import PairCalibration
 from ..core.moments import Moments
+from ..core.noise import difference_noise_std
 from ..core.solve import solve
 from ..errors import InputError, OptionError
 from ..options import TIMESTAMP_OPTIONS, Options
-
-
-NOISE_SPLIT_SAMPLES = 16384   # samples behind the noise split: 16 blocks of 1024 spread over the log
-_NOISE_BLOCK = 1024
-
-
-def difference_noise_std(omega, mask=None, *, max_samples: int = NOISE_SPLIT_SAMPLES) -> float:
-    """White-noise std per sample of one stream from its third differences (robust, MAD).
-
-    ``Var(Delta^3 n) = 20 sigma^2`` for white noise, while smooth motion contributes little to the
-    third difference; fast motion at a low sample rate biases the value upwards, so the library
-    uses it only to split the residual variance between the gyros, never for its level.
-
-    A log longer than ``max_samples`` is subsampled: blocks of 1024 consecutive samples spread evenly
-    over it (differences never cross a block), so the cost is bounded whatever the length.
-    Masked (``mask`` False) and non-finite samples are dropped before differencing.
-    """
-    w = np.asarray(omega)
-    n = w.shape[0]
-    if n > max_samples:
-        nb = max(1, max_samples // _NOISE_BLOCK)
-        starts = np.linspace(0, n - _NOISE_BLOCK, nb).astype(np.int64)
-        spans = [(int(a), int(a) + _NOISE_BLOCK) for a in starts]
-    else:
-        spans = [(0, n)]
-    parts = []
-    for a, b in spans:
-        x = np.asarray(w[a:b], dtype=np.float64)
-        ok = np.isfinite(x).all(axis=1)
-        if mask is not None:
-            ok &= np.asarray(mask[a:b], dtype=bool)
-        x = (x if ok.all() else x[ok]).T              # (3, m): rows contiguous for the partitions below
-        if x.shape[1] > 3:
-            parts.append((x[:, 3:] - x[:, :-3]) - 3.0 * (x[:, 2:-1] - x[:, 1:-2]))
-    d = np.concatenate(parts, axis=1) if parts else np.zeros((3, 0))
-    if d.shape[1] < 10:
-        return float("nan")
-    d -= np.median(d, axis=1)[:, None]
-    np.abs(d, out=d)
-    return float(np.median(1.4826 * np.median(d, axis=1, overwrite_input=True)) / np.sqrt(20.0))
 
 
 def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Options | None = None,
