@@ -279,24 +279,10 @@ def read_recording(args, progress=None):
 def aligned_samples(s1, s2, options):
     """The sample-aligned rates of a recording pair with the masks of ``calibrate``: ``(omega_1, omega_2)``.
 
-    The same samples as :func:`~fusion_gyrocal.pipeline.pipeline.run_pipeline` uses before its flex
-    gate: each stream's :attr:`~fusion_gyrocal.io.ImuStream.masked_omega` (what the reader could not
-    measure is NaN), masked by :func:`~fusion_gyrocal.pipeline.streams.valid_mask` (non-finite,
-    saturated: ``options.saturation_limit`` or the flat-top heuristic), aligned by
-    :func:`~fusion_gyrocal.pipeline.alignment.align_streams` with the options' offset, search range
-    and rate, and ``options.max_rate`` applied by
-    :func:`~fusion_gyrocal.pipeline.selection.informative_mask`. Only the valid samples are returned.
+    The samples :func:`~fusion_gyrocal.pipeline.pipeline.run_pipeline` starts from (before its flex gate),
+    by the same function (:func:`~fusion_gyrocal.pipeline.pipeline.prepare_samples`); only the valid ones.
     """
-    from ..pipeline.alignment import align_streams
-    from ..pipeline.selection import informative_mask
-    from ..pipeline.streams import valid_mask
+    from ..pipeline.pipeline import prepare_samples
 
-    o = options
-    lim = (None, None) if o.saturation_limit is None else o.saturation_limit
-    w1, w2 = s1.masked_omega, s2.masked_omega
-    pair = align_streams(s1.t, w1, s2.t, w2, time_offset_s=o.time_offset_s, max_offset_s=o.max_offset_s,
-                         rate_hz=o.rate_hz, valid_1=valid_mask(w1, limit=lim[0]), valid_2=valid_mask(w2, limit=lim[1]))
-    keep = pair.valid
-    if o.max_rate is not None:
-        keep = keep & informative_mask(pair.omega_1, pair.omega_2, keep, 1.0, min_rate=0.0, max_rate=o.max_rate)
-    return pair.omega_1[keep], pair.omega_2[keep]
+    w1, w2, keep, _ = prepare_samples(s1.masked_omega, s2.masked_omega, t_1=s1.t, t_2=s2.t, options=options)
+    return w1[keep], w2[keep]

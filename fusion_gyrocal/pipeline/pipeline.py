@@ -96,12 +96,23 @@ class PipelineRun:
     aligned: object | None
 
 
-def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Options | None = None,
-                 **keywords) -> PipelineRun:
-    """:func:`calibrate_pair` returning its intermediate products too (same parameters)."""
-    o = Options.of(options, **keywords)
-    offset, offset_std = 0.0, 0.0
-    pair, t_grid = None, None
+def prepare_samples(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Options | None = None):
+    """The sample-aligned rates and the mask the solver starts from (before the flex gate).
+
+    With timestamps: saturated and non-finite samples masked (:func:`~fusion_gyrocal.pipeline.streams.valid_mask`,
+    ``saturation_limit``), the pair aligned and resampled (:func:`~fusion_gyrocal.pipeline.alignment.align_streams`).
+    Without: the timestamp options refused, ``saturation_limit`` applied to ``mask``. Then ``max_rate``
+    (:func:`~fusion_gyrocal.pipeline.selection.informative_mask`). One place for :func:`run_pipeline` and for
+    everything that must use the same samples (``gyrocal compare`` on recordings).
+
+    Returns
+    -------
+    (omega_1, omega_2, mask, aligned)
+        The rates (NaN where not valid with timestamps), the mask of usable samples (None: all), and the
+        :class:`~fusion_gyrocal.pipeline.alignment.AlignedPair` (None for sample-aligned input).
+    """
+    o = Options.of(options)
+    pair = None
     if (t_1 is None) != (t_2 is None):
         raise InputError("t_1 and t_2: expected both timestamps or neither (sample-aligned input)")
     if t_1 is not None:
@@ -116,9 +127,6 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
                              valid_2=valid_mask(omega_2, limit=lim[1]))
         w1, w2 = pair.omega_1, pair.omega_2     # NaN where not valid: every step below reads them through mask
         mask = pair.valid
-        t_grid = pair.t
-        offset = pair.time_offset_s
-        offset_std = pair.time_offset.std_s if pair.time_offset is not None else 0.0
     else:
         timing = sorted(set(o.to_dict()) & set(TIMESTAMP_OPTIONS))
         if timing:
@@ -135,6 +143,17 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
         from .selection import informative_mask
         keep = informative_mask(w1, w2, mask, 1.0, min_rate=0.0, max_rate=o.max_rate)
         mask = keep if mask is None else (mask & keep)
+    return w1, w2, mask, pair
+
+
+def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Options | None = None,
+                 **keywords) -> PipelineRun:
+    """:func:`calibrate_pair` returning its intermediate products too (same parameters)."""
+    o = Options.of(options, **keywords)
+    w1, w2, mask, pair = prepare_samples(omega_1, omega_2, t_1=t_1, t_2=t_2, mask=mask, options=o)
+    t_grid = None if pair is None else pair.t
+    offset = 0.0 if pair is None else pair.time_offset_s
+    offset_std = pair.time_offset.std_s if pair is not None and pair.time_offset is not None else 0.0
     solve_options = o
     bias_walk_std, bias_window = o.bias_walk_std, o.bias_window
     if bias_walk_std is not None:
