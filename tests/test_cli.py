@@ -209,3 +209,18 @@ def test_main_xsens_without_rate_needs_sample_rate_flag(tmp_path, capsys):
     assert "--sample-rate1: expected a positive sample rate in Hz" in capsys.readouterr().err
     assert main(["calibrate", str(f), str(g)]) == 1
     assert "rate_hz" in capsys.readouterr().err      # the reader names what the file lacks
+
+
+def test_main_report_track_log_starting_at_rest_tracks_a_rigid_pair(tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    motion, R = HumanMotion(0.8, rng=rng), random_rotation(rng)
+    t = np.arange(0, 60, 0.01)
+    w = motion(t)
+    w[t < 15] = 0.0                                   # the first quarter at rest
+    for name, x in (("a.csv", w + 0.01), ("b.csv", w @ R - 0.02)):
+        x = x + rng.normal(0, PAPER_NOISE_STD, x.shape)
+        np.savetxt(tmp_path / name, np.column_stack([t, x]), delimiter=",", header="t,gx,gy,gz", comments="")
+    assert main(["report", str(tmp_path / "a.csv"), str(tmp_path / "b.csv"), "--offset", "0",
+                 "--out", str(tmp_path / "rep"), "--track"]) == 0
+    assert "skipped" not in capsys.readouterr().err
+    assert (tmp_path / "rep" / "drift_tracking.png").stat().st_size > 10_000

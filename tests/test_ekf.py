@@ -624,3 +624,14 @@ def test_run_history_max_rows_refuses_truth_and_bad_values():
         tr.run(t[1000:], w1[1000:], w2[1000:], truth=truth[1000:])
     with pytest.raises(OptionError, match="history_max_rows"):
         TrackerConfig(history_max_rows=1)
+
+
+def test_seed_window_skips_rest_and_prefers_the_earliest_well_excited_stretch():
+    from fusion_gyrocal.online.figures import seed_window
+
+    rng = np.random.default_rng(1)
+    w = rng.normal(0, 1.0, (1000, 3))
+    w[:300] *= 1e-3                                   # the log starts at rest
+    a, b = seed_window(w, w, 200)
+    assert b - a == 200 and 300 <= a <= 400
+    assert seed_window(w, w, 5000) == (0, 1000)

@@ -68,9 +68,34 @@ def plot_history(history: TrackHistory, *, title: str | None = None):
     return fig
 
 
+def seed_window(omega_1, omega_2, size: int, *, share: float = 0.8) -> tuple[int, int]:
+    """``(start, stop)`` of about ``size`` consecutive samples to seed a tracker on: a well-excited stretch.
+
+    The log is cut into quarter-size pieces (:func:`~fusion_gyrocal.core.moments.window_moments`); each
+    run of four consecutive pieces is a candidate, scored by the smallest eigenvalue of gyro 1's centred
+    scatter over it (the excitation of its weakest direction, Lemma 1). The earliest candidate scoring at
+    least ``share`` of the best is returned, so a log that starts at rest is not seeded on the rest.
+    """
+    from ..core.moments import Moments, window_moments
+
+    n = len(omega_1)
+    size = int(min(max(size, 8), n))
+    if size >= n:
+        return 0, n
+    quarter = max(2, size // 4)
+    pieces = window_moments(omega_1, omega_2, quarter, with_starts=True)
+    if len(pieces) < 4:
+        return 0, size
+    scores = [np.linalg.eigvalsh(Moments.merge_all(m for _, m in pieces[i:i + 4]).S11)[0]
+              for i in range(len(pieces) - 3)]
+    best = int(np.flatnonzero(np.asarray(scores) >= share * max(scores))[0])
+    start = pieces[best][0]
+    return start, min(start + 4 * quarter, n)
+
+
 def track_figure_for_report(run, *, seed_fraction: float = 0.2, rate_hz: float = 100.0,
                             drift: DriftNoise = DriftNoise(), block_size: int | None = None):
-    """Drift-tracking figure for ``gyrocal report --track``: seed on the start, track the rest.
+    """Drift-tracking figure for ``gyrocal report --track``: seed on a well-excited stretch, track the rest.
 
     Parameters
     ----------
@@ -78,7 +103,8 @@ def track_figure_for_report(run, *, seed_fraction: float = 0.2, rate_hz: float =
         Sample-aligned rates the batch solver used (``run.omega_1``, ``run.omega_2``, ``run.t`` on
         gyro 1's clock, ``run.valid``).
     seed_fraction : float
-        Leading fraction of the samples used to seed the tracker (not re-used by it).
+        Fraction of the samples used to seed the tracker: the earliest well-excited stretch of that
+        length (:func:`seed_window`); the tracker runs over the samples after it.
     rate_hz : float
         Sample rate assumed when ``run.t`` is None (sample-aligned input without timestamps).
     drift : DriftNoise
@@ -101,11 +127,12 @@ def track_figure_for_report(run, *, seed_fraction: float = 0.2, rate_hz: float =
     t, w1, w2 = t[keep], w1[keep], w2[keep]
     if t.size < 20:
         raise InputError(f"run: expected at least 20 valid samples to track, got {t.size}")
-    k = max(int(seed_fraction * t.size), 10)
-    tracker = GyroPairTracker.from_samples(t[:k], w1[:k], w2[:k], noise_std=tuple(run.calibration.noise_std),
+    a, b = seed_window(w1, w2, max(int(seed_fraction * t.size), 10))
+    tracker = GyroPairTracker.from_samples(t[a:b], w1[a:b], w2[a:b], noise_std=tuple(run.calibration.noise_std),
                                            drift=drift)
     if block_size is None:
         block_size = max(1, int(round(1.0 / float(np.median(np.diff(t))))))
-    h = tracker.run(t[k:], w1[k:], w2[k:], block_size=block_size) if k < t.size else tracker.history()
-    return plot_history(h, title=f"Drift tracking (EKF, seeded on the first {100 * seed_fraction:.0f} %; "
+    h = tracker.run(t[b:], w1[b:], w2[b:], block_size=block_size) if b < t.size else tracker.history()
+    where = f"{t[a] - t[0]:.0f}-{t[b - 1] - t[0]:.0f} s"
+    return plot_history(h, title=f"Drift tracking (EKF, seeded on {100 * seed_fraction:.0f} % of the log at {where}; "
                                  f"{len(h.reseeds)} step alarm(s); gauge: {h.gauge})")
