@@ -161,8 +161,36 @@ def _option(default, check, stage, doc, flag=None, **cli):
     return field(default=default, metadata=dict(check=check, stage=stage, doc=doc, flag=flag, cli=cli))
 
 
+class FrozenOptions:
+    """Building and changing a frozen options dataclass: :meth:`of` and :meth:`replace`, unknown names refused.
+
+    Shared by :class:`Options` and the tracker's :class:`~fusion_gyrocal.online.config.TrackerConfig`;
+    ``KIND`` (class attribute) names the options in messages and ``ARGUMENT`` the parameter that passes them.
+    """
+
+    KIND = "option"
+    ARGUMENT = "options"
+
+    @classmethod
+    def of(cls, options=None, **changes):
+        """``options`` (default: the defaults) with ``changes`` applied (each a field name, checked again)."""
+        names = [f.name for f in dataclasses.fields(cls) if f.init]
+        unknown = sorted(set(changes) - set(names))
+        if unknown:
+            raise OptionError(f"unknown {cls.KIND}(s) {unknown}; expected some of {sorted(names)}")
+        if options is None:
+            return cls(**changes)
+        if not isinstance(options, cls):
+            raise OptionError(f"{cls.ARGUMENT}: expected {cls.__name__}, got {type(options).__name__}")
+        return dataclasses.replace(options, **changes) if changes else options
+
+    def replace(self, **changes):
+        """A copy with ``changes`` applied (checked again)."""
+        return type(self).of(self, **changes)
+
+
 @dataclass(frozen=True)
-class Options:
+class Options(FrozenOptions):
     # --- the solve (moments -> calibration)
     method: str = _option(
         "ml", _choice(METHODS), "solve",
@@ -281,23 +309,6 @@ class Options:
             raise OptionError("bias_window and bias_walk_std: expected one bias model, got both")
         if self.scale_prior_std is not None and self.method != "ml":
             raise OptionError("scale_prior_std: expected method='ml' (the direct solution has no prior)")
-
-    # ---------------------------------------------------------------------------------- building
-    @classmethod
-    def of(cls, options: "Options | None" = None, **keywords) -> "Options":
-        """``options`` with ``keywords`` applied (each a field name); unknown names are refused."""
-        unknown = sorted(set(keywords) - set(NAMES))
-        if unknown:
-            raise OptionError(f"unknown option(s) {unknown}; expected some of {sorted(NAMES)}")
-        if options is None:
-            return cls(**keywords)
-        if not isinstance(options, Options):
-            raise OptionError(f"options: expected an Options, got {type(options).__name__}")
-        return dataclasses.replace(options, **keywords) if keywords else options
-
-    def replace(self, **keywords) -> "Options":
-        """A copy with ``keywords`` changed (checked again)."""
-        return Options.of(self, **keywords)
 
     def require_stage(self, stage: str, consumer: str) -> "Options":
         """Refuse options of another stage that differ from their default (``consumer`` would ignore them)."""

@@ -21,7 +21,6 @@ dataclasses.FrozenInstanceError: cannot assign to field 'drift'
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -30,6 +29,7 @@ from scipy.stats import chi2
 
 from ..core.gauge import Gauge
 from ..errors import OptionError
+from ..options import FrozenOptions
 
 
 def _check_densities(obj, what: str) -> None:
@@ -91,7 +91,7 @@ class StepPrior:
 
 
 @dataclass(frozen=True)
-class TrackerConfig:
+class TrackerConfig(FrozenOptions):
     """Everything that configures a :class:`~fusion_gyrocal.online.tracker.GyroPairTracker` (frozen).
 
     Attributes
@@ -135,6 +135,9 @@ class TrackerConfig:
     gate : float
         Derived: the chi-square(3) quantile of ``gate_probability`` (not a constructor argument).
     """
+
+    KIND = "tracker option"
+    ARGUMENT = "config"
 
     drift: DriftNoise = DriftNoise()
     step_prior: StepPrior = StepPrior()
@@ -187,21 +190,4 @@ class TrackerConfig:
             object.__setattr__(self, name, float(getattr(self, name)))
         object.__setattr__(self, "gate", float(chi2.ppf(self.gate_probability, 3)))
 
-    @classmethod
-    def of(cls, config: "TrackerConfig | None" = None, **changes) -> "TrackerConfig":
-        """``config`` (default: the defaults) with ``changes`` applied; unknown names are refused."""
-        unknown = sorted(set(changes) - set(FIELDS))
-        if unknown:
-            raise OptionError(f"unknown tracker option(s) {unknown}; expected some of {sorted(FIELDS)}")
-        if config is None:
-            return cls(**changes)
-        if not isinstance(config, TrackerConfig):
-            raise OptionError(f"config: expected a TrackerConfig, got {type(config).__name__}")
-        return dataclasses.replace(config, **changes) if changes else config
 
-    def replace(self, **changes) -> "TrackerConfig":
-        """A copy with ``changes`` applied (checked again)."""
-        return TrackerConfig.of(self, **changes)
-
-
-FIELDS = tuple(f.name for f in dataclasses.fields(TrackerConfig) if f.init)
