@@ -15,10 +15,10 @@ reading, its readers). Every row is the best of 3.
 from __future__ import annotations
 
 import argparse
-import time
 from pathlib import Path
 
 import numpy as np
+from _timing import best_of  # noqa: E402  (benchmarks/ is the script's folder)
 
 
 def make_files(d: Path, minutes: float, rate=200.0, seed=0):
@@ -36,16 +36,6 @@ def make_files(d: Path, minutes: float, rate=200.0, seed=0):
     return d / "a.csv", d / "b.csv", t.size
 
 
-def timed(f, k=3):
-    """``(result, best wall time of k runs)``."""
-    best = np.inf
-    for _ in range(k):
-        t0 = time.perf_counter()
-        out = f()
-        best = min(best, time.perf_counter() - t0)
-    return out, best
-
-
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--minutes", type=float, default=60.0)
@@ -60,25 +50,25 @@ def main(argv=None):
     from fusion_gyrocal.pipeline.alignment import align_streams
     from fusion_gyrocal.pipeline.streams import valid_mask
 
-    (s1, s2), t_read = timed(lambda: (read_imu(p1), read_imu(p2, unit="deg/s")))
-    pair, t_align = timed(lambda: align_streams(s1.t, s1.omega, s2.t, s2.omega, valid_1=valid_mask(s1.omega),
+    t_read, (s1, s2) = best_of(lambda: (read_imu(p1), read_imu(p2, unit="deg/s")))
+    t_align, pair = best_of(lambda: align_streams(s1.t, s1.omega, s2.t, s2.omega, valid_1=valid_mask(s1.omega),
                                                 valid_2=valid_mask(s2.omega)))
     w1 = np.where(pair.valid[:, None], pair.omega_1, 0.0)
     w2 = np.where(pair.valid[:, None], pair.omega_2, 0.0)
-    run, t_solve = timed(lambda: run_pipeline(w1, w2, mask=pair.valid))
-    code, t_cli = timed(lambda: cli(["calibrate", str(p1), str(p2), "--unit2", "deg/s", "--output",
+    t_solve, run = best_of(lambda: run_pipeline(w1, w2, mask=pair.valid))
+    t_cli, code = best_of(lambda: cli(["calibrate", str(p1), str(p2), "--unit2", "deg/s", "--output",
                                      str(Path(a.dir) / "cal.json")]))
     rows = [("gyrocal calibrate (whole command)", t_cli), ("  reading both files (fusion_gyrocal.io)", t_read),
             ("  alignment (offset + resampling)", t_align), ("  solving (moments, ML, flex checks)", t_solve)]
     try:
         import pandas as pd
-        _, t_pd = timed(lambda: (pd.read_csv(p1), pd.read_csv(p2)))
+        t_pd, _ = best_of(lambda: (pd.read_csv(p1), pd.read_csv(p2)))
         rows.append(("pandas.read_csv of both files", t_pd))
     except ImportError:
         pass
     try:
         import pyarrow.csv as pacsv
-        _, t_pa = timed(lambda: (pacsv.read_csv(p1), pacsv.read_csv(p2)))
+        t_pa, _ = best_of(lambda: (pacsv.read_csv(p1), pacsv.read_csv(p2)))
         rows.append(("pyarrow.csv.read_csv of both files", t_pa))
     except ImportError:
         pass
@@ -91,7 +81,7 @@ def main(argv=None):
     import sys
 
     def process(args):
-        return timed(lambda: subprocess.run([sys.executable, *args], check=True, capture_output=True))[1]
+        return best_of(lambda: subprocess.run([sys.executable, *args], check=True, capture_output=True))[0]
 
     p_cli = process(["-m", "fusion_gyrocal.cli", "calibrate", str(p1), str(p2), "--unit2", "deg/s", "--output",
                      str(Path(a.dir) / "cal.json")])

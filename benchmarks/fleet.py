@@ -19,10 +19,10 @@ import argparse
 import os
 import shutil
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
+from _timing import best_of  # noqa: E402  (benchmarks/ is the script's folder)
 import pyarrow as pa
 import pyarrow.parquet as pq
 from distributed import Client, LocalCluster
@@ -50,16 +50,6 @@ def write_log(path: Path, n: int, *, seed: int, row_group_size: int, base: int =
         writer.close()
 
 
-def timed(fn, repeat: int = 1):
-    best = np.inf
-    out = None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t0)
-    return best, out
-
-
 def bench_fleet(root: Path, n_devices: int, n_samples: int, repeat: int) -> None:
     for i in range(n_devices):
         write_log(root / f"device_{i:03d}.parquet", n_samples, seed=i, row_group_size=n_samples, base=n_samples)
@@ -70,7 +60,7 @@ def bench_fleet(root: Path, n_devices: int, n_samples: int, repeat: int) -> None
 
     def report(label, run):
         run()  # warm-up: imports in this process or in every worker, file cache
-        dt, df = timed(run, repeat=repeat)
+        dt, df = best_of(run, repeat)
         print(f"   {label:38s} {dt:8.2f} {n_devices / dt:10.2f} {total / dt / 1e6:11.3f} {df['seconds'].sum():14.2f}  "
               f"{int(df['ok'].sum())}/{len(df)}")
 
@@ -97,9 +87,9 @@ def bench_log(root: Path, n: int, row_group_size: int, repeat: int) -> None:
         return Moments.from_samples(x[:, :3], x[:, 3:])
 
     x = read_rates()
-    dt_mem = timed(lambda: Moments.from_samples(x[:, :3], x[:, 3:]), repeat=3)[0]
+    dt_mem = best_of(lambda: Moments.from_samples(x[:, :3], x[:, 3:]), 3)[0]
     del x
-    dt_ref, ref = timed(in_process, repeat=repeat)
+    dt_ref, ref = best_of(in_process, repeat)
     print(f"   {'engine':46s} {'seconds':>8s} {'Msamples/s':>11s} {'max rel diff':>13s}")
     print(f"   {'in-process pass over arrays already in memory':46s} {dt_mem:8.2f} {n / dt_mem / 1e6:11.2f} {'-':>13s}")
     print(f"   {'in-process: read whole file + one pass':46s} {dt_ref:8.2f} {n / dt_ref / 1e6:11.2f} {'(reference)':>13s}")
@@ -108,13 +98,13 @@ def bench_log(root: Path, n: int, row_group_size: int, repeat: int) -> None:
         return max(float(np.max(np.abs(m.scatter - ref.scatter)) / np.max(np.abs(ref.scatter))),
                    float(np.max(np.abs(m.mean - ref.mean)) / np.max(np.abs(ref.mean))), abs(m.count - ref.count))
 
-    dt, m = timed(lambda: log_moments(path), repeat=repeat)
+    dt, m = best_of(lambda: log_moments(path), repeat)
     print(f"   {'dask threaded scheduler, this process':46s} {dt:8.2f} {n / dt / 1e6:11.2f} {rel(m):13.2e}")
     for workers in (1, 2):
         with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                           dashboard_address=None) as cluster, Client(cluster) as client:
             log_moments(path, client=client)  # warm-up (imports, file cache)
-            dt, m = timed(lambda: log_moments(path, client=client), repeat=repeat)
+            dt, m = best_of(lambda: log_moments(path, client=client), repeat)
             print(f"   {f'LocalCluster, {workers} worker process(es)':46s} {dt:8.2f} {n / dt / 1e6:11.2f} "
                   f"{rel(m):13.2e}")
 

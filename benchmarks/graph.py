@@ -20,21 +20,13 @@ import argparse
 import time
 
 import numpy as np
+from _timing import best_of  # noqa: E402  (benchmarks/ is the script's folder)
 from scipy.spatial.transform import Rotation
 
 from fusion_gyrocal import Moments, solve
 from fusion_gyrocal.graph import GyroPairGraph
 from fusion_gyrocal.core.moments import window_moments
 from fusion_gyrocal.evaluate.sim import PAPER_BIAS_WALK_STD, simulate_pair
-
-
-def best_of(f, k=3):
-    times, out = [], None
-    for _ in range(k):
-        t0 = time.perf_counter()
-        out = f()
-        times.append(time.perf_counter() - t0)
-    return min(times), out
 
 
 def graph_solve(parts, noise):

@@ -15,11 +15,11 @@
 from __future__ import annotations
 
 import argparse
-import time
 import zlib
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
+from _timing import best_of  # noqa: E402  (benchmarks/ is the script's folder)
 from scipy.signal import lfilter
 
 from fusion_gyrocal import calibrate_pair
@@ -33,19 +33,10 @@ from fusion_gyrocal.evaluate.sim import (DEG, PAPER_BIAS_WALK_STD, PAPER_NOISE_S
 RATE = 100.0
 
 
-def _timed(f, repeat=3):
-    best = np.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = f()
-        best = min(best, time.perf_counter() - t0)
-    return out, best
-
-
 def _identify(w1, w2, rate, mask=None):
-    mom, t_mom = _timed(lambda: Moments.from_samples(w1, w2, mask=mask))
+    t_mom, mom = best_of(lambda: Moments.from_samples(w1, w2, mask=mask))
     A, b = solve_A(mom)
-    nm, t_id = _timed(lambda: identify_noise(w1, w2, A, b, rate_hz=rate, mask=mask))
+    t_id, nm = best_of(lambda: identify_noise(w1, w2, A, b, rate_hz=rate, mask=mask))
     return nm, t_id, t_mom
 
 

@@ -19,25 +19,16 @@ noise split) and the peak memory beyond the inputs (target: >= 0.5x, <= 64 MiB).
 
 from __future__ import annotations
 
-import time
 import tracemalloc
 
 import numpy as np
+from _timing import best_of  # noqa: E402  (benchmarks/ is the script's folder)
 
 import argparse
 
 from fusion_gyrocal import Moments, calibrate_pair, solve
 from fusion_gyrocal.evaluate.sim import PAPER_NOISE_STD, random_rotation
 from fusion_gyrocal.core.noise import difference_noise_std
-
-
-def best_of(f, k=3):
-    t = []
-    for _ in range(k):
-        t0 = time.perf_counter()
-        f()
-        t.append(time.perf_counter() - t0)
-    return min(t)
 
 
 def target(n=5_000_000, k=5):
@@ -47,11 +38,11 @@ def target(n=5_000_000, k=5):
     w1 = rng.standard_normal((n, 3))
     w2 = w1 @ R * 1.01 + rng.normal(0, PAPER_NOISE_STD, (n, 3)) + 0.01
     X = np.hstack([w1, w2])
-    raw = best_of(lambda: X.T @ X, k)
-    cal = best_of(lambda: calibrate_pair(w1, w2), k)
-    cal_known = best_of(lambda: calibrate_pair(w1, w2, noise_std=PAPER_NOISE_STD), k)
-    mom = best_of(lambda: Moments.from_samples(w1, w2), k)
-    noise = best_of(lambda: (difference_noise_std(w1), difference_noise_std(w2)), k)
+    raw = best_of(lambda: X.T @ X, k)[0]
+    cal = best_of(lambda: calibrate_pair(w1, w2), k)[0]
+    cal_known = best_of(lambda: calibrate_pair(w1, w2, noise_std=PAPER_NOISE_STD), k)[0]
+    mom = best_of(lambda: Moments.from_samples(w1, w2), k)[0]
+    noise = best_of(lambda: (difference_noise_std(w1), difference_noise_std(w2)), k)[0]
     X = None  # free it before measuring memory
     tracemalloc.start()
     calibrate_pair(w1, w2)
@@ -81,9 +72,9 @@ def main(argv=None):
         w1 = rng.standard_normal((n, 3))
         w2 = w1 @ R + rng.normal(0, PAPER_NOISE_STD, (n, 3)) + 0.01
         X = np.hstack([w1, w2])
-        core = best_of(lambda: solve(Moments.from_samples(w1, w2), noise_std=PAPER_NOISE_STD))
-        ours = best_of(lambda: calibrate_pair(w1, w2, noise_std=PAPER_NOISE_STD))
-        raw = best_of(lambda: X.T @ X)
+        core = best_of(lambda: solve(Moments.from_samples(w1, w2), noise_std=PAPER_NOISE_STD))[0]
+        ours = best_of(lambda: calibrate_pair(w1, w2, noise_std=PAPER_NOISE_STD))[0]
+        raw = best_of(lambda: X.T @ X)[0]
         tracemalloc.start()
         calibrate_pair(w1, w2, noise_std=PAPER_NOISE_STD)
         peak = tracemalloc.get_traced_memory()[1] / 2**20
