@@ -164,26 +164,32 @@ def _report_warnings(caught, prog: str, debug: bool) -> None:
             print(line, file=sys.stderr)
 
 
-def command_modules():
-    """The command modules (imported now; each imports its heavy dependencies only when it runs)."""
-    return [importlib.import_module(f".{name}", __package__) for name in COMMANDS]
+def command_modules(names=COMMANDS):
+    """The command modules of ``names`` (imported now; each imports its heavy dependencies only when it runs)."""
+    return [importlib.import_module(f".{name}", __package__) for name in names]
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The ``gyrocal`` parser: ``--debug`` and one sub-command per module of :data:`COMMANDS`."""
+def build_parser(argv=None) -> argparse.ArgumentParser:
+    """The ``gyrocal`` parser: ``--debug`` and one sub-command per module of :data:`COMMANDS`.
+
+    When ``argv`` names a command, only that command's module is imported and its parser built (the
+    others' imports are not paid for on every run); otherwise (``--help``, a wrong name) all of them.
+    """
     parser = argparse.ArgumentParser(
         prog="gyrocal", description="Calibrate rigidly mounted gyroscopes from their angular rates alone: "
         "rotation, scale factors (up to one global scale), biases and time offset.",
         epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--debug", action="store_true", help="show tracebacks of unexpected errors")
     sub = parser.add_subparsers(dest="command", required=True)
-    for module in command_modules():
+    chosen = next((a for a in (argv or ()) if not a.startswith("-")), None)
+    for module in command_modules((chosen,) if chosen in COMMANDS else COMMANDS):
         module.add_parser(sub)
     return parser
 
 
 def main(argv=None) -> int:
     """``gyrocal [--debug] COMMAND ...``: parse, run the command, return its exit code."""
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(argv)
     args = parser.parse_args(argv)
     return run_command(args.func, args, prog=parser.prog)

@@ -14,7 +14,6 @@ Writers are atomic (temp file, fsync, ``os.replace``): :func:`write_json` / :fun
 :func:`write_csv`, :func:`write_npz`, :func:`write_imu_bag`.
 """
 
-from .bags import list_imu_topics, read_bag, write_imu_bag
 from .readers import ImuStream, detect_format, read_csv, read_imu, read_npz, read_xsens
 from .writers import (ImuNoise, read_json, write_csv, write_json, write_kalibr_imu_chain, write_kalibr_imu_configs,
                       write_npz, write_openvins_imu_chain)
@@ -25,3 +24,13 @@ __all__ = [
     "write_json", "read_json", "write_kalibr_imu_configs", "write_kalibr_imu_chain", "write_openvins_imu_chain",
     "write_csv", "write_npz", "write_imu_bag",
 ]
+
+_BAGS = ("list_imu_topics", "read_bag", "write_imu_bag")   # rosbags loads on first use of a bag
+
+
+def __getattr__(name):
+    if name in _BAGS:
+        from . import bags
+
+        return getattr(bags, name)
+    raise AttributeError(f"module 'fusion_gyrocal.io' has no attribute {name!r}")
