@@ -128,3 +128,47 @@ def test_calibrate_pair_walking_legs_still_not_rigid():
         calibrate_pair(a.omega, b.omega)
     with pytest.raises(NotRigidError):
         calibrate_pair(a.omega, b.omega, t_1=a.t, t_2=b.t, time_offset_s=0.0)
+
+
+# ------------------------------------------------------------------------------------------ timestamps
+def test_calibrate_pair_millisecond_timestamps_raise(sim):
+    t_ms = sim.t * 1000.0
+    with pytest.raises(InputError, match=r"t_1: .*0\.1 Hz if seconds\); they look like ms: pass t_1/t_2 in seconds "
+                                         r"\(the CLI's --time-unit1/--time-unit2 ms\)") as exc:
+        calibrate_pair(sim.omega_1, sim.omega_2, t_1=t_ms, t_2=t_ms)
+    _one_line(exc)
+
+
+def test_calibrate_pair_integer_nanosecond_timestamps_raise(sim):
+    t_ns = np.round(sim.t * 1e9).astype(np.int64)
+    with pytest.raises(InputError, match="they look like ns"):
+        calibrate_pair(sim.omega_1, sim.omega_2, t_1=t_ns, t_2=t_ns)
+
+
+def test_check_timestamps_implausible_rate_raise():
+    from fusion_gyrocal.pipeline.streams import check_timestamps
+    with pytest.raises(InputError, match=r"1e\+06 Hz if seconds"):
+        check_timestamps("t", np.arange(100) * 1e-6)
+    np.testing.assert_array_equal(check_timestamps("t", np.arange(100) * 1e-5), np.arange(100) * 1e-5)
+
+
+def test_calibrate_pair_corrupt_timestamp_raise_in_bounded_memory(sim):
+    import tracemalloc
+    t2 = np.array(sim.t)
+    t2[3000:] += 1e6                      # one corrupted timestamp: every later sample shifted by 11.6 days
+    tracemalloc.start()
+    try:
+        with pytest.raises(InputError, match=r"t_2: .* at sample 3000 .*corrupt timestamp\?") as exc:
+            calibrate_pair(sim.omega_1, sim.omega_2, t_1=sim.t, t_2=t2)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    _one_line(exc)
+    assert peak < 20 * sim.omega_1.nbytes
+
+
+def test_check_timestamps_real_gap_accepted():
+    from fusion_gyrocal.pipeline.streams import check_timestamps
+    t = np.arange(10_000) * 0.01
+    t[5000:] += 30.0                      # a 30 s dropout in a 100 s log: a gap, not corruption
+    assert check_timestamps("t", t).shape == (10_000,)

@@ -17,7 +17,7 @@ from ..core.model import PairCalibration
 from ..core.moments import Moments, as_rates
 from ..core.noise import difference_noise_std
 from ..core.solve import solve
-from ..errors import InputError, OptionError
+from ..errors import InputError, NotRigidError, OptionError
 from ..options import TIMESTAMP_OPTIONS, Options
 
 MAX_PLAUSIBLE_RATE = 100.0   # rad/s (5730 deg/s): above the range of any MEMS gyro
@@ -252,24 +252,28 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
         noise_ratio = d1 / d2 if d1 > 0 and d2 > 0 else None
     valid_in = mask
     mom = mom0 = moments_of(mask)
-    raise_not_rigid = solve_options.on_not_rigid == "raise"
-    cal = solve(mom, solve_options.replace(on_not_rigid="flag") if raise_not_rigid else solve_options,
-                noise_ratio=noise_ratio)
-    if not cal.rigid:  # a few comms glitches must not make the whole log "not rigid": mask them first
+
+    def first_solve(m):
+        try:
+            return solve(m, solve_options, noise_ratio=noise_ratio), None
+        except NotRigidError as exc:
+            return None, exc
+
+    cal, not_rigid = first_solve(mom)
+    if not_rigid is not None or not cal.rigid:  # a few comms glitches must not make the log "not rigid"
         glitch = gross_outliers(w1, w2, mask)
         n_glitch = int(np.count_nonzero(glitch))
-        if 0 < n_glitch <= MAX_GLITCH_FRACTION * cal.n_samples:
+        if 0 < n_glitch <= MAX_GLITCH_FRACTION * mom.count:
             mask = ~glitch if mask is None else (mask & ~glitch)
             valid_in = mask
             mom = mom0 = moments_of(mask)
-            cal = solve(mom, solve_options.replace(on_not_rigid="flag") if raise_not_rigid else solve_options,
-                        noise_ratio=noise_ratio)
-            if cal.rigid:
+            cal, not_rigid = first_solve(mom)
+            if cal is not None and cal.rigid:
                 cal = _replace(cal, notes=cal.notes + (
                     f"{n_glitch} gross outlier sample(s) (rate norm over {GLITCH_FACTOR:g}x the log's 99th "
                     "percentile: comms glitches?) masked before the rigidity test",))
-        if not cal.rigid and raise_not_rigid:
-            solve(mom, solve_options, noise_ratio=noise_ratio)   # raises NotRigidError with the verdict
+        if not_rigid is not None:
+            raise not_rigid
     rejected = 0.0
     corr = float("nan")
     if o.flex_rejection is not False and cal.rigid:
