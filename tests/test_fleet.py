@@ -222,3 +222,25 @@ def test_run_fleet_dead_worker_fails_only_its_device(tmp_path):
     row = _gathered(Future(), tmp_path / "dev_x.parquet")
     assert row["device"] == "dev_x" and row["ok"] is False
     assert row["error_type"] == "RuntimeError" and "all died" in row["error"]
+
+
+def test_run_fleet_poisoned_timestamp_fails_only_its_device(tmp_path):
+    import tracemalloc
+    for i, name in enumerate(("dev_a", "dev_b", "dev_c")):
+        _write_parquet(tmp_path / f"{name}.parquet", simulate_pair(rng=30 + i, n=3000))
+    table = pq.read_table(tmp_path / "dev_b.parquet")
+    t = table.column("t").to_numpy().copy()
+    t[1500:] += 1e6                       # one corrupted timestamp shifts the rest of the log by 11.6 days
+    pq.write_table(table.set_column(0, "t", pa.array(t)), tmp_path / "dev_b.parquet")
+    tracemalloc.start()
+    try:
+        df = run_fleet(tmp_path).set_index("device")   # Dask's local threaded scheduler
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert sorted(df.index) == ["dev_a", "dev_b", "dev_c"]
+    assert df.loc["dev_b", "error_type"] == "InputError"
+    assert "at sample 1500" in df.loc["dev_b", "error"] and "corrupt timestamp?" in df.loc["dev_b", "error"]
+    for name in ("dev_a", "dev_c"):
+        assert df.loc[name, "ok"] and np.isfinite(df.loc[name, "rotvec_x"])
+    assert peak < 200e6

@@ -48,11 +48,18 @@ def as_rates(name: str, omega, *, length: int | None = None) -> np.ndarray:
     InputError
         If the shape is not ``(N, 3)`` or the length differs from ``length``.
     """
-    arr = np.asarray(omega)
+    if omega is None:
+        raise InputError(f"{name}: expected a numeric (N, 3) array of rad/s, got None")
+    try:
+        arr = np.asarray(omega)
+    except (ValueError, TypeError) as exc:  # ragged nested lists
+        raise InputError(f"{name}: expected a numeric (N, 3) array of rad/s, got a ragged {type(omega).__name__} "
+                         f"(rows of different lengths: {exc.__class__.__name__})") from None
     if arr.dtype.kind not in "fiu":
-        raise InputError(f"{name}: expected a numeric (N, 3) array of rad/s, got dtype {arr.dtype}")
+        raise InputError(f"{name}: expected a numeric (N, 3) array of rad/s, got dtype {arr.dtype} "
+                         f"(shape {arr.shape})")
     if arr.ndim != 2 or arr.shape[1] != 3:
-        raise InputError(f"{name}: expected shape (N, 3), got {arr.shape}")
+        raise InputError(f"{name}: expected shape (N, 3), got {arr.shape} ({arr.dtype} rates)")
     if length is not None and arr.shape[0] != length:
         raise InputError(
             f"{name}: expected {length} samples (the length of omega_1), got {arr.shape[0]}; "
@@ -107,7 +114,8 @@ def _accumulate(w1, w2, mask, lo, hi, chunk_size):
         np.subtract(w2[start:stop].T, s2, out=x[3:6])
         if keep is not None and not keep.all():
             x = x[:, keep]
-        G += np.dot(x, x[:6].T)           # products and (row of ones) sums; a plain gemm, measured faster
+        with np.errstate(over="ignore", invalid="ignore"):   # overflow is checked once below
+            G += np.dot(x, x[:6].T)       # products and (row of ones) sums; a plain gemm, measured faster
         n_tot += x.shape[1]               # than numpy's syrk for A A^T at this shape
     if n_tot == 0:
         return 0, np.zeros(6), np.zeros((6, 6))
@@ -115,6 +123,8 @@ def _accumulate(w1, w2, mask, lo, hi, chunk_size):
     if not np.isfinite(s).all():
         name, arr = ("omega_1", w1) if not np.isfinite(s[:3]).all() else ("omega_2", w2)
         raise _first_bad_row(name, np.asarray(arr[lo:hi]), lo)
+    if not np.isfinite(G).all():
+        raise _too_large(w1, w2, lo, hi)
     d = s / n_tot
     scat = G[:6, :6] - np.outer(s, d)
     if np.any(d**2 > 1e6 * np.maximum(np.diag(scat) / n_tot, 1e-300)):
@@ -143,11 +153,14 @@ def _accumulate_chan(w1, w2, mask, lo, hi, chunk_size):
         m = x.shape[1]
         if m == 0:
             continue
-        G = np.dot(x, x.T)
+        with np.errstate(over="ignore", invalid="ignore"):
+            G = np.dot(x, x.T)
         s = G[6, :6]
         if not np.isfinite(s).all():
             name, arr = ("omega_1", w1) if not np.isfinite(s[:3]).all() else ("omega_2", w2)
             raise _first_bad_row(name, np.asarray(arr[start:stop]), start)
+        if not np.isfinite(G).all():
+            raise _too_large(w1, w2, start, stop)
         c_mean = s / m
         c_scat = G[:6, :6] - np.outer(s, c_mean)
         spread = np.diag(c_scat) / m
@@ -163,6 +176,14 @@ def _accumulate_chan(w1, w2, mask, lo, hi, chunk_size):
         mean += delta * (m / n_new)
         n_tot = n_new
     return n_tot, mean, scat
+
+
+def _too_large(w1, w2, lo: int, hi: int) -> InputError:
+    """The error for finite rates whose products overflow float64 (values beyond ~1e154)."""
+    top = [float(np.max(np.abs(np.asarray(w[lo:hi], dtype=np.float64)))) for w in (w1, w2)]
+    name, value = ("omega_1", top[0]) if top[0] >= top[1] else ("omega_2", top[1])
+    return InputError(f"{name}: expected angular rates in rad/s, got values up to {value:.3g} rad/s (their squares "
+                      "overflow float64); convert the rates to rad/s first")
 
 
 def _first_bad_row(name: str, arr: np.ndarray, offset: int) -> InputError:

@@ -170,9 +170,19 @@ def per_axis_snr(moments: Moments, noise_std) -> np.ndarray:
 
 
 def check_samples(moments: Moments) -> None:
-    """Raise :class:`InputError` for fewer than 4 samples or a constant stream (Lemma 1)."""
+    """Raise :class:`InputError` for fewer than 4 samples, a constant stream (Lemma 1) or rates too large for float64.
+
+    Moments of finite samples are finite unless the squares of the rates overflow; such values
+    (beyond ~1e154) are no angular rates in rad/s.
+    """
     if moments.count < 4:
         raise InputError(f"expected at least 4 samples (Lemma 1), got {int(moments.count)}")
+    for name, sl in (("omega_1", slice(0, 3)), ("omega_2", slice(3, 6))):
+        block = moments.scatter[sl, sl]
+        if not (np.isfinite(moments.mean[sl]).all() and np.isfinite(block).all()):
+            raise InputError(f"{name}: expected angular rates in rad/s, got moments that overflow float64 (mean "
+                             f"{moments.mean[sl].tolist()}, scatter trace {np.trace(block):.3g}); convert the rates to "
+                             "rad/s first")
     for name, block in (("omega_1", moments.S11), ("omega_2", moments.S22)):
         if np.trace(block) == 0.0:
             raise InputError(f"{name}: constant input (every sample identical); the calibration needs rotation "

@@ -14,11 +14,16 @@ import numpy as np
 
 from ..core.direct import solve_A
 from ..core.model import PairCalibration
-from ..core.moments import Moments
+from ..core.moments import Moments, as_rates
 from ..core.noise import difference_noise_std
 from ..core.solve import solve
-from ..errors import InputError, OptionError
+from ..errors import InputError, NotRigidError, OptionError
 from ..options import TIMESTAMP_OPTIONS, Options
+
+MAX_PLAUSIBLE_RATE = 100.0   # rad/s (5730 deg/s): above the range of any MEMS gyro
+PLAUSIBILITY_QUANTILE = 0.99  # of the rate norm: isolated glitches do not decide the unit
+GLITCH_FACTOR = 10.0         # a gross outlier: this many times the 99th percentile of the log
+MAX_GLITCH_FRACTION = 0.01   # more "outliers" than this are the motion itself, not glitches
 
 
 def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Options | None = None,
@@ -132,18 +137,87 @@ def prepare_samples(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options:
         if timing:
             raise OptionError(f"{', '.join(timing)}: act on timestamps; expected t_1 and t_2 with them, got "
                               "sample-aligned input")
-        w1, w2 = omega_1, omega_2
+        w1 = as_rates("omega_1", omega_1)
+        w2 = as_rates("omega_2", omega_2, length=w1.shape[0])
         if mask is not None:
             mask = np.asarray(mask, dtype=bool)
+            if mask.shape != (w1.shape[0],):
+                raise InputError(f"mask: expected a bool array of shape ({w1.shape[0]},), got shape {mask.shape}")
         if o.saturation_limit is not None:  # the sensor ranges are known: mask the clipped samples
             from .streams import saturation_mask
             clipped = saturation_mask(w1, o.saturation_limit[0]) | saturation_mask(w2, o.saturation_limit[1])
             mask = ~clipped if mask is None else (mask & ~clipped)
+    check_rate_units(w1, w2, mask)
     if o.max_rate is not None:
         from .selection import informative_mask
         keep = informative_mask(w1, w2, mask, 1.0, min_rate=0.0, max_rate=o.max_rate)
         mask = keep if mask is None else (mask & keep)
     return w1, w2, mask, pair
+
+
+def _rate_norms(w1, w2, mask, max_points: int | None = 30_000):
+    """Rate norms ``(n1, n2)`` of the usable samples of a bounded subsample of the log (about 30k samples)."""
+    from .flex import block_ranges, gather
+    g1, g2, gm = gather(block_ranges(len(w1), None, max_points=max_points), w1, w2, mask)
+    ok = np.isfinite(g1).all(axis=1) & np.isfinite(g2).all(axis=1)
+    if gm is not None:
+        ok &= gm
+    with np.errstate(over="ignore"):   # values beyond ~1e154 give inf norms: refused by check_rate_units
+        return tuple(np.linalg.norm(np.asarray(g, dtype=np.float64)[ok], axis=1) for g in (g1, g2))
+
+
+def check_rate_units(w1, w2, mask=None) -> None:
+    """Refuse rates no gyro measures in rad/s: the 99th percentile of both streams' rate norms above
+    :data:`MAX_PLAUSIBLE_RATE` (on a bounded subsample; a few glitches do not decide).
+
+    One stream alone beyond the limit is a unit mismatch between the gyros, which the solver refuses
+    naming both units (:func:`~fusion_gyrocal.core.solve.solve`); values whose squares overflow
+    float64 are refused here for either stream.
+
+    Raises
+    ------
+    InputError
+        Naming the rate level and the unit the values look like (deg/s, or counts).
+    """
+    levels = []
+    for name, flag, n, w in zip(("omega_1", "omega_2"), ("--unit1", "--unit2"), _rate_norms(w1, w2, mask), (w1, w2)):
+        if n.size == 0:
+            return
+        with np.errstate(invalid="ignore"):
+            level = float(np.quantile(n, PLAUSIBILITY_QUANTILE))
+        if not np.isfinite(level):
+            raise InputError(f"{name}: expected angular rates in rad/s (at most {MAX_PLAUSIBLE_RATE:g} rad/s), got "
+                             f"values up to {float(np.max(np.abs(w))):.3g} (their squares overflow float64); convert "
+                             f"them to rad/s ({flag})")
+        levels.append(level)
+    if min(levels) > MAX_PLAUSIBLE_RATE:
+        looks = ("deg/s: pass unit deg/s" if max(levels) * np.pi / 180.0 <= MAX_PLAUSIBLE_RATE
+                 else "raw counts: pass unit counts with the sensitivity (LSB per deg/s)")
+        raise InputError(f"omega_1 and omega_2: expected rates in rad/s (at most {MAX_PLAUSIBLE_RATE:g} rad/s, above "
+                         f"any MEMS gyro's range), got rate norms of {levels[0]:.4g} and {levels[1]:.4g} at the 99th "
+                         f"percentile; they look like {looks} (--unit1/--unit2)")
+
+
+def gross_outliers(w1, w2, mask=None, chunk: int = 65536) -> np.ndarray:
+    """Samples whose rate norm (of either gyro, or their difference) is :data:`GLITCH_FACTOR` times the
+    99th percentile of the log's (a comms glitch), as a bool mask of shape (N,).
+
+    The levels come from a bounded subsample; the pass over the log is chunked. A rigid pair has
+    equal rate norms up to scale factors and bias, so a glitch in one stream shows in the difference.
+    """
+    n1, n2 = _rate_norms(w1, w2, mask)
+    if n1.size == 0:
+        return np.zeros(len(w1), bool)
+    lim_rate = GLITCH_FACTOR * float(np.quantile(np.maximum(n1, n2), 0.99))
+    lim_diff = GLITCH_FACTOR * float(np.quantile(np.abs(n1 - n2), 0.99))
+    out = np.zeros(len(w1), bool)
+    for s in range(0, len(w1), chunk):
+        a, b = (np.linalg.norm(np.asarray(w[s:s + chunk], dtype=np.float64), axis=1) for w in (w1, w2))
+        with np.errstate(invalid="ignore"):
+            out[s:s + chunk] = (np.maximum(a, b) > lim_rate) | (np.abs(a - b) > lim_diff)
+    if mask is not None:
+        out &= mask
+    return out
 
 
 def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Options | None = None,
@@ -178,7 +252,28 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
         noise_ratio = d1 / d2 if d1 > 0 and d2 > 0 else None
     valid_in = mask
     mom = mom0 = moments_of(mask)
-    cal = solve(mom, solve_options, noise_ratio=noise_ratio)
+
+    def first_solve(m):
+        try:
+            return solve(m, solve_options, noise_ratio=noise_ratio), None
+        except NotRigidError as exc:
+            return None, exc
+
+    cal, not_rigid = first_solve(mom)
+    if not_rigid is not None or not cal.rigid:  # a few comms glitches must not make the log "not rigid"
+        glitch = gross_outliers(w1, w2, mask)
+        n_glitch = int(np.count_nonzero(glitch))
+        if 0 < n_glitch <= MAX_GLITCH_FRACTION * mom.count:
+            mask = ~glitch if mask is None else (mask & ~glitch)
+            valid_in = mask
+            mom = mom0 = moments_of(mask)
+            cal, not_rigid = first_solve(mom)
+            if cal is not None and cal.rigid:
+                cal = _replace(cal, notes=cal.notes + (
+                    f"{n_glitch} gross outlier sample(s) (rate norm over {GLITCH_FACTOR:g}x the log's 99th "
+                    "percentile: comms glitches?) masked before the rigidity test",))
+        if not_rigid is not None:
+            raise not_rigid
     rejected = 0.0
     corr = float("nan")
     if o.flex_rejection is not False and cal.rigid:

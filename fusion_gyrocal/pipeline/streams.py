@@ -10,6 +10,10 @@ from ..errors import InputError, OptionError
 DEG = np.pi / 180.0
 UNITS = ("rad/s", "deg/s", "counts")
 DEFAULT_GAP_PERIODS = 2.5      # default max_gap_s in nominal sample periods
+MIN_RATE_HZ, MAX_RATE_HZ = 1.0, 1e5   # plausible median sample rates of a gyro (s timestamps)
+CORRUPT_JUMP_STEPS = 1000.0    # a step this many median steps long ...
+CORRUPT_SPAN_FACTOR = 10.0     # ... that stretches the span beyond this many times N median steps is corrupt
+_TIME_UNITS = (("ms", 1e-3), ("us", 1e-6), ("ns", 1e-9))
 
 
 def _freeze(obj, names, dtype=None) -> None:
@@ -51,7 +55,11 @@ def check_timestamps(name: str, t, *, length: int | None = None) -> np.ndarray:
     InputError
         If ``t`` is not 1-D and numeric, its length differs from ``length``, it has fewer than
         two samples, a non-finite value, a duplicate timestamp or a step backwards (the message
-        names the sample index and the step).
+        names the sample index and the step); if the median sample rate is outside
+        1 Hz - 100 kHz (timestamps in ms, us or ns read as s: the message names the unit that
+        fits); or if one step is more than 1000 median steps long and stretches the span beyond
+        10 times N median steps (a corrupt timestamp: resampling such a span would allocate
+        without bound; the message names the sample).
     """
     arr = np.asarray(t)
     if arr.dtype.kind not in "fiu":
@@ -76,7 +84,27 @@ def check_timestamps(name: str, t, *, length: int | None = None) -> np.ndarray:
                              f"{arr[k]!r} s at samples {k} and {k + 1} ({nonpos.size} non-increasing step(s))")
         raise InputError(f"{name}: expected strictly increasing timestamps, got a step of {step[k]:.6g} s at "
                          f"sample {k + 1} ({nonpos.size} non-increasing step(s))")
+    _check_time_scale(name, arr, step)
     return arr
+
+
+def _check_time_scale(name: str, t: np.ndarray, step: np.ndarray) -> None:
+    """The median sample rate and the span of checked, increasing timestamps (see :func:`check_timestamps`)."""
+    med = float(np.median(step))
+    rate = 1.0 / med
+    if not MIN_RATE_HZ <= rate <= MAX_RATE_HZ:
+        fits = [u for u, f in _TIME_UNITS if MIN_RATE_HZ <= rate / f <= MAX_RATE_HZ]
+        hint = (f"they look like {fits[0]}: pass t_1/t_2 in seconds (the CLI's --time-unit1/--time-unit2 "
+                f"{fits[0]})" if fits else "pass t_1/t_2 in seconds (the CLI's --time-unit1/--time-unit2)")
+        raise InputError(f"{name}: expected timestamps in seconds with a sample rate of {MIN_RATE_HZ:g} Hz to "
+                         f"{MAX_RATE_HZ:g} Hz, got a median step of {med:.6g} ({rate:.6g} Hz if seconds); {hint}")
+    span = float(t[-1] - t[0])
+    if span > CORRUPT_SPAN_FACTOR * t.shape[0] * med:
+        k = int(np.argmax(step))
+        if step[k] > CORRUPT_JUMP_STEPS * med:
+            raise InputError(f"{name}: expected timestamps without huge jumps, got a step of {step[k]:.6g} s "
+                             f"({step[k] / med:.3g} median steps) at sample {k + 1} that makes the span {span:.6g} s "
+                             f"for {t.shape[0]} samples: corrupt timestamp? Drop it or split the recording there")
 
 
 def to_rad_per_s(x, unit: str, sensitivity: float | None = None) -> np.ndarray:
