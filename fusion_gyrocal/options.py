@@ -299,6 +299,12 @@ class Options(FrozenOptions):
         "Drop samples where either gyro's rate norm exceeds this (rad/s): a known flex or saturation limit.",
         "--max-rate", type=float, metavar="RAD_S",
         help="drop samples faster than this rate norm (a known flex or saturation limit)")
+    max_plausible_rate: float = _option(
+        100.0, _positive, "pipeline",
+        "Rates above this (rad/s; 100 = 5730 deg/s, beyond any MEMS gyro's range) at the 99th percentile of both "
+        "streams are refused as being in another unit (deg/s, raw counts); raise it for a gyro with a wider range.",
+        "--max-plausible-rate", type=float, metavar="RAD_S",
+        help="refuse rates above this (rad/s) as being in another unit (default 100 rad/s)")
 
     def __post_init__(self):
         for f in dataclasses.fields(self):

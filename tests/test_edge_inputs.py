@@ -172,3 +172,13 @@ def test_check_timestamps_real_gap_accepted():
     t = np.arange(10_000) * 0.01
     t[5000:] += 30.0                      # a 30 s dropout in a 100 s log: a gap, not corruption
     assert check_timestamps("t", t).shape == (10_000,)
+
+
+def test_calibrate_pair_max_plausible_rate_option_moves_the_limit():
+    from fusion_gyrocal.evaluate.sim import simulate_pair
+    sim = simulate_pair(rng=3, n=4000)
+    w1, w2 = 200.0 * sim.omega_1, 200.0 * sim.omega_2          # a very fast (or wrongly scaled) pair
+    with pytest.raises(InputError, match="at most 100 rad/s"):
+        calibrate_pair(w1, w2)
+    cal = calibrate_pair(w1, w2, max_plausible_rate=1e4)       # a gyro with a wider range: accepted
+    assert cal.configuration == "general"

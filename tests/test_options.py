@@ -34,6 +34,7 @@ FLAG_EXAMPLES = {
     "bias_walk_std": (["--bias-walk", "1e-5", "--noise-std", "0.001"], {"bias_walk_std": 1e-5, "noise_std": 0.001}),
     "flex_rejection": (["--no-flex-rejection"], {"flex_rejection": False}),
     "max_rate": (["--max-rate", "5"], {"max_rate": 5.0}),
+    "max_plausible_rate": (["--max-plausible-rate", "150"], {"max_plausible_rate": 150.0}),
 }
 
 # every option: values its check must refuse
@@ -61,6 +62,7 @@ BAD_VALUES = {
     "flex_margin": [-1, 1.5, True, math.nan],
     "min_kept_energy": [-0.1, 2.0],
     "max_rate": [0, -1.0],
+    "max_plausible_rate": [0, -1.0, math.nan, None],
 }
 
 

@@ -20,7 +20,6 @@ from ..core.solve import solve
 from ..errors import InputError, NotRigidError, OptionError
 from ..options import TIMESTAMP_OPTIONS, Options
 
-MAX_PLAUSIBLE_RATE = 100.0   # rad/s (5730 deg/s): above the range of any MEMS gyro
 PLAUSIBILITY_QUANTILE = 0.99  # of the rate norm: isolated glitches do not decide the unit
 GLITCH_FACTOR = 10.0         # a gross outlier: this many times the 99th percentile of the log
 MAX_GLITCH_FRACTION = 0.01   # more "outliers" than this are the motion itself, not glitches
@@ -147,7 +146,7 @@ def prepare_samples(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options:
             from .streams import saturation_mask
             clipped = saturation_mask(w1, o.saturation_limit[0]) | saturation_mask(w2, o.saturation_limit[1])
             mask = ~clipped if mask is None else (mask & ~clipped)
-    check_rate_units(w1, w2, mask)
+    check_rate_units(w1, w2, mask, limit=o.max_plausible_rate)
     if o.max_rate is not None:
         from .selection import informative_mask
         keep = informative_mask(w1, w2, mask, 1.0, min_rate=0.0, max_rate=o.max_rate)
@@ -166,9 +165,9 @@ def _rate_norms(w1, w2, mask, max_points: int | None = 30_000):
         return tuple(np.linalg.norm(np.asarray(g, dtype=np.float64)[ok], axis=1) for g in (g1, g2))
 
 
-def check_rate_units(w1, w2, mask=None) -> None:
+def check_rate_units(w1, w2, mask=None, *, limit: float = 100.0) -> None:
     """Refuse rates no gyro measures in rad/s: the 99th percentile of both streams' rate norms above
-    :data:`MAX_PLAUSIBLE_RATE` (on a bounded subsample; a few glitches do not decide).
+    ``limit`` (the option ``max_plausible_rate``; on a bounded subsample, so a few glitches do not decide).
 
     One stream alone beyond the limit is a unit mismatch between the gyros, which the solver refuses
     naming both units (:func:`~fusion_gyrocal.core.solve.solve`); values whose squares overflow
@@ -186,14 +185,14 @@ def check_rate_units(w1, w2, mask=None) -> None:
         with np.errstate(invalid="ignore"):
             level = float(np.quantile(n, PLAUSIBILITY_QUANTILE))
         if not np.isfinite(level):
-            raise InputError(f"{name}: expected angular rates in rad/s (at most {MAX_PLAUSIBLE_RATE:g} rad/s), got "
+            raise InputError(f"{name}: expected angular rates in rad/s (at most {limit:g} rad/s), got "
                              f"values up to {float(np.max(np.abs(w))):.3g} (their squares overflow float64); convert "
                              f"them to rad/s ({flag})")
         levels.append(level)
-    if min(levels) > MAX_PLAUSIBLE_RATE:
-        looks = ("deg/s: pass unit deg/s" if max(levels) * np.pi / 180.0 <= MAX_PLAUSIBLE_RATE
+    if min(levels) > limit:
+        looks = ("deg/s: pass unit deg/s" if max(levels) * np.pi / 180.0 <= limit
                  else "raw counts: pass unit counts with the sensitivity (LSB per deg/s)")
-        raise InputError(f"omega_1 and omega_2: expected rates in rad/s (at most {MAX_PLAUSIBLE_RATE:g} rad/s, above "
+        raise InputError(f"omega_1 and omega_2: expected rates in rad/s (at most {limit:g} rad/s, above "
                          f"any MEMS gyro's range), got rate norms of {levels[0]:.4g} and {levels[1]:.4g} at the 99th "
                          f"percentile; they look like {looks} (--unit1/--unit2)")
 
