@@ -38,7 +38,6 @@ from dataclasses import MISSING, dataclass, field, fields
 from typing import Iterable, Sequence
 
 import numpy as np
-from scipy.optimize import nnls
 
 from .solve import pair_covariance, solve
 from ..errors import ConfigurationError, FormatError, GyroCalError, InputError, OptionError
@@ -671,6 +670,8 @@ def _noise_from_pairs(moments: ArrayMoments, R, s):
     if n == 2:
         v = np.full(2, y[0] / X[0].sum())
     else:
+        from scipy.optimize import nnls   # only here: keeps scipy.optimize off the command line's start-up
+
         v = nnls(X, y)[0]
     floor = max(1e-24 * float(np.trace(moments.pairs[0].S11)) / (3.0 * max(moments.dof, 1.0)),
                 (0.1 * np.sqrt(np.median(v))) ** 2 if np.median(v) > 0 else 0.0)
