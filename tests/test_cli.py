@@ -224,3 +224,15 @@ def test_main_report_track_log_starting_at_rest_tracks_a_rigid_pair(tmp_path, ca
                  "--out", str(tmp_path / "rep"), "--track"]) == 0
     assert "skipped" not in capsys.readouterr().err
     assert (tmp_path / "rep" / "drift_tracking.png").stat().st_size > 10_000
+
+
+def test_main_reader_flag_a_format_does_not_take_is_refused(tmp_path, capsys):
+    from fusion_gyrocal.evaluate.sim import simulate_pair
+    from fusion_gyrocal.io import ImuStream, write_csv, write_npz
+
+    sim = simulate_pair(rng=5, n=2000)
+    write_csv(ImuStream(sim.t, sim.omega_1), tmp_path / "a.csv")
+    write_npz(ImuStream(sim.t, sim.omega_2), tmp_path / "b.npz")
+    assert main(["calibrate", str(tmp_path / "a.csv"), str(tmp_path / "b.npz"), "--time-unit2", "ms"]) == 1
+    err = capsys.readouterr().err
+    assert "--time-unit1/--time-unit2 or --time-unit: not used when reading b.npz (npz" in err

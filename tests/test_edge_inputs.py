@@ -182,3 +182,10 @@ def test_calibrate_pair_max_plausible_rate_option_moves_the_limit():
         calibrate_pair(w1, w2)
     cal = calibrate_pair(w1, w2, max_plausible_rate=1e4)       # a gyro with a wider range: accepted
     assert cal.configuration == "general"
+
+
+def test_calibrate_pair_constant_timestamped_input_says_why_nothing_is_left():
+    t = np.arange(2000) / 100.0
+    w = np.full((2000, 3), 0.3)
+    with pytest.raises(InputError, match=r"omega_1: .*2000 of which 0 are non-finite and 2000 flagged saturated"):
+        calibrate_pair(w, w, t_1=t, t_2=t)

@@ -250,9 +250,18 @@ def read_sources(sources, progress=None) -> list:
     """Read every gyro's :class:`~fusion_gyrocal.io.ImuStream` (``progress()`` after each)."""
     from ..io import read_imu
 
+    from ..errors import OptionError
+    from ..io import detect_format
+
     streams = []
     for s in sources:
-        streams.append(read_imu(s.path, **_for_reader(s.options, s.path)))
+        opts = _for_reader(s.options, s.path)
+        unused = sorted(set(s.options) - set(opts))
+        if unused:   # a flag the format has no use for is refused, never ignored
+            raise OptionError(f"{', '.join(READER_FLAGS[k] for k in unused)}: not used when reading "
+                              f"{Path(s.path).name} ({detect_format(s.path)}: it takes "
+                              f"{', '.join(sorted(READER_FLAGS[k] for k in READER_OPTIONS[detect_format(s.path)]))})")
+        streams.append(read_imu(s.path, **opts))
         if progress:
             progress()
     return streams

@@ -467,8 +467,8 @@ def _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, min_correlation, max_eval)
             raise TimeAlignmentError(
                 f"ambiguous time offset: the rate norms correlate at {lags[i]:+.4f} s ({r[i]:.4f}) and at "
                 f"{lags[cands[k]]:+.4f} s ({r[cands[k]]:.4f}), and the rigid-model misfits there differ by only "
-                f"{score[k] / score[best]:.3g}x; periodic motion? record less repetitive motion or pass a smaller "
-                "max_offset_s around the expected offset")
+                f"{score[k] / score[best]:.3g}x; periodic motion? record less repetitive motion, give the offset if you "
+                "know it (time_offset_s), or a max_offset_s that leaves the other lobe out")
     peak = float(r[i])
     tau, xe, ye, _ = fits[best]
     return TimeOffset(float(tau), _offset_std(spl2, x1, y1, tau, h), lags, r, peak, int(xe.size))

@@ -126,9 +126,16 @@ def prepare_samples(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options:
             raise InputError("mask: only for sample-aligned input; with timestamps, saturated and non-finite "
                              "samples are masked automatically")
         lim = (None, None) if o.saturation_limit is None else o.saturation_limit
+        valid = [valid_mask(w, limit=v) for w, v in ((omega_1, lim[0]), (omega_2, lim[1]))]
+        for name, w, ok in (("omega_1", omega_1, valid[0]), ("omega_2", omega_2, valid[1])):
+            if ok.sum() < 8:   # say why nothing is left: the masks, not "0 valid samples"
+                finite = int(np.isfinite(np.asarray(w, dtype=float)).all(axis=1).sum())
+                raise InputError(f"{name}: expected samples to calibrate, got {len(ok)} of which {len(ok) - finite} are "
+                                 f"non-finite and {finite - int(ok.sum())} flagged saturated (sitting flat at the "
+                                 "extreme values: constant input or clipping? pass saturation_limit with the sensor "
+                                 "range)")
         pair = align_streams(t_1, omega_1, t_2, omega_2, time_offset_s=o.time_offset_s, max_offset_s=o.max_offset_s,
-                             rate_hz=o.rate_hz, valid_1=valid_mask(omega_1, limit=lim[0]),
-                             valid_2=valid_mask(omega_2, limit=lim[1]))
+                             rate_hz=o.rate_hz, valid_1=valid[0], valid_2=valid[1])
         w1, w2 = pair.omega_1, pair.omega_2     # NaN where not valid: every step below reads them through mask
         mask = pair.valid
     else:
