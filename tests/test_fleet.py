@@ -244,3 +244,27 @@ def test_run_fleet_poisoned_timestamp_fails_only_its_device(tmp_path):
     for name in ("dev_a", "dev_c"):
         assert df.loc[name, "ok"] and np.isfinite(df.loc[name, "rotvec_x"])
     assert peak < 200e6
+
+
+def test_run_fleet_progress_bar_ticks_once_per_device(fleet_dir, monkeypatch):
+    import fusion_gyrocal.distributed.fleet as fleet_module
+
+    ticks = []
+
+    class Bar:     # stands for the rich bar: counts the ticks
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def add_task(self, description, total):
+            ticks.append(("total", total))
+            return 0
+
+        def advance(self, task, advance=1):
+            ticks.append("tick")
+
+    monkeypatch.setattr(fleet_module, "progress_bar", lambda enabled: Bar())
+    df = run_fleet(fleet_dir[0], progress=True)
+    assert ticks[0] == ("total", len(df)) and ticks.count("tick") == len(df)

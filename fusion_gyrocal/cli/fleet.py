@@ -68,7 +68,8 @@ def run(args) -> int:
                 cluster = LocalCluster(n_workers=args.workers, threads_per_worker=args.threads_per_worker,
                                        processes=True, host="127.0.0.1", dashboard_address=None)
                 client = Client(cluster)
-        df = run_fleet(args.devices, client=client, output=args.output, chunked=args.chunked, options=options)
+        df = run_fleet(args.devices, client=client, output=args.output, chunked=args.chunked, progress=None,
+                       options=options)
     finally:
         if client is not None:
             client.close()

@@ -28,16 +28,24 @@ def run(args) -> int:
     from ..io.report import write_report
     from ..pipeline.pipeline import run_pipeline
 
-    s1, s2, options = read_recording(args)
-    run_ = run_pipeline(s1.masked_omega, s2.masked_omega, t_1=s1.t, t_2=s2.t, options=options)
-    extra = {}
-    if args.track:
-        from ..online.tracker import track_figure_for_report  # drift tracking plot
+    from ..progress import progress_bar
 
-        try:
-            extra["drift_tracking"] = track_figure_for_report(run_)
-        except GyroCalError as e:  # the rest of the report is still worth writing
-            print(f"gyrocal: drift tracking skipped: {e}", file=sys.stderr)
-    for p in write_report(run_, args.out, extra_figures=extra):
+    with progress_bar() as bar:   # one tick per stage
+        stage = bar.add_task("reading", total=4 if args.track else 3)
+        s1, s2, options = read_recording(args)
+        bar.update(stage, advance=1, description="aligning and solving")
+        run_ = run_pipeline(s1.masked_omega, s2.masked_omega, t_1=s1.t, t_2=s2.t, options=options)
+        extra = {}
+        if args.track:
+            from ..online.tracker import track_figure_for_report  # drift tracking plot
+
+            bar.update(stage, advance=1, description="tracking drift (EKF)")
+            try:
+                extra["drift_tracking"] = track_figure_for_report(run_)
+            except GyroCalError as e:  # the rest of the report is still worth writing
+                print(f"gyrocal: drift tracking skipped: {e}", file=sys.stderr)
+        bar.update(stage, advance=1, description="drawing the figures")
+        paths = write_report(run_, args.out, extra_figures=extra)
+    for p in paths:
         print(f"wrote {p}")
     return EXIT_OK

@@ -37,6 +37,7 @@ import numpy as np
 
 from ..core.solve import solve
 from ..options import TIMESTAMP_OPTIONS, Options
+from ..progress import progress_bar
 from ..pipeline.pipeline import calibrate_pair
 
 from ..errors import FormatError, GyroCalError, InputError
@@ -231,7 +232,7 @@ def _table(rows):
 
 
 def run_fleet(devices, *, client=None, output=None, chunked: bool = False, split_every: int = 8,
-              options: Options | None = None, **keywords):
+              progress: bool | None = False, options: Options | None = None, **keywords):
     """Calibrate many devices on Dask; one results row per device, errors recorded per device.
 
     Parameters
@@ -249,6 +250,9 @@ def run_fleet(devices, *, client=None, output=None, chunked: bool = False, split
         for one worker. Parquet devices only; no time alignment or flex gating.
     split_every : int
         Fan-in of the tree reduction (``chunked`` only).
+    progress : bool or None
+        A progress bar over the devices on stderr (:func:`fusion_gyrocal.progress.progress_bar`; None:
+        when stderr is a terminal). One tick per device: no cost to throughput.
     options : Options, optional
         Passed unchanged to :func:`fusion_gyrocal.calibrate_pair` on every device (to
         :func:`fusion_gyrocal.solve` when ``chunked``, which refuses pipeline options).
@@ -279,13 +283,21 @@ def run_fleet(devices, *, client=None, output=None, chunked: bool = False, split
         rows = _run_chunked(paths, client, split_every, options)
     else:
         task = functools.partial(device_row, options=options)
-        if client is not None:
-            futures = client.map(task, [str(p) for p in paths], pure=False, retries=0)
-            rows = [_gathered(f, p) for f, p in zip(futures, paths)]
-        else:
-            import dask
+        with progress_bar(progress) as bar:
+            tick = functools.partial(bar.advance, bar.add_task("devices", total=len(paths)))
+            if client is not None:
+                from distributed import as_completed
 
-            rows = dask.compute(*[dask.delayed(task, pure=False)(str(p)) for p in paths], scheduler="threads")
+                futures = client.map(task, [str(p) for p in paths], pure=False, retries=0)
+                for _ in as_completed(futures):
+                    tick()
+                rows = [_gathered(f, p) for f, p in zip(futures, paths)]
+            else:
+                import dask
+                from dask.callbacks import Callback
+
+                with Callback(posttask=lambda *_: tick()):
+                    rows = dask.compute(*[dask.delayed(task, pure=False)(str(p)) for p in paths], scheduler="threads")
     df = _table(list(rows))
     if output is not None:
         write_results(df, output)

@@ -18,6 +18,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..options import Options
+from ..progress import progress_bar
 from .registry import run_estimator
 from .scenarios import Scenario, ScenarioBound, make_scenario, scenario_bound
 from .sim import rotation_error, scale_error
@@ -87,12 +88,6 @@ def _pool_task(spec, seed, estimators, options):
     return record, [(str(w.message), w.category, w.filename, w.lineno) for w in caught]
 
 
-def _progress(enabled: bool):
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-                    disable=not enabled, transient=True)
-
-
 _THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
@@ -131,7 +126,7 @@ def monte_carlo(specs, runs: int, estimators, seed: int, workers: int | None, pr
              for i in range(runs)]
     out = [[None] * runs for _ in specs]
     workers = (os.cpu_count() or 1) if workers is None else int(workers)
-    with _progress(progress) as bar:
+    with progress_bar(progress) as bar:
         job = bar.add_task(f"{len(specs)} x {runs} runs, {len(estimators)} estimators", total=len(tasks))
         if workers <= 1 or len(tasks) == 1:
             for s, j, sd in tasks:
