@@ -68,91 +68,19 @@ def array_settings(args, n: int, rate_hz: float) -> ArraySettings:
                          list(limits) * n if len(limits) == 1 else list(limits))
 
 
-@dataclass(frozen=True)
-class AlignedArray:
-    """N gyros on one grid on gyro 1's clock.
-
-    ``omegas`` (M, N, 3) rad/s (zero where ``valid`` is False), ``t`` (M,) on gyro 1's clock, and per gyro
-    the offset ADDED to its timestamps, its std, and where it came from.
-    """
-
-    t: np.ndarray
-    omegas: np.ndarray
-    valid: np.ndarray
-    time_offset_s: np.ndarray
-    time_offset_std_s: np.ndarray
-    time_offset_source: tuple
-
-
-def align_to_reference(streams, settings: ArraySettings) -> AlignedArray:
-    """Put N streams on gyro 1's clock and one grid (see the module docstring).
-
-    Raises
-    ------
-    OptionError
-        ``--offset``, ``--max-offset`` or ``--rate`` for recordings that share one clock.
-    TimeAlignmentError
-        An offset cannot be estimated, or the gyros have no common span.
-    """
-    from ..errors import OptionError, TimeAlignmentError
-    from ..options import FLAGS
-    from ..pipeline.alignment import align_streams
-    from ..pipeline.resample import resample
-    from ..pipeline.streams import valid_mask
-
-    o = settings.options
-    n = len(streams)
-    w = [s.masked_omega for s in streams]
-    ok = [valid_mask(wk, limit=lim) for wk, lim in zip(w, settings.saturation_limit)]
-    t1 = streams[0].t
-    if all(s.t.shape == t1.shape and np.array_equal(s.t, t1) for s in streams[1:]):
-        timing = [FLAGS[k] for k in ("time_offset_s", "max_offset_s", "rate_hz") if k in o.to_dict()]
-        if timing:
-            raise OptionError(f"{', '.join(timing)}: act on separate clocks; expected recordings with their own "
-                              "timestamps, got gyros that share one clock (identical timestamps)")
-        valid = np.logical_and.reduce(ok)
-        omegas = np.stack([np.where(valid[:, None], wk, 0.0) for wk in w], axis=1)
-        return AlignedArray(t1, omegas, valid, np.zeros(n), np.zeros(n),
-                            ("reference",) + ("one clock",) * (n - 1))
-    tau, std, source = np.zeros(n), np.zeros(n), ["reference"]
-    for k in range(1, n):
-        pair = align_streams(t1, w[0], streams[k].t, w[k], time_offset_s=o.time_offset_s,
-                             max_offset_s=o.max_offset_s, valid_1=ok[0], valid_2=ok[k])
-        tau[k] = pair.time_offset_s
-        std[k] = pair.time_offset.std_s if pair.time_offset is not None else 0.0
-        source.append("estimated" if pair.time_offset is not None else "given")
-    lo = max(s.t[0] + tau[k] for k, s in enumerate(streams))
-    hi = min(s.t[-1] + tau[k] for k, s in enumerate(streams))
-    if not hi > lo:
-        raise TimeAlignmentError(f"the {n} recordings have no common time span after applying the offsets "
-                                 f"{np.round(tau, 6).tolist()} s")
-    if o.rate_hz is None:
-        keep = (t1 >= lo) & (t1 <= hi)
-        grid = t1[keep]
-        cols, oks = [np.asarray(w[0][keep])], [ok[0][keep]]
-        start = 1
-    else:
-        grid = lo + np.arange(int(np.floor((hi - lo) * o.rate_hz + 1e-9)) + 1) / float(o.rate_hz)
-        cols, oks, start = [], [], 0
-    for k in range(start, n):
-        wk, vk = resample(streams[k].t, w[k], grid - tau[k], valid=ok[k])
-        cols.append(wk)
-        oks.append(vk)
-    valid = np.logical_and.reduce(oks)
-    omegas = np.stack([np.where(valid[:, None], c, 0.0) for c in cols], axis=1)
-    return AlignedArray(grid, omegas, valid, tau, std, tuple(source))
-
-
 def calibrate_streams(streams, args):
     """The joint calibration of ``streams`` with the flags of ``args``: ``(ArrayCalibration, notes)``."""
     import dataclasses
 
     from ..core.array import calibrate_array
+    from ..pipeline.alignment import align_to_reference
 
     n = len(streams)
     settings = array_settings(args, n, streams[0].rate_hz)
     o = settings.options
-    aligned = align_to_reference(streams, settings)
+    aligned = align_to_reference([st.t for st in streams], [st.masked_omega for st in streams],
+                                 time_offset_s=o.time_offset_s, max_offset_s=o.max_offset_s, rate_hz=o.rate_hz,
+                                 saturation_limit=settings.saturation_limit)
     mask = aligned.valid
     if o.max_rate is not None:
         mask = mask & (np.linalg.norm(aligned.omegas, axis=2) <= o.max_rate).all(axis=1)

@@ -24,7 +24,7 @@ from scipy.optimize import minimize_scalar
 from ..core.moments import Moments
 from ..errors import OptionError, TimeAlignmentError
 from .resample import _MARGIN, _RunSplines, _runs, resample
-from .streams import DEFAULT_GAP_PERIODS, _freeze, _nominal_period, _stream
+from .streams import DEFAULT_GAP_PERIODS, _freeze, _nominal_period, _stream, valid_mask
 
 _AMBIGUITY_RATIO = 1.5         # a second lobe with misfit (1 - r) below this times the peak's is ambiguous
 _MIN_OVERLAP_FRACTION = 0.5    # lags overlapping fewer valid grid points than this fraction are ignored
@@ -578,3 +578,88 @@ def align_streams(t_1, omega_1, t_2, omega_2, *, time_offset_s: float | None = N
     for arr in (grid, o1, o2, v2):       # ours alone: frozen in place, not copied
         arr.flags.writeable = False
     return AlignedPair(grid, o1, o2, v2, est, tau)
+
+
+@dataclass(frozen=True)
+class AlignedArray:
+    """N gyros on one grid on gyro 1's clock.
+
+    ``omegas`` (M, N, 3) rad/s (zero where ``valid`` is False), ``t`` (M,) on gyro 1's clock, and per gyro
+    the offset ADDED to its timestamps, its std, and where it came from.
+    """
+
+    t: np.ndarray
+    omegas: np.ndarray
+    valid: np.ndarray
+    time_offset_s: np.ndarray
+    time_offset_std_s: np.ndarray
+    time_offset_source: tuple
+
+
+def align_to_reference(ts, omegas, *, time_offset_s=None, max_offset_s: float = 1.0, rate_hz=None,
+                       saturation_limit=None) -> AlignedArray:
+    """Put N streams on gyro 1's clock and one grid.
+
+    Streams on one clock (identical timestamps, e.g. a multi-IMU npz) are sample-aligned as they are.
+    Otherwise every gyro k is aligned to gyro 1 (the reference) with :func:`align_streams` (its offset
+    estimated, or ``time_offset_s`` for every gyro) and all are resampled onto gyro 1's timestamps (or a
+    ``rate_hz`` grid) over the span every gyro covers.
+
+    Parameters
+    ----------
+    ts, omegas : sequences of N arrays (M_k,) s and (M_k, 3) rad/s
+        Each gyro's timestamps and rates (NaN where not measured); gyro 1 first.
+    time_offset_s, max_offset_s, rate_hz
+        As the options of the same names (:class:`~fusion_gyrocal.options.Options`).
+    saturation_limit : sequence of N floats or None, optional
+        Sensor ranges for :func:`~fusion_gyrocal.pipeline.streams.valid_mask`.
+
+    Raises
+    ------
+    OptionError
+        ``time_offset_s``, ``max_offset_s`` or ``rate_hz`` for recordings that share one clock.
+    TimeAlignmentError
+        An offset cannot be estimated, or the gyros have no common span.
+    """
+    n = len(ts)
+    w = list(omegas)
+    limits = [None] * n if saturation_limit is None else list(saturation_limit)
+    ok = [valid_mask(wk, limit=lim) for wk, lim in zip(w, limits)]
+    t1 = np.asarray(ts[0], dtype=float)
+    if all(np.shape(t) == t1.shape and np.array_equal(t, t1) for t in ts[1:]):
+        timing = [name for name, v in (("time_offset_s", time_offset_s), ("max_offset_s", max_offset_s != 1.0),
+                                       ("rate_hz", rate_hz)) if v is not None and v is not False]
+        if timing:
+            raise OptionError(f"{', '.join(timing)}: act on separate clocks; expected recordings with their own "
+                              "timestamps, got gyros that share one clock (identical timestamps)")
+        valid = np.logical_and.reduce(ok)
+        omegas = np.stack([np.where(valid[:, None], wk, 0.0) for wk in w], axis=1)
+        return AlignedArray(t1, omegas, valid, np.zeros(n), np.zeros(n),
+                            ("reference",) + ("one clock",) * (n - 1))
+    tau, std, source = np.zeros(n), np.zeros(n), ["reference"]
+    for k in range(1, n):
+        pair = align_streams(t1, w[0], ts[k], w[k], time_offset_s=time_offset_s, max_offset_s=max_offset_s,
+                             valid_1=ok[0], valid_2=ok[k])
+        tau[k] = pair.time_offset_s
+        std[k] = pair.time_offset.std_s if pair.time_offset is not None else 0.0
+        source.append("estimated" if pair.time_offset is not None else "given")
+    lo = max(t[0] + tau[k] for k, t in enumerate(ts))
+    hi = min(t[-1] + tau[k] for k, t in enumerate(ts))
+    if not hi > lo:
+        raise TimeAlignmentError(f"the {n} recordings have no common time span after applying the offsets "
+                                 f"{np.round(tau, 6).tolist()} s")
+    if rate_hz is None:
+        keep = (t1 >= lo) & (t1 <= hi)
+        grid = t1[keep]
+        cols, oks = [np.asarray(w[0][keep])], [ok[0][keep]]
+        start = 1
+    else:
+        grid = lo + np.arange(int(np.floor((hi - lo) * rate_hz + 1e-9)) + 1) / float(rate_hz)
+        cols, oks, start = [], [], 0
+    for k in range(start, n):
+        wk, vk = resample(ts[k], w[k], grid - tau[k], valid=ok[k])
+        cols.append(wk)
+        oks.append(vk)
+    valid = np.logical_and.reduce(oks)
+    omegas = np.stack([np.where(valid[:, None], c, 0.0) for c in cols], axis=1)
+    return AlignedArray(grid, omegas, valid, tau, std, tuple(source))
