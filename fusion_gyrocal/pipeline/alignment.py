@@ -514,6 +514,17 @@ class AlignedPair:
         return Moments.from_samples(self.omega_1, self.omega_2, mask=keep)
 
 
+def _grid(t1, lo: float, hi: float, rate_hz):
+    """The common time grid over ``[lo, hi]`` on gyro 1's clock: gyro 1's own instants (``keep`` selects them)
+    or a uniform ``rate_hz`` grid (``keep`` None)."""
+    if rate_hz is None:
+        keep = (t1 >= lo) & (t1 <= hi)
+        return t1[keep], keep
+    if not (np.isfinite(rate_hz) and rate_hz > 0):
+        raise OptionError(f"rate_hz: expected a positive rate, got {rate_hz!r}")
+    return lo + np.arange(int(np.floor((hi - lo) * rate_hz + 1e-9)) + 1) / float(rate_hz), None
+
+
 def align_streams(t_1, omega_1, t_2, omega_2, *, time_offset_s: float | None = None, max_offset_s: float = 1.0,
                   rate_hz: float | None = None, valid_1=None, valid_2=None,
                   max_eval: int | None = MAX_EVAL) -> AlignedPair:
@@ -563,15 +574,11 @@ def align_streams(t_1, omega_1, t_2, omega_2, *, time_offset_s: float | None = N
     if not hi > lo:
         raise TimeAlignmentError(f"the streams do not overlap after applying the offset {tau:+.6g} s: gyro 1 covers "
                                  f"[{t1[0]:.6g}, {t1[-1]:.6g}] s, gyro 2 [{t2[0] + tau:.6g}, {t2[-1] + tau:.6g}] s")
-    if rate_hz is None:
-        keep = (t1 >= lo) & (t1 <= hi)
-        grid = t1[keep]
+    grid, keep = _grid(t1, lo, hi, rate_hz)
+    if keep is not None:
         o1 = w1[keep].astype(np.float64, copy=False)
         v1 = ok1[keep]
     else:
-        if not (np.isfinite(rate_hz) and rate_hz > 0):
-            raise OptionError(f"rate_hz: expected a positive rate, got {rate_hz!r}")
-        grid = lo + np.arange(int(np.floor((hi - lo) * rate_hz + 1e-9)) + 1) / float(rate_hz)
         o1, v1 = resample(t1, w1, grid, valid=ok1)
     o2, v2 = resample(t2, w2, grid - tau, valid=ok2)
     v2 &= v1
@@ -648,13 +655,10 @@ def align_to_reference(ts, omegas, *, time_offset_s=None, max_offset_s: float = 
     if not hi > lo:
         raise TimeAlignmentError(f"the {n} recordings have no common time span after applying the offsets "
                                  f"{np.round(tau, 6).tolist()} s")
-    if rate_hz is None:
-        keep = (t1 >= lo) & (t1 <= hi)
-        grid = t1[keep]
-        cols, oks = [np.asarray(w[0][keep])], [ok[0][keep]]
-        start = 1
+    grid, keep = _grid(t1, lo, hi, rate_hz)
+    if keep is not None:
+        cols, oks, start = [np.asarray(w[0][keep])], [ok[0][keep]], 1
     else:
-        grid = lo + np.arange(int(np.floor((hi - lo) * rate_hz + 1e-9)) + 1) / float(rate_hz)
         cols, oks, start = [], [], 0
     for k in range(start, n):
         wk, vk = resample(ts[k], w[k], grid - tau[k], valid=ok[k])
