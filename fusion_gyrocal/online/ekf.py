@@ -66,8 +66,13 @@ def _quadratic_3(S, x: float, y: float, z: float) -> float:
     return x * x / a + y1 * y1 / d2 + z1 * z1 / d3
 
 
+# flat indices in a (3, 12) Jacobian of the entries that depend on the sample: per row, -diag(s1) skew(u)
+# (two off-diagonal entries), diag(s1 u) (one) and -A diag(omega_2) (three); the rest is constant
+_H1_VARYING = np.array([1, 2, 3, 6, 7, 8, 12, 14, 16, 18, 19, 20, 24, 25, 29, 30, 31, 32])
+
+
 def _one_sample_jacobian() -> np.ndarray:
-    """A (3, 12) Jacobian buffer with the constant bias block (``d/d b = I``) already in place."""
+    """A (3, 12) Jacobian buffer with the constant entries in place: zeros and the bias block (``d/d b = I``)."""
     H = np.zeros((3, DIM))
     H[:, 9:12] = np.eye(3)
     return H
@@ -228,10 +233,10 @@ class ErrorStateEKF:
         A00, A01, A02 = a0 * r00 / c0, a0 * r01 / c1, a0 * r02 / c2     # A = diag(s1) R diag(1/s2)
         A10, A11, A12 = a1 * r10 / c0, a1 * r11 / c1, a1 * r12 / c2
         A20, A21, A22 = a2 * r20 / c0, a2 * r21 / c1, a2 * r22 / c2
-        H = self._H1
-        H[:, 0:9] = ((0.0, a0 * u2, -a0 * u1, a0 * u0, 0.0, 0.0, A00 * -x0, A01 * -x1, A02 * -x2),
-                     (-a1 * u2, 0.0, a1 * u0, 0.0, a1 * u1, 0.0, A10 * -x0, A11 * -x1, A12 * -x2),
-                     (a2 * u1, -a2 * u0, 0.0, 0.0, 0.0, a2 * u2, A20 * -x0, A21 * -x1, A22 * -x2))
+        H = self._H1                               # its varying entries, written through the flat view
+        H.reshape(-1)[_H1_VARYING] = (a0 * u2, -a0 * u1, a0 * u0, A00 * -x0, A01 * -x1, A02 * -x2,   # row 0
+                                      -a1 * u2, a1 * u0, a1 * u1, A10 * -x0, A11 * -x1, A12 * -x2,   # row 1
+                                      a2 * u1, -a2 * u0, a2 * u2, A20 * -x0, A21 * -x1, A22 * -x2)   # row 2
         y0, y1, y2 = w1.tolist()
         # A omega_2 through numpy's product, as in :meth:`linearise` (BLAS fuses the multiply-adds)
         d0, d1, d2 = np.dot(np.array(((A00, A01, A02), (A10, A11, A12), (A20, A21, A22))), w2).tolist()
