@@ -113,7 +113,7 @@ class ErrorStateEKF:
     """
 
     __slots__ = ("kf", "hold", "R", "s1", "s2", "b", "t", "noise_std", "drift", "step_prior",
-                 "_T", "_Pi", "_q", "_shock", "_G", "_folds", "_H1")
+                 "_T", "_Pi", "_q", "_shock", "_G", "_folds", "_H1", "_held")
 
     def __init__(self, hold: ScaleHold, drift, step_prior, noise_std, R, s1, s2, b, P, t: float,
                  inflate_s: float = 0.0):
@@ -143,7 +143,7 @@ class ErrorStateEKF:
         new.drift = self.drift if drift is None else drift
         new.step_prior = self.step_prior if step_prior is None else step_prior
         new.R, new.s1, new.s2, new.b, new.t = self.R, self.s1, self.s2, self.b, self.t   # never modified in place
-        new._T, new._Pi, new._G, new._folds = self._T, self._Pi, self._G, self._folds
+        new._T, new._Pi, new._G, new._folds, new._held = self._T, self._Pi, self._G, self._folds, self._held
         new._H1 = _one_sample_jacobian()
         TT = self._T @ self._T.T
         new._q, new._shock = _projected_cov(new.drift, TT), _projected_cov(new.step_prior, TT)
@@ -167,11 +167,13 @@ class ErrorStateEKF:
         self.kf.R = self.noise_std[0] ** 2 * np.eye(3) + self.noise_std[1] ** 2 * (A @ A.T)
         self._G = None
         self._folds = 0
+        self._held = self.hold.held_cov if self.hold.held_cov.any() else None    # None: nothing to add
 
     def project(self, P) -> np.ndarray:
         """``P`` moved off the held directions, which get the hold's covariance."""
         P = np.dot(np.dot(self._Pi, P), self._Pi.T)     # a new array: updated in place below
-        P += self.hold.held_cov
+        if self._held is not None:
+            P += self._held
         P += P.T                                        # (numpy buffers the overlapping transpose)
         P *= 0.5
         return P
