@@ -256,8 +256,9 @@ class HistoryRecorder:
                 grown = np.empty((cap, _WIDTH))
                 grown[: self._n] = self._buf[: self._n]
                 self._buf = grown
-        np.concatenate(((t,), R.ravel(), s1, s2, b, P.diagonal(), (nis, n_used)),     # variances: 1-sigma in build
-                       out=self._buf[self._n])
+        row = self._buf[self._n]
+        row[_T], row[_NIS], row[_USED] = t, nis, n_used
+        np.concatenate((R.ravel(), s1, s2, b, P.diagonal()), out=row[_R.start:_SD.stop])    # variances: 1-sigma in build
         self._n += 1
 
     def build(self, *, reseeds, n_samples: int, n_rejected: int, gauge: str, nees_dof: int, nees=None,
