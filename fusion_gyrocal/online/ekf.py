@@ -47,10 +47,10 @@ def measurement_jacobian(R, s1, s2, w2, A=None) -> np.ndarray:
     return H
 
 
-def _quadratic_3(S, r) -> float:
-    """``r^T S^-1 r`` for a symmetric positive 3x3 ``S`` in scalar arithmetic (LDL^T; NaN if not positive)."""
+def _quadratic_3(S, x: float, y: float, z: float) -> float:
+    """``r^T S^-1 r`` of ``r = (x, y, z)`` for a symmetric positive 3x3 ``S`` in scalar arithmetic (LDL^T;
+    NaN if not positive)."""
     (a, b, c), (_, d, e), (_, _, f) = S.tolist()
-    x, y, z = r.tolist()
     if not a > 0:
         return float("nan")
     l1, l2 = b / a, c / a                       # S = L D L^T, L unit lower triangular
@@ -66,8 +66,13 @@ def _quadratic_3(S, r) -> float:
     return x * x / a + y1 * y1 / d2 + z1 * z1 / d3
 
 
+# flat indices in a (3, 12) Jacobian of the entries that depend on the sample: per row, -diag(s1) skew(u)
+# (two off-diagonal entries), diag(s1 u) (one) and -A diag(omega_2) (three); the rest is constant
+_H1_VARYING = np.array([1, 2, 3, 6, 7, 8, 12, 14, 16, 18, 19, 20, 24, 25, 29, 30, 31, 32])
+
+
 def _one_sample_jacobian() -> np.ndarray:
-    """A (3, 12) Jacobian buffer with the constant bias block (``d/d b = I``) already in place."""
+    """A (3, 12) Jacobian buffer with the constant entries in place: zeros and the bias block (``d/d b = I``)."""
     H = np.zeros((3, DIM))
     H[:, 9:12] = np.eye(3)
     return H
@@ -108,7 +113,7 @@ class ErrorStateEKF:
     """
 
     __slots__ = ("kf", "hold", "R", "s1", "s2", "b", "t", "noise_std", "drift", "step_prior",
-                 "_T", "_Pi", "_q", "_shock", "_G", "_folds", "_H1")
+                 "_T", "_Pi", "_q", "_shock", "_G", "_folds", "_H1", "_held")
 
     def __init__(self, hold: ScaleHold, drift, step_prior, noise_std, R, s1, s2, b, P, t: float,
                  inflate_s: float = 0.0):
@@ -138,7 +143,7 @@ class ErrorStateEKF:
         new.drift = self.drift if drift is None else drift
         new.step_prior = self.step_prior if step_prior is None else step_prior
         new.R, new.s1, new.s2, new.b, new.t = self.R, self.s1, self.s2, self.b, self.t   # never modified in place
-        new._T, new._Pi, new._G, new._folds = self._T, self._Pi, self._G, self._folds
+        new._T, new._Pi, new._G, new._folds, new._held = self._T, self._Pi, self._G, self._folds, self._held
         new._H1 = _one_sample_jacobian()
         TT = self._T @ self._T.T
         new._q, new._shock = _projected_cov(new.drift, TT), _projected_cov(new.step_prior, TT)
@@ -162,11 +167,16 @@ class ErrorStateEKF:
         self.kf.R = self.noise_std[0] ** 2 * np.eye(3) + self.noise_std[1] ** 2 * (A @ A.T)
         self._G = None
         self._folds = 0
+        self._held = self.hold.held_cov if self.hold.held_cov.any() else None    # None: nothing to add
 
     def project(self, P) -> np.ndarray:
         """``P`` moved off the held directions, which get the hold's covariance."""
-        P = self._Pi @ P @ self._Pi.T + self.hold.held_cov
-        return 0.5 * (P + P.T)
+        P = np.dot(np.dot(self._Pi, P), self._Pi.T)     # a new array: updated in place below
+        if self._held is not None:
+            P += self._held
+        P += P.T                                        # (numpy buffers the overlapping transpose)
+        P *= 0.5
+        return P
 
     def process_noise(self, dt: float) -> np.ndarray:
         """Random-walk process noise over ``dt`` seconds, projected off the held directions."""
@@ -208,27 +218,33 @@ class ErrorStateEKF:
         if dt > 0:
             # filterpy's predict with F = I and the error state at zero (reset by every fold) is exactly
             # P + Q: done directly, without its per-call copies of the prior (the per-sample hot path)
-            self.kf.Q = self.process_noise(dt)
-            self.kf.P = self.kf.P + self.kf.Q
+            self.kf.Q = Q = self._q * dt       # process_noise(dt)
+            self.kf.P = self.kf.P + Q
             self.t = float(t)
 
     def linearise_one(self, w1, w2) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         """One sample's ``(H, r, S, d2)``: Jacobian (3, 12), residual (3,), innovation covariance and
         ``r^T S^-1 r``, with scalar arithmetic and a reused Jacobian buffer (the per-sample hot path;
         the same values as :meth:`linearise` and :meth:`innovation_d2`)."""
-        R, s1, s2 = self.R, self.s1, self.s2
-        u = R @ (w2 / s2)                          # R diag(1/s2) omega_2
-        A = (s1[:, None] * R) / s2[None, :]
-        H = self._H1
-        u0, u1, u2 = u.tolist()
-        a0, a1, a2 = s1.tolist()
-        H[:, 0:6] = ((0.0, a0 * u2, -a0 * u1, a0 * u0, 0.0, 0.0),       # -diag(s1) skew(u), diag(s1 u)
-                     (-a1 * u2, 0.0, a1 * u0, 0.0, a1 * u1, 0.0),
-                     (a2 * u1, -a2 * u0, 0.0, 0.0, 0.0, a2 * u2))
-        np.multiply(A, -w2, out=H[:, 6:9])
-        r = w1 - A @ w2 - self.b
-        S = H @ self.kf.P @ H.T + self.kf.R
-        return H, r, S, _quadratic_3(S, r)
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = self.R.tolist()
+        a0, a1, a2 = self.s1.tolist()
+        c0, c1, c2 = self.s2.tolist()
+        b0, b1, b2 = self.b.tolist()
+        x0, x1, x2 = w2.tolist()
+        u0, u1, u2 = np.dot(self.R, w2 / self.s2).tolist()     # R diag(1/s2) omega_2
+        A00, A01, A02 = a0 * r00 / c0, a0 * r01 / c1, a0 * r02 / c2     # A = diag(s1) R diag(1/s2)
+        A10, A11, A12 = a1 * r10 / c0, a1 * r11 / c1, a1 * r12 / c2
+        A20, A21, A22 = a2 * r20 / c0, a2 * r21 / c1, a2 * r22 / c2
+        H = self._H1                               # its varying entries, written through the flat view
+        H.reshape(-1)[_H1_VARYING] = (a0 * u2, -a0 * u1, a0 * u0, A00 * -x0, A01 * -x1, A02 * -x2,   # row 0
+                                      -a1 * u2, a1 * u0, a1 * u1, A10 * -x0, A11 * -x1, A12 * -x2,   # row 1
+                                      a2 * u1, -a2 * u0, a2 * u2, A20 * -x0, A21 * -x1, A22 * -x2)   # row 2
+        y0, y1, y2 = w1.tolist()
+        # A omega_2 through numpy's product, as in :meth:`linearise` (BLAS fuses the multiply-adds)
+        d0, d1, d2 = np.dot(np.array(((A00, A01, A02), (A10, A11, A12), (A20, A21, A22))), w2).tolist()
+        e0, e1, e2 = y0 - d0 - b0, y1 - d1 - b1, y2 - d2 - b2        # omega_1 - A omega_2 - b
+        S = np.dot(np.dot(H, self.kf.P), H.T) + self.kf.R     # np.dot: less call overhead than @ on tiny arrays
+        return H, np.array((e0, e1, e2)), S, _quadratic_3(S, e0, e1, e2)
 
     def update_one(self, H, r) -> None:
         """One sample's update through filterpy's Kalman update (Joseph form), then the fold."""
@@ -291,12 +307,12 @@ class ErrorStateEKF:
         a fixed scale and of the pairs' log-means). Every ``REFRESH`` folds the nonlinear gauge is
         re-imposed and everything linearised is re-linearised at the new estimate.
         """
-        x = self.kf.x[:, 0]
-        e = np.exp(self._T @ x[LOG])   # never move a held direction
-        self.R = exp(x[ROT]) @ self.R
+        x = self.kf.x
+        e = np.exp(np.dot(self._T, x[LOG, 0]))   # never move a held direction
+        self.R = np.dot(exp(x[ROT, 0]), self.R)
         self.s1 = self.s1 * e[:3]
         self.s2 = self.s2 * e[3:]
-        self.b = self.b + x[BIAS]
+        self.b = self.b + x[BIAS, 0]
         self.kf.x = _ZERO_X            # filterpy's updates return a new state: sharing the zero is safe
         self.kf.P = self.project(self.kf.P)
         self._G = None

@@ -192,7 +192,8 @@ class TrackHistory:
                           (self.truth_bias - self.bias) / self.bias_std])
 
 
-# one recorded row: t, R_1_2 (9), scale_1 (3), scale_2 (3), bias (3), 1-sigma of the error state (12), nis, n_used
+# one recorded row: t, R_1_2 (9), scale_1 (3), scale_2 (3), bias (3), variances of the error state (12, the
+# diagonal of P as recorded: their 1-sigma is taken once in ``build``), nis, n_used
 _T, _R, _S1, _S2, _B, _SD, _NIS, _USED, _WIDTH = 0, slice(1, 10), slice(10, 13), slice(13, 16), slice(16, 19), \
     slice(19, 31), 31, 32, 33
 
@@ -255,8 +256,9 @@ class HistoryRecorder:
                 grown = np.empty((cap, _WIDTH))
                 grown[: self._n] = self._buf[: self._n]
                 self._buf = grown
-        np.concatenate(((t,), R.ravel(), s1, s2, b, np.sqrt(np.maximum(P.diagonal(), 0.0)), (nis, n_used)),
-                       out=self._buf[self._n])
+        row = self._buf[self._n]
+        row[_T], row[_NIS], row[_USED] = t, nis, n_used
+        np.concatenate((R.ravel(), s1, s2, b, P.diagonal()), out=row[_R.start:_SD.stop])    # variances: 1-sigma in build
         self._n += 1
 
     def build(self, *, reseeds, n_samples: int, n_rejected: int, gauge: str, nees_dof: int, nees=None,
@@ -264,7 +266,7 @@ class HistoryRecorder:
         """The frozen history; ``nees`` (M,) and ``truth`` ``(R_1_2, scale_1, scale_2, bias)`` per row, if given."""
         M = self._n
         a = self._buf[:M].copy()
-        sd = a[:, _SD]
+        sd = np.sqrt(np.maximum(a[:, _SD], 0.0))
         modes = self._modes
         mode = "mixed" if len(modes) > 1 else (next(iter(modes)) if modes else "none")
         tr = (None,) * 4 if truth is None else truth
