@@ -70,6 +70,18 @@ def as_rates(name: str, omega, *, length: int | None = None) -> np.ndarray:
     return arr
 
 
+def as_rate_pair(omega_1, omega_2, mask=None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Sample-aligned ``(omega_1, omega_2, mask)`` checked once: two (N, 3) rate arrays (:func:`as_rates`) and
+    a bool mask of shape (N,) or None."""
+    w1 = as_rates("omega_1", omega_1)
+    w2 = as_rates("omega_2", omega_2, length=w1.shape[0])
+    if mask is not None:
+        mask = np.asarray(mask, dtype=bool)
+        if mask.shape != (w1.shape[0],):
+            raise InputError(f"mask: expected shape ({w1.shape[0]},), got {mask.shape}")
+    return w1, w2, mask
+
+
 def noise_pair(noise_std) -> tuple[float, float]:
     """``(sigma_1, sigma_2)`` from one value or one per gyro (rad/s per sample), checked positive and finite."""
     arr = np.broadcast_to(np.asarray(noise_std, dtype=float), (2,))
@@ -254,13 +266,8 @@ class Moments:
         InputError
             On a wrong shape, unequal lengths or a non-finite sample.
         """
-        w1 = as_rates("omega_1", omega_1)
-        w2 = as_rates("omega_2", omega_2, length=w1.shape[0])
+        w1, w2, mask = as_rate_pair(omega_1, omega_2, mask)
         n = w1.shape[0]
-        if mask is not None:
-            mask = np.asarray(mask, dtype=bool)
-            if mask.shape != (n,):
-                raise InputError(f"mask: expected shape ({n},), got {mask.shape}")
         n_chunks = -(-n // chunk_size)
         workers = max(1, min(threads or _default_threads(), n_chunks // 4))
         bounds = np.linspace(0, n_chunks, workers + 1).astype(int) * chunk_size

@@ -38,7 +38,7 @@ import numpy as np
 
 from ..core.gauge import Gauge, null_directions, oblique_projector
 from ..core.model import BIAS, ROT, PairCalibration, mark_undetermined
-from ..core.moments import Moments, as_rates, noise_pair, window_moments
+from ..core.moments import Moments, as_rate_pair, noise_pair, window_moments
 from ..core.observability import A_of, per_axis_snr, seed_configuration
 from ..core.solve import solve
 from ..errors import ConfigurationError, InputError, OptionError
@@ -665,12 +665,7 @@ def calibrate_pair_graph(omega_1, omega_2, *, noise_std=None, window: int = 1000
         raise OptionError(f"solver: expected 'lm' or 'isam2', got {solver!r}")
     if rotation_increments is not None and rate_hz is None:
         raise ConfigurationError("rotation_increments need rate_hz (the sample rate of omega_1), got None")
-    w1 = as_rates("omega_1", omega_1)
-    w2 = as_rates("omega_2", omega_2, length=w1.shape[0])
-    if mask is not None:
-        mask = np.asarray(mask, dtype=bool)
-        if mask.shape != (w1.shape[0],):
-            raise InputError(f"mask: expected shape ({w1.shape[0]},), got {mask.shape}")
+    w1, w2, mask = as_rate_pair(omega_1, omega_2, mask)
     windows = window_moments(w1, w2, window, mask=mask, with_starts=True)
     if not windows:
         raise InputError(f"expected at least one window of >= 2 samples, got {w1.shape[0]} samples")

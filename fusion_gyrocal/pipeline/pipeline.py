@@ -14,7 +14,7 @@ import numpy as np
 
 from ..core.direct import solve_A
 from ..core.model import PairCalibration
-from ..core.moments import Moments, as_rates
+from ..core.moments import Moments, as_rate_pair
 from ..core.noise import difference_noise_std
 from ..core.solve import solve
 from ..errors import InputError, NotRigidError, OptionError
@@ -143,12 +143,7 @@ def prepare_samples(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options:
         if timing:
             raise OptionError(f"{', '.join(timing)}: act on timestamps; expected t_1 and t_2 with them, got "
                               "sample-aligned input")
-        w1 = as_rates("omega_1", omega_1)
-        w2 = as_rates("omega_2", omega_2, length=w1.shape[0])
-        if mask is not None:
-            mask = np.asarray(mask, dtype=bool)
-            if mask.shape != (w1.shape[0],):
-                raise InputError(f"mask: expected a bool array of shape ({w1.shape[0]},), got shape {mask.shape}")
+        w1, w2, mask = as_rate_pair(omega_1, omega_2, mask)
         if o.saturation_limit is not None:  # the sensor ranges are known: mask the clipped samples
             from .streams import saturation_mask
             clipped = saturation_mask(w1, o.saturation_limit[0]) | saturation_mask(w2, o.saturation_limit[1])
