@@ -131,17 +131,24 @@ def _accumulate(w1, w2, mask, lo, hi, chunk_size):
         n_tot += x.shape[1]               # than numpy's syrk for A A^T at this shape
     if n_tot == 0:
         return 0, np.zeros(6), np.zeros((6, 6))
+    _check_gram(G, w1, w2, lo, hi)
+    s = G[6, :6]
+    d = s / n_tot
+    scat = G[:6, :6] - np.outer(s, d)
+    if np.any(d**2 > 1e6 * np.maximum(np.diag(scat) / n_tot, 1e-300)):
+        return _accumulate_chan(w1, w2, mask, lo, hi, chunk_size)
+    return n_tot, shift + d, 0.5 * (scat + scat.T)
+
+
+def _check_gram(G, w1, w2, lo: int, hi: int) -> None:
+    """Refuse a non-finite Gram matrix of samples ``lo:hi``: a non-finite sample (its sums), else values whose
+    squares overflow."""
     s = G[6, :6]
     if not np.isfinite(s).all():
         name, arr = ("omega_1", w1) if not np.isfinite(s[:3]).all() else ("omega_2", w2)
         raise _first_bad_row(name, np.asarray(arr[lo:hi]), lo)
     if not np.isfinite(G).all():
         raise _too_large(w1, w2, lo, hi)
-    d = s / n_tot
-    scat = G[:6, :6] - np.outer(s, d)
-    if np.any(d**2 > 1e6 * np.maximum(np.diag(scat) / n_tot, 1e-300)):
-        return _accumulate_chan(w1, w2, mask, lo, hi, chunk_size)
-    return n_tot, shift + d, 0.5 * (scat + scat.T)
 
 
 def _accumulate_chan(w1, w2, mask, lo, hi, chunk_size):
@@ -167,12 +174,8 @@ def _accumulate_chan(w1, w2, mask, lo, hi, chunk_size):
             continue
         with np.errstate(over="ignore", invalid="ignore"):
             G = np.dot(x, x.T)
+        _check_gram(G, w1, w2, start, stop)
         s = G[6, :6]
-        if not np.isfinite(s).all():
-            name, arr = ("omega_1", w1) if not np.isfinite(s[:3]).all() else ("omega_2", w2)
-            raise _first_bad_row(name, np.asarray(arr[start:stop]), start)
-        if not np.isfinite(G).all():
-            raise _too_large(w1, w2, start, stop)
         c_mean = s / m
         c_scat = G[:6, :6] - np.outer(s, c_mean)
         spread = np.diag(c_scat) / m
