@@ -37,6 +37,8 @@ from .errors import OptionError
 
 METHODS = ("ml", "direct")
 GAUGES = ("unit_prior", "fixed")
+COVARIANCES = ("auto", "model", "robust")
+NOISE_MODELS = ("identify", "residual")
 
 
 # ------------------------------------------------------------------------------------------ checks
@@ -233,6 +235,14 @@ class Options(FrozenOptions):
         "reported in ``skew_rotation_covariance`` and added to the covariance.",
         "--skew-std", type=float, nargs="+", metavar="STD",
         help="remaining skew uncertainty for the error budget, one value or one per gyro")
+    covariance: str = _option(
+        "auto", _choice(COVARIANCES), "solve",
+        "Which covariance is reported (``'ml'`` solves of :func:`~fusion_gyrocal.calibrate_pair`). ``'auto'`` "
+        "(default): in every direction the larger of the noise model's (inverse Fisher information) and the "
+        "block-robust sandwich from per-window scores (:mod:`~fusion_gyrocal.core.robust`), which covers "
+        "coloured noise and model error; ``'model'``: the noise model's alone; ``'robust'``: the sandwich alone.",
+        "--covariance", choices=COVARIANCES,
+        help="reported covariance: auto (larger of noise model and block-robust), model, robust")
     min_snr: float = _option(
         10.0, _positive, "solve",
         "Smallest SNR of any principal motion direction accepted (Lemma 1).",
@@ -282,6 +292,14 @@ class Options(FrozenOptions):
         "--bias-walk", type=float, nargs="+", metavar="RAD_S",
         help="bias random-walk step std per sample (rad/s), one value or one per gyro: the exact drifting-bias "
              "model (needs --noise-std)")
+    noise_model: str = _option(
+        "identify", _choice(NOISE_MODELS), "pipeline",
+        "Where the noise comes from when ``noise_std`` is not given. ``'identify'`` (default): white noise, bias "
+        "random walk and rate-dependent misfit identified from the pair's own residual "
+        "(:func:`~fusion_gyrocal.core.noise.identify_noise`), the bias model (constant or random walk) chosen "
+        "from it; ``'residual'``: the least-squares residual's variance as white noise, constant bias.",
+        "--noise-model", choices=NOISE_MODELS,
+        help="noise when --noise-std is not given: identify (Allan fit of the residual, default) or residual")
     flex_rejection: object = _option(
         "auto", _flex, "pipeline",
         "The paper's flex rejection (Section VI.C, Eq. 42): ``'auto'`` gates when more than 1% of the samples "

@@ -175,11 +175,19 @@ def test_calibrate_pair_does_not_mutate_input():
     np.testing.assert_array_equal(w2, sim.omega_2)
 
 
-def test_calibrate_pair_estimates_noise_from_residual():
+def test_calibrate_pair_identifies_noise_from_residual_by_default():
     sim = simulate_pair(rng=2, scale_1=S1, scale_2=S2, bias_walk_std=0.0)
     cal = calibrate_pair(sim.omega_1, sim.omega_2)
     np.testing.assert_allclose(cal.noise_std, PAPER_NOISE_STD, rtol=0.05)
-    assert cal.noise_source.startswith("residual")
+    assert cal.noise_source.startswith("identified") and cal.noise_model.kind == "white noise"
+    assert cal.noise_model.bias_model == "constant"
+
+
+def test_calibrate_pair_noise_model_residual_keeps_the_least_squares_residual():
+    sim = simulate_pair(rng=2, scale_1=S1, scale_2=S2, bias_walk_std=0.0)
+    cal = calibrate_pair(sim.omega_1, sim.omega_2, noise_model="residual")
+    np.testing.assert_allclose(cal.noise_std, PAPER_NOISE_STD, rtol=0.05)
+    assert cal.noise_source.startswith("residual") and cal.noise_model is None
 
 
 def test_calibrate_pair_snr_follows_paper_definition():
@@ -230,7 +238,7 @@ def test_pair_calibration_to_dict_round_trip_is_json():
     np.testing.assert_array_equal(back.R_1_2, cal.R_1_2)
     np.testing.assert_array_equal(back.covariance, cal.covariance)
     assert back.configuration == cal.configuration and back.gauge == cal.gauge
-    assert cal.to_dict()["format_version"] == "1.1"
+    assert cal.to_dict()["format_version"] == "1.2"
 
 
 def _strict_json(text):

@@ -19,6 +19,8 @@ REACH_FLAGS = ["--min-snr", "3.5", "--parallel-tol", "7", "--noise-std", "0.0017
 # every option with a flag: (argv, the keywords it must equal); at 100 Hz for --bias-window
 FLAG_EXAMPLES = {
     "method": (["--method", "direct"], {"method": "direct"}),
+    "covariance": (["--covariance", "model"], {"covariance": "model"}),
+    "noise_model": (["--noise-model", "residual"], {"noise_model": "residual"}),
     "noise_std": (["--noise-std", "0.001", "0.002"], {"noise_std": (0.001, 0.002)}),
     "gauge": (["--gauge", "fixed"], {"gauge": "fixed"}),
     "scale_prior_std": (["--scale-prior", "0.01"], {"scale_prior_std": 0.01}),
@@ -40,6 +42,8 @@ FLAG_EXAMPLES = {
 # every option: values its check must refuse
 BAD_VALUES = {
     "method": ["fast", 1, None, True],
+    "covariance": ["sandwich", 1, None],
+    "noise_model": ["allan", 0, None],
     "noise_std": [0, -1e-3, math.nan, math.inf, [1.0, 2.0, 3.0], [], "x"],
     "gauge": ["free", 1, None],
     "scale_prior_std": [0, -1.0, math.nan, "x"],

@@ -44,7 +44,7 @@ from ..errors import ConfigurationError, FormatError, GyroCalError, InputError, 
 from .gauge import Gauge, constrained_inverse
 from .model import PairCalibration, from_json_list, to_json_list, to_json_number, mark_undetermined
 from .moments import Moments, as_rates, window_moments
-from .observability import A_of, classify, dA_dp, per_axis_snr
+from .observability import A_of, classify, dA_dp, per_axis_snr, residual_weight
 from ..lie import exp, skew
 from .refine import fisher_scoring, residual_scatter
 
@@ -404,7 +404,7 @@ class ArrayCalibration:
         J[3:6, 3 * n + 3 * i:3 * n + 3 * i + 3] = np.eye(3)
         J[6:9, 3 * n + 3 * j:3 * n + 3 * j + 3] = np.eye(3)
         P9 = J @ _log_parameter_covariance(self) @ J.T
-        cov = pair_covariance(P9, R, s1, s2, A, m, noise)
+        cov = pair_covariance(P9, R, s1, s2, A, m, np.linalg.inv(residual_weight(A, noise)) / m.count)
         obs = np.stack([self.scale_observable[i], self.scale_observable[j]])
         mark_undetermined(cov, obs)
         M = residual_scatter(A, m.scatter)

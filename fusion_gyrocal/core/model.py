@@ -31,10 +31,10 @@ import numpy as np
 from ..errors import FormatError, InputError
 from ..lie import canonical_rotvec, log
 
-FORMAT_VERSION = "1.1"
+FORMAT_VERSION = "1.2"
 #: Versions :meth:`PairCalibration.from_dict` reads: 1.0 wrote every non-finite number as ``null``
 #: (read back as inf in arrays, NaN in scalars); 1.1 writes them as the strings of :data:`NON_FINITE`.
-READABLE_VERSIONS = ("1.0", FORMAT_VERSION)
+READABLE_VERSIONS = ("1.0", "1.1", FORMAT_VERSION)
 #: Non-finite numbers in JSON: strings any standard JSON parser reads, distinct for NaN and +-inf.
 NON_FINITE = {"NaN": float("nan"), "Infinity": float("inf"), "-Infinity": float("-inf")}
 CONFIGURATIONS = ("general", "one_axis_pair_parallel", "all_axes_parallel")
@@ -127,6 +127,18 @@ class PairCalibration:
         Section VI.C; near 0 for a rigid pair limited by white noise). NaN when not computed.
     rejected_fraction : float
         Fraction of samples rejected by flex/outlier gating.
+    covariance_basis : str
+        What ``covariance`` rests on: the noise model's inverse Fisher information, the block-robust
+        sandwich (:mod:`~fusion_gyrocal.core.robust`), or the larger of the two in every direction.
+    lack_of_fit : float
+        Chi-square of the residual per degree of freedom against the noise model (1 when the model
+        explains the residual; rate-dependent misfit, coloured noise or flex make it larger).
+    robust_inflation : float
+        Largest ratio of the block-robust variance to the noise model's over all directions (NaN when
+        not computed): how much more the estimate scatters than the noise model says.
+    noise_model : NoiseModel or None
+        The noise model identified from the pair's residual (:func:`~fusion_gyrocal.core.noise.identify_noise`)
+        when ``noise_std`` came from it.
     notes : tuple of str
         Human-readable warnings (weak axes, prior-dominated directions, ...).
     """
@@ -154,6 +166,10 @@ class PairCalibration:
     unexplained_fraction: float = float("nan")
     rate_residual_correlation: float = float("nan")
     rejected_fraction: float = 0.0
+    covariance_basis: str = "noise model"
+    lack_of_fit: float = float("nan")
+    robust_inflation: float = float("nan")
+    noise_model: Any = None
     notes: tuple = ()
 
     def __post_init__(self):
@@ -209,6 +225,8 @@ class PairCalibration:
                 v = to_json_number(v)
             elif isinstance(v, tuple):
                 v = list(v)
+            elif f.name == "noise_model" and v is not None:
+                v = v.to_dict()
             out[f.name] = v
         return out
 
@@ -227,7 +245,11 @@ class PairCalibration:
             if f.name not in d:
                 continue
             v = d[f.name]
-            if f.name in _ARRAY_SHAPES:
+            if f.name == "noise_model":
+                if v is not None:
+                    from .noise import NoiseModel
+                    v = NoiseModel.from_dict(v)
+            elif f.name in _ARRAY_SHAPES:
                 v = from_json_list(v, bool if f.name == "scale_observable" else np.float64, legacy)
             elif f.name != "rigid" and (v is None or isinstance(v, str) and v in NON_FINITE):
                 v = float("nan") if v is None else NON_FINITE[v]

@@ -389,6 +389,102 @@ def window_moments(omega_1, omega_2, window: int, *, mask=None, with_starts: boo
     return out
 
 
+MAX_SCORE_WINDOWS = 8192   # windows behind a block-robust covariance: all of them up to this many
+_RUN = 16                  # else runs of this many consecutive windows, spread evenly over the log
+
+
+@dataclass(frozen=True)
+class WindowStats:
+    """Count, mean and centred scatter of ``[omega_1; omega_2]`` in consecutive windows of one log.
+
+    What a block-robust (sandwich) covariance needs (:mod:`fusion_gyrocal.core.robust`): the
+    per-window scores of the likelihood are linear in these scatters. Windows are consecutive
+    within runs; ``run`` numbers the runs, so only neighbours of the same run are adjacent.
+
+    Attributes
+    ----------
+    count : ndarray (W,)
+        Valid samples in each window.
+    mean : ndarray (W, 6)
+    scatter : ndarray (W, 6, 6)
+        Scatter of each window about its own mean.
+    run : ndarray (W,) of int
+    window : int
+        Samples per window.
+    weight : float
+        Samples of the log over samples in these windows (1 when every window is here): the sums
+        over windows are scaled by it to stand for the whole log.
+    pooled : bool
+        True when each window is a bias segment of its own (``bias_window``): scores use the
+        within-window scatter only; else the log's mean centres every window.
+    """
+
+    count: np.ndarray
+    mean: np.ndarray
+    scatter: np.ndarray
+    run: np.ndarray
+    window: int
+    weight: float = 1.0
+    pooled: bool = False
+
+    @property
+    def n_windows(self) -> int:
+        return int(self.count.size)
+
+
+def window_stats(omega_1, omega_2, window: int, *, mask=None, pooled: bool = False,
+                 max_windows: int = MAX_SCORE_WINDOWS) -> WindowStats:
+    """:class:`WindowStats` of consecutive windows of ``window`` samples, in one vectorised pass.
+
+    Up to ``max_windows`` full windows all are used; beyond, runs of 16 consecutive windows spread
+    evenly over the log (work bounded per log, not per sample). Windows with fewer than two valid
+    samples are left out; the partial window at the end is left out.
+    """
+    w1 = as_rates("omega_1", omega_1)
+    w2 = as_rates("omega_2", omega_2, length=w1.shape[0])
+    window = int(window)
+    if window < 2:
+        raise OptionError(f"window: expected at least 2 samples per window, got {window}")
+    n_win = w1.shape[0] // window
+    if n_win <= max_windows:
+        idx = np.arange(n_win)
+        run = np.zeros(n_win, int)
+    else:
+        n_runs = max_windows // _RUN
+        starts = np.linspace(0, n_win - _RUN, n_runs).astype(int)
+        idx = (starts[:, None] + np.arange(_RUN)[None, :]).ravel()
+        run = np.repeat(np.arange(n_runs), _RUN)
+    mask = None if mask is None else np.asarray(mask, bool)
+    parts = []
+    step = max(1, 65536 // window)   # windows per gather: a few MiB at a time
+    for lo in range(0, idx.size, step):
+        rows = idx[lo:lo + step, None] * window + np.arange(window)[None, :]
+        x = np.concatenate([np.asarray(w1)[rows], np.asarray(w2)[rows]], axis=2).astype(np.float64)
+        parts.append(_stats_of(x, None if mask is None else mask[rows], run[lo:lo + step]))
+    total = float(n_win * window if mask is None else np.count_nonzero(mask[: n_win * window]))
+    return _join(parts, window, total, pooled)
+
+
+def _stats_of(x, m, run):
+    """Per-window (count, mean, scatter, run) of ``x`` (W, n, 6); ``m`` (W, n) marks valid rows."""
+    ok = np.isfinite(x).all(axis=2)
+    m = ok if m is None else (m & ok)
+    x = np.where(m[:, :, None], x, 0.0)
+    cnt = m.sum(axis=1).astype(np.float64)
+    keep = cnt >= 2
+    x, m, cnt, run = x[keep], m[keep], cnt[keep], run[keep]
+    mean = x.sum(axis=1) / cnt[:, None]
+    xc = (x - mean[:, None, :]) * m[:, :, None]
+    return cnt, mean, np.matmul(xc.transpose(0, 2, 1), xc), run
+
+
+def _join(parts, window: int, total: float, pooled: bool) -> WindowStats:
+    cnt, mean, scatter, run = (np.concatenate([p[i] for p in parts]) if parts else None for i in range(4))
+    if cnt is None or cnt.size == 0:
+        return WindowStats(np.zeros(0), np.zeros((0, 6)), np.zeros((0, 6, 6)), np.zeros(0, int), window, 1.0, pooled)
+    return WindowStats(cnt, mean, scatter, run, window, max(total / cnt.sum(), 1.0), pooled)
+
+
 def random_walk_gain(bias_walk_std, noise_std) -> tuple[float, float]:
     """Steady-state Kalman gain ``K`` of a random-walk bias seen in white noise, and ``sqrt((P + R) / R)``.
 
@@ -405,7 +501,8 @@ def random_walk_gain(bias_walk_std, noise_std) -> tuple[float, float]:
 
 
 def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask=None,
-                             chunk_size: int = CHUNK_SIZE, settle: int | None = None) -> tuple[Moments, float]:
+                             chunk_size: int = CHUNK_SIZE, settle: int | None = None,
+                             window: int | None = None) -> tuple:
     """Moments for a bias that drifts as a random walk, by the Kalman innovations filter.
 
     With ``r_k = omega_1(k) - A omega_2(k) = b_k + n_k``, a random-walk bias
@@ -426,6 +523,9 @@ def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask
         White-noise std per sample (rad/s).
     settle : int, optional
         Leading filtered samples dropped while the filter settles (default ``5 / K``).
+    window : int, optional
+        Also return the :class:`WindowStats` of the innovations in windows of this many samples
+        (each chunk's whole windows; for the block-robust covariance).
 
     Returns
     -------
@@ -434,6 +534,8 @@ def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask
         ``mean_1 - A mean_2`` is the mean combined bias over the log.
     noise_scale : float
         ``sqrt((P + R) / R)``: multiply the noise std by it for the innovations' likelihood.
+    stats : WindowStats
+        Only with ``window``.
     """
     from scipy.signal import lfilter
 
@@ -445,6 +547,7 @@ def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask
     idx = np.flatnonzero(keep)
     zi = None
     out, raw = Moments.empty(), Moments.empty()
+    parts = []
     done = 0
     for start in range(0, idx.size, chunk_size):
         sel = idx[start:start + chunk_size]
@@ -458,6 +561,12 @@ def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask
         done += len(sel)
         if lo < len(y):
             out = out.merge(Moments.from_samples(y[lo:, :3], y[lo:, 3:]))
+            if window is not None and len(y) - lo >= window:
+                k = (len(y) - lo) // window
+                parts.append(_stats_of(y[lo:lo + k * window].reshape(k, window, 6), None, np.full(k, start)))
     if out.count < 4:
         raise InputError(f"expected more than {settle} samples for the drifting-bias filter to settle, got {idx.size}")
-    return Moments(out.count, raw.mean, out.scatter, 1), noise_scale
+    moments = Moments(out.count, raw.mean, out.scatter, 1)
+    if window is None:
+        return moments, noise_scale
+    return moments, noise_scale, _join(parts, int(window), out.count, False)

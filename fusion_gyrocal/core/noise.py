@@ -34,7 +34,7 @@ loses nothing and keeps every sample). :attr:`NoiseModel.calibrate_keywords` giv
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -187,6 +187,44 @@ class NoiseModel:
         if self.bias_walk_std is not None:
             out["bias_walk_std"] = self.bias_walk_std
         return out
+
+    def to_dict(self) -> dict:
+        """JSON-ready dictionary (non-finite numbers as ``"NaN"``/``"Infinity"`` strings, as the calibration's)."""
+        from .model import to_json_list, to_json_number
+
+        def enc(v):
+            if isinstance(v, np.ndarray):
+                return to_json_list(v)
+            if isinstance(v, (tuple, list)):
+                return [enc(x) for x in v]
+            if isinstance(v, float):
+                return to_json_number(v)
+            return v
+        return {f.name: enc(getattr(self, f.name)) for f in fields(self)}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "NoiseModel":
+        """Inverse of :meth:`to_dict`."""
+        from ..errors import FormatError
+        from .model import NON_FINITE, from_json_list
+
+        def num(v):
+            return NON_FINITE[v] if isinstance(v, str) else float(v)
+        try:
+            kw = dict(d)
+            for name in ("taus", "adev_fit", "adev"):
+                kw[name] = from_json_list(kw[name], np.float64)
+            for name in ("noise_std", "noise_std_uncertainty", "misfit_gain", "fit_taus", "bias_walk_std"):
+                if kw.get(name) is not None:
+                    kw[name] = tuple(num(x) for x in kw[name])
+            for name in ("rate_hz", "residual_noise_std", "residual_noise_std_uncertainty", "residual_walk_std",
+                         "residual_walk_std_uncertainty", "bias_instability", "bias_instability_uncertainty",
+                         "white_std_at_rest", "misfit_share"):
+                kw[name] = num(kw[name])
+            kw["notes"] = tuple(kw.get("notes", ()))
+            return cls(**kw)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise FormatError(f"calibration: expected a noise_model with the fields of NoiseModel, got {exc}") from None
 
     def describe(self) -> str:
         """One line per number with its source (for reports and the CLI)."""

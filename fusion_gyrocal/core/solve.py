@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import InputError, NotRigidError
+from ..errors import InputError, NotRigidError, OptionError
 from ..lie import log, nearest_rotation
 from ..options import Options
 from .direct import decompose, solve_A
 from .gauge import Gauge, constrained_inverse
 from .model import BIAS, ROT, PairCalibration, mark_undetermined
-from .moments import Moments, noise_pair
+from .moments import Moments, WindowStats, noise_pair
 from .observability import (A_of, check_excitation, check_samples, classify, dA_dp, fisher_information,
                             per_axis_snr, residual_weight, signal_scatter)
 from .refine import residual_scatter, refine_ml
@@ -40,6 +40,9 @@ def _skew_compensation(intrinsics):
     U = S / np.diag(S)[None, :]
     return np.linalg.inv(U)
 
+
+#: Fewest windows behind a block-robust covariance (fewer give too noisy an estimate of the scores' variance).
+MIN_ROBUST_WINDOWS = 20
 
 #: Largest plausible ratio of the two gyros' rate magnitudes (scale factors of real gyros differ by percent).
 MAX_GAIN_RATIO = 1.5
@@ -75,7 +78,7 @@ def _transform(moments: Moments, T1, T2) -> Moments:
 
 
 def solve(moments: Moments, options: Options | None = None, *, noise_ratio: float | None = None,
-          **keywords) -> PairCalibration:
+          windows: WindowStats | None = None, noise_model=None, **keywords) -> PairCalibration:
     """Calibrate a pair from its sufficient statistics.
 
     Pipeline: direct least squares for A (Eq. 17) -> rigidity test -> excitation test (Lemma 1) ->
@@ -95,6 +98,15 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         ``sigma_1 / sigma_2`` used to split the residual variance when ``noise_std`` is not given
         (only the sum ``sigma_1^2 + sigma_2^2`` is observable from the residual); default 1.
         :func:`~fusion_gyrocal.calibrate_pair` estimates it from each stream's third differences.
+    windows : WindowStats, optional
+        Per-window statistics of the same samples (:func:`~fusion_gyrocal.core.moments.window_stats`):
+        with them the covariance is also computed block-robustly (:mod:`~fusion_gyrocal.core.robust`)
+        and ``options.covariance`` chooses what is reported. Without them the Fisher covariance is
+        reported, inflated by the residual's chi-square per degree of freedom when a user's
+        ``noise_std`` explains less than the residual.
+    noise_model : NoiseModel, optional
+        The identified noise model behind ``options.noise_std`` (:func:`~fusion_gyrocal.core.noise.identify_noise`),
+        carried into the result.
     **keywords
         Fields of :class:`~fusion_gyrocal.options.Options` (``method``, ``noise_std``, ``gauge``, ...),
         applied on top of ``options``.
@@ -132,6 +144,8 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         noise = _residual_noise(moments, A_ls, ratio)
         noise_source = ("residual (split equally between the gyros)" if noise_ratio is None else
                         f"residual, split {ratio:.3g}:1 by the third differences of each stream")
+    elif noise_model is not None:
+        noise_source = f"identified from the pair's residual ({noise_model.kind}, bias {noise_model.bias_model})"
     else:
         noise_source = "user"
     if rigid:
@@ -164,19 +178,48 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         P9 = _ml_covariance(F, s1, s2, config, gauge, scale_prior_std)
     else:
         P9 = _direct_covariance(moments, A_ls, noise, config, gauge)
-    # residual consistency: inflate when the data scatter more than the stated noise explains
+    # lack of fit: the residual's chi-square per degree of freedom against the stated noise
     W = residual_weight(A, noise)
     M = residual_scatter(A, moments.scatter)
-    chi2 = float(np.trace(W @ M))
     dof = max(3.0 * moments.dof - 8.0, 1.0)
-    ratio = chi2 / dof
+    lack_of_fit = float(np.trace(W @ M)) / dof
     if not rigid:
         notes.append(f"NOT RIGID: {100 * unexplained:.1f}% of the motion is unexplained; do not use this estimate")
-    if noise_source == "user" and ratio > 1.5:
-        P9 = P9 * ratio
-        notes.append(f"residuals are {np.sqrt(ratio):.2f}x larger than noise_std explains (flex, skew, time offset "
-                     f"or a wrong noise_std?); covariance inflated by {ratio:.2f}")
-    cov = pair_covariance(P9, R, s1, s2, A, moments, noise)
+    Sigma_r = np.linalg.inv(W) / moments.count      # covariance of the mean residual under the noise model
+    inflation = float("nan")
+    basis = "noise model (inverse Fisher information, Appendix B)" if method == "ml" else \
+        "noise model (first-order propagation of Cov(A))"
+    robust = windows is not None and rigid and method == "ml" and o.covariance != "model" \
+        and windows.n_windows >= MIN_ROBUST_WINDOWS
+    if robust:
+        from .robust import bias_variance, effective_windows, larger, sandwich, score_variance, window_scores
+        V = score_variance(window_scores(R, s1, s2, noise, windows), windows)
+        P_rob = sandwich(F, V, None if scale_prior_std is not None else gauge.constraints(config.groups, [s1, s2], 3),
+                         _prior_information(s1, s2, scale_prior_std))
+        n_eff = effective_windows(windows)
+        P9_max, inflation = larger(P9, P_rob, n_eff)
+        P9 = P_rob if o.covariance == "robust" else P9_max
+        if not windows.pooled and moments.segments == 1:
+            Sigma_r = larger(Sigma_r, bias_variance(A, bias, windows), n_eff)[0] if o.covariance == "auto" else \
+                bias_variance(A, bias, windows)
+        basis = (f"block-robust (sandwich over {windows.n_windows} windows of {windows.window} samples)"
+                 if o.covariance == "robust" else
+                 f"noise model, raised to the block-robust sandwich ({windows.n_windows} windows of "
+                 f"{windows.window} samples) where that is significantly larger")
+        if inflation > 2.0:
+            notes.append(f"the estimate scatters {np.sqrt(inflation):.2g}x more than the noise model explains (residual "
+                         f"chi2/dof {lack_of_fit:.3g}: rate-dependent scale or cross-axis error, coloured noise, timing, "
+                         "flex); the covariance is the block-robust one in those directions")
+    elif o.covariance == "robust":
+        raise OptionError("covariance='robust': expected per-window statistics (windows=...) of an 'ml' solve of a "
+                          f"rigid pair with at least {MIN_ROBUST_WINDOWS} windows; calibrate_pair computes them")
+    elif noise_source == "user" and lack_of_fit > 1.5:
+        P9 = P9 * lack_of_fit
+        Sigma_r = Sigma_r * lack_of_fit
+        basis += f", inflated by the residual's chi2/dof {lack_of_fit:.3g}"
+        notes.append(f"residuals are {np.sqrt(lack_of_fit):.2f}x larger than noise_std explains (flex, skew, time "
+                     f"offset or a wrong noise_std?); covariance inflated by {lack_of_fit:.2f}")
+    cov = pair_covariance(P9, R, s1, s2, A, moments, Sigma_r)
     if scale_prior_std is None:
         mark_undetermined(cov, config.scale_observable)
     sk = np.asarray(o.skew_std, dtype=float)
@@ -200,15 +243,23 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         n_samples=int(moments.count), noise_std=np.array(noise), noise_source=noise_source,
         residual_rms=float(np.sqrt(max(np.trace(M), 0.0) / (3.0 * max(moments.dof, 1.0)))), method=method,
         iterations=iterations, skew_rotation_covariance=skew_cov, bias_segments=moments.segments,
-        rigid=rigid, unexplained_fraction=unexplained, notes=tuple(notes))
+        rigid=rigid, unexplained_fraction=unexplained, covariance_basis=basis, lack_of_fit=lack_of_fit,
+        robust_inflation=inflation, noise_model=noise_model, notes=tuple(notes))
+
+
+def _prior_information(s1, s2, scale_prior_std):
+    """Information (in ``[dtheta, log s_1, log s_2]``) of the N(1, std^2) scale prior, or None without one."""
+    if scale_prior_std is None:
+        return None
+    P = np.zeros((9, 9))
+    s = np.concatenate([s1, s2])
+    P[3:, 3:] = np.diag(s**2 / scale_prior_std**2)
+    return P
 
 
 def _ml_covariance(F, s1, s2, config, gauge, scale_prior_std):
     if scale_prior_std is not None:
-        s = np.concatenate([s1, s2])
-        H = F.copy()
-        H[3:, 3:] += np.diag(s**2 / scale_prior_std**2)
-        return np.linalg.inv(H)
+        return np.linalg.inv(F + _prior_information(s1, s2, scale_prior_std))
     return constrained_inverse(F, gauge.constraints(config.groups, [s1, s2], 3))
 
 
@@ -235,15 +286,15 @@ def _direct_covariance(moments, A_ls, noise, config, gauge):
     return J @ cov_A @ J.T
 
 
-def pair_covariance(P9, R, s1, s2, A, moments, noise):
-    """12x12 covariance of ``[dtheta, scale_1, scale_2, bias]`` from that of ``[dtheta, log s]``."""
+def pair_covariance(P9, R, s1, s2, A, moments, Sigma_r):
+    """12x12 covariance of ``[dtheta, scale_1, scale_2, bias]`` from that of ``[dtheta, log s]`` and the
+    covariance ``Sigma_r`` of the mean residual (the bias estimate's own noise)."""
     Jl = np.diag(np.concatenate([np.ones(3), s1, s2]))
     D = dA_dp(R, s1, s2)
     G = np.einsum("pij,j->ip", D, moments.mean_2)  # d(A m_2)/dp, so db = -G dp
-    Sigma_r = np.linalg.inv(residual_weight(A, noise))
     cov = np.zeros((12, 12))
     cov[:9, :9] = Jl @ P9 @ Jl.T
-    cov[BIAS, BIAS] = Sigma_r / moments.count + G @ P9 @ G.T
+    cov[BIAS, BIAS] = Sigma_r + G @ P9 @ G.T
     cov[BIAS, :9] = -G @ P9 @ Jl.T
     cov[:9, BIAS] = cov[BIAS, :9].T
     return cov

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..core.direct import solve_A
 from ..core.model import PairCalibration
-from ..core.moments import Moments, as_rate_pair
+from ..core.moments import Moments, as_rate_pair, window_moments, window_stats
 from ..core.noise import difference_noise_std
 from ..core.solve import solve
 from ..errors import InputError, NotRigidError, OptionError
@@ -23,6 +23,7 @@ from ..options import TIMESTAMP_OPTIONS, Options
 PLAUSIBILITY_QUANTILE = 0.99  # of the rate norm: isolated glitches do not decide the unit
 GLITCH_FACTOR = 10.0         # a gross outlier: this many times the 99th percentile of the log
 MAX_GLITCH_FRACTION = 0.01   # more "outliers" than this are the motion itself, not glitches
+NOMINAL_WINDOW = 100         # samples per window (noise model, robust covariance) without a sample rate
 
 
 def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Options | None = None,
@@ -229,6 +230,17 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
     t_grid = None if pair is None else pair.t
     offset = 0.0 if pair is None else pair.time_offset_s
     offset_std = pair.time_offset.std_s if pair is not None and pair.time_offset is not None else 0.0
+    rate_hz = _sample_rate(t_grid)
+    window = max(16, int(round(rate_hz))) if rate_hz is not None else NOMINAL_WINDOW   # about 1 s
+    noise_model, noise_ratio = None, None
+    if o.noise_std is None and o.noise_model == "identify":
+        noise_model = _identify(w1, w2, mask, rate_hz)
+        if noise_model is not None:
+            walk = noise_model.bias_walk_std if o.bias_window is None else None
+            o = o.replace(noise_std=noise_model.noise_std, bias_walk_std=walk)
+    if o.noise_std is None:  # split the residual variance by each stream's high-frequency noise
+        d1, d2 = (difference_noise_std(w, mask) for w in (w1, w2))  # a bounded subsample of the log
+        noise_ratio = d1 / d2 if d1 > 0 and d2 > 0 else None
     solve_options = o
     bias_walk_std, bias_window = o.bias_walk_std, o.bias_window
     if bias_walk_std is not None:
@@ -239,42 +251,47 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
     else:
         gate_window = bias_window
 
-    def moments_of(use):
+    def moments_of(use, with_windows: bool = False):
+        """The moments of the samples ``use`` for the bias model, and (``with_windows``) their
+        per-window statistics for the block-robust covariance (None otherwise)."""
         if bias_walk_std is not None:
-            return random_walk_bias_moments(w1, w2, bias_walk_std, o.noise_std, mask=use)[0]
+            out = random_walk_bias_moments(w1, w2, bias_walk_std, o.noise_std, mask=use,
+                                           window=window if with_windows else None)
+            return out[0], (out[2] if with_windows else None)
         if bias_window is None:
-            return Moments.from_samples(w1, w2, mask=use)
-        from ..core.moments import window_moments
-        return Moments.pool_all(window_moments(w1, w2, int(bias_window), mask=use))
+            m = Moments.from_samples(w1, w2, mask=use)
+            return m, (window_stats(w1, w2, window, mask=use) if with_windows else None)
+        m = Moments.pool_all(window_moments(w1, w2, int(bias_window), mask=use))
+        return m, (window_stats(w1, w2, int(bias_window), mask=use, pooled=True) if with_windows else None)
 
-    noise_ratio = None
-    if o.noise_std is None:  # split the residual variance by each stream's high-frequency noise
-        d1, d2 = (difference_noise_std(w, mask) for w in (w1, w2))  # a bounded subsample of the log
-        noise_ratio = d1 / d2 if d1 > 0 and d2 > 0 else None
+    def solve_on(use):
+        m, windows = moments_of(use, True)
+        return solve(m, solve_options, noise_ratio=noise_ratio, windows=windows, noise_model=noise_model), m
+
     valid_in = mask
-    mom = mom0 = moments_of(mask)
 
-    def first_solve(m):
+    def first_solve(use):
         try:
-            return solve(m, solve_options, noise_ratio=noise_ratio), None
+            return (*solve_on(use), None)
         except NotRigidError as exc:
-            return None, exc
+            return None, None, exc
 
-    cal, not_rigid = first_solve(mom)
+    cal, mom, not_rigid = first_solve(mask)
     if not_rigid is not None or not cal.rigid:  # a few comms glitches must not make the log "not rigid"
         glitch = gross_outliers(w1, w2, mask)
         n_glitch = int(np.count_nonzero(glitch))
-        if 0 < n_glitch <= MAX_GLITCH_FRACTION * mom.count:
+        n_all = len(w1) if mask is None else int(np.count_nonzero(mask))
+        if 0 < n_glitch <= MAX_GLITCH_FRACTION * n_all:
             mask = ~glitch if mask is None else (mask & ~glitch)
             valid_in = mask
-            mom = mom0 = moments_of(mask)
-            cal, not_rigid = first_solve(mom)
+            cal, mom, not_rigid = first_solve(mask)
             if cal is not None and cal.rigid:
                 cal = _replace(cal, notes=cal.notes + (
                     f"{n_glitch} gross outlier sample(s) (rate norm over {GLITCH_FACTOR:g}x the log's 99th "
                     "percentile: comms glitches?) masked before the rigidity test",))
         if not_rigid is not None:
             raise not_rigid
+    mom0 = mom
     rejected = 0.0
     corr = float("nan")
     if o.flex_rejection is not False and cal.rigid:
@@ -301,18 +318,18 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
                 gate = np.ones(n, bool) if keep is None else keep.copy()
                 gate[flex.dilate(out, o.flex_margin, n)] = False  # the outliers and their neighbours
                 keep = gate
-                mom = moments_of(keep)
+                mom = moments_of(keep)[0]
                 A_ls, b_ls = solve_A(mom)
                 L = flex.robust_whitener(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole)
         cut = flex.flex_rate_cut(*flex.normalised_residuals(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole, L))
         if cut is not None:
             fast = flex.above_rate(w1, cut, n)
             keep = ~fast if keep is None else (keep & ~fast)
-            mom = moments_of(keep)
+            mom = moments_of(keep)[0]
         kept_energy = float(np.trace(mom.S11) / np.trace(mom0.S11)) if keep is not mask else 1.0
         if keep is not mask and kept_energy >= o.min_kept_energy:
             rejected = 1.0 - mom.count / max(n_used, 1)
-            cal = solve(mom, solve_options, noise_ratio=noise_ratio)
+            cal = solve_on(keep)[0]
             mask = keep
         elif keep is not mask:
             cal = _replace(cal, notes=cal.notes + (
@@ -323,6 +340,31 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
     cal = _replace(cal, time_offset_s=offset, time_offset_std_s=offset_std, rejected_fraction=rejected,
                    rate_residual_correlation=corr)
     return PipelineRun(cal, t_grid, np.asarray(w1), np.asarray(w2), valid_in, mask, pair)
+
+
+def _sample_rate(t) -> float | None:
+    """Sample rate (Hz) of the solver's grid, None for sample-aligned input (no times)."""
+    if t is None or len(t) < 2 or not t[-1] > t[0]:
+        return None
+    return float((len(t) - 1) / (t[-1] - t[0]))
+
+
+def _identify(w1, w2, mask, rate_hz):
+    """The noise model identified from the pair's residual (None when the log is too short for it).
+
+    Sample-aligned input has no sample rate: the model is then identified per sample (``rate_hz``
+    1, windows of :data:`NOMINAL_WINDOW` samples) and its per-sample numbers hold at any rate.
+    """
+    from ..core.noise import identify_noise
+    from ..errors import GyroCalError
+
+    try:   # too short, too little motion, constant input...: the solve says why, with the residual noise
+        A, b = solve_A(Moments.from_samples(w1, w2, mask=mask))
+        if rate_hz is None:
+            return identify_noise(w1, w2, A, b, rate_hz=1.0, mask=mask, window_s=float(NOMINAL_WINDOW))
+        return identify_noise(w1, w2, A, b, rate_hz=rate_hz, mask=mask)
+    except GyroCalError:
+        return None
 
 
 def _replace(cal: PairCalibration, **changes) -> PairCalibration:

@@ -1,0 +1,155 @@
+"""A covariance that covers the real error: the block-robust (sandwich) covariance of the pair.
+
+The inverse Fisher information (Appendix B) is the covariance of the estimate only when the noise
+model holds: white noise of the stated level, nothing else in the residual. Real residuals are
+coloured (a digital low-pass), heteroscedastic and structured (a rate-dependent scale or cross-axis
+error, timing, flex), and the estimate then scatters more than the Fisher information says.
+
+The estimate minimises ``L(theta) = sum_w L_w(theta)`` over windows ``w`` of the log (the cost of
+:mod:`~fusion_gyrocal.core.refine` is linear in the scatter, so ``L_w`` is the same cost of window
+``w``'s scatter about the log's mean). To first order ``theta_hat - theta = -H^-1 sum_w g_w``
+with ``g_w`` the window's score (gradient of ``L_w`` at the estimate) and ``H = 2 F`` the expected
+Hessian, so
+
+    Cov(theta_hat) = H^-1 V H^-1,    V = Var(sum_w g_w),
+
+whatever the noise is, as long as windows far apart are independent. ``V`` is estimated from the
+scores themselves (Newey-West: their outer products plus the Bartlett-weighted cross products of
+neighbours up to :data:`LAGS` windows apart). Under the noise model ``V = 4 F`` and this is the
+Fisher covariance again; with model error it grows by exactly what the model error moves the
+estimate across windows of different motion. With a scale prior, its information joins the
+middle as well as ``H``. The gauge is the same constrained inverse as the Fisher covariance's
+(:func:`~fusion_gyrocal.core.gauge.constrained_inverse`).
+
+``covariance="auto"`` (:class:`~fusion_gyrocal.options.Options`) reports the larger of the two in
+every direction (:func:`larger`): the model's where the model explains the scatter, the robust one
+where it does not; the variance ratio in the worst direction is reported as ``robust_inflation``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .moments import WindowStats
+from .observability import A_of, dA_dp, residual_weight
+
+LAGS = 2   # neighbouring windows whose scores may be correlated (Bartlett weights)
+
+
+def window_scores(R, s1, s2, noise_std, stats: WindowStats) -> np.ndarray:
+    """Scores ``g_w`` (W, 9): gradient of each window's cost w.r.t. ``[dtheta, log s_1, log s_2]``.
+
+    The cost is ``tr(W(A) [I, -A] S [I, -A]^T)`` (:func:`~fusion_gyrocal.core.refine.ml_cost`) with
+    ``S`` the window's scatter about the log's mean (about its own mean for bias segments); its
+    gradient (:func:`~fusion_gyrocal.core.refine.ml_gradient`) is linear in ``S``.
+    """
+    A = A_of(R, s1, s2)
+    D = dA_dp(R, s1, s2)                               # (9, 3, 3)
+    W = residual_weight(A, noise_std)
+    S = stats.scatter
+    if not stats.pooled:
+        total = stats.count.sum()
+        centre = (stats.count[:, None] * stats.mean).sum(axis=0) / total
+        d = stats.mean - centre
+        S = S + stats.count[:, None, None] * d[:, :, None] * d[:, None, :]
+    S11, S12, S22 = S[:, :3, :3], S[:, :3, 3:], S[:, 3:, 3:]
+    AS22 = A @ S22                                     # (W, 3, 3)
+    M = S11 - S12 @ A.T - A @ S12.transpose(0, 2, 1) + AS22 @ A.T
+    left = S22 @ A.T - S12.transpose(0, 2, 1)          # dM_p = D_p left + (D_p left)^T
+    WD = np.einsum("ij,pjk->pik", W, D)                # W D_p
+    g = 2.0 * np.einsum("pij,wji->wp", WD, left)       # tr(W dM_p) = 2 tr(W D_p left)
+    WMW = W @ M @ W
+    g -= 2.0 * noise_std[1] ** 2 * np.einsum("wij,pjk,ik->wp", WMW, D, A, optimize=True)  # tr(WMW (D A^T + A D^T))
+    return g
+
+
+def _newey_west(e: np.ndarray, stats: WindowStats, lags: int) -> np.ndarray:
+    """``sum_w e_w e_w^T`` plus Bartlett-weighted cross products of neighbours (same run) up to ``lags`` apart."""
+    V = e.T @ e
+    for lag in range(1, min(lags, e.shape[0] - 1) + 1):
+        same_run = stats.run[lag:] == stats.run[:-lag]
+        C = e[:-lag][same_run].T @ e[lag:][same_run]
+        V += (1.0 - lag / (lags + 1.0)) * (C + C.T)
+    return V
+
+
+def score_variance(g: np.ndarray, stats: WindowStats, lags: int = LAGS) -> np.ndarray:
+    """Newey-West estimate of ``Var(sum_w g_w)`` over the whole log from the windows' scores."""
+    if g.shape[0] == 0:
+        return np.zeros((g.shape[1], g.shape[1]))
+    return _newey_west(g - g.mean(axis=0), stats, lags) * stats.weight
+
+
+def sandwich(F, V, constraints=None, prior_information=None) -> np.ndarray:
+    """``H^-1 (V / 4 + P) H^-1`` with ``H = F + P`` (``P`` the prior's information, in the gauge of
+    ``constraints`` when no prior fixes it): the robust covariance of ``[dtheta, log s_1, log s_2]``."""
+    from .gauge import constrained_inverse
+
+    P = np.zeros_like(F) if prior_information is None else prior_information
+    if prior_information is None:
+        Hinv = constrained_inverse(F, constraints if constraints is not None else np.zeros((0, F.shape[0])))
+    else:
+        Hinv = np.linalg.inv(F + P)
+    C = Hinv @ (0.25 * V + P) @ Hinv
+    return 0.5 * (C + C.T)
+
+
+def effective_windows(stats: WindowStats, lags: int = LAGS) -> float:
+    """Windows' worth of independent information in a Newey-West estimate with Bartlett weights."""
+    w = 1.0 - np.arange(1, lags + 1) / (lags + 1.0)
+    return stats.n_windows / (1.0 + 2.0 * float(np.sum(w * w)))
+
+
+TRACY_WIDOM_99 = 2.02   # 99th percentile of the Tracy-Widom (beta = 1) law of the largest eigenvalue
+
+
+def significant_ratio(p: int, n: float) -> float:
+    """Largest eigenvalue a ``p``-dimensional sample covariance of ``n`` independent windows of white
+    noise (true covariance the identity) exceeds in only 1 % of cases: the Marchenko-Pastur edge
+    ``(1 + sqrt(p / n))^2`` plus 2.02 Tracy-Widom scales (Johnstone 2001)."""
+    n = max(float(n), 1.0)
+    edge = (1.0 + np.sqrt(p / n)) ** 2
+    scale = (np.sqrt(n) + np.sqrt(p)) * (1.0 / np.sqrt(n) + 1.0 / np.sqrt(p)) ** (1.0 / 3.0) / n
+    return float(edge + TRACY_WIDOM_99 * scale)
+
+
+def larger(P_model, P_robust, n_effective: float | None = None, rtol: float = 1e-10) -> tuple[np.ndarray, float]:
+    """The model's covariance raised to the robust one in every direction where the robust one is
+    significantly larger, and the largest variance ratio.
+
+    In the coordinates where ``P_model`` is the identity (on its range; the gauge's null directions
+    stay null), the robust covariance is a sample covariance of ``n_effective`` windows: under the
+    noise model its largest eigenvalue stays below :func:`significant_ratio` in 99 % of logs. An
+    eigenvalue beyond it is model error and is kept; the others are set to 1 (the model's, which is
+    exact when the model holds). ``n_effective`` None keeps every eigenvalue above 1.
+    Returns ``(P, ratio)`` with ``ratio`` the largest eigenvalue (how many times the model's variance
+    the robust one is, in the worst direction).
+    """
+    lam, U = np.linalg.eigh(0.5 * (P_model + P_model.T))
+    keep = lam > rtol * max(lam.max(), 0.0)
+    if not keep.any():
+        return P_robust, float("nan")
+    T = U[:, keep] * np.sqrt(lam[keep])                # P_model = T T^T on its range
+    Tinv = (U[:, keep] / np.sqrt(lam[keep])).T
+    Q = Tinv @ P_robust @ Tinv.T
+    mu, V = np.linalg.eigh(0.5 * (Q + Q.T))
+    edge = 1.0 if n_effective is None else significant_ratio(mu.size, n_effective)
+    big = mu > edge
+    if not big.any():
+        return P_model, float(mu.max())
+    TV = T @ V[:, big]                                 # P_model plus the excess where it is significant
+    P = P_model + (TV * (mu[big] - 1.0)) @ TV.T
+    return 0.5 * (P + P.T), float(mu.max())
+
+
+def bias_variance(A, bias, stats: WindowStats, lags: int = LAGS) -> np.ndarray:
+    """Newey-West long-run covariance of the mean residual ``omega_1 - A omega_2 - bias`` (3, 3).
+
+    The variance of the bias estimate when the residual is coloured or drifts slowly (window means
+    that wander), without the model's assumption of white noise. Not for bias segments (each window
+    then has a bias of its own).
+    """
+    r = stats.mean[:, :3] - stats.mean[:, 3:] @ A.T - bias
+    n = stats.count.sum()
+    e = stats.count[:, None] * (r - (stats.count[:, None] * r).sum(axis=0) / n)
+    return _newey_west(e, stats, lags) / (n * n * stats.weight)   # Var(sum over the log) / N_log^2
