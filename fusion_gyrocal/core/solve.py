@@ -198,14 +198,17 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
                          _prior_information(s1, s2, scale_prior_std))
         n_eff = effective_windows(windows)
         P9_max, inflation = larger(P9, P_rob, n_eff)
-        P9 = P_rob if o.covariance == "robust" else P9_max
         if not windows.pooled and moments.segments == 1:
             Sigma_r = larger(Sigma_r, bias_variance(A, bias, windows), n_eff)[0] if o.covariance == "auto" else \
                 bias_variance(A, bias, windows)
-        basis = (f"block-robust (sandwich over {windows.n_windows} windows of {windows.window} samples)"
-                 if o.covariance == "robust" else
-                 f"noise model, raised to the block-robust sandwich ({windows.n_windows} windows of "
-                 f"{windows.window} samples) where that is significantly larger")
+        where = f"{windows.n_windows} windows of {windows.window} samples"
+        if o.covariance == "robust":
+            basis = f"block-robust (sandwich over {where})"
+        elif P9_max is not P9:
+            basis = f"noise model raised to the block-robust sandwich ({where}) where that is significantly larger"
+        else:
+            basis += f"; the block-robust sandwich ({where}) is not significantly larger"
+        P9 = P_rob if o.covariance == "robust" else P9_max
         if inflation > 2.0:
             notes.append(f"the estimate scatters {np.sqrt(inflation):.2g}x more than the noise model explains (residual "
                          f"chi2/dof {lack_of_fit:.3g}: rate-dependent scale or cross-axis error, coloured noise, timing, "
