@@ -189,32 +189,58 @@ def check_samples(moments: Moments) -> None:
                              "about all three axes")
 
 
+def explained_scatter(moments: Moments) -> np.ndarray:
+    """Scatter of gyro 1 explained by gyro 2: ``E = S_12 S_22^-1 S_21`` (centred or pooled, gyro 1's frame).
+
+    ``E = S_11 - M`` with ``M`` the residual scatter of the least-squares ``A`` (Eq. 15-17). The two
+    gyros' noises are independent, so along a direction of gyro 1 that does not move ``E`` holds
+    only the noise gyro 2's regressors fit by chance, ``~ sigma_1^2 chi2(3)`` however many samples
+    there are; along a moving direction it holds the motion (attenuated where gyro 2's noise
+    per sample exceeds the motion). Unlike ``S_11 - N sigma_1^2`` it does not hinge on the noise level
+    being known to a fraction of ``1 / sqrt(N)``.
+    """
+    S12, S22 = moments.S12, moments.S22
+    try:
+        E = S12 @ np.linalg.solve(S22, S12.T)
+    except np.linalg.LinAlgError:
+        E = S12 @ np.linalg.pinv(S22, hermitian=True) @ S12.T
+    return 0.5 * (E + E.T)
+
+
 def check_excitation(moments: Moments, noise_std, min_snr: float = 10.0) -> None:
     """Raise :class:`ExcitationError` unless the motion spans all three axes (Lemma 1).
 
-    The centred signal scatter of gyro 1 is decomposed into principal directions; any
-    direction whose SNR (``sqrt(eigenvalue) / sigma``) is below ``min_snr`` makes A (and the
-    rotation about the other axes' cross products) undetermined.
+    The scatter of gyro 1 that gyro 2 explains (:func:`explained_scatter`) is decomposed into
+    principal directions; any direction whose SNR (``sqrt(eigenvalue) / sigma``, ``sigma^2 =
+    sigma_1^2 + sigma_2^2``, Eq. 36 per direction) is below ``min_snr`` makes A (and the rotation
+    about the other axes' cross products) undetermined. A direction along which only noise moves
+    has an SNR of about ``sqrt(3) sigma_1 / sigma`` whatever the length of the log and however
+    roughly the noise is estimated; a moving one has the paper's SNR (less where gyro 2's noise per
+    sample exceeds the motion along it). The reported per-axis SNR (:func:`per_axis_snr`) keeps the
+    paper's definition.
     """
     check_samples(moments)
-    X1, _ = signal_scatter(moments, noise_std)
-    w, V = np.linalg.eigh(X1)
+    E = explained_scatter(moments)
+    w, V = np.linalg.eigh(E)
     sigma = float(np.hypot(*noise_std))
     snr_dir = np.sqrt(np.clip(w, 0.0, None)) / sigma
     weak = [k for k in range(3) if snr_dir[k] < min_snr]
     if weak:
-        snr_axes = per_axis_snr(moments, noise_std)
+        snr_axes = np.sqrt(np.clip(np.diag(E), 0.0, None)) / sigma
         parts = []
         for k in weak:
             v = V[:, k] * np.sign(V[np.argmax(np.abs(V[:, k])), k])
             axis = AXES[int(np.argmax(np.abs(v)))]
             parts.append(f"direction {np.round(v, 2).tolist()} (mostly {axis}) has SNR {snr_dir[k]:.3g}")
         msg = "; ".join(parts)
-        axes = sorted({AXES[int(np.argmax(np.abs(V[:, k])))] for k in weak})
+        # axes to add: those within 45 deg of the weak subspace, and the main axis of each weak direction
+        reach = np.linalg.norm(V[:, weak], axis=1)
+        axes = sorted({AXES[i] for i in range(3) if reach[i] >= np.sqrt(0.5)}
+                      | {AXES[int(np.argmax(np.abs(V[:, k])))] for k in weak})
         raise ExcitationError(
-            f"too little motion to calibrate: {msg} (need >= {min_snr:g}; per-axis SNR of gyro 1: "
-            f"x={snr_axes[0]:.3g}, y={snr_axes[1]:.3g}, z={snr_axes[2]:.3g}). Rotate the device about its "
-            f"{' and '.join(axes)} axis/axes as well, or record longer."
+            f"too little motion to calibrate: {msg} (need >= {min_snr:g}; per-axis SNR of gyro 1's motion "
+            f"that gyro 2 explains: x={snr_axes[0]:.3g}, y={snr_axes[1]:.3g}, z={snr_axes[2]:.3g}). Rotate the "
+            f"device about its {' and '.join(axes)} axis/axes as well, or record longer."
         )
 
 
