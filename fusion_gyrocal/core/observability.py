@@ -22,6 +22,7 @@ import numpy as np
 
 from ..errors import ConfigurationError, ExcitationError, InputError
 from ..lie import skew
+from .gauge import Gauge, constrained_inverse, null_directions
 from .moments import Moments
 
 AXES = "xyz"
@@ -162,6 +163,43 @@ def seed_configuration(R, name: str, parallel_tol_deg: float | None = None) -> C
     return config
 
 
+#: A Gaussian prior N(1, std^2) on every scale factor, along the one direction of a group of linked scale factors
+#: that the data leave free (a common factor), is at its maximum where the group's unit convention holds
+#: (``argmin_c sum (c s - 1)^2``, Eq. 32-34): the gauge of every member of every group.
+PRIOR_GAUGE = Gauge(tuple((g, a) for g in (0, 1) for a in range(3)))
+
+
+def prior_held_covariance(F, groups, s1, s2, prior_std: float) -> np.ndarray:
+    """Covariance (9, 9) of ``[dtheta, log s_1, log s_2]`` when a scale prior holds what the data leave free.
+
+    The data (information ``F``) determine everything but one common factor per group of linked scale
+    factors (Theorem 2 and Lemmas 2-4: the global scale, and each parallel axis pair's common factor).
+    A Gaussian prior N(1, ``prior_std``^2) on every scale factor acts only along those directions:
+    the determined part is ``F`` inverted inside :data:`PRIOR_GAUGE`'s tangent space, and each group's
+    common log-factor ``c`` adds the prior's variance ``prior_std^2 / sum_m s_m^2`` along the group's null
+    direction (``d log s_m = dc`` for its members), independent of the data. The sum of two PSD parts,
+    so PSD for any ``prior_std``.
+
+    Parameters
+    ----------
+    F : ndarray (9, 9)
+        Fisher information of the data (:func:`fisher_information`).
+    groups : tuple
+        Groups of linked scale factors (:attr:`Configuration.groups`).
+    s1, s2 : ndarray (3,)
+        Scale factors at which to evaluate (in :data:`PRIOR_GAUGE`).
+    prior_std : float
+        The prior's standard deviation of each scale factor.
+    """
+    s = np.stack([np.asarray(s1, float), np.asarray(s2, float)])
+    P = constrained_inverse(F, PRIOR_GAUGE.constraints(groups, s, 3))
+    N = np.zeros((9, len(groups)))
+    N[3:] = null_directions(groups, 2)
+    information = (N[3:] * s.reshape(6, 1) ** 2).sum(axis=0) / prior_std**2
+    P = P + (N / information) @ N.T
+    return 0.5 * (P + P.T)
+
+
 def per_axis_snr(moments: Moments, noise_std) -> np.ndarray:
     """Per-axis SNR of gyro 1's centred signal: ``sqrt(sum omega_i^2) / sigma`` (Eq. 36 per axis)."""
     X1, _ = signal_scatter(moments, noise_std)
@@ -275,7 +313,9 @@ def cramer_rao_bound(R, s1, s2, noise_std, signal_2, *, scale_prior_std=None) ->
         The true gyro-2 signal ``S_2 omega_2`` (noise-free, rad/s) as samples, or its centred
         scatter; the bias is profiled out, so only its variation matters.
     scale_prior_std : float, optional
-        Gaussian prior N(1, std^2) on every scale factor (then the bound is the Bayesian one).
+        Gaussian prior N(1, std^2) on every scale factor, acting only along the directions the data
+        leave free in the configuration of ``R`` (:func:`classify`, :func:`prior_held_covariance`), as
+        :func:`fusion_gyrocal.solve` applies it; then the bound is the Bayesian one.
     """
     sig = np.asarray(signal_2, dtype=float)
     if sig.shape != (3, 3):
@@ -284,10 +324,7 @@ def cramer_rao_bound(R, s1, s2, noise_std, signal_2, *, scale_prior_std=None) ->
     s1, s2 = np.asarray(s1, float), np.asarray(s2, float)
     F = fisher_information(np.asarray(R, float), s1, s2, tuple(noise_std), sig)
     if scale_prior_std is not None:
-        s = np.concatenate([s1, s2])
-        F = F.copy()
-        F[3:, 3:] += np.diag(s**2 / scale_prior_std**2)
-        P = np.linalg.inv(F)
+        P = prior_held_covariance(F, classify(R).groups, s1, s2, scale_prior_std)
     else:
         keep = [0, 1, 2, 4, 5, 6, 7, 8]  # gauge log s_1[0] = 0 (the paper's normalisation)
         P = np.zeros((9, 9))
