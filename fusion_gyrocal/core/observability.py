@@ -22,6 +22,7 @@ import numpy as np
 
 from ..errors import ConfigurationError, ExcitationError, InputError
 from ..lie import skew
+from .gauge import Gauge, constrained_inverse, null_directions
 from .moments import Moments
 
 AXES = "xyz"
@@ -162,6 +163,43 @@ def seed_configuration(R, name: str, parallel_tol_deg: float | None = None) -> C
     return config
 
 
+#: A Gaussian prior N(1, std^2) on every scale factor, along the one direction of a group of linked scale factors
+#: that the data leave free (a common factor), is at its maximum where the group's unit convention holds
+#: (``argmin_c sum (c s - 1)^2``, Eq. 32-34): the gauge of every member of every group.
+PRIOR_GAUGE = Gauge(tuple((g, a) for g in (0, 1) for a in range(3)))
+
+
+def prior_held_covariance(F, groups, s1, s2, prior_std: float) -> np.ndarray:
+    """Covariance (9, 9) of ``[dtheta, log s_1, log s_2]`` when a scale prior holds what the data leave free.
+
+    The data (information ``F``) determine everything but one common factor per group of linked scale
+    factors (Theorem 2 and Lemmas 2-4: the global scale, and each parallel axis pair's common factor).
+    A Gaussian prior N(1, ``prior_std``^2) on every scale factor acts only along those directions:
+    the determined part is ``F`` inverted inside :data:`PRIOR_GAUGE`'s tangent space, and each group's
+    common log-factor ``c`` adds the prior's variance ``prior_std^2 / sum_m s_m^2`` along the group's null
+    direction (``d log s_m = dc`` for its members), independent of the data. The sum of two PSD parts,
+    so PSD for any ``prior_std``.
+
+    Parameters
+    ----------
+    F : ndarray (9, 9)
+        Fisher information of the data (:func:`fisher_information`).
+    groups : tuple
+        Groups of linked scale factors (:attr:`Configuration.groups`).
+    s1, s2 : ndarray (3,)
+        Scale factors at which to evaluate (in :data:`PRIOR_GAUGE`).
+    prior_std : float
+        The prior's standard deviation of each scale factor.
+    """
+    s = np.stack([np.asarray(s1, float), np.asarray(s2, float)])
+    P = constrained_inverse(F, PRIOR_GAUGE.constraints(groups, s, 3))
+    N = np.zeros((9, len(groups)))
+    N[3:] = null_directions(groups, 2)
+    information = (N[3:] * s.reshape(6, 1) ** 2).sum(axis=0) / prior_std**2
+    P = P + (N / information) @ N.T
+    return 0.5 * (P + P.T)
+
+
 def per_axis_snr(moments: Moments, noise_std) -> np.ndarray:
     """Per-axis SNR of gyro 1's centred signal: ``sqrt(sum omega_i^2) / sigma`` (Eq. 36 per axis)."""
     X1, _ = signal_scatter(moments, noise_std)
@@ -189,32 +227,58 @@ def check_samples(moments: Moments) -> None:
                              "about all three axes")
 
 
+def explained_scatter(moments: Moments) -> np.ndarray:
+    """Scatter of gyro 1 explained by gyro 2: ``E = S_12 S_22^-1 S_21`` (centred or pooled, gyro 1's frame).
+
+    ``E = S_11 - M`` with ``M`` the residual scatter of the least-squares ``A`` (Eq. 15-17). The two
+    gyros' noises are independent, so along a direction of gyro 1 that does not move ``E`` holds
+    only the noise gyro 2's regressors fit by chance, ``~ sigma_1^2 chi2(3)`` however many samples
+    there are; along a moving direction it holds the motion (attenuated where gyro 2's noise
+    per sample exceeds the motion). Unlike ``S_11 - N sigma_1^2`` it does not hinge on the noise level
+    being known to a fraction of ``1 / sqrt(N)``.
+    """
+    S12, S22 = moments.S12, moments.S22
+    try:
+        E = S12 @ np.linalg.solve(S22, S12.T)
+    except np.linalg.LinAlgError:
+        E = S12 @ np.linalg.pinv(S22, hermitian=True) @ S12.T
+    return 0.5 * (E + E.T)
+
+
 def check_excitation(moments: Moments, noise_std, min_snr: float = 10.0) -> None:
     """Raise :class:`ExcitationError` unless the motion spans all three axes (Lemma 1).
 
-    The centred signal scatter of gyro 1 is decomposed into principal directions; any
-    direction whose SNR (``sqrt(eigenvalue) / sigma``) is below ``min_snr`` makes A (and the
-    rotation about the other axes' cross products) undetermined.
+    The scatter of gyro 1 that gyro 2 explains (:func:`explained_scatter`) is decomposed into
+    principal directions; any direction whose SNR (``sqrt(eigenvalue) / sigma``, ``sigma^2 =
+    sigma_1^2 + sigma_2^2``, Eq. 36 per direction) is below ``min_snr`` makes A (and the rotation
+    about the other axes' cross products) undetermined. A direction along which only noise moves
+    has an SNR of about ``sqrt(3) sigma_1 / sigma`` whatever the length of the log and however
+    roughly the noise is estimated; a moving one has the paper's SNR (less where gyro 2's noise per
+    sample exceeds the motion along it). The reported per-axis SNR (:func:`per_axis_snr`) keeps the
+    paper's definition.
     """
     check_samples(moments)
-    X1, _ = signal_scatter(moments, noise_std)
-    w, V = np.linalg.eigh(X1)
+    E = explained_scatter(moments)
+    w, V = np.linalg.eigh(E)
     sigma = float(np.hypot(*noise_std))
     snr_dir = np.sqrt(np.clip(w, 0.0, None)) / sigma
     weak = [k for k in range(3) if snr_dir[k] < min_snr]
     if weak:
-        snr_axes = per_axis_snr(moments, noise_std)
+        snr_axes = np.sqrt(np.clip(np.diag(E), 0.0, None)) / sigma
         parts = []
         for k in weak:
             v = V[:, k] * np.sign(V[np.argmax(np.abs(V[:, k])), k])
             axis = AXES[int(np.argmax(np.abs(v)))]
             parts.append(f"direction {np.round(v, 2).tolist()} (mostly {axis}) has SNR {snr_dir[k]:.3g}")
         msg = "; ".join(parts)
-        axes = sorted({AXES[int(np.argmax(np.abs(V[:, k])))] for k in weak})
+        # axes to add: those within 45 deg of the weak subspace, and the main axis of each weak direction
+        reach = np.linalg.norm(V[:, weak], axis=1)
+        axes = sorted({AXES[i] for i in range(3) if reach[i] >= np.sqrt(0.5)}
+                      | {AXES[int(np.argmax(np.abs(V[:, k])))] for k in weak})
         raise ExcitationError(
-            f"too little motion to calibrate: {msg} (need >= {min_snr:g}; per-axis SNR of gyro 1: "
-            f"x={snr_axes[0]:.3g}, y={snr_axes[1]:.3g}, z={snr_axes[2]:.3g}). Rotate the device about its "
-            f"{' and '.join(axes)} axis/axes as well, or record longer."
+            f"too little motion to calibrate: {msg} (need >= {min_snr:g}; per-axis SNR of gyro 1's motion "
+            f"that gyro 2 explains: x={snr_axes[0]:.3g}, y={snr_axes[1]:.3g}, z={snr_axes[2]:.3g}). Rotate the "
+            f"device about its {' and '.join(axes)} axis/axes as well, or record longer."
         )
 
 
@@ -249,7 +313,9 @@ def cramer_rao_bound(R, s1, s2, noise_std, signal_2, *, scale_prior_std=None) ->
         The true gyro-2 signal ``S_2 omega_2`` (noise-free, rad/s) as samples, or its centred
         scatter; the bias is profiled out, so only its variation matters.
     scale_prior_std : float, optional
-        Gaussian prior N(1, std^2) on every scale factor (then the bound is the Bayesian one).
+        Gaussian prior N(1, std^2) on every scale factor, acting only along the directions the data
+        leave free in the configuration of ``R`` (:func:`classify`, :func:`prior_held_covariance`), as
+        :func:`fusion_gyrocal.solve` applies it; then the bound is the Bayesian one.
     """
     sig = np.asarray(signal_2, dtype=float)
     if sig.shape != (3, 3):
@@ -258,10 +324,7 @@ def cramer_rao_bound(R, s1, s2, noise_std, signal_2, *, scale_prior_std=None) ->
     s1, s2 = np.asarray(s1, float), np.asarray(s2, float)
     F = fisher_information(np.asarray(R, float), s1, s2, tuple(noise_std), sig)
     if scale_prior_std is not None:
-        s = np.concatenate([s1, s2])
-        F = F.copy()
-        F[3:, 3:] += np.diag(s**2 / scale_prior_std**2)
-        P = np.linalg.inv(F)
+        P = prior_held_covariance(F, classify(R).groups, s1, s2, scale_prior_std)
     else:
         keep = [0, 1, 2, 4, 5, 6, 7, 8]  # gauge log s_1[0] = 0 (the paper's normalisation)
         P = np.zeros((9, 9))

@@ -6,8 +6,9 @@ of the errors-in-variables model with the true rates profiled out,
 
     L(theta) = tr(W(A) [I, -A] S_c [I, -A]^T),   W(A) = (sigma_1^2 I + sigma_2^2 A A^T)^-1,
 
-(``S_c`` the centred, or per-segment pooled, scatter of ``[omega_1; omega_2]``), optionally plus a
-Gaussian prior on the scale factors. The dependence of ``W`` on ``A`` is what removes the
+(``S_c`` the centred, or per-segment pooled, scatter of ``[omega_1; omega_2]``). A prior on the scale
+factors plays no part here: it acts only along the directions the data leave undetermined, which the
+gauge holds fixed during the refinement (:func:`fusion_gyrocal.core.solve.solve`). The dependence of ``W`` on ``A`` is what removes the
 attenuation of the scale factors that plain least squares suffers when gyro 2 is noisy relative
 to the motion (slow motion). Steps are Fisher-scoring (Gauss-Newton on the expected Hessian,
 Appendix B) with analytic gradients, in the gauge's tangent space, with a backtracking line search.
@@ -33,16 +34,13 @@ def residual_scatter(A, Sc):
     return K @ Sc @ K.T
 
 
-def ml_cost(R, s1, s2, moments: Moments, noise_std, scale_prior_std=None) -> float:
+def ml_cost(R, s1, s2, moments: Moments, noise_std) -> float:
     """Negative log-likelihood (times 2, up to a constant) of the calibration given the moments."""
     A = A_of(R, s1, s2)
-    c = float(np.trace(residual_weight(A, noise_std) @ residual_scatter(A, moments.scatter)))
-    if scale_prior_std is not None:
-        c += float((((np.concatenate([s1, s2]) - 1.0) / scale_prior_std) ** 2).sum())
-    return c
+    return float(np.trace(residual_weight(A, noise_std) @ residual_scatter(A, moments.scatter)))
 
 
-def ml_gradient(R, s1, s2, moments: Moments, noise_std, scale_prior_std=None) -> np.ndarray:
+def ml_gradient(R, s1, s2, moments: Moments, noise_std) -> np.ndarray:
     """Gradient of :func:`ml_cost` w.r.t. ``[dtheta, log s_1, log s_2]``."""
     A = A_of(R, s1, s2)
     D = dA_dp(R, s1, s2)
@@ -59,9 +57,6 @@ def ml_gradient(R, s1, s2, moments: Moments, noise_std, scale_prior_std=None) ->
         dAAt = D[p] @ A.T
         dAAt = dAAt + dAAt.T
         g[p] = np.trace(W @ dM) - noise_std[1] ** 2 * np.trace(WMW @ dAAt)
-    if scale_prior_std is not None:
-        s = np.concatenate([s1, s2])
-        g[3:] += 2.0 * (s - 1.0) * s / scale_prior_std**2
     return g
 
 
@@ -113,7 +108,7 @@ def fisher_scoring(state, *, cost, gradient, information, retract, constraints=N
 
 
 def refine_ml(moments: Moments, R, s1, s2, noise_std, *, constraints=None, regauge=None,
-              scale_prior_std=None, max_iter: int = 30, tol: float = 1e-11) -> Refined:
+              max_iter: int = 30, tol: float = 1e-11) -> Refined:
     """Fisher-scoring refinement of ``(R, s1, s2)`` from the moments (:func:`fisher_scoring`).
 
     Parameters
@@ -122,18 +117,12 @@ def refine_ml(moments: Moments, R, s1, s2, noise_std, *, constraints=None, regau
         Linearised gauge conditions; steps are restricted to their null space.
     regauge : callable ``(s1, s2) -> (s1, s2)`` or None
         Re-imposes the (nonlinear) gauge after each step (moves along null directions only).
-    scale_prior_std : float or None
-        Gaussian prior N(1, std^2) on every scale factor (then no gauge is needed).
     """
     noise_std = tuple(float(x) for x in noise_std)
     _, Xi_c = signal_scatter(moments, noise_std)
 
     def information(x):
-        H = 2.0 * fisher_information(*x, noise_std, Xi_c)
-        if scale_prior_std is not None:
-            s = np.concatenate(x[1:])
-            H[3:, 3:] += np.diag(2.0 * s**2 / scale_prior_std**2)
-        return H
+        return 2.0 * fisher_information(*x, noise_std, Xi_c)
 
     def step(x, delta):
         R, s1, s2 = retract(*x, delta)
@@ -141,8 +130,8 @@ def refine_ml(moments: Moments, R, s1, s2, noise_std, *, constraints=None, regau
 
     (R, s1, s2), it, converged = fisher_scoring(
         (np.array(R, float), np.array(s1, float), np.array(s2, float)),
-        cost=lambda x: ml_cost(*x, moments, noise_std, scale_prior_std),
-        gradient=lambda x: ml_gradient(*x, moments, noise_std, scale_prior_std),
+        cost=lambda x: ml_cost(*x, moments, noise_std),
+        gradient=lambda x: ml_gradient(*x, moments, noise_std),
         information=information, retract=step,
         constraints=None if constraints is None else (lambda x: constraints(x[1], x[2])),
         max_iter=max_iter, tol=tol)

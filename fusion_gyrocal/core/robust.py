@@ -17,9 +17,9 @@ whatever the noise is, as long as windows far apart are independent. ``V`` is es
 scores themselves (Newey-West: their outer products plus the Bartlett-weighted cross products of
 neighbours up to :data:`LAGS` windows apart). Under the noise model ``V = 4 F`` and this is the
 Fisher covariance again; with model error it grows by exactly what the model error moves the
-estimate across windows of different motion. With a scale prior, its information joins the
-middle as well as ``H``. The gauge is the same constrained inverse as the Fisher covariance's
-(:func:`~fusion_gyrocal.core.gauge.constrained_inverse`).
+estimate across windows of different motion. The gauge is the same constrained inverse as the
+Fisher covariance's (:func:`~fusion_gyrocal.core.gauge.constrained_inverse`); what a scale prior
+holds (the directions the data leave free) keeps the prior's variance.
 
 ``covariance="auto"`` (:class:`~fusion_gyrocal.options.Options`) reports the larger of the two in
 every direction (:func:`larger`): the model's where the model explains the scatter, the robust one
@@ -80,17 +80,13 @@ def score_variance(g: np.ndarray, stats: WindowStats, lags: int = LAGS) -> np.nd
     return _newey_west(g - g.mean(axis=0), stats, lags) * stats.weight
 
 
-def sandwich(F, V, constraints=None, prior_information=None) -> np.ndarray:
-    """``H^-1 (V / 4 + P) H^-1`` with ``H = F + P`` (``P`` the prior's information, in the gauge of
-    ``constraints`` when no prior fixes it): the robust covariance of ``[dtheta, log s_1, log s_2]``."""
+def sandwich(F, V, constraints) -> np.ndarray:
+    """``H^-1 (V / 4) H^-1`` with ``H^-1`` the inverse of the Fisher information ``F`` in the tangent
+    space of the gauge (``constraints @ dx = 0``): the robust covariance of ``[dtheta, log s_1, log s_2]``."""
     from .gauge import constrained_inverse
 
-    P = np.zeros_like(F) if prior_information is None else prior_information
-    if prior_information is None:
-        Hinv = constrained_inverse(F, constraints if constraints is not None else np.zeros((0, F.shape[0])))
-    else:
-        Hinv = np.linalg.inv(F + P)
-    C = Hinv @ (0.25 * V + P) @ Hinv
+    Hinv = constrained_inverse(F, constraints)
+    C = Hinv @ (0.25 * V) @ Hinv
     return 0.5 * (C + C.T)
 
 

@@ -16,8 +16,8 @@ from .direct import decompose, solve_A
 from .gauge import Gauge, constrained_inverse
 from .model import BIAS, ROT, PairCalibration, mark_undetermined
 from .moments import Moments, WindowStats, noise_pair
-from .observability import (A_of, check_excitation, check_samples, classify, dA_dp, fisher_information,
-                            per_axis_snr, residual_weight, signal_scatter)
+from .observability import (PRIOR_GAUGE, A_of, check_excitation, check_samples, classify, dA_dp, fisher_information,
+                            per_axis_snr, prior_held_covariance, residual_weight, signal_scatter)
 from .refine import residual_scatter, refine_ml
 
 
@@ -163,13 +163,16 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         R, s1, s2 = nearest_rotation(A_ls), np.ones(3), np.ones(3)
     s1, s2 = gauge.apply(config.groups, np.stack([s1, s2]))
     if method == "ml" and rigid:
-        use_prior = scale_prior_std is not None
-        ref = refine_ml(moments, R, s1, s2, noise, scale_prior_std=scale_prior_std,
-                        constraints=None if use_prior else (lambda a, b: gauge.constraints(config.groups, [a, b], 3)),
-                        regauge=None if use_prior else (lambda a, b: tuple(gauge.apply(config.groups, [a, b]))))
+        ref = refine_ml(moments, R, s1, s2, noise,
+                        constraints=lambda a, b: gauge.constraints(config.groups, [a, b], 3),
+                        regauge=lambda a, b: tuple(gauge.apply(config.groups, [a, b])))
         R, s1, s2, iterations = ref.R, ref.s1, ref.s2, ref.iterations
         if not ref.converged:
             notes.append(f"maximum-likelihood refinement stopped after {iterations} iterations without converging")
+    if scale_prior_std is not None:
+        # the prior holds only what the data leave free, one common factor per group of linked scale factors;
+        # its maximum there is the group's unit convention, so the determined ratios stay the data's
+        s1, s2 = PRIOR_GAUGE.apply(config.groups, np.stack([s1, s2]))
     A = A_of(R, s1, s2)
     bias = moments.mean_1 - A @ moments.mean_2
     _, Xi_c = signal_scatter(moments, noise)
@@ -194,8 +197,11 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
     if robust:
         from .robust import bias_variance, effective_windows, larger, sandwich, score_variance, window_scores
         V = score_variance(window_scores(R, s1, s2, noise, windows), windows)
-        P_rob = sandwich(F, V, None if scale_prior_std is not None else gauge.constraints(config.groups, [s1, s2], 3),
-                         _prior_information(s1, s2, scale_prior_std))
+        # the data's part in the gauge the covariance is expressed in; a prior's part (what the data leave
+        # free) is the model's and stays
+        held = PRIOR_GAUGE if scale_prior_std is not None else gauge
+        C = held.constraints(config.groups, [s1, s2], 3)
+        P_rob = P9 + sandwich(F, V, C) - constrained_inverse(F, C)
         n_eff = effective_windows(windows)
         P9_max, inflation = larger(P9, P_rob, n_eff)
         if not windows.pooled and moments.segments == 1:
@@ -233,13 +239,16 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
     if weak:
         notes.append(f"per-axis SNR below the target {o.target_snr:g} (the paper accumulates to 4e3) on axis "
                      f"{', '.join(weak)}: rotate more about those axes of gyro 1, or record longer")
-    if config.name != "general" and scale_prior_std is None:
+    if config.name != "general":
         pairs = ", ".join(f"gyro 1 {'xyz'[i]} ~ gyro 2 {'xyz'[j]} ({ang:.2f} deg)"
                           for i, j, ang in config.parallel_pairs)
+        held = ("; their common factor comes from the scale prior (scale_observable False)"
+                if scale_prior_std is not None else "")
         notes.append(f"{config.name}: {pairs}; only the ratio of those scale factors is determined (Lemma "
-                     f"{'2' if config.name == 'all_axes_parallel' else '3'})")
-    gauge_text = (f"Gaussian prior N(1, {scale_prior_std:g}^2) on every scale factor" if scale_prior_std is not None
-                  else gauge.describe())
+                     f"{'2' if config.name == 'all_axes_parallel' else '3'}){held}")
+    gauge_text = (f"Gaussian prior N(1, {scale_prior_std:g}^2) on the scale factors, acting only on what the data "
+                  "leave free: the global scale and the common factor of each parallel axis pair (ratios from the data)"
+                  if scale_prior_std is not None else gauge.describe())
     return PairCalibration(
         R_1_2=R, scale_1=s1, scale_2=s2, bias=bias, configuration=config.name,
         scale_observable=config.scale_observable, covariance=cov, gauge=gauge_text, snr=snr,
@@ -250,19 +259,9 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         robust_inflation=inflation, noise_model=noise_model, notes=tuple(notes))
 
 
-def _prior_information(s1, s2, scale_prior_std):
-    """Information (in ``[dtheta, log s_1, log s_2]``) of the N(1, std^2) scale prior, or None without one."""
-    if scale_prior_std is None:
-        return None
-    P = np.zeros((9, 9))
-    s = np.concatenate([s1, s2])
-    P[3:, 3:] = np.diag(s**2 / scale_prior_std**2)
-    return P
-
-
 def _ml_covariance(F, s1, s2, config, gauge, scale_prior_std):
     if scale_prior_std is not None:
-        return np.linalg.inv(F + _prior_information(s1, s2, scale_prior_std))
+        return prior_held_covariance(F, config.groups, s1, s2, scale_prior_std)
     return constrained_inverse(F, gauge.constraints(config.groups, [s1, s2], 3))
 
 
