@@ -95,8 +95,10 @@ def test_update_block_equals_stacked_update():
     Rs = np.kron(np.eye(B), Rk)
     S = Hs @ P0 @ Hs.T + Rs
     K = P0 @ Hs.T @ np.linalg.inv(S)
-    x = K @ r
     P1 = (np.eye(12) - K @ Hs) @ P0
+    # plus the errors-in-variables correction of the information vector (ErrorStateEKF.update_block)
+    G = tr._filter.generators()
+    x = K @ r + P1 @ (B * tr.noise_std[1] ** 2 * np.einsum("mai,am->i", G[:3], np.linalg.inv(Rk) @ A))
     used = tr.update_block(tb, w1b, w2b)
     assert used == B
     np.testing.assert_allclose(tr.error_covariance, 0.5 * (P1 + P1.T), rtol=1e-6, atol=1e-14)
@@ -559,7 +561,7 @@ def test_linearise_one_equals_block_linearisation():
     for k in (1000, 1500, 1999):
         H, r = f.linearise(w1[k:k + 1], w2[k:k + 1])
         d2 = f.innovation_d2(H, r)
-        H1, r1, S1, d21 = f.linearise_one(w1[k], w2[k])
+        H1, r1, S1, d21, g1 = f.linearise_one(w1[k], w2[k])
         np.testing.assert_allclose(H1, H[0], rtol=1e-14, atol=1e-15)
         np.testing.assert_allclose(r1, r[0], rtol=1e-14, atol=1e-17)
         assert d21 == pytest.approx(float(d2[0]), rel=1e-10)
@@ -635,3 +637,90 @@ def test_seed_window_skips_rest_and_prefers_the_earliest_well_excited_stretch():
     a, b = seed_window(w, w, 200)
     assert b - a == 200 and 300 <= a <= 400
     assert seed_window(w, w, 5000) == (0, 1000)
+
+
+# ---------------------------------------------------------------------------- identified noise: rate-dependent misfit
+def test_update_block_with_misfit_equals_stacked_update():
+    """With the misfit's per-sample covariance g_k R the weighted moments give the stacked update exactly."""
+    rng = np.random.default_rng(41)
+    t, w1, w2, _ = scenario(rng, 20.0)
+    tr = GyroPairTracker(calibrate_pair(w1[:1000], w2[:1000]), t0=t[999], drift=DriftNoise.constant())
+    f = tr._filter
+    f.misfit = (0.01, 0.005)
+    f.relinearise()
+    B = 60
+    w1b, w2b = w1[1000:1000 + B], w2[1000:1000 + B]
+    keep = np.ones(B, bool)
+    keep[::7] = False
+    P0 = f.kf.P.copy()
+    H, r = f.linearise(w1b, w2b)
+    g = f.inflation(w1b)
+    assert g.min() > 1.5 and g.max() > 10 * g.min()
+    Hs, rs = H[keep].reshape(-1, 12), r[keep].reshape(-1)
+    S = Hs @ P0 @ Hs.T + np.kron(np.diag(g[keep]), f.kf.R)
+    stat = f.update_block(w1b, w2b, keep, g)
+    assert stat == pytest.approx(float(rs @ np.linalg.solve(S, rs)), rel=1e-6)
+    K = P0 @ Hs.T @ np.linalg.inv(S)
+    P1 = (np.eye(12) - K @ Hs) @ P0
+    np.testing.assert_allclose(f.kf.P, 0.5 * (P1 + P1.T), rtol=1e-6, atol=1e-14)
+    H1, r1, S1, d2, g1 = f.linearise_one(w1b[0], w2b[0])       # the per-sample path: the same factor
+    assert g1 == pytest.approx(float(f.inflation(w1b[:1])[0]), rel=1e-12)
+
+
+def rate_dependent_pair(rng, duration_s, gain_per_rad_s=0.002):
+    """Human motion where gyro 2's scale factors grow by ``gain_per_rad_s`` per rad/s of the rate (a misfit)."""
+    t = np.arange(0.0, duration_s, 1.0 / RATE)
+    motion = HumanMotion(rms=1.0, rng=rng)(t)
+    R0 = general_rotation(rng, 15.0)
+    s1, s2 = 1 + rng.normal(0, 0.01, 3), 1 + rng.normal(0, 0.01, 3)
+    S2 = s2 * (1.0 + gain_per_rad_s * np.linalg.norm(motion, axis=1))[:, None]
+    w1, w2, _ = simulate_drifting_pair(t, R0, s1, S2, bias_1=rng.normal(0, 0.01, 3), noise_std=NOISE,
+                                       omega_true_1=motion, rng=rng)
+    return t, w1, w2, R0
+
+
+def test_run_rate_dependent_scale_no_alarm_and_within_3sigma():
+    rng = np.random.default_rng(43)
+    t, w1, w2, R0 = rate_dependent_pair(rng, 240.0)
+    n0 = int(40 * RATE)
+    tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0])
+    assert tr.noise_model.kind.endswith("misfit") and tr.misfit_gain != (0.0, 0.0)
+    h = tr.run(t[n0:], w1[n0:], w2[n0:])
+    assert not h.reseeds
+    err = rotation_error(tr.R_1_2, R0)
+    sigma = np.sqrt(np.trace(tr.error_covariance[:3, :3]))
+    assert err < 3.0 * sigma, (err / DEG, sigma / DEG)
+    # the same seed with white measurement noise (the seed's residual std, no misfit) raises step alarms
+    white = GyroPairTracker(calibrate_pair(w1[:n0], w2[:n0]), t0=t[n0 - 1], seed_span_s=t[n0 - 1])
+    assert white.misfit_gain == (0.0, 0.0)
+    assert white.run(t[n0:], w1[n0:], w2[n0:]).reseeds
+
+
+# the issue's target on the real board; only session 1, IMU 1 vs IMU 3 meets it so far (benchmarks/ekf.py section 4)
+_MIMU_OPEN = pytest.mark.xfail(strict=True, reason="open (issue 12 item 5): step alarms at the pose changes of the "
+                                                   "static phase still confirm re-seeds (see benchmarks/ekf.py)")
+
+
+@pytest.mark.shared_data
+@pytest.mark.parametrize("session, imu", [(1, 3), pytest.param(1, 2, marks=_MIMU_OPEN),
+                                          pytest.param(2, 3, marks=_MIMU_OPEN), pytest.param(2, 2, marks=_MIMU_OPEN)])
+def test_run_mimu_board_at_most_one_reseed_and_within_3sigma_of_batch(session, imu):
+    """A rigid PCB (all axes parallel, Lemma 2): seeded on the first 120 s, at most one re-seed over the
+    session and the final rotation within 3 sigma (tracker and batch combined) of the batch estimate."""
+    from fusion_gyrocal.io import read_npz
+    from fusion_gyrocal.lie import log
+
+    path = shared_data_dir() / "mimu_8imu_array" / "npz" / f"exp_{session}.npz"
+    if not path.exists():
+        pytest.skip(f"{path} not present (set FUSION_GYROCAL_DATA to the shared data)")
+    ref, other = read_npz(path, imu=0), read_npz(path, imu=imu - 1)
+    keep = np.asarray(ref.valid, bool) & np.asarray(other.valid, bool)
+    t, w1, w2 = ref.t[keep], ref.omega[keep], other.omega[keep]
+    batch = calibrate_pair(w1, w2)
+    n0 = int(np.searchsorted(t, t[0] + 120.0))
+    tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0])
+    h = tr.run(t[n0:], w1[n0:], w2[n0:], block_size=62)
+    d = np.linalg.norm(log(tr.R_1_2 @ batch.R_1_2.T))
+    sigma = np.hypot(np.sqrt(np.trace(tr.error_covariance[:3, :3])), np.sqrt(np.trace(batch.covariance[:3, :3])))
+    assert sum(ev.accepted for ev in h.reseeds) <= 1
+    assert d < 3.0 * sigma, (d / DEG, sigma / DEG)

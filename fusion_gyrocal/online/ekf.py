@@ -4,7 +4,17 @@ Measurement (Eq. 4-9 of the paper, one sample)::
 
     z_k = omega_1_meas(k) = A(x) omega_2_meas(k) + b + n(k),
     A(x) = diag(s_1) Exp(dtheta) R_ref diag(1 / s_2),   s_i = s_i,ref * exp(delta_i),
-    Cov n(k) = sigma_1^2 I + sigma_2^2 A A^T     (gyro 2's noise enters through A)
+    Cov n(k) = g_k (sigma_1^2 I + sigma_2^2 A A^T)     (gyro 2's noise enters through A)
+
+``g_k`` is 1 for white noise. A pair whose residual grows with the rate (a rate-dependent scale or
+cross-axis error, the misfit ``(a + b |omega|) omega`` of :func:`fusion_gyrocal.core.noise.identify_noise`)
+gets the misfit's variance per axis on top of the white one, as a factor of the white covariance (the
+two are nearly isotropic: ``A`` is a rotation up to scale factors near 1)::
+
+    g_k = 1 + (a + b |omega_1(k)|)^2 |omega_1(k)|^2 / (3 sigma^2),   sigma^2 = tr(R_white) / 3
+
+so the gate and the CUSUM see honest innovations during fast motion, and a block's samples still fold
+into one update through their (weighted) moments.
 
 Error state (12): ``[dtheta (3, rad, gyro 1 frame), delta_1 (3), delta_2 (3) log-scales, db (3, rad/s)]``.
 After every update the error is folded into the nominal estimate (``R <- Exp(dtheta) R``,
@@ -45,6 +55,27 @@ def measurement_jacobian(R, s1, s2, w2, A=None) -> np.ndarray:
     H[:, :, 6:9] = -A[None, :, :] * w2[:, None, :]               # d/d delta_2 = -A diag(omega_2)
     H[:, idx, 9 + idx] = 1.0                                     # d/d b
     return H
+
+
+def misfit_coefficients(noise_std, A, misfit) -> tuple[float, float, float] | None:
+    """``(a, b, 1 / (3 sigma^2))`` of the measurement covariance's factor :func:`inflation` for white noise
+    ``noise_std`` (per gyro), ``A`` and the misfit gains ``(a, b)``; None when the misfit is zero."""
+    a, b = float(misfit[0]), float(misfit[1])
+    if a == b == 0.0:
+        return None
+    return a, b, 1.0 / (noise_std[0] ** 2 * 3.0 + noise_std[1] ** 2 * float(np.sum(np.square(A))))
+
+
+def inflation(coefficients, w1) -> np.ndarray | None:
+    """Per-sample factor ``g_k = 1 + (a + b |omega|)^2 |omega|^2 / (3 sigma^2)`` of the white measurement
+    covariance for gyro-1 rates ``w1`` (B, 3) (the module docstring); None for white noise
+    (``coefficients`` None: every factor 1)."""
+    if coefficients is None:
+        return None
+    a, b, c = coefficients
+    sq = np.einsum("ka,ka->k", w1, w1)
+    m = a + b * np.sqrt(sq)
+    return 1.0 + c * (m * m) * sq
 
 
 def _quadratic_3(S, x: float, y: float, z: float) -> float:
@@ -110,18 +141,22 @@ class ErrorStateEKF:
     inflate_s : float
         The covariance is grown by the random walk over this many seconds (a seed that estimated an
         average over a window is inflated to its end).
+    misfit : (float, float)
+        Gains ``(a, b)`` of the rate-dependent misfit ``(a + b |omega|) omega`` (``NoiseModel.misfit_gain``):
+        each sample's measurement covariance is the white one times :meth:`inflation`. ``(0, 0)``: white.
     """
 
-    __slots__ = ("kf", "hold", "R", "s1", "s2", "b", "t", "noise_std", "drift", "step_prior",
-                 "_T", "_Pi", "_q", "_shock", "_G", "_folds", "_H1", "_held")
+    __slots__ = ("kf", "hold", "R", "s1", "s2", "b", "t", "noise_std", "misfit", "drift", "step_prior",
+                 "_T", "_Pi", "_q", "_shock", "_G", "_folds", "_H1", "_held", "_mis")
 
     def __init__(self, hold: ScaleHold, drift, step_prior, noise_std, R, s1, s2, b, P, t: float,
-                 inflate_s: float = 0.0):
+                 inflate_s: float = 0.0, misfit=(0.0, 0.0)):
         self.kf = ExtendedKalmanFilter(dim_x=DIM, dim_z=3)
         self.kf.F = np.eye(DIM)
         self.kf.Q = np.zeros((DIM, DIM))
         self.hold, self.drift, self.step_prior = hold, drift, step_prior
         self.noise_std = (float(noise_std[0]), float(noise_std[1]))
+        self.misfit = (float(misfit[0]), float(misfit[1]))
         self.R, self.b = np.array(R, dtype=float), np.array(b, dtype=float)
         self.s1, self.s2 = hold.express(s1, s2)
         self.t = float(t)
@@ -139,7 +174,7 @@ class ErrorStateEKF:
         new.kf = ExtendedKalmanFilter(dim_x=DIM, dim_z=3)
         new.kf.F, new.kf.Q, new.kf.R = np.eye(DIM), self.kf.Q.copy(), self.kf.R.copy()
         new.kf.x, new.kf.P = self.kf.x.copy(), self.kf.P.copy()
-        new.hold, new.noise_std = self.hold, self.noise_std
+        new.hold, new.noise_std, new.misfit, new._mis = self.hold, self.noise_std, self.misfit, self._mis
         new.drift = self.drift if drift is None else drift
         new.step_prior = self.step_prior if step_prior is None else step_prior
         new.R, new.s1, new.s2, new.b, new.t = self.R, self.s1, self.s2, self.b, self.t   # never modified in place
@@ -165,6 +200,7 @@ class ErrorStateEKF:
         self._shock = _projected_cov(self.step_prior, TT)
         A = self.A
         self.kf.R = self.noise_std[0] ** 2 * np.eye(3) + self.noise_std[1] ** 2 * (A @ A.T)
+        self._mis = misfit_coefficients(self.noise_std, A, self.misfit)    # None for white noise
         self._G = None
         self._folds = 0
         self._held = self.hold.held_cov if self.hold.held_cov.any() else None    # None: nothing to add
@@ -203,9 +239,15 @@ class ErrorStateEKF:
             self._G = np.concatenate([J[:3] - J[3], J[3:]], axis=0)
         return self._G
 
-    def innovation_d2(self, H, r) -> np.ndarray:
-        """Per-sample ``r_k^T (H_k P H_k^T + R)^-1 r_k``."""
-        S = (H @ self.kf.P) @ np.swapaxes(H, 1, 2) + self.kf.R
+    def inflation(self, w1) -> np.ndarray | None:
+        """Per-sample factor ``g_k >= 1`` of the white measurement covariance for gyro-1 rates ``w1`` (B, 3)
+        at the current estimate (:func:`inflation`); None when the noise is white (every factor 1)."""
+        return inflation(self._mis, w1)
+
+    def innovation_d2(self, H, r, g=None) -> np.ndarray:
+        """Per-sample ``r_k^T (H_k P H_k^T + g_k R)^-1 r_k`` (``g``: :meth:`inflation`, None for 1)."""
+        R = self.kf.R if g is None else g[:, None, None] * self.kf.R
+        S = (H @ self.kf.P) @ np.swapaxes(H, 1, 2) + R
         return np.einsum("ka,ka->k", r, np.linalg.solve(S, r[:, :, None])[:, :, 0])
 
     # ------------------------------------------------------------------ filter steps
@@ -222,10 +264,11 @@ class ErrorStateEKF:
             self.kf.P = self.kf.P + Q
             self.t = float(t)
 
-    def linearise_one(self, w1, w2) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-        """One sample's ``(H, r, S, d2)``: Jacobian (3, 12), residual (3,), innovation covariance and
-        ``r^T S^-1 r``, with scalar arithmetic and a reused Jacobian buffer (the per-sample hot path;
-        the same values as :meth:`linearise` and :meth:`innovation_d2`)."""
+    def linearise_one(self, w1, w2) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+        """One sample's ``(H, r, S, d2, g)``: Jacobian (3, 12), residual (3,), innovation covariance,
+        ``r^T S^-1 r`` and the measurement covariance's factor :meth:`inflation`, with scalar arithmetic and a
+        reused Jacobian buffer (the per-sample hot path; the same values as :meth:`linearise`,
+        :meth:`inflation` and :meth:`innovation_d2`)."""
         (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = self.R.tolist()
         a0, a1, a2 = self.s1.tolist()
         c0, c1, c2 = self.s2.tolist()
@@ -243,27 +286,46 @@ class ErrorStateEKF:
         # A omega_2 through numpy's product, as in :meth:`linearise` (BLAS fuses the multiply-adds)
         d0, d1, d2 = np.dot(np.array(((A00, A01, A02), (A10, A11, A12), (A20, A21, A22))), w2).tolist()
         e0, e1, e2 = y0 - d0 - b0, y1 - d1 - b1, y2 - d2 - b2        # omega_1 - A omega_2 - b
-        S = np.dot(np.dot(H, self.kf.P), H.T) + self.kf.R     # np.dot: less call overhead than @ on tiny arrays
-        return H, np.array((e0, e1, e2)), S, _quadratic_3(S, e0, e1, e2)
+        S = np.dot(np.dot(H, self.kf.P), H.T)     # np.dot: less call overhead than @ on tiny arrays
+        if self._mis is None:
+            g = 1.0
+            S += self.kf.R
+        else:
+            a, b, c = self._mis
+            sq = y0 * y0 + y1 * y1 + y2 * y2
+            m = a + b * math.sqrt(sq)
+            g = 1.0 + c * (m * m) * sq
+            S += g * self.kf.R
+        return H, np.array((e0, e1, e2)), S, _quadratic_3(S, e0, e1, e2), g
 
-    def update_one(self, H, r) -> None:
-        """One sample's update through filterpy's Kalman update (Joseph form), then the fold."""
-        self.kf.x, self.kf.P = kalman_update(self.kf.x, self.kf.P, r[:, None], self.kf.R, H)
+    def update_one(self, H, r, g: float = 1.0) -> None:
+        """One sample's update through filterpy's Kalman update (Joseph form), then the fold; ``g`` is the
+        sample's :meth:`inflation`."""
+        R = self.kf.R if g == 1.0 else g * self.kf.R
+        self.kf.x, self.kf.P = kalman_update(self.kf.x, self.kf.P, r[:, None], R, H)
         self.fold()
 
-    def update_sample(self, H, r) -> None:
-        """One sample's update (3-d measurement through filterpy), then the fold."""
-        self.kf.update(r[:, None], HJacobian=lambda x: H, Hx=lambda x: H @ x, R=self.kf.R)
+    def update_sample(self, H, r, g: float = 1.0) -> None:
+        """One sample's update (3-d measurement through filterpy), then the fold; ``g``: its :meth:`inflation`."""
+        R = self.kf.R if g == 1.0 else g * self.kf.R
+        self.kf.update(r[:, None], HJacobian=lambda x: H, Hx=lambda x: H @ x, R=R)
         self.fold()
 
-    def update_block(self, w1, w2, keep) -> float:
+    def update_block(self, w1, w2, keep, g=None) -> float:
         """ONE update from the samples ``keep`` of a block through their moments, then the fold.
 
-        With ``Y = sum_k y_k y_k^T`` of ``y_k = [omega_1; omega_2; 1]`` (from count, mean and centred
-        scatter), ``Lambda = sum_mn Y_mn G_m^T W G_n`` and ``eta = sum_m G_m^T W L Y[:, m]`` where
-        ``r_k = L y_k``, ``L = [I, -A, -b]``: exactly the stacked update of the block's samples. It
-        is applied through filterpy as a whitened 12-d pseudo-measurement (``H_p^T H_p = Lambda``,
-        ``H_p^T z_p = eta``, ``R = I``).
+        With ``Y = sum_k y_k y_k^T / g_k`` of ``y_k = [omega_1; omega_2; 1]`` (from count, mean and centred
+        scatter, weighted by ``1 / g_k`` when the covariance of sample ``k`` is ``g_k R``, :meth:`inflation`),
+        ``Lambda = sum_mn Y_mn G_m^T W G_n`` and ``eta = sum_m G_m^T W L Y[:, m]`` where
+        ``r_k = L y_k``, ``L = [I, -A, -b]``, ``W = R^-1``: exactly the stacked update of the block's
+        samples. It is applied through filterpy as a whitened 12-d pseudo-measurement
+        (``H_p^T H_p = Lambda``, ``H_p^T z_p = eta``, ``R = I``).
+
+        Errors in variables: ``H_k`` is evaluated at the measured ``omega_2``, whose white noise also enters
+        ``r_k``; ``E[H_k^T W r_k]`` then holds ``-sigma_2^2 sum_m G_m^T W A e_m`` per sample, a pull of ``A``
+        towards zero that dominates at rest (the measured ``omega_2`` is gyro 2's bias plus noise). It is
+        removed from ``eta`` (the update is the stacked one plus ``P_post`` times that correction). The
+        per-sample path (:meth:`linearise_one`, :meth:`update_one`) does not apply it.
 
         Returns
         -------
@@ -272,23 +334,35 @@ class ErrorStateEKF:
         """
         A, b, P, G = self.A, self.b, self.kf.P, self.generators()
         B = w1.shape[0]
-        m = Moments.from_samples(w1, w2, mask=None if keep.all() else keep, chunk_size=B)
+        if g is None:
+            m = Moments.from_samples(w1, w2, mask=None if keep.all() else keep, chunk_size=B)
+            n, mu1, mu2, scatter = m.count, m.mean_1, m.mean_2, m.scatter
+        else:                                                # weights 1 / g_k: weighted count, mean, scatter
+            v = np.where(keep, 1.0 / g, 0.0)
+            y = np.hstack([w1, w2])
+            n = float(v.sum())
+            mu = (v @ y) / n
+            yc = y - mu
+            scatter = (yc * v[:, None]).T @ yc
+            mu1, mu2 = mu[:3], mu[3:]
         W = np.linalg.inv(self.kf.R)
-        n = m.count
-        mu2 = m.mean_2
-        rbar = m.mean_1 - A @ mu2 - b                        # mean residual L ybar
+        rbar = mu1 - A @ mu2 - b                             # mean residual L ybar
         Lc = np.hstack([np.eye(3), -A])                      # centred part of L
         Yp = np.empty((4, 4))                                # Y restricted to the regressors [omega_2; 1] of H
-        Yp[:3, :3] = m.S22 + n * np.outer(mu2, mu2)
+        Yp[:3, :3] = scatter[3:, 3:] + n * np.outer(mu2, mu2)
         Yp[:3, 3] = Yp[3, :3] = n * mu2
         Yp[3, 3] = n
         Gf = G.reshape(12, DIM)
         Lam = Gf.T @ np.kron(Yp, W) @ Gf
         LY = np.empty((3, 4))                                # L Y[:, m'] for m' over [omega_2; 1]
-        LY[:, :3] = Lc @ m.scatter[:, 3:] + n * np.outer(rbar, mu2)
+        LY[:, :3] = Lc @ scatter[:, 3:] + n * np.outer(rbar, mu2)
         LY[:, 3] = n * rbar
         eta = np.einsum("mai,am->i", G, W @ LY)
-        rWr = float(np.trace(W @ (Lc @ m.scatter @ Lc.T)) + n * rbar @ W @ rbar)
+        # errors in variables: gyro 2's white noise n_2 is in H_k as well as in r_k, so E[H_k^T W r_k] holds
+        # -sigma_2^2 sum_m G_m^T W A e_m, which shrinks A towards zero wherever the motion is below the noise
+        # (at rest: tens of % in a minute on a real board); that expectation is removed
+        eta += n * self.noise_std[1] ** 2 * np.einsum("mai,am->i", G[:3], W @ A)
+        rWr = float(np.trace(W @ (Lc @ scatter @ Lc.T)) + n * rbar @ W @ rbar)
         # block innovation statistic (Woodbury): r^T S^-1 r = rWr - eta^T P (I + Lam P)^-1 eta
         stat = rWr - float(eta @ P @ np.linalg.solve(np.eye(DIM) + Lam @ P, eta))
         lam, V = np.linalg.eigh(0.5 * (Lam + Lam.T))

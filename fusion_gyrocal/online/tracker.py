@@ -58,14 +58,15 @@ import numpy as np
 from scipy.stats import chi2
 
 from ..core.model import S1, S2, PairCalibration
-from ..core.moments import as_rates
+from ..core.moments import as_rates, noise_pair
+from ..core.noise import NoiseModel
 from ..core.observability import seed_configuration
 from ..errors import GyroCalError, InputError, OptionError
 from ..lie import log
 from ..pipeline.resample import resample
 from ..pipeline.streams import check_timestamps
 from .config import DriftNoise, StepPrior, TrackerConfig
-from .ekf import ErrorStateEKF
+from .ekf import ErrorStateEKF, inflation, misfit_coefficients
 from .figures import plot_history, track_figure_for_report
 from .history import HistoryRecorder, PairTruth, ReseedEvent, TrackHistory
 from .hold import DIM, ScaleHold
@@ -77,12 +78,41 @@ __all__ = ["DriftNoise", "GyroPairTracker", "PairTruth", "ReseedEvent", "StepPri
 _REPLAY_BLOCK = 100      # samples per block when a false alarm's buffered samples are re-processed
 
 
-def _batch(w1, w2, noise_std, gauge) -> PairCalibration:
+def _batch(w1, w2, noise_std, gauge, misfit=None) -> PairCalibration:
     """Batch calibration of a window (:func:`fusion_gyrocal.calibrate_pair`, which applies the paper's
-    flex rejection, Section VI.C, when the residuals call for it)."""
+    flex rejection, Section VI.C, when the residuals call for it).
+
+    With a rate-dependent misfit (``misfit``: :func:`~.ekf.misfit_coefficients`, None for white noise) the
+    white ``noise_std`` is raised to the window's effective level (:func:`_effective_noise`), so that the
+    batch covariance says what the window's fast samples are worth.
+    """
     from ..pipeline.pipeline import calibrate_pair
 
+    if misfit is not None and noise_std is not None:
+        noise_std = _effective_noise(noise_std, w1, inflation(misfit, w1))
     return calibrate_pair(w1, w2, noise_std=noise_std, gauge=gauge)
+
+
+def _effective_noise(noise_std, w1, g) -> tuple[float, float]:
+    """White per-sample noise ``noise_std`` scaled to the level of equal weights that carries the same
+    information as the samples' covariances ``g_k R``: the rate-weighted harmonic mean
+    ``sigma_eff^2 = sigma^2 sum |omega_k|^2 / sum (|omega_k|^2 / g_k)`` (the rotation's information is
+    ``sum omega omega^T / (g_k sigma^2)``; Eq. 12-17 weigh every sample alike)."""
+    if g is None:
+        return noise_std
+    sq = np.einsum("ka,ka->k", w1, w1)
+    k = float(np.sqrt(sq.sum() / max(float((sq / g).sum()), 1e-300))) if sq.sum() > 0 else 1.0
+    n = np.broadcast_to(np.asarray(noise_std, dtype=float), (2,))
+    return float(n[0] * k), float(n[1] * k)
+
+
+def _misfit_gain(noise_model) -> tuple[float, float]:
+    """``(a, b)`` of a :class:`~fusion_gyrocal.core.noise.NoiseModel`'s misfit when it flags one (its residual is
+    not white noise), else ``(0, 0)``: an insignificant fit is noise of the fit, not a model."""
+    if noise_model is None or noise_model.is_white or not noise_model.kind.endswith("misfit"):
+        return 0.0, 0.0
+    a, b = noise_model.misfit_gain
+    return float(a), float(b)
 
 
 def _log_covariance(cal: PairCalibration, prior_std: float) -> np.ndarray:
@@ -150,13 +180,19 @@ class GyroPairTracker:
     calibration : PairCalibration
         Seed (estimate and covariance), e.g. from :func:`fusion_gyrocal.calibrate_pair`.
         Its ``noise_std`` (per-sample white noise of each gyro, rad/s) sets the measurement
-        noise; its ``time_offset_s`` is used by :meth:`run_streams`.
+        noise unless ``noise_model`` flags a misfit; its ``time_offset_s`` is used by :meth:`run_streams`.
     t0 : float
         Time (s) at which the seed is valid (usually the end of its data).
     seed_span_s : float
         Duration of the data the seed was estimated from. The seed estimates the window
         average, the filter starts at its end: the seed covariance is inflated by the drift over
         a third of the span (the error variance of a random walk's window mean at its end).
+    noise_model : NoiseModel, optional
+        The pair's identified noise (:func:`fusion_gyrocal.core.noise.identify_noise`). When its residual is
+        a rate-dependent misfit (``kind`` says so), each sample's measurement covariance is its white
+        ``noise_std`` plus the misfit's variance ``(a + b |omega|)^2 |omega|^2 / 3`` per axis
+        (``misfit_gain``; :mod:`.ekf`), so fast motion does not raise false step alarms. Otherwise (or
+        None) the measurement noise is white, from ``calibration.noise_std``.
     config : TrackerConfig, optional
         The configuration (default: the defaults).
     **options
@@ -182,19 +218,25 @@ class GyroPairTracker:
     True
     """
 
-    __slots__ = ("_config", "_noise_std", "_time_offset_s", "_configuration", "_filter", "_gate", "_cusum",
-                 "_ring", "_history", "_events", "_alarm", "_replaying", "_n_samples", "_n_rejected")
+    __slots__ = ("_config", "_noise_std", "_noise_model", "_misfit", "_time_offset_s", "_configuration", "_filter",
+                 "_gate", "_cusum", "_ring", "_history", "_events", "_alarm", "_replaying", "_n_samples", "_n_rejected")
 
     def __init__(self, calibration: PairCalibration, *, t0: float = 0.0, seed_span_s: float = 0.0,
-                 config: TrackerConfig | None = None, **options):
+                 noise_model: NoiseModel | None = None, config: TrackerConfig | None = None, **options):
         if not isinstance(calibration, PairCalibration):
             raise InputError(f"calibration: expected a PairCalibration, got {type(calibration).__name__}")
+        if noise_model is not None and not isinstance(noise_model, NoiseModel):
+            raise InputError(f"noise_model: expected a NoiseModel (fusion_gyrocal.core.noise.identify_noise) or None, "
+                             f"got {type(noise_model).__name__}")
         config = TrackerConfig.of(config, **options)
-        noise = np.asarray(calibration.noise_std, dtype=float)
+        self._misfit = _misfit_gain(noise_model)
+        noise = np.asarray(calibration.noise_std if self._misfit == (0.0, 0.0) else noise_model.noise_std, dtype=float)
+        what = "calibration.noise_std" if self._misfit == (0.0, 0.0) else "noise_model.noise_std"
         if not (np.isfinite(noise).all() and (noise > 0).all()):
-            raise InputError(f"calibration.noise_std: expected two positive rad/s values, got {noise}")
+            raise InputError(f"{what}: expected two positive rad/s values, got {noise}")
         self._config = config
         self._noise_std = (float(noise[0]), float(noise[1]))
+        self._noise_model = noise_model
         self._time_offset_s = float(calibration.time_offset_s)
         self._filter = None
         self._seed(calibration, float(t0), span_s=float(seed_span_s))
@@ -209,15 +251,23 @@ class GyroPairTracker:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def from_samples(cls, t, omega_1, omega_2, *, noise_std=None, gauge=None, config: TrackerConfig | None = None,
-                     **options) -> "GyroPairTracker":
+    def from_samples(cls, t, omega_1, omega_2, *, noise_std=None, noise_model: NoiseModel | None = None, gauge=None,
+                     config: TrackerConfig | None = None, **options) -> "GyroPairTracker":
         """Seed a tracker from sample-aligned data with :func:`fusion_gyrocal.calibrate_pair`.
 
         The batch solve applies the paper's flex rejection and the tracker's gauge (``gauge``, else
         the configuration's); ``noise_std`` (rad/s per sample, one value or one per gyro) defaults to
-        its residual estimate. The tracker starts at ``t[-1]`` with the seed inflated for the drift
-        over the window (``seed_span_s``). ``config`` and ``options`` configure the tracker.
+        its residual estimate. The noise is then identified on the window
+        (:func:`fusion_gyrocal.core.noise.identify_noise` at the sample rate of ``t``, unless ``noise_model``
+        is given; a window shorter than 16 s leaves it white). When it flags a rate-dependent misfit,
+        the tracker weighs each sample by the white noise (``noise_std``, else the model's) plus the
+        misfit's variance, and the seed is solved again with the window's effective noise
+        (:func:`_effective_noise`) so that its covariance says what the window is worth. The tracker
+        starts at ``t[-1]`` with the seed inflated for the drift over the window (``seed_span_s``).
+        ``config`` and ``options`` configure the tracker.
         """
+        from ..core.noise import identify_noise
+
         if gauge is not None:
             options["gauge"] = gauge
         config = TrackerConfig.of(config, **options)
@@ -225,7 +275,18 @@ class GyroPairTracker:
         w1 = as_rates("omega_1", omega_1, length=t.shape[0])
         w2 = as_rates("omega_2", omega_2, length=t.shape[0])
         cal = _batch(w1, w2, noise_std, config.gauge)
-        return cls(cal, t0=float(t[-1]), seed_span_s=float(t[-1] - t[0]), config=config)
+        if noise_model is None:
+            try:
+                noise_model = identify_noise(w1, w2, cal.A, cal.bias, rate_hz=1.0 / float(np.median(np.diff(t))))
+            except InputError:           # too short a window for the noise identification: white noise
+                noise_model = None
+        misfit = _misfit_gain(noise_model)
+        if misfit != (0.0, 0.0):
+            if noise_std is not None:    # the caller's white level, the model's misfit
+                noise_model = dataclasses.replace(noise_model, noise_std=noise_pair(noise_std))
+            cal = _batch(w1, w2, noise_model.noise_std, config.gauge,
+                         misfit=misfit_coefficients(noise_model.noise_std, cal.A, misfit))
+        return cls(cal, t0=float(t[-1]), seed_span_s=float(t[-1] - t[0]), noise_model=noise_model, config=config)
 
     def _seed(self, cal: PairCalibration, t: float, span_s: float = 0.0) -> None:
         """Start the filter from a calibration at time ``t`` (construction, re-seed)."""
@@ -236,7 +297,7 @@ class GyroPairTracker:
         self._configuration = configuration
         self._filter = ErrorStateEKF(hold, cfg.drift, cfg.step_prior, self._noise_std, cal.R_1_2, cal.scale_1,
                                      cal.scale_2, cal.bias, _log_covariance(cal, cfg.scale_prior_std), t,
-                                     inflate_s=span_s / 3.0)
+                                     inflate_s=span_s / 3.0, misfit=self._misfit)
 
     def reconfigured(self, **changes) -> "GyroPairTracker":
         """A new tracker with ``changes`` to :attr:`config` that continues from the current state.
@@ -249,6 +310,7 @@ class GyroPairTracker:
         config = self._config.replace(**changes)
         new = object.__new__(type(self))
         new._config, new._noise_std, new._time_offset_s = config, self._noise_std, self._time_offset_s
+        new._noise_model, new._misfit = self._noise_model, self._misfit
         new._configuration = self._configuration
         f, alarm = self._filter, self._alarm and dataclasses.replace(self._alarm)
         if config.gauge == self._config.gauge and config.scale_prior_std == self._config.scale_prior_std:
@@ -256,7 +318,7 @@ class GyroPairTracker:
         else:
             hold = ScaleHold(self._configuration, config.gauge, config.scale_prior_std, f.s1, f.s2, previous=f.hold)
             new._filter = ErrorStateEKF(hold, config.drift, config.step_prior, self._noise_std, f.R, f.s1, f.s2, f.b,
-                                        f.kf.P, f.t)
+                                        f.kf.P, f.t, misfit=self._misfit)
             if alarm is not None:
                 R0, s10, s20, b0, P0, t0 = alarm.state
                 alarm.state = (R0, *hold.express(s10, s20), b0, new._filter.project(P0), t0)
@@ -291,6 +353,16 @@ class GyroPairTracker:
     def noise_std(self) -> tuple[float, float]:
         """White noise per sample of each gyro (rad/s), from the seed."""
         return self._noise_std
+
+    @property
+    def noise_model(self) -> NoiseModel | None:
+        """The identified noise the tracker was seeded with (None: given white noise)."""
+        return self._noise_model
+
+    @property
+    def misfit_gain(self) -> tuple[float, float]:
+        """``(a, b)`` of the rate-dependent misfit in the measurement covariance (``(0, 0)``: white noise)."""
+        return self._misfit
 
     @property
     def time_offset_s(self) -> float:
@@ -478,21 +550,22 @@ class GyroPairTracker:
             self._ring.push(t, w1, w2)
             self._n_samples += B
         H, r = f.linearise(w1, w2)
-        d2 = f.innovation_d2(H, r)
+        g = f.inflation(w1)
+        d2 = f.innovation_d2(H, r, g)
         alarm = None if (self._alarm is not None or self._replaying) else self._cusum.scan(t, d2)
         if alarm is not None:
             self._raise_alarm(float(t[alarm[0]]), alarm[1])
-            d2 = f.innovation_d2(H, r)             # covariance opened by the step prior
+            d2 = f.innovation_d2(H, r, g)          # covariance opened by the step prior
         keep = self._gate.keep(d2, fresh=alarm is not None)
         n_used = int(np.count_nonzero(keep))
         self._n_rejected += B - n_used
         nis = np.nan
         if n_used == 1:
             k = int(np.argmax(keep))
-            f.update_sample(H[k], r[k])
+            f.update_sample(H[k], r[k], 1.0 if g is None else float(g[k]))
             nis = d2[k] / 3.0
         elif n_used > 1:
-            nis = f.update_block(w1, w2, keep) / (3.0 * n_used)
+            nis = f.update_block(w1, w2, keep, g) / (3.0 * n_used)
         if not self._replaying:
             self._history.add(t_mid, f.R, f.s1, f.s2, f.b, f.kf.P, nis, n_used, mode)
             if self._alarm is not None:
@@ -507,14 +580,14 @@ class GyroPairTracker:
         if not self._replaying:
             self._ring.push_one(t, w1, w2)
             self._n_samples += 1
-        H, r, S, d2 = f.linearise_one(w1, w2)
+        H, r, S, d2, g = f.linearise_one(w1, w2)
         alarm = None if (self._alarm is not None or self._replaying) else self._cusum.scan_one(t, d2)
         if alarm is not None:
             self._raise_alarm(t, alarm[1])
-            H, r, S, d2 = f.linearise_one(w1, w2)    # covariance opened by the step prior
+            H, r, S, d2, g = f.linearise_one(w1, w2)    # covariance opened by the step prior
         used = self._gate.keep_one(d2, fresh=alarm is not None)
         if used:
-            f.update_one(H, r)
+            f.update_one(H, r, g)
         else:
             self._n_rejected += 1
         if not self._replaying:
@@ -540,7 +613,8 @@ class GyroPairTracker:
             if cfg.reseed_solver is not None:
                 cal = cfg.reseed_solver(data[:, 1:4], data[:, 4:7])
             else:
-                cal = _batch(data[:, 1:4], data[:, 4:7], self._noise_std, cfg.gauge)
+                cal = _batch(data[:, 1:4], data[:, 4:7], self._noise_std, cfg.gauge,
+                             misfit=misfit_coefficients(self._noise_std, f.A, self._misfit))
         except GyroCalError as exc:
             if f.t - a.onset < cfg.reseed_max_s and self._ring.oldest() <= a.onset:
                 a.next_try_t = f.t + 0.5 * cfg.reseed_window_s  # wait for more motion
