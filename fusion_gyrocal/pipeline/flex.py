@@ -12,9 +12,8 @@ the flex onset), and runs the calibration again. Here (:func:`gate`, the one ent
   (:func:`rate_dependence`): flex is a rotation of the mounting, ``(Exp(phi) - I) C omega_2 ~
   phi x omega_1``, so its excess residual is perpendicular to the rate; a rate-dependent misfit of
   the sensors (scale non-linearity, cross-axis terms, timing jitter) puts a large part of its excess
-  along the rate. Flex is cut from the rate where it starts (:func:`flex_rate_cut`); a misfit
-  keeps the fast motion, and the 3-sigma gate is scaled by the residual level of each rate so that
-  it still removes glitches but not the motion;
+  along the rate. Flex is cut from the rate where a rotation fitted per rate bin becomes
+  significant (:func:`flex_cut`); a misfit keeps the fast motion (only gross glitches go);
 * decisions are taken on a subsample of blocks (about 30k samples), and full passes run only
   when rejection is needed, so the cost on clean data does not grow with N.
 """
@@ -79,20 +78,11 @@ def robust_whitener(w1, w2, A, bias, mask, window, ranges) -> np.ndarray:
     return L * np.sqrt(CHI2_3_MEDIAN / max(float(np.median(d2)), 1e-300))
 
 
-def outliers(w1, w2, A, bias, mask, window, ranges, L, profile=None) -> np.ndarray:
-    """Indices of used samples beyond the gate.
-
-    With ``profile`` (``(rates, levels)`` of :class:`RateDependence`), the squared whitened residual
-    is divided by the residual level expected at the sample's rate (gyro 1's rate norm) first.
-    """
+def outliers(w1, w2, A, bias, mask, window, ranges, L) -> np.ndarray:
+    """Indices of used samples beyond the gate."""
     out = []
     for start, r, used in residual_blocks(w1, w2, A, bias, mask, window, ranges):
-        d2 = ((r @ L) ** 2).sum(axis=1)
-        if profile is not None:
-            rate = np.linalg.norm(np.asarray(w1[start:start + len(r)], dtype=np.float64), axis=1)
-            with np.errstate(invalid="ignore"):
-                d2 /= np.interp(rate, *profile)
-        out.append(start + np.flatnonzero(used & (d2 > CHI2_3_GATE)))
+        out.append(start + np.flatnonzero(used & (((r @ L) ** 2).sum(axis=1) > CHI2_3_GATE)))
     return np.concatenate(out) if out else np.zeros(0, int)
 
 
@@ -215,24 +205,18 @@ class RateDependence(NamedTuple):
     """How the residual grows with the rate (:func:`rate_dependence`).
 
     ``along_rate`` is the share of the excess residual power (above the noise) that lies along the
-    rate, in the inflated bins: 0 for a bend, about 1/3 for an excess without a preferred direction,
-    1 for a rate-dependent scale error. ``rates``/``levels`` are the residual level profile (the
-    median squared whitened residual of each rate bin over that of chi-square(3), at least 1, never
-    decreasing with the rate): ``np.interp(rate, rates, levels)`` is the level expected at a rate.
+    rate, in the inflated rate bins: 0 for a bend, about 1/3 for an excess without a preferred
+    direction, 1 for a rate-dependent scale error. ``level`` is the mean squared whitened residual of
+    the fastest bin over that of the slower half (1 without growth).
     """
 
     along_rate: float
-    rates: np.ndarray
-    levels: np.ndarray
+    level: float
 
     @property
     def is_flex(self) -> bool:
-        """The excess is a rotation of the mounting (perpendicular to the rate)."""
+        """The excess is a rotation of the mounting (across the rate)."""
         return self.along_rate < MAX_FLEX_SHARE
-
-    @property
-    def profile(self) -> tuple:
-        return self.rates, self.levels
 
 
 def along_rate_share(r: np.ndarray, w: np.ndarray, noise_cov: np.ndarray) -> float:
@@ -265,15 +249,13 @@ def rate_dependence(w1, w2, A, bias, mask, window, ranges, L, bins: int = 20) ->
     d2, rate = ((r @ L) ** 2).sum(axis=1), np.linalg.norm(w, axis=1)
     if d2.size < 20 * bins:
         return None
-    groups, _, _, inflated = _rate_bins(d2, rate, bins)
+    groups, means, ref, inflated = _rate_bins(d2, rate, bins)
     if not inflated.any():
         return None
     fast = np.concatenate([g for g, f in zip(groups, inflated) if f])
     slow = np.concatenate(groups[: bins // 2])
     share = along_rate_share(r[fast], w[fast], np.atleast_2d(np.cov(r[slow].T)))
-    rates = np.array([np.median(rate[g]) for g in groups])
-    levels = np.maximum.accumulate(np.maximum(1.0, np.array([np.median(d2[g]) for g in groups]) / CHI2_3_MEDIAN))
-    return RateDependence(share, rates, levels)
+    return RateDependence(share, float(means[-1] / ref))
 
 
 def above_rate(w1, cut: float, n: int, chunk: int = 65536) -> np.ndarray:
@@ -300,14 +282,15 @@ def gate(w1, w2, mask, cal, mom, moments_of, solve_moments, options, gate_window
 
     1. On a subsample (about 30k samples, :func:`block_ranges`), the residuals of the least-squares A
        (Eq. 17) are whitened robustly (:func:`robust_whitener`) and binned by rate
-       (:func:`rate_dependence`). If they grow with the rate, the share of the excess along the rate
-       decides: below :data:`MAX_FLEX_SHARE` it is flex (a rotation), otherwise a rate-dependent
-       misfit whose fast samples are kept (a note says so) and the gate below is scaled by the
-       residual level of each rate.
-    2. The 3-sigma gate in 3-D, iterated with the neighbours of each outlier (``flex_margin``), when
-       more than 1% of the subsample is beyond it (``flex_rejection="auto"``) or always (True).
-    3. For flex only, the samples above the rate where the residual starts growing (:func:`flex_rate_cut`).
-    4. The pair is solved again on the kept samples if they retain ``min_kept_energy`` of gyro 1's
+       (:func:`rate_dependence`). If they grow with the rate with at least :data:`MAX_FLEX_SHARE` of
+       the excess along the rate, it is a rate-dependent misfit, not flex: only gross outliers
+       (:func:`~fusion_gyrocal.pipeline.pipeline.gross_outliers`, comms glitches) are removed, the
+       fast motion is kept and a note says so.
+    2. Otherwise, the 3-sigma gate in 3-D, iterated with the neighbours of each outlier
+       (``flex_margin``), when more than 1% of the subsample is beyond it (``flex_rejection="auto"``)
+       or always (True); then the samples above the rate from which the mounting bends
+       (:func:`flex_cut`: a rotation fitted per rate bin).
+    3. The pair is solved again on the kept samples if they retain ``min_kept_energy`` of gyro 1's
        motion energy; otherwise nothing is removed and a note says why.
 
     Parameters
@@ -351,29 +334,32 @@ def gate(w1, w2, mask, cal, mom, moments_of, solve_moments, options, gate_window
     A_ls, b_ls = solve_A(mom)
     L = robust_whitener(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole)
     grows = rate_dependence(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole, L)
-    misfit = grows is not None and not grows.is_flex
-    profile = grows.profile if misfit else None
-    if misfit:
-        notes.append(f"the residual grows with the rate (up to {grows.levels[-1]:.3g}x the noise variance) with "
-                     f"{100 * grows.along_rate:.0f}% of its excess along the rate, which a bend of the mounting (a "
-                     "rotation, residual across the rate) cannot give: a rate-dependent misfit of the sensors (scale "
-                     "non-linearity, cross-axis terms, timing), not flex; the fast motion is kept and the outlier gate "
-                     "follows the residual level of each rate")
-    n_sub = g1.shape[0] if mask is None else int(np.count_nonzero(on_sub(mask)))
-    frac = outliers(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole, L, profile).size / max(n_sub, 1)
-    if o.flex_rejection is True or frac > 0.01:  # the paper's gate, iterated until nothing new is rejected
-        everything = block_ranges(n, gate_window)
-        for _ in range(5):
-            out = outliers(w1, w2, A_ls, b_ls, keep, gate_window, everything, L, profile)
-            if out.size == 0:
-                break
-            gated = np.ones(n, bool) if keep is None else keep.copy()
-            gated[dilate(out, o.flex_margin, n)] = False  # the outliers and their neighbours
-            keep = gated
+    if grows is not None and not grows.is_flex:
+        from .pipeline import gross_outliers
+        glitch = gross_outliers(w1, w2, mask)
+        if glitch.any():
+            keep = ~glitch if keep is None else (keep & ~glitch)
             mom = moments_of(keep)
-            A_ls, b_ls = solve_A(mom)
-            L = robust_whitener(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole)
-    if not misfit:
+        notes.append(f"the residual grows with the rate (to {grows.level:.3g}x the noise level in the fastest "
+                     f"twentieth) with {100 * grows.along_rate:.0f}% of its excess along the rate, which a bend of the "
+                     "mounting (a rotation: residual across the rate) cannot give: a rate-dependent misfit of the "
+                     "sensors (scale non-linearity, cross-axis terms, timing), not flex; the fast motion is kept "
+                     f"({int(np.count_nonzero(glitch))} gross outlier sample(s) removed)")
+    else:
+        n_sub = g1.shape[0] if mask is None else int(np.count_nonzero(on_sub(mask)))
+        frac = outliers(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole, L).size / max(n_sub, 1)
+        if o.flex_rejection is True or frac > 0.01:  # the paper's gate, iterated until nothing new is rejected
+            everything = block_ranges(n, gate_window)
+            for _ in range(5):
+                out = outliers(w1, w2, A_ls, b_ls, keep, gate_window, everything, L)
+                if out.size == 0:
+                    break
+                gated = np.ones(n, bool) if keep is None else keep.copy()
+                gated[dilate(out, o.flex_margin, n)] = False  # the outliers and their neighbours
+                keep = gated
+                mom = moments_of(keep)
+                A_ls, b_ls = solve_A(mom)
+                L = robust_whitener(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole)
         cut = flex_cut(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, L)
         if cut is not None:
             fast = above_rate(w1, cut, n)
