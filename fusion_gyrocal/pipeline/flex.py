@@ -29,6 +29,7 @@ CHI2_3_GATE = 14.156413609126677    # chi2.ppf(0.9973, 3): the 3-sigma false-ala
 MAX_FLEX_SHARE = 0.15               # share of the rate-dependent excess along the rate below which it is a bend
 #                                     (a rotation: 0; an excess without preferred direction: 1/3; a scale error: 1)
 CHI2_3_BEND = 33.23982506341531    # chi2.isf(norm.sf(5), 3): a bend at 5 sigma in one rate bin
+MEDIAN_REL_SE = 1.124               # std of the median of m chi-square(3) samples: ~ 1.124 / sqrt(m) x the median
 SUBSAMPLE_POINTS = 30_000           # samples on which the gate decides
 
 
@@ -110,13 +111,16 @@ def normalised_residuals(w1, w2, A, bias, mask, window, ranges, L):
 
 
 def _rate_bins(d2: np.ndarray, rate: np.ndarray, bins: int):
-    """Equal-count bins of rate: ``(groups, means, ref, inflated)``; a bin is inflated when its mean
-    normalised squared residual exceeds ``ref`` (that of the slower half) by more than 5 standard errors."""
+    """Equal-count bins of rate: ``(groups, medians, ref, inflated)``; a bin is inflated when its median
+    normalised squared residual exceeds ``ref`` (that of the slower half) by more than 5 standard errors.
+
+    Medians, so that a few spikes (outliers for the 3-sigma gate) do not make a bin grow with the rate.
+    """
     groups = np.array_split(np.argsort(rate), bins)
-    means = np.array([d2[g].mean() for g in groups])
-    ref = np.median(means[: bins // 2])
-    se = ref * np.sqrt(2.0 / (3.0 * len(groups[0])))  # chi-square(3) / 3 per sample, mean over a bin
-    return groups, means, ref, means > ref + 5.0 * se
+    medians = np.array([np.median(d2[g]) for g in groups])
+    ref = np.median(medians[: bins // 2])
+    se = ref * MEDIAN_REL_SE / np.sqrt(len(groups[0]))
+    return groups, medians, ref, medians > ref + 5.0 * se
 
 
 def bend_per_bin(r: np.ndarray, w: np.ndarray, W: np.ndarray, bins: int = 20):
@@ -206,7 +210,7 @@ class RateDependence(NamedTuple):
 
     ``along_rate`` is the share of the excess residual power (above the noise) that lies along the
     rate, in the inflated rate bins: 0 for a bend, about 1/3 for an excess without a preferred
-    direction, 1 for a rate-dependent scale error. ``level`` is the mean squared whitened residual of
+    direction, 1 for a rate-dependent scale error. ``level`` is the median squared whitened residual of
     the fastest bin over that of the slower half (1 without growth).
     """
 
@@ -241,8 +245,9 @@ def along_rate_share(r: np.ndarray, w: np.ndarray, noise_cov: np.ndarray) -> flo
 def rate_dependence(w1, w2, A, bias, mask, window, ranges, L, bins: int = 20) -> RateDependence | None:
     """How the residual grows with the rate, or None when it does not (no inflated rate bin).
 
-    The used samples of ``ranges`` (the subsample) are binned by gyro 1's rate norm as in
-    :func:`flex_rate_cut`; in the inflated bins the share of the excess residual along the rate is
+    The used samples of ``ranges`` (the subsample) are binned by gyro 1's rate norm (20 equal-count
+    bins; a bin is inflated when its median squared whitened residual exceeds that of the slower half
+    by 5 standard errors); in the inflated bins the share of the excess residual along the rate is
     measured (:func:`along_rate_share`) against the noise covariance of the slower half.
     """
     r, w = used_residuals(w1, w2, A, bias, mask, window, ranges)
@@ -283,7 +288,9 @@ def gate(w1, w2, mask, cal, mom, moments_of, solve_moments, options, gate_window
     1. On a subsample (about 30k samples, :func:`block_ranges`), the residuals of the least-squares A
        (Eq. 17) are whitened robustly (:func:`robust_whitener`) and binned by rate
        (:func:`rate_dependence`). If they grow with the rate with at least :data:`MAX_FLEX_SHARE` of
-       the excess along the rate, it is a rate-dependent misfit, not flex: only gross outliers
+       the excess along the rate, and still do once the 3-sigma outliers of the subsample are set aside
+       and A fitted again (a few spikes tilt A, which also makes the residual grow with the rate), it
+       is a rate-dependent misfit, not flex: only gross outliers
        (:func:`~fusion_gyrocal.pipeline.pipeline.gross_outliers`, comms glitches) are removed, the
        fast motion is kept and a note says so.
     2. Otherwise, the 3-sigma gate in 3-D, iterated with the neighbours of each outlier
@@ -334,6 +341,13 @@ def gate(w1, w2, mask, cal, mom, moments_of, solve_moments, options, gate_window
     A_ls, b_ls = solve_A(mom)
     L = robust_whitener(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole)
     grows = rate_dependence(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole, L)
+    if grows is not None and not grows.is_flex:   # spikes tilt A too: is the growth still there without them?
+        clean = np.ones(g1.shape[0], bool) if keep is None else on_sub(keep).copy()
+        clean[dilate(outliers(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole, L), o.flex_margin,
+                     g1.shape[0])] = False
+        A_c, b_c = _subsample_A(g1, g2, clean, gate_window)
+        grows = rate_dependence(g1, g2, A_c, b_c, clean, gate_window, whole,
+                                robust_whitener(g1, g2, A_c, b_c, clean, gate_window, whole))
     if grows is not None and not grows.is_flex:
         from .pipeline import gross_outliers
         glitch = gross_outliers(w1, w2, mask)
