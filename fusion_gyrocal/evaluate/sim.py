@@ -317,3 +317,57 @@ def simulate_drifting_pair(t, R_1_2, scale_1, scale_2, *, bias_1=None, bias_2=No
     A = (s1[:, :, None] * R) / s2[:, None, :]
     bias = b1 - np.einsum("kij,kj->ki", A, b2)
     return w1, w2, PairTruth(R, s1, s2, bias)
+
+
+def bend_with_rate(sim: SimulatedPair, *, start: float = 2.5, full: float = 5.0, max_deg: float = 1.0, axis=None,
+                   rng=None) -> tuple[SimulatedPair, np.ndarray]:
+    """Make gyro 2 of a simulated pair see a mounting that bends smoothly with the rate (device flex).
+
+    The bending angle grows with gyro 1's true rate norm ``|omega|`` as a smoothstep: 0 up to
+    ``start`` rad/s, ``max_deg`` degrees from ``full`` rad/s on (capped: a mounting bent to its stop),
+    ``angle = max_deg (3 x^2 - 2 x^3)`` with ``x = (|omega| - start) / (full - start)`` in between. The
+    mounting is ``R_1_2(k) = Exp(angle_k u) R_1_2`` about a fixed unit axis ``u`` in gyro 1's frame and
+    gyro 2 measures ``S_2 R_1_2(k)^T omega_1(k)`` plus its bias and noise (quasi-static bending: the
+    bending rate itself is not added). The residual of the rigid model is then
+    ``(Exp(angle u) - I) R_1_2 omega_2 ~ angle u x omega_1``: perpendicular to the rate and zero below
+    ``start``. Use enough fast motion (``simulate_pair(rms=...)``) for samples above ``start``.
+
+    Parameters
+    ----------
+    sim : SimulatedPair
+        A rigid simulation (:func:`simulate_pair`); its ``R_1_2`` stays the truth (the unbent mounting).
+    start, full : float
+        Rate norms (rad/s) where the bend starts and where it reaches ``max_deg`` (``0 <= start < full``).
+    max_deg : float
+        Largest bending angle (degrees).
+    axis : array_like (3,), optional
+        Bending axis in gyro 1's frame (normalised). Default: a random direction drawn from ``rng``.
+    rng : numpy.random.Generator or int, optional
+
+    Returns
+    -------
+    (SimulatedPair, ndarray (N,))
+        The pair with gyro 2 bent, and the bending angle (rad) of each sample.
+
+    Raises
+    ------
+    InputError
+        ``start``/``full`` not ``0 <= start < full``, or a zero or non-finite axis.
+    """
+    from dataclasses import replace
+
+    from ..errors import InputError
+
+    if not (np.isfinite(start) and np.isfinite(full) and 0.0 <= start < full):
+        raise InputError(f"start, full: expected rate norms 0 <= start < full (rad/s), got {start!r}, {full!r}")
+    if axis is None:
+        axis = np.random.default_rng(rng).standard_normal(3)
+    u = np.asarray(axis, dtype=float).reshape(-1)
+    if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) == 0.0:
+        raise InputError(f"axis: expected a finite non-zero 3-vector, got {axis!r}")
+    u = u / np.linalg.norm(u)
+    x = np.clip((np.linalg.norm(sim.omega_true_1, axis=1) - start) / (full - start), 0.0, 1.0)
+    angle = max_deg * DEG * x * x * (3.0 - 2.0 * x)
+    R_k = Rotation.from_rotvec(angle[:, None] * u) * Rotation.from_matrix(sim.R_1_2)
+    bent = R_k.inv().apply(sim.omega_true_1) - sim.omega_true_1 @ sim.R_1_2   # R_1_2(k)^T omega_1 - R^T omega_1
+    return replace(sim, omega_2=sim.omega_2 + bent @ sim.S_2.T), angle

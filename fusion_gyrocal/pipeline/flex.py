@@ -2,24 +2,35 @@
 
 The paper runs the calibration once, computes the residuals ``r(k)`` (Eq. 42), removes samples
 whose residual exceeds three standard deviations together with their neighbours (hysteresis of
-the flex onset), and runs the calibration again. Here:
+the flex onset), and runs the calibration again. Here (:func:`gate`, the one entry point):
 
 * the residual is that of the unconstrained least-squares A (Eq. 17), which absorbs any linear
   model error (skew, misalignment), so the gate sees noise plus non-linear, time-varying effects;
 * the gate is the 3-sigma gate in its 3-D form (chi-square with 3 dof at the same 0.27% false-alarm
   rate) with a robust covariance (median of the squared Mahalanobis distances), iterated;
-* flex that grows smoothly with the rate, too small per sample for the gate, is found by binning
-  the normalised residual by rate (:func:`flex_rate_cut`);
+* a residual that grows with the rate is told apart before anything is removed
+  (:func:`rate_dependence`): flex is a rotation of the mounting, ``(Exp(phi) - I) C omega_2 ~
+  phi x omega_1``, so its excess residual is perpendicular to the rate; a rate-dependent misfit of
+  the sensors (scale non-linearity, cross-axis terms, timing jitter) puts a large part of its excess
+  along the rate. Flex is cut from the rate where a rotation fitted per rate bin becomes
+  significant (:func:`flex_cut`); a misfit keeps the fast motion (only gross glitches go);
 * decisions are taken on a subsample of blocks (about 30k samples), and full passes run only
   when rejection is needed, so the cost on clean data does not grow with N.
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 CHI2_3_MEDIAN = 2.365973884375338   # median of chi-square with 3 dof
 CHI2_3_GATE = 14.156413609126677    # chi2.ppf(0.9973, 3): the 3-sigma false-alarm rate in 3-D
+MAX_FLEX_SHARE = 0.15               # share of the rate-dependent excess along the rate below which it is a bend
+#                                     (a rotation: 0; an excess without preferred direction: 1/3; a scale error: 1)
+CHI2_3_BEND = 33.23982506341531    # chi2.isf(norm.sf(5), 3): a bend at 5 sigma in one rate bin
+MEDIAN_REL_SE = 1.124               # std of the median of m chi-square(3) samples: ~ 1.124 / sqrt(m) x the median
+SUBSAMPLE_POINTS = 30_000           # samples on which the gate decides
 
 
 def block_ranges(n: int, window: int | None, *, max_points: int | None = None, block: int = 4096):
@@ -84,41 +95,172 @@ def dilate(idx: np.ndarray, margin: int, n: int) -> np.ndarray:
     return np.unique(out[(out >= 0) & (out < n)])
 
 
+def used_residuals(w1, w2, A, bias, mask, window, ranges):
+    """``(r, omega_1)`` of the used samples in ``ranges``: residuals (N_used, 3) and gyro 1's rates."""
+    r, w = [], []
+    for start, res, used in residual_blocks(w1, w2, A, bias, mask, window, ranges):
+        r.append(res[used])
+        w.append(np.asarray(w1[start:start + len(res)], dtype=np.float64)[used])
+    return np.concatenate(r), np.concatenate(w)
+
+
 def normalised_residuals(w1, w2, A, bias, mask, window, ranges, L):
     """``(d2, rate)`` of the used samples in ``ranges``: squared whitened residual and gyro 1's rate norm."""
-    d2, rate = [], []
-    for start, r, used in residual_blocks(w1, w2, A, bias, mask, window, ranges):
-        d2.append(((r[used] @ L) ** 2).sum(axis=1))
-        rate.append(np.linalg.norm(np.asarray(w1[start:start + len(r)], dtype=np.float64)[used], axis=1))
-    return np.concatenate(d2), np.concatenate(rate)
+    r, w = used_residuals(w1, w2, A, bias, mask, window, ranges)
+    return ((r @ L) ** 2).sum(axis=1), np.linalg.norm(w, axis=1)
 
 
-def flex_rate_cut(d2: np.ndarray, rate: np.ndarray, bins: int = 20) -> float | None:
-    """Rate from which the residual grows with the rate in flex bursts, or None.
+def _rate_bins(d2: np.ndarray, rate: np.ndarray, bins: int):
+    """Equal-count bins of rate: ``(groups, medians, ref, inflated)``; a bin is inflated when its median
+    normalised squared residual exceeds ``ref`` (that of the slower half) by more than 5 standard errors.
 
-    The samples are split into ``bins`` equal-count bins of rate. A bin is inflated when its mean
-    normalised squared residual exceeds that of the slower half by more than 5 standard errors.
-    If the fastest bins are inflated, the cut is the lowest rate of the consecutive inflated top
-    bins. Flex comes in bursts at the fastest motion: when the inflation reaches below the
-    fastest fifth of the samples, the residual grows with the rate everywhere (a model error such
-    as a sampling skew between the gyros, not flex) and there is no cut.
+    Medians, so that a few spikes (outliers for the 3-sigma gate) do not make a bin grow with the rate.
     """
+    groups = np.array_split(np.argsort(rate), bins)
+    medians = np.array([np.median(d2[g]) for g in groups])
+    ref = np.median(medians[: bins // 2])
+    se = ref * MEDIAN_REL_SE / np.sqrt(len(groups[0]))
+    return groups, medians, ref, medians > ref + 5.0 * se
+
+
+def bend_per_bin(r: np.ndarray, w: np.ndarray, W: np.ndarray, bins: int = 20):
+    """The small rotation that best explains the residuals of each rate bin, and its significance.
+
+    Flex bends the mounting by ``phi``, so the residual is ``r ~ phi x omega_1 = -[omega_1 x] phi``.
+    The samples are split into ``bins`` equal-count bins of gyro 1's rate norm and in each bin
+    ``phi`` is fitted by weighted least squares (weight ``W``, the residual's inverse covariance);
+    ``chi2 = phi' M phi`` (``M`` the bin's information) is chi-square(3)-distributed for a rigid pair.
+    Fitting the rotation averages the bend coherently over a bin, so it finds bends far smaller
+    than the growth of the squared residual does.
+
+    Returns
+    -------
+    (edges, chi2, phi) : ndarray (bins,), (bins,), (bins, 3)
+        The lowest rate of each bin, the chi-square of its rotation and the rotation (rad).
+    """
+    from ..lie import skew
+
+    rate = np.linalg.norm(w, axis=1)
+    order = np.argsort(rate)
+    starts = np.array([g[0] for g in np.array_split(np.arange(order.size), bins)])
+    J = -skew(w[order])                                           # r = J phi
+    JW = np.einsum("nki,kl->nil", J, W)
+    M = np.add.reduceat(np.einsum("nil,nlj->nij", JW, J), starts, axis=0)
+    g = np.add.reduceat(np.einsum("nil,nl->ni", JW, r[order]), starts, axis=0)
+    phi = np.linalg.solve(M + 1e-300 * np.eye(3), g[..., None])[..., 0]
+    return rate[order][starts], np.einsum("bi,bi->b", g, phi), phi
+
+
+def flex_rate_cut(edges: np.ndarray, chi2: np.ndarray, max_share: float = 0.05) -> float | None:
+    """Rate from which the mounting bends, from :func:`bend_per_bin`, or None.
+
+    A bin is bent when the chi-square of its rotation exceeds :data:`CHI2_3_BEND` (5 sigma). If the
+    fastest bin is bent, the cut is the lowest rate of the consecutive bent top bins, but never below
+    the fastest ``max_share`` of the samples in one step (:func:`flex_cut` looks again after each cut).
+    """
+    bent = chi2 > CHI2_3_BEND
+    if not bent[-1]:
+        return None
+    bins = bent.size
+    first = bins - 1
+    while first > bins - max(1, int(round(max_share * bins))) and bent[first - 1]:
+        first -= 1
+    return float(edges[first])
+
+
+def _subsample_A(g1, g2, used, window):
+    """Least-squares ``(A, b)`` (Eq. 17) of the used samples of the subsample (per-window biases pooled)."""
+    from ..core.direct import solve_A
+    from ..core.moments import Moments, window_moments
+
+    if not window:
+        return solve_A(Moments.from_samples(g1, g2, mask=used))
+    return solve_A(Moments.pool_all(window_moments(g1, g2, int(window), mask=used)))
+
+
+def flex_cut(g1, g2, A, bias, used, window, L, bins: int = 20, max_steps: int = 20) -> float | None:
+    """Rate above which the subsample ``g1, g2`` is bent (flex), or None: :func:`flex_rate_cut` repeated.
+
+    A bend above the cut also tilts the least-squares A (Eq. 17) fitted with it, which hides the
+    smaller bends just below the cut. So after each cut A and the whitener are fitted again on the
+    slower samples and the bend is looked for again, until the fastest kept bin is no longer bent
+    (at most ``max_steps`` times; each step works on the subsample only).
+    """
+    base = np.ones(g1.shape[0], bool) if used is None else np.asarray(used, bool)
+    rate = np.linalg.norm(np.asarray(g1, dtype=np.float64), axis=1)
+    whole = [(0, g1.shape[0])]
+    cut, kept = None, used
+    for _ in range(max_steps):
+        r, w = used_residuals(g1, g2, A, bias, kept, window, whole)
+        if r.shape[0] < 20 * bins:
+            break
+        step = flex_rate_cut(*bend_per_bin(r, w, L @ L.T, bins)[:2])
+        if step is None:
+            break
+        cut = step
+        with np.errstate(invalid="ignore"):
+            kept = base & (rate < cut)
+        A, bias = _subsample_A(g1, g2, kept, window)
+        L = robust_whitener(g1, g2, A, bias, kept, window, whole)
+    return cut
+
+
+class RateDependence(NamedTuple):
+    """How the residual grows with the rate (:func:`rate_dependence`).
+
+    ``along_rate`` is the share of the excess residual power (above the noise) that lies along the
+    rate, in the inflated rate bins: 0 for a bend, about 1/3 for an excess without a preferred
+    direction, 1 for a rate-dependent scale error. ``level`` is the median squared whitened residual of
+    the fastest bin over that of the slower half (1 without growth).
+    """
+
+    along_rate: float
+    level: float
+
+    @property
+    def is_flex(self) -> bool:
+        """The excess is a rotation of the mounting (across the rate)."""
+        return self.along_rate < MAX_FLEX_SHARE
+
+
+def along_rate_share(r: np.ndarray, w: np.ndarray, noise_cov: np.ndarray) -> float:
+    """Share of the excess power of the residuals ``r`` (N, 3) that lies along the rates ``w`` (N, 3).
+
+    Flex bends the mounting by a small rotation ``phi``, so the residual ``phi x omega`` is
+    perpendicular to the rate; the noise (covariance ``noise_cov``) puts ``u' C u`` along each rate
+    direction ``u`` and the rest across it, and is subtracted from both parts before the share is taken.
+    """
+    s = np.linalg.norm(w, axis=1)
+    ok = s > 0
+    u = w[ok] / s[ok, None]
+    r = r[ok]
+    along = (r * u).sum(axis=1) ** 2
+    noise_along = np.einsum("ni,ij,nj->n", u, noise_cov, u)
+    ex_along = float(along.sum() - noise_along.sum())
+    ex_across = float(((r * r).sum(axis=1) - along).sum() - (np.trace(noise_cov) * u.shape[0] - noise_along.sum()))
+    ex_along, ex_across = max(ex_along, 0.0), max(ex_across, 0.0)
+    return ex_along / (ex_along + ex_across) if ex_along + ex_across > 0 else 0.0
+
+
+def rate_dependence(w1, w2, A, bias, mask, window, ranges, L, bins: int = 20) -> RateDependence | None:
+    """How the residual grows with the rate, or None when it does not (no inflated rate bin).
+
+    The used samples of ``ranges`` (the subsample) are binned by gyro 1's rate norm (20 equal-count
+    bins; a bin is inflated when its median squared whitened residual exceeds that of the slower half
+    by 5 standard errors); in the inflated bins the share of the excess residual along the rate is
+    measured (:func:`along_rate_share`) against the noise covariance of the slower half.
+    """
+    r, w = used_residuals(w1, w2, A, bias, mask, window, ranges)
+    d2, rate = ((r @ L) ** 2).sum(axis=1), np.linalg.norm(w, axis=1)
     if d2.size < 20 * bins:
         return None
-    order = np.argsort(rate)
-    groups = np.array_split(order, bins)
-    means = np.array([d2[g].mean() for g in groups])
-    ref = np.median(means[: bins // 2])
-    se = ref * np.sqrt(2.0 / (3.0 * len(groups[0])))  # chi-square(3) / 3 per sample, mean over a bin
-    inflated = means > ref + 5.0 * se
-    if not inflated[-1]:
+    groups, means, ref, inflated = _rate_bins(d2, rate, bins)
+    if not inflated.any():
         return None
-    first = bins - 1
-    while first > 0 and inflated[first - 1]:
-        first -= 1
-    if first < bins - bins // 5:
-        return None
-    return float(rate[groups[first][0]])
+    fast = np.concatenate([g for g, f in zip(groups, inflated) if f])
+    slow = np.concatenate(groups[: bins // 2])
+    share = along_rate_share(r[fast], w[fast], np.atleast_2d(np.cov(r[slow].T)))
+    return RateDependence(share, float(means[-1] / ref))
 
 
 def above_rate(w1, cut: float, n: int, chunk: int = 65536) -> np.ndarray:
@@ -138,3 +280,117 @@ def spearman(x: np.ndarray, y: np.ndarray) -> float:
     rx[np.argsort(x)] = np.arange(x.size)
     ry[np.argsort(y)] = np.arange(y.size)
     return float(np.corrcoef(rx, ry)[0, 1])
+
+
+def gate(w1, w2, mask, cal, mom, moments_of, solve_on, options, gate_window):
+    """The flex and outlier gate (Section VI.C, Eq. 42): the samples to keep and the pair solved on them.
+
+    1. On a subsample (about 30k samples, :func:`block_ranges`), the residuals of the least-squares A
+       (Eq. 17) are whitened robustly (:func:`robust_whitener`) and binned by rate
+       (:func:`rate_dependence`). If they grow with the rate with at least :data:`MAX_FLEX_SHARE` of
+       the excess along the rate, and still do once the 3-sigma outliers of the subsample are set aside
+       and A fitted again (a few spikes tilt A, which also makes the residual grow with the rate), it
+       is a rate-dependent misfit, not flex: only gross outliers
+       (:func:`~fusion_gyrocal.pipeline.pipeline.gross_outliers`, comms glitches) are removed, the
+       fast motion is kept and a note says so.
+    2. Otherwise, the 3-sigma gate in 3-D, iterated with the neighbours of each outlier
+       (``flex_margin``), when more than 1% of the subsample is beyond it (``flex_rejection="auto"``)
+       or always (True); then the samples above the rate from which the mounting bends
+       (:func:`flex_cut`: a rotation fitted per rate bin).
+    3. The pair is solved again on the kept samples if they retain ``min_kept_energy`` of gyro 1's
+       motion energy; otherwise nothing is removed and a note says why.
+
+    Parameters
+    ----------
+    w1, w2 : array_like (N, 3)
+        Sample-aligned rates (rad/s); read only through ``mask``.
+    mask : ndarray of bool (N,) or None
+        Usable samples (None: all).
+    cal : PairCalibration
+        The pair solved on ``mask`` (from ``mom``).
+    mom : Moments
+        The moments of ``mask``.
+    moments_of : callable
+        ``moments_of(mask) -> Moments`` with the run's bias model.
+    solve_on : callable
+        ``solve_on(mask) -> PairCalibration``: the pair solved on those samples with the run's options.
+    options : Options
+        ``flex_rejection``, ``flex_margin``, ``min_kept_energy``.
+    gate_window : int or None
+        Residual windows of the bias model (the bias is removed per window), or None (constant bias).
+
+    Returns
+    -------
+    (cal, mask, rejected, corr)
+        The calibration (solved again, or ``cal`` with a note), the samples it used, the fraction of
+        the used samples rejected, and the Spearman correlation between the residual norm and the rate
+        on the kept samples of the subsample.
+    """
+    from ..core.direct import solve_A
+
+    o = options
+    n, n_used, keep = len(w1), cal.n_samples, mask
+    mom0, notes = mom, []
+    sub = block_ranges(n, gate_window, max_points=SUBSAMPLE_POINTS)
+    g1, g2 = gather(sub, w1, w2)           # the subsample, copied once (about 30k samples)
+    whole = [(0, g1.shape[0])]
+
+    def on_sub(m):
+        return gather(sub, m)[0]
+
+    A_ls, b_ls = solve_A(mom)
+    L = robust_whitener(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole)
+    grows = rate_dependence(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole, L)
+    if grows is not None and not grows.is_flex:   # spikes tilt A too: is the growth still there without them?
+        clean = np.ones(g1.shape[0], bool) if keep is None else on_sub(keep).copy()
+        clean[dilate(outliers(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole, L), o.flex_margin,
+                     g1.shape[0])] = False
+        A_c, b_c = _subsample_A(g1, g2, clean, gate_window)
+        grows = rate_dependence(g1, g2, A_c, b_c, clean, gate_window, whole,
+                                robust_whitener(g1, g2, A_c, b_c, clean, gate_window, whole))
+    if grows is not None and not grows.is_flex:
+        from .pipeline import gross_outliers
+        glitch = gross_outliers(w1, w2, mask)
+        if glitch.any():
+            keep = ~glitch if keep is None else (keep & ~glitch)
+            mom = moments_of(keep)
+        notes.append(f"the residual grows with the rate (to {grows.level:.3g}x the noise level in the fastest "
+                     f"twentieth) with {100 * grows.along_rate:.0f}% of its excess along the rate, which a bend of the "
+                     "mounting (a rotation: residual across the rate) cannot give: a rate-dependent misfit of the "
+                     "sensors (scale non-linearity, cross-axis terms, timing), not flex; the fast motion is kept "
+                     f"({int(np.count_nonzero(glitch))} gross outlier sample(s) removed)")
+    else:
+        n_sub = g1.shape[0] if mask is None else int(np.count_nonzero(on_sub(mask)))
+        frac = outliers(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole, L).size / max(n_sub, 1)
+        if o.flex_rejection is True or frac > 0.01:  # the paper's gate, iterated until nothing new is rejected
+            everything = block_ranges(n, gate_window)
+            for _ in range(5):
+                out = outliers(w1, w2, A_ls, b_ls, keep, gate_window, everything, L)
+                if out.size == 0:
+                    break
+                gated = np.ones(n, bool) if keep is None else keep.copy()
+                gated[dilate(out, o.flex_margin, n)] = False  # the outliers and their neighbours
+                keep = gated
+                mom = moments_of(keep)
+                A_ls, b_ls = solve_A(mom)
+                L = robust_whitener(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole)
+        cut = flex_cut(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, L)
+        if cut is not None:
+            fast = above_rate(w1, cut, n)
+            keep = ~fast if keep is None else (keep & ~fast)
+            mom = moments_of(keep)
+    rejected = 0.0
+    kept_energy = float(np.trace(mom.S11) / np.trace(mom0.S11)) if keep is not mask else 1.0
+    if keep is not mask and kept_energy >= o.min_kept_energy:
+        rejected = 1.0 - mom.count / max(n_used, 1)
+        cal = solve_on(keep)
+        mask = keep
+    elif keep is not mask:
+        notes.append(f"the residual grows with the rate across the motion (model error or flex everywhere): "
+                     f"rejecting it would keep only {100 * kept_energy:.0f}% of the motion energy, so no sample was "
+                     "rejected")
+    if notes:
+        import dataclasses
+        cal = dataclasses.replace(cal, notes=cal.notes + tuple(notes))
+    d2, rate = normalised_residuals(g1, g2, cal.A, cal.bias, on_sub(mask), gate_window, whole, np.eye(3))
+    return cal, mask, rejected, spearman(np.sqrt(d2), rate)

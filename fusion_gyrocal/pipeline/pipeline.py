@@ -296,47 +296,8 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
     corr = float("nan")
     if o.flex_rejection is not False and cal.rigid:
         from . import flex
-
-        n, n_used, keep = len(w1), cal.n_samples, mask
-        sub = flex.block_ranges(n, gate_window, max_points=30_000)
-        g1, g2 = flex.gather(sub, w1, w2)           # the subsample, copied once (about 30k samples)
-        whole = [(0, g1.shape[0])]
-
-        def on_sub(m):
-            return flex.gather(sub, m)[0]
-
-        A_ls, b_ls = solve_A(mom)
-        L = flex.robust_whitener(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole)
-        n_sub = g1.shape[0] if mask is None else int(np.count_nonzero(on_sub(mask)))
-        frac = flex.outliers(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole, L).size / max(n_sub, 1)
-        if o.flex_rejection is True or frac > 0.01:  # the paper's gate, iterated until nothing new is rejected
-            everything = flex.block_ranges(n, gate_window)
-            for _ in range(5):
-                out = flex.outliers(w1, w2, A_ls, b_ls, keep, gate_window, everything, L)
-                if out.size == 0:
-                    break
-                gate = np.ones(n, bool) if keep is None else keep.copy()
-                gate[flex.dilate(out, o.flex_margin, n)] = False  # the outliers and their neighbours
-                keep = gate
-                mom = moments_of(keep)[0]
-                A_ls, b_ls = solve_A(mom)
-                L = flex.robust_whitener(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole)
-        cut = flex.flex_rate_cut(*flex.normalised_residuals(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole, L))
-        if cut is not None:
-            fast = flex.above_rate(w1, cut, n)
-            keep = ~fast if keep is None else (keep & ~fast)
-            mom = moments_of(keep)[0]
-        kept_energy = float(np.trace(mom.S11) / np.trace(mom0.S11)) if keep is not mask else 1.0
-        if keep is not mask and kept_energy >= o.min_kept_energy:
-            rejected = 1.0 - mom.count / max(n_used, 1)
-            cal = solve_on(keep)[0]
-            mask = keep
-        elif keep is not mask:
-            cal = _replace(cal, notes=cal.notes + (
-                f"the residual grows with the rate across the motion (model error or flex everywhere): rejecting it "
-                f"would keep only {100 * kept_energy:.0f}% of the motion energy, so no sample was rejected",))
-        d2, rate = flex.normalised_residuals(g1, g2, cal.A, cal.bias, on_sub(mask), gate_window, whole, np.eye(3))
-        corr = flex.spearman(np.sqrt(d2), rate)
+        cal, mask, rejected, corr = flex.gate(w1, w2, mask, cal, mom0, lambda use: moments_of(use)[0],
+                                              lambda use: solve_on(use)[0], o, gate_window)
     cal = _replace(cal, time_offset_s=offset, time_offset_std_s=offset_std, rejected_fraction=rejected,
                    rate_residual_correlation=corr)
     return PipelineRun(cal, t_grid, np.asarray(w1), np.asarray(w2), valid_in, mask, pair)
