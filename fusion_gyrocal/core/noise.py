@@ -535,9 +535,11 @@ def identify_noise(omega_1, omega_2, A, bias, *, rate_hz: float, mask=None, wind
     contrast = float(np.median(win.v_r[order[-q:]]) / max(np.median(win.v_r[order[:q]]), 1e-300))
     misfit = share > MISFIT_SHARE and (drop > 25.0 or contrast > 2.0)
     use = valid.copy()
+    few_quiet = False
     if misfit:
         quiet = excess <= MISFIT_SHARE * v0
-        if quiet.sum() < 16:  # too few quiet windows: keep the lowest-misfit sixteen
+        few_quiet = quiet.sum() < 16
+        if few_quiet:  # too few quiet windows: keep the lowest-misfit sixteen
             quiet = np.zeros_like(quiet)
             quiet[np.argsort(excess)[:16]] = True
         use = np.zeros(n, bool)
@@ -632,6 +634,14 @@ def identify_noise(omega_1, omega_2, A, bias, *, rate_hz: float, mask=None, wind
     sd1 = np.sqrt(s1_sq) * 0.5 * np.sqrt(rel_R + f1 ** 2 * rho2_relvar)
     sd2 = np.sqrt(s2_sq) * 0.5 * np.sqrt(rel_R + f2 ** 2 * rho2_relvar)
     noise_std = (float(np.sqrt(s1_sq)), float(np.sqrt(s2_sq)))
+    if few_quiet:  # misfit in every window: even the quietest carry it; each stream's own high frequencies do not
+        head = np.flatnonzero(valid)[:200_000]
+        d1, d2 = difference_noise_std(w1[head]), difference_noise_std(w2[head])
+        if d1 > 0 and d2 > 0:
+            rel = 1.3 / np.sqrt(head.size)   # MAD of third differences
+            noise_std, sd1, sd2 = (float(d1), float(d2)), d1 * rel, d2 * rel
+            sources["noise"] = ("third differences of each stream: the residual carries the rate-dependent misfit "
+                                "in every window, so its Allan deviation is no noise figure")
     q_each = q_r / np.sqrt(1.0 + a)
     bias_walk = (float(q_each), float(q_each)) if walk else None
 
