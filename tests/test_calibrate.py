@@ -339,3 +339,16 @@ def test_calibrate_pair_unit_mismatch_names_the_units():
         calibrate_pair(sim.omega_1, np.rad2deg(sim.omega_2))
     with pytest.raises(InputError, match="gyro 1 in deg/s, gyro 2 in rad/s"):
         calibrate_pair(np.rad2deg(sim.omega_1), sim.omega_2)
+
+
+def test_calibrate_pair_motion_below_gyro_2_noise_raises_excitation_error():
+    # the x axis moves at 0.6 of the noise per sample: its explained SNR passes Lemma 1's test, but least squares
+    # attenuate A there and the Fisher covariance under-states the error (mean z^2 80 before this check)
+    from fusion_gyrocal.core.moments import Moments
+    from fusion_gyrocal.core.observability import check_excitation
+    sim = simulate_pair(n=20000, rms=np.array([0.6 * PAPER_NOISE_STD, 0.5, 0.5]), rng=3)
+    m = Moments.from_samples(sim.omega_1, sim.omega_2)
+    with pytest.raises(ExcitationError, match=r"the motion's power is 0\.[0-9]+x its noise's per sample"):
+        check_excitation(m, (PAPER_NOISE_STD, PAPER_NOISE_STD), min_snr=10.0)
+    with pytest.raises(ExcitationError, match="too little motion"):
+        calibrate_pair(sim.omega_1, sim.omega_2)

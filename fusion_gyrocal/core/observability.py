@@ -245,6 +245,11 @@ def explained_scatter(moments: Moments) -> np.ndarray:
     return 0.5 * (E + E.T)
 
 
+#: Smallest ratio of gyro 2's motion power to its noise power per sample along any direction (errors in
+#: variables: below it the least-squares A is attenuated by more than a third and the likelihood is not quadratic).
+MIN_SIGNAL_POWER = 0.5
+
+
 def check_excitation(moments: Moments, noise_std, min_snr: float = 10.0) -> None:
     """Raise :class:`ExcitationError` unless the motion spans all three axes (Lemma 1).
 
@@ -255,7 +260,8 @@ def check_excitation(moments: Moments, noise_std, min_snr: float = 10.0) -> None
     has an SNR of about ``sqrt(3) sigma_1 / sigma`` whatever the length of the log and however
     roughly the noise is estimated; a moving one has the paper's SNR (less where gyro 2's noise per
     sample exceeds the motion along it). The reported per-axis SNR (:func:`per_axis_snr`) keeps the
-    paper's definition.
+    paper's definition. Every direction of gyro 2's motion must also carry at least
+    :data:`MIN_SIGNAL_POWER` times the noise power per sample.
     """
     check_samples(moments)
     E = explained_scatter(moments)
@@ -280,6 +286,20 @@ def check_excitation(moments: Moments, noise_std, min_snr: float = 10.0) -> None
             f"that gyro 2 explains: x={snr_axes[0]:.3g}, y={snr_axes[1]:.3g}, z={snr_axes[2]:.3g}). Rotate the "
             f"device about its {' and '.join(axes)} axis/axes as well, or record longer."
         )
+    # the regressor: where gyro 2's motion is below its noise per sample, least squares attenuate A and the
+    # likelihood is far from quadratic (the Fisher covariance then under-states the error many times over)
+    noise_power = moments.dof * float(noise_std[1]) ** 2
+    w2, V2 = np.linalg.eigh(moments.S22)
+    power = w2 / max(noise_power, 1e-300) - 1.0
+    if power.min() < MIN_SIGNAL_POWER:
+        k = int(np.argmin(power))
+        v = V2[:, k] * np.sign(V2[np.argmax(np.abs(V2[:, k])), k])
+        axis = AXES[int(np.argmax(np.abs(v)))]
+        raise ExcitationError(
+            f"too little motion to calibrate: along direction {np.round(v, 2).tolist()} (mostly {axis}) of gyro 2 "
+            f"the motion's power is {max(power[k], 0.0):.2g}x its noise's per sample (need >= {MIN_SIGNAL_POWER:g}): "
+            f"the noise in the regressor biases the estimate and its covariance there. Rotate the device faster "
+            f"about its {axis} axis.")
 
 
 @dataclass(frozen=True)

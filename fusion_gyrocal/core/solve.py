@@ -48,13 +48,17 @@ MIN_ROBUST_WINDOWS = 20
 MAX_GAIN_RATIO = 1.5
 
 
-def _check_plausible_A(A) -> None:
+def _check_plausible_A(A, moments: Moments | None = None, noise=None) -> None:
     """Refuse an ``A`` no rigid pair of gyros in the same unit gives: a mirrored frame or a unit mismatch.
 
     ``A = S_1 R S_2^-1`` (Eq. 4) has ``det(A) > 0`` and singular values near 1 for any real pair; a
     negative determinant is a left-handed frame (an axis sign-inverted or two axes swapped), and a
-    common gain far from 1 is one gyro in other units (57.3 for deg/s read as rad/s).
+    common gain far from 1 is one gyro in other units (57.3 for deg/s read as rad/s). Least squares
+    attenuates ``A`` where gyro 2's noise is comparable to its motion (Eq. 17 ignores the noise in the
+    regressor); with ``moments`` and ``noise`` the gain is judged on ``A S22 (S22 - dof sigma_2^2 I)^-1``.
     """
+    if moments is not None and noise is not None:   # undo the attenuation (check_excitation bounds it)
+        A = A @ moments.S22 @ np.linalg.inv(moments.S22 - moments.dof * noise[1] ** 2 * np.eye(3))
     gain = float(np.prod(np.linalg.svd(A, compute_uv=False)) ** (1.0 / 3.0))   # |det A|^(1/3)
     if np.linalg.det(A) < 0:
         raise InputError("gyro 2's axes form a left-handed frame relative to gyro 1's (det(A) < 0, no rotation "
@@ -150,7 +154,7 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         noise_source = "user"
     if rigid:
         check_excitation(moments, noise, min_snr=o.min_snr)
-        _check_plausible_A(A_ls)
+        _check_plausible_A(A_ls, moments, noise)
     # classify from the polar factor of A (scales ~1), then again from the decomposed rotation
     config = classify(nearest_rotation(A_ls), parallel_tol_deg)
     notes = []
