@@ -163,3 +163,40 @@ def test_identify_noise_mimu_white_noise_matches_static_poses_or_is_flagged():
         assert within or nm.kind == "not white noise: rate-dependent misfit"
         assert within, (nm.noise_std, static)
         assert nm.kind == "not white noise: rate-dependent misfit"
+
+
+def test_identify_noise_allan_deviation_equals_allantools_oadev():
+    allantools = pytest.importorskip("allantools")
+    from fusion_gyrocal.core.noise import _allan
+    rng = np.random.default_rng(11)
+    y = rng.standard_normal((20000, 3)) + np.cumsum(rng.standard_normal((20000, 3)), axis=0) * 1e-3
+    taus, adev, _, _ = _allan(y, RATE)
+    phase = np.concatenate([np.zeros((1, 3)), np.cumsum(y - y.mean(axis=0), axis=0)]) / RATE
+    for i in (0, 3, 7, taus.size - 1):
+        m = int(round(taus[i] * RATE))
+        b = max(1, m // 4)
+        for a in range(3):
+            ref = allantools.oadev(np.ascontiguousarray(phase[::b, a]), rate=RATE / b, data_type="phase",
+                                   taus=np.array([taus[i]]))[1][0]
+            assert adev[i, a] == pytest.approx(ref, rel=1e-12)
+
+
+def test_identify_noise_degrees_of_freedom_near_greenhall():
+    allantools = pytest.importorskip("allantools")
+    from fusion_gyrocal.core.noise import _edf
+    for N, m in ((20001, 1), (5001, 2), (5001, 16), (2501, 128)):
+        for alpha in (0, -1, -2):
+            ref = allantools.edf_greenhall(alpha=alpha, d=2, m=m, N=N, overlapping=True)
+            assert _edf(alpha, float(m), float(N)) == pytest.approx(ref, rel=0.3 if m == 1 else 0.2)
+
+
+def test_identify_noise_long_log_on_stretches_keeps_the_walk():
+    from fusion_gyrocal.core.noise import MAX_IDENTIFY_SAMPLES
+    n = 4 * MAX_IDENTIFY_SAMPLES + 5
+    walk = 100 * PAPER_BIAS_WALK_STD
+    sim = simulate_pair(n=n, bias_walk_std=walk, rng=12)
+    nm = _identify(sim.omega_1, sim.omega_2)
+    assert "stretches spread over the" in nm.sources["noise"] and nm.rate_hz == RATE
+    np.testing.assert_allclose(nm.noise_std, PAPER_NOISE_STD, rtol=0.1)
+    assert nm.bias_model == "random walk"
+    assert 0.5 * walk < nm.bias_walk_std[0] < 2.0 * walk

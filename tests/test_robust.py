@@ -42,7 +42,7 @@ def test_window_stats_subsample_runs_stand_for_the_whole_log():
     stats = window_stats(sim.omega_1, sim.omega_2, 10, max_windows=512)
     assert stats.n_windows == 512 and len(np.unique(stats.run)) == 32
     assert stats.weight == pytest.approx(4000 / 512)
-    full = window_stats(sim.omega_1, sim.omega_2, 10)
+    full = window_stats(sim.omega_1, sim.omega_2, 10, max_windows=4000)
     assert full.n_windows == 4000 and full.weight == 1.0
 
 

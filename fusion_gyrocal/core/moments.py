@@ -389,7 +389,7 @@ def window_moments(omega_1, omega_2, window: int, *, mask=None, with_starts: boo
     return out
 
 
-MAX_SCORE_WINDOWS = 8192   # windows behind a block-robust covariance: all of them up to this many
+MAX_SCORE_WINDOWS = 2048   # windows behind a block-robust covariance: all of them up to this many
 _RUN = 16                  # else runs of this many consecutive windows, spread evenly over the log
 
 
@@ -446,27 +446,36 @@ def window_stats(omega_1, omega_2, window: int, *, mask=None, pooled: bool = Fal
     if window < 2:
         raise OptionError(f"window: expected at least 2 samples per window, got {window}")
     n_win = w1.shape[0] // window
-    if n_win <= max_windows:
-        idx = np.arange(n_win)
-        run = np.zeros(n_win, int)
-    else:
-        n_runs = max_windows // _RUN
-        starts = np.linspace(0, n_win - _RUN, n_runs).astype(int)
-        idx = (starts[:, None] + np.arange(_RUN)[None, :]).ravel()
-        run = np.repeat(np.arange(n_runs), _RUN)
+    if n_win == 0:
+        return _join([], window, 0.0, pooled)
+    if n_win <= max_windows:      # every window: one run
+        starts, run_len = np.array([0]), n_win
+    else:                         # runs of consecutive windows spread evenly over the log
+        starts, run_len = np.linspace(0, n_win - _RUN, max_windows // _RUN).astype(int), _RUN
     mask = None if mask is None else np.asarray(mask, bool)
     parts = []
-    step = max(1, 65536 // window)   # windows per gather: a few MiB at a time
-    for lo in range(0, idx.size, step):
-        rows = idx[lo:lo + step, None] * window + np.arange(window)[None, :]
-        x = np.concatenate([np.asarray(w1)[rows], np.asarray(w2)[rows]], axis=2).astype(np.float64)
-        parts.append(_stats_of(x, None if mask is None else mask[rows], run[lo:lo + step]))
+    per_chunk = max(1, 65536 // (run_len * window))   # runs per gather: a few MiB at a time
+    for lo in range(0, starts.size, per_chunk):
+        sl = [slice(int(st) * window, (int(st) + run_len) * window) for st in starts[lo:lo + per_chunk]]
+        if run_len * window > 65536:   # one long run (every window of a long log): in pieces
+            sl = [slice(a, min(a + 65536 // window * window, s.stop)) for s in sl for a in range(s.start, s.stop,
+                                                                                             65536 // window * window)]
+        x = np.concatenate([np.concatenate([w1[q], w2[q]], axis=1) for q in sl]).astype(np.float64, copy=False)
+        m = None if mask is None else np.concatenate([mask[q] for q in sl]).reshape(-1, window)
+        run = np.repeat(np.arange(lo, lo + len(sl)) if run_len != n_win else np.zeros(len(sl), int),
+                        [(q.stop - q.start) // window for q in sl])
+        parts.append(_stats_of(x.reshape(-1, window, 6), m, run))
     total = float(n_win * window if mask is None else np.count_nonzero(mask[: n_win * window]))
     return _join(parts, window, total, pooled)
 
 
 def _stats_of(x, m, run):
     """Per-window (count, mean, scatter, run) of ``x`` (W, n, 6); ``m`` (W, n) marks valid rows."""
+    if np.isfinite(x.sum()) and (m is None or m.all()):      # the common case: every row valid, no copies
+        cnt = np.full(x.shape[0], float(x.shape[1]))
+        mean = x.mean(axis=1)
+        xc = x - mean[:, None, :]
+        return cnt, mean, np.matmul(xc.transpose(0, 2, 1), xc), run
     ok = np.isfinite(x).all(axis=2)
     m = ok if m is None else (m & ok)
     x = np.where(m[:, :, None], x, 0.0)

@@ -12,7 +12,7 @@ about its mean, and any model error. Three questions are answered from it, each 
   so (``kind = "not white noise: rate-dependent misfit"``) and the noise is then taken from the
   windows where the fitted misfit is negligible.
 * **How much white noise, how much bias drift?** The overlapping Allan deviation of the residual
-  (allantools, the residual as a rate signal) is fitted with the standard terms of a gyro (IEEE Std
+  (the residual as a rate signal; checked against allantools in the tests) is fitted with the standard terms of a gyro (IEEE Std
   952): ``AVAR(tau) = N^2 / tau + (2 ln 2 / pi) B^2 + K^2 tau / 3`` with white rate noise ``N``
   (slope -1/2, rad/s/sqrt(Hz)), bias instability ``B`` (flat) and bias random walk ``K`` (slope +1/2,
   rad/s^1.5), each term kept only where it lowers the chi-square significantly. The weights are the
@@ -51,6 +51,8 @@ COLOURED_FACTOR = 1.5                 # Allan variance at the shortest tau off t
 #: correlation of the overlapping Allan variance at neighbouring octave taus, by the dominant noise
 #: (white, flicker, random walk), measured on simulated noise
 NEIGHBOUR_CORRELATION = np.array([0.5, 0.7, 0.85])
+MAX_IDENTIFY_SAMPLES = 2 ** 17   # longer logs: identified on stretches spread over them (bounded time and memory)
+STRETCH_WINDOWS = 64             # windows per stretch
 NOISE_SPLIT_SAMPLES = 16384   # samples behind the noise split: 16 blocks of 1024 spread over the log
 _NOISE_BLOCK = 1024
 
@@ -345,43 +347,71 @@ def _steady_split(win: _Windows, rate_hz: float):
 
 # ---------------------------------------------------------------------------------------------- Allan
 def _allan(y: np.ndarray, rate_hz: float):
-    """Overlapping Allan deviation per axis at octave taus (allantools), with the phase subsampled by
-    ``m // 4`` at ``tau = m / rate_hz`` (the overlapping estimator evaluated every ``m / 4`` samples: the
-    cost of all taus together is about four passes). Returns taus, adev (T, 3), and per tau the length
-    and averaging factor of the subsampled phase (for the degrees of freedom)."""
-    import allantools
+    """Overlapping Allan deviation per axis at octave taus, with the phase subsampled by ``m // 4`` at
+    ``tau = m / rate_hz`` (the overlapping estimator evaluated every ``m / 4`` samples: the cost of all
+    taus together is about four passes). Returns taus, adev (T, 3), and per tau the length and averaging
+    factor of the subsampled phase (for the degrees of freedom).
 
+    The estimator is the standard one on the phase ``x`` (the integrated rate, IEEE Std 1139):
+    ``AVAR(tau) = sum_i (x_{i+2m} - 2 x_{i+m} + x_i)^2 / (2 tau^2 (N - 2m))``; ``tests/test_noise.py``
+    checks it against allantools' ``oadev``, whose import (scipy.stats, scipy.interpolate) would cost the
+    command line more than the whole calibration of an hour-long log.
+    """
     n = y.shape[0]
     ms = 2 ** np.arange(0, int(np.floor(np.log2(max(n / 4.0, 1.0)))) + 1)
-    # phase (integrated rate) of the three axes in one pass, as allantools.frequency2phase makes it
     ph = np.empty((n + 1, 3))
     ph[0] = 0.0
     np.cumsum(y - y.mean(axis=0), axis=0, out=ph[1:])
     ph /= rate_hz
-    phase = [np.ascontiguousarray(ph[:, a]) for a in range(3)]
-    del ph
     adev = np.empty((ms.size, 3))
     sub_n, sub_m = np.empty(ms.size), np.empty(ms.size)
     for i, m in enumerate(ms):
         b = max(1, int(m) // 4)
-        for a in range(3):
-            p = phase[a][::b]
-            _, dev, _, _ = allantools.oadev(p, rate=rate_hz / b, data_type="phase", taus=np.array([m / rate_hz]))
-            adev[i, a] = dev[0]
-        sub_n[i], sub_m[i] = p.size, m // b
+        p = ph[::b]
+        mm = int(m) // b
+        d = p[2 * mm:] - 2.0 * p[mm:-mm] + p[:-2 * mm]
+        tau = m / rate_hz
+        adev[i] = np.sqrt(np.einsum("ka,ka->a", d, d) / (2.0 * tau * tau * d.shape[0]))
+        sub_n[i], sub_m[i] = p.shape[0], mm
     return ms / rate_hz, adev, sub_n, sub_m
+
+
+def _edf(alpha: int, m: float, N: float) -> float:
+    """Equivalent degrees of freedom of the overlapping Allan variance of ``N`` phase points at averaging
+    factor ``m``, for white (alpha 0), flicker (-1) and random-walk (-2) rate noise: the standard closed-form
+    approximations (Howe, Allan and Barnes 1981; Riley, NIST SP 1065), within about 15 % of Greenhall's
+    algorithm (``tests/test_noise.py`` compares them with allantools' ``edf_greenhall``)."""
+    if alpha == 0 or m == 1:   # at one sample the approximations of the others are poor; white dominates there
+        return (3.0 * (N - 1.0) / (2.0 * m) - 2.0 * (N - 2.0) / N) * 4.0 * m * m / (4.0 * m * m + 5.0)
+    if alpha == -1:
+        return 5.0 * N * N / (4.0 * m * (N + 3.0 * m))
+    return (N - 2.0) / m * ((N - 1.0) ** 2 - 3.0 * m * (N - 1.0) + 4.0 * m * m) / (N - 3.0) ** 2
 
 
 def _edf_table(sub_n, sub_m):
     """Equivalent degrees of freedom of each tau (3 independent axes) for white, flicker and random-walk
-    rate noise (alpha = 0, -1, -2), Greenhall's formula for the overlapping Allan variance."""
-    from allantools import edf_greenhall
-
+    rate noise (alpha = 0, -1, -2), :func:`_edf` on the subsampled phase."""
     out = np.empty((sub_n.size, 3))
     for i, (n, m) in enumerate(zip(sub_n, sub_m)):
         for j, alpha in enumerate((0, -1, -2)):
-            out[i, j] = 3.0 * edf_greenhall(alpha=alpha, d=2, m=int(m), N=int(n), overlapping=True)
+            out[i, j] = 3.0 * _edf(alpha, float(m), float(n))
     return np.maximum(out, 1.0)
+
+
+def _nnls(J, y) -> np.ndarray:
+    """Non-negative least squares ``min |J c - y|, c >= 0`` for a few columns: the best of the unconstrained
+    fits on every subset of columns whose coefficients are all non-negative (exact; 2^k small solves)."""
+    k = J.shape[1]
+    best, best_c = np.inf, np.zeros(k)
+    for bits in range(1, 2 ** k):
+        cols = [j for j in range(k) if bits >> j & 1]
+        c = np.linalg.lstsq(J[:, cols], y, rcond=None)[0]
+        if np.all(c >= 0):
+            r = float(np.sum((J[:, cols] @ c - y) ** 2))
+            if r < best:
+                best, best_c = r, np.zeros(k)
+                best_c[cols] = c
+    return best_c
 
 
 def _wls(taus, avar, edf, terms):
@@ -393,8 +423,6 @@ def _wls(taus, avar, edf, terms):
     the points are whitened with that correlation before the fit (without it the uncertainties come out
     about twice too small). Iterated with the weights of the model.
     """
-    from scipy.optimize import nnls
-
     X = np.column_stack([1.0 / taus, np.full_like(taus, FLICKER), taus / 3.0])
     Xs = X[:, terms]
     scale = np.abs(Xs).max(axis=0)
@@ -412,7 +440,7 @@ def _wls(taus, avar, edf, terms):
         L = np.linalg.cholesky(C * np.outer(sd, sd))
         Jw = np.linalg.solve(L, Xs / scale)
         yw = np.linalg.solve(L, avar)
-        c = nnls(Jw, yw)[0] / scale
+        c = _nnls(Jw, yw) / scale
         coef = np.zeros(3)
         coef[terms] = c
         pred = X @ coef
@@ -498,16 +526,43 @@ def identify_noise(omega_1, omega_2, A, bias, *, rate_hz: float, mask=None, wind
         raise OptionError(f"rate_hz: expected a positive sample rate in Hz, got {rate_hz!r}")
     if not (np.isfinite(window_s) and window_s > 0):
         raise OptionError(f"window_s: expected a positive window length in s, got {window_s!r}")
-    w1 = np.asarray(as_rates("omega_1", omega_1), dtype=np.float64)
-    w2 = np.asarray(as_rates("omega_2", omega_2, length=w1.shape[0]), dtype=np.float64)
+    w1 = as_rates("omega_1", omega_1)
+    w2 = as_rates("omega_2", omega_2, length=w1.shape[0])
+    n = w1.shape[0]
+    if mask is not None:
+        mask = np.asarray(mask, dtype=bool)
+        if mask.shape != (n,):
+            raise InputError(f"mask: expected shape ({n},), got {mask.shape}")
+    if n > MAX_IDENTIFY_SAMPLES:   # a long log: contiguous stretches spread over it, joined
+        w = max(8, int(round(window_s * rate_hz)))
+        idx = _stretches(n, w)
+        nm = _identify(np.asarray(w1[idx], dtype=np.float64), np.asarray(w2[idx], dtype=np.float64), A, bias, rate_hz,
+                       None if mask is None else mask[idx], window_s, stride=n / idx.size)
+        sources = dict(nm.sources)
+        sources["noise"] += (f"; on {idx.size} samples in {idx.size // (STRETCH_WINDOWS * w)} stretches spread over the "
+                             f"{n}-sample log (the walk scaled to the time between them)")
+        import dataclasses
+        return dataclasses.replace(nm, sources=sources)
+    return _identify(np.asarray(w1, dtype=np.float64), np.asarray(w2, dtype=np.float64), A, bias, rate_hz, mask,
+                     window_s)
+
+
+def _stretches(n: int, window: int) -> np.ndarray:
+    """Indices of contiguous stretches of :data:`STRETCH_WINDOWS` windows, evenly spread over ``n`` samples,
+    :data:`MAX_IDENTIFY_SAMPLES` in all (windows never straddle two stretches)."""
+    length = STRETCH_WINDOWS * window
+    count = max(1, MAX_IDENTIFY_SAMPLES // length)
+    starts = np.linspace(0, n - length, count).astype(np.int64) // window * window
+    return (starts[:, None] + np.arange(length)[None, :]).ravel()
+
+
+def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0) -> NoiseModel:
+    """:func:`identify_noise` on float64 rates; ``stride`` log samples per sample given (joined stretches)."""
     A = np.asarray(A, dtype=float).reshape(3, 3)
     bias = np.asarray(bias, dtype=float).reshape(3)
     n = w1.shape[0]
     valid = np.isfinite(w1).all(axis=1) & np.isfinite(w2).all(axis=1)
     if mask is not None:
-        mask = np.asarray(mask, dtype=bool)
-        if mask.shape != (n,):
-            raise InputError(f"mask: expected shape ({n},), got {mask.shape}")
         valid &= mask
     everything = bool(valid.all())
     if not everything:
@@ -568,7 +623,7 @@ def identify_noise(omega_1, omega_2, A, bias, *, rate_hz: float, mask=None, wind
     avar = (adev ** 2).mean(axis=1)
     edf = _edf_table(sub_n, sub_m)
     c, cov, lo, pred_avar = _fit_allan(taus, avar, edf)
-    compress = kept / span  # joined samples: the walk per joined step covers span / size samples
+    compress = kept / (span * stride)  # joined samples: the walk per joined step covers span / size samples
     Nsq, Bsq, Ksq = c
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0)) if np.isfinite(cov).all() else np.full(3, np.nan)
     R_r = Nsq * rate_hz
@@ -593,7 +648,7 @@ def identify_noise(omega_1, omega_2, A, bias, *, rate_hz: float, mask=None, wind
     # 3. bias model
     z = Ksq / sd[2] if Ksq > 0 and sd[2] > 0 else 0.0
     settle = np.sqrt(R_r / q2) if q2 > 0 else np.inf  # samples: Kalman time constant of the walk
-    walk = bool(z >= WALK_Z and settle <= SETTLE_FRACTION * span)
+    walk = bool(z >= WALK_Z and settle <= SETTLE_FRACTION * span * stride)
     if walk:
         sources["bias"] = (f"random walk: the Allan fit's K term (slope +1/2) is {z:.1f} sigma, and the Kalman "
                            f"filter of the walk settles in {settle / rate_hz:.3g} s; split equally between the gyros "
@@ -603,7 +658,7 @@ def identify_noise(omega_1, omega_2, A, bias, *, rate_hz: float, mask=None, wind
                            f"{WALK_Z:g})")
     elif Ksq > 0:
         sources["bias"] = (f"constant: the walk ({z:.1f} sigma) is too slow to matter: its Kalman filter would take "
-                           f"{settle / rate_hz:.3g} s to settle, against {span / rate_hz:.0f} s of log")
+                           f"{settle / rate_hz:.3g} s to settle, against {span * stride / rate_hz:.0f} s of log")
     else:
         sources["bias"] = "constant: no random-walk term in the residual's Allan deviation"
     if Bsq > 0:

@@ -233,8 +233,10 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
     rate_hz = _sample_rate(t_grid)
     window = max(16, int(round(rate_hz))) if rate_hz is not None else NOMINAL_WINDOW   # about 1 s
     noise_model, noise_ratio = None, None
+    base, base_mask = None, mask        # the moments of every usable sample, computed once
     if o.noise_std is None and o.noise_model == "identify":
-        noise_model = _identify(w1, w2, mask, rate_hz)
+        base = Moments.from_samples(w1, w2, mask=mask)
+        noise_model = _identify(w1, w2, mask, rate_hz, base)
         if noise_model is not None:
             walk = noise_model.bias_walk_std if o.bias_window is None else None
             o = o.replace(noise_std=noise_model.noise_std, bias_walk_std=walk)
@@ -259,7 +261,7 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
                                            window=window if with_windows else None)
             return out[0], (out[2] if with_windows else None)
         if bias_window is None:
-            m = Moments.from_samples(w1, w2, mask=use)
+            m = base if (base is not None and use is base_mask) else Moments.from_samples(w1, w2, mask=use)
             return m, (window_stats(w1, w2, window, mask=use) if with_windows else None)
         m = Moments.pool_all(window_moments(w1, w2, int(bias_window), mask=use))
         return m, (window_stats(w1, w2, int(bias_window), mask=use, pooled=True) if with_windows else None)
@@ -310,7 +312,7 @@ def _sample_rate(t) -> float | None:
     return float((len(t) - 1) / (t[-1] - t[0]))
 
 
-def _identify(w1, w2, mask, rate_hz):
+def _identify(w1, w2, mask, rate_hz, moments: Moments):
     """The noise model identified from the pair's residual (None when the log is too short for it).
 
     Sample-aligned input has no sample rate: the model is then identified per sample (``rate_hz``
@@ -320,7 +322,7 @@ def _identify(w1, w2, mask, rate_hz):
     from ..errors import GyroCalError
 
     try:   # too short, too little motion, constant input...: the solve says why, with the residual noise
-        A, b = solve_A(Moments.from_samples(w1, w2, mask=mask))
+        A, b = solve_A(moments)
         if rate_hz is None:
             return identify_noise(w1, w2, A, b, rate_hz=1.0, mask=mask, window_s=float(NOMINAL_WINDOW))
         return identify_noise(w1, w2, A, b, rate_hz=rate_hz, mask=mask)
