@@ -131,3 +131,15 @@ def test_calibrate_pair_mimu_sessions_spread_is_covered_by_the_covariance():
     assert sigma <= 3.0 * spread
     rest = [c.noise_model for c in cals]
     assert all(nm is not None and 0.05 * DEG < nm.noise_std[0] < 0.5 * DEG for nm in rest)  # static poses: 0.146 deg/s
+
+
+def test_calibrate_pair_cross_axis_flags_skew_the_rigid_model_cannot_absorb():
+    clean = [calibrate_pair(*(lambda s: (s.omega_1, s.omega_2))(simulate_pair(n=6000, rng=k)), noise_std=PAPER_NOISE_STD)
+             for k in range(8)]
+    assert all(c.cross_axis_dof == 1 for c in clean)
+    assert np.mean([c.cross_axis_chi2 for c in clean]) < 3.0       # chi2(1): mean 1
+    assert not any("full linear map" in n for c in clean for n in c.notes)
+    sim = simulate_pair(n=6000, rng=1, skew_std=2e-3)
+    cal = calibrate_pair(sim.omega_1, sim.omega_2, noise_std=PAPER_NOISE_STD)
+    assert cal.cross_axis_chi2 > 100.0 and np.abs(cal.cross_axis).max() > 2e-4
+    assert any("full linear map fits significantly better" in n for n in cal.notes)

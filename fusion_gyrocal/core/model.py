@@ -49,6 +49,7 @@ ROT, S1, S2, BIAS = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)
 _ARRAY_SHAPES = {
     "R_1_2": (3, 3), "scale_1": (3,), "scale_2": (3,), "bias": (3,), "scale_observable": (2, 3),
     "covariance": (12, 12), "snr": (3,), "noise_std": (2,), "skew_rotation_covariance": (3, 3),
+    "cross_axis": (3, 3),
 }
 
 
@@ -136,6 +137,13 @@ class PairCalibration:
     robust_inflation : float
         Largest ratio of the block-robust variance to the noise model's over all directions (NaN when
         not computed): how much more the estimate scatters than the noise model says.
+    cross_axis : ndarray (3, 3)
+        What the full linear map (Eq. 17) explains beyond rotation and scale factors, as relative
+        cross-axis terms in gyro 1's frame (Appendix D; :func:`~fusion_gyrocal.core.robust.cross_axis`);
+        zeros when not computed.
+    cross_axis_chi2 : float
+        Its chi-square with ``cross_axis_dof`` degrees of freedom (NaN when not computed).
+    cross_axis_dof : int
     noise_model : NoiseModel or None
         The noise model identified from the pair's residual (:func:`~fusion_gyrocal.core.noise.identify_noise`)
         when ``noise_std`` came from it.
@@ -169,6 +177,9 @@ class PairCalibration:
     covariance_basis: str = "noise model"
     lack_of_fit: float = float("nan")
     robust_inflation: float = float("nan")
+    cross_axis: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    cross_axis_chi2: float = float("nan")
+    cross_axis_dof: int = 0
     noise_model: Any = None
     notes: tuple = ()
 

@@ -149,3 +149,47 @@ def bias_variance(A, bias, stats: WindowStats, lags: int = LAGS) -> np.ndarray:
     n = stats.count.sum()
     e = stats.count[:, None] * (r - (stats.count[:, None] * r).sum(axis=0) / n)
     return _newey_west(e, stats, lags) / (n * n * stats.weight)   # Var(sum over the log) / N_log^2
+
+
+def cross_axis(A_ls, R, s1, s2, moments, noise_std, windows: WindowStats | None = None,
+               lags: int = LAGS) -> tuple[np.ndarray, float, int]:
+    """What the full linear map explains beyond rotation + scale factors: the observable relative
+    cross-axis terms (Appendix D).
+
+    The least-squares ``A`` (Eq. 17, nine free entries) against the rigid ``A = S_1 R S_2^-1`` (Eq. 4):
+    their difference, with the directions the rigid model can absorb (rotation, scales: the tangent
+    ``dA/dp``) projected out in the metric of ``Cov(vec A)``, is what no rotation and scales explain;
+    it is tested by its chi-square (``k = 9 - rank(dA/dp)`` degrees of freedom: 1 in the general
+    configuration, more with parallel axes). ``Cov(vec A)`` is ``W^-1 (x) S22^-1`` under the noise model, or
+    with ``windows`` the block-robust one from the windows' influence on ``A``
+    (``(S12_w - A S22_w) S22^-1``, Newey-West), whichever is larger.
+
+    Returns
+    -------
+    E : ndarray (3, 3)
+        The unexplained part as relative cross-axis terms in gyro 1's frame, ``S_1^-1 dA S_2 R^T``.
+    chi2 : float
+    dof : int
+    """
+    A_r = A_of(R, s1, s2)
+    S22 = moments.S22
+    S22_inv = np.linalg.inv(S22)
+    cov = np.kron(np.linalg.inv(residual_weight(A_r, noise_std)), S22_inv)     # row-major vec(A)
+    if windows is not None and windows.n_windows >= 2:
+        S = windows.scatter
+        if not windows.pooled:
+            total = windows.count.sum()
+            d = windows.mean - (windows.count[:, None] * windows.mean).sum(axis=0) / total
+            S = S + windows.count[:, None, None] * d[:, :, None] * d[:, None, :]
+        U = (S[:, :3, 3:] - A_ls @ S[:, 3:, 3:]) @ S22_inv                       # each window's pull on A
+        V = _newey_west(U.reshape(U.shape[0], 9) - U.reshape(U.shape[0], 9).mean(axis=0), windows, lags)
+        cov = larger(cov, V * windows.weight)[0]
+    J = dA_dp(R, s1, s2).reshape(9, 9).T                                         # columns: vec(dA/dp_k)
+    info = np.linalg.pinv(cov, hermitian=True)
+    P = J @ np.linalg.pinv(J.T @ info @ J, hermitian=True) @ J.T @ info          # oblique projector on the tangent
+    Q = np.eye(9) - P
+    d = Q @ (A_ls - A_r).reshape(9)
+    chi2 = float(d @ np.linalg.pinv(Q @ cov @ Q.T, rcond=1e-10, hermitian=True) @ d)
+    dof = 9 - int(np.linalg.matrix_rank(J, tol=1e-9 * np.abs(J).max()))
+    E = (d.reshape(3, 3) / s1[:, None]) * s2[None, :] @ R.T
+    return E, chi2, dof

@@ -41,6 +41,9 @@ def _skew_compensation(intrinsics):
     return np.linalg.inv(U)
 
 
+#: 99.9 % points of the chi-square distribution with 1..9 degrees of freedom (the cross-axis test).
+CHI2_999 = (10.83, 13.82, 16.27, 18.47, 20.52, 22.46, 24.32, 26.12, 27.88)
+
 #: Fewest windows behind a block-robust covariance (fewer give too noisy an estimate of the scores' variance).
 MIN_ROBUST_WINDOWS = 20
 
@@ -220,7 +223,7 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
             basis += f"; the block-robust sandwich ({where}) is not significantly larger"
         P9 = P_rob if o.covariance == "robust" else P9_max
         if inflation > 2.0:
-            notes.append(f"the estimate scatters {np.sqrt(inflation):.2g}x more than the noise model explains (residual "
+            notes.append(f"the estimate scatters up to {np.sqrt(inflation):.3g}x more than the noise model explains (residual "
                          f"chi2/dof {lack_of_fit:.3g}: rate-dependent scale or cross-axis error, coloured noise, timing, "
                          "flex); the covariance is the block-robust one in those directions")
     elif o.covariance == "robust":
@@ -232,6 +235,17 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         basis += f", inflated by the residual's chi2/dof {lack_of_fit:.3g}"
         notes.append(f"residuals are {np.sqrt(lack_of_fit):.2f}x larger than noise_std explains (flex, skew, time "
                      f"offset or a wrong noise_std?); covariance inflated by {lack_of_fit:.2f}")
+    E, cross_chi2, cross_dof = np.zeros((3, 3)), float("nan"), 0
+    if rigid:
+        from .robust import cross_axis
+        E, cross_chi2, cross_dof = cross_axis(A_ls, R, s1, s2, moments, noise, windows)
+        if cross_dof and cross_chi2 > CHI2_999[cross_dof - 1]:
+            off = np.abs(E - np.diag(np.diag(E))).max()
+            notes.append(f"the full linear map fits significantly better than rotation + scale factors (chi2 "
+                         f"{cross_chi2:.3g} for {cross_dof} dof, p < 0.001): relative cross-axis terms up to {off:.2g} "
+                         f"remain (cross_axis). Skew errors of that size that the data cannot see move the rotation by "
+                         f"about {np.rad2deg(off / 2) * 1e3:.3g} mdeg (Appendix D, Eq. 40): compensate the intrinsics "
+                         "(intrinsics_1/2) or pass skew_std to budget for it")
     cov = pair_covariance(P9, R, s1, s2, A, moments, Sigma_r)
     if scale_prior_std is None:
         mark_undetermined(cov, config.scale_observable)
@@ -260,7 +274,8 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         residual_rms=float(np.sqrt(max(np.trace(M), 0.0) / (3.0 * max(moments.dof, 1.0)))), method=method,
         iterations=iterations, skew_rotation_covariance=skew_cov, bias_segments=moments.segments,
         rigid=rigid, unexplained_fraction=unexplained, covariance_basis=basis, lack_of_fit=lack_of_fit,
-        robust_inflation=inflation, noise_model=noise_model, notes=tuple(notes))
+        robust_inflation=inflation, cross_axis=E, cross_axis_chi2=cross_chi2, cross_axis_dof=cross_dof,
+        noise_model=noise_model, notes=tuple(notes))
 
 
 def _ml_covariance(F, s1, s2, config, gauge, scale_prior_std):
