@@ -14,7 +14,7 @@ from fusion_gyrocal import PairCalibration, calibrate_pair
 from fusion_gyrocal.errors import InputError, OptionError
 from fusion_gyrocal.evaluate.sim import (DEG, HumanMotion, general_rotation, rotation_error, scale_error, shared_data_dir,
                                          simulate_drifting_pair)
-from fusion_gyrocal.online.tracker import DriftNoise, GyroPairTracker, TrackerConfig, plot_history
+from fusion_gyrocal.online.tracker import DriftNoise, GyroPairTracker, TrackerConfig, _misfit_gain, plot_history
 
 RATE = 100.0
 NOISE = 0.1 * DEG          # the paper's white noise per sample (rad/s)
@@ -691,7 +691,9 @@ def test_run_rate_dependent_scale_no_alarm_and_within_3sigma():
     sigma = np.sqrt(np.trace(tr.error_covariance[:3, :3]))
     assert err < 3.0 * sigma, (err / DEG, sigma / DEG)
     # the same seed with white measurement noise (the seed's residual std, no misfit) raises step alarms
-    white = GyroPairTracker(calibrate_pair(w1[:n0], w2[:n0]), t0=t[n0 - 1], seed_span_s=t[n0 - 1])
+    seed = calibrate_pair(w1[:n0], w2[:n0])
+    assert GyroPairTracker(seed, t0=t[n0 - 1]).misfit_gain == _misfit_gain(seed.noise_model) != (0.0, 0.0)
+    white = GyroPairTracker(seed, t0=t[n0 - 1], seed_span_s=t[n0 - 1], noise_model=None)
     assert white.misfit_gain == (0.0, 0.0)
     assert white.run(t[n0:], w1[n0:], w2[n0:]).reseeds
 
