@@ -119,7 +119,15 @@ class TrackerConfig(FrozenOptions):
     reseed_max_s : float
         Give up re-seeding (the motion never excited all axes enough) after this long.
     reseed_probability : float
-        Chi-square quantile for accepting a re-seed (batch vs filter difference).
+        Chi-square quantile for accepting a re-seed: the difference between the batch solve and the
+        filter at the alarm in the rotation and the scale factors (the extrinsic part; a step of the
+        combined bias alone is absorbed by the filter, not re-seeded).
+    reseed_min_spread : float
+        A re-seed window must excite every direction: the smallest eigenvalue of the scatter of gyro 1
+        that gyro 2 explains (:func:`fusion_gyrocal.core.observability.explained_scatter`) over the
+        largest, at least this. A window dominated by one axis (a turn between two poses) leaves the
+        rotation about that axis to a few degrees of off-axis motion and to the misfit; the tracker then
+        waits for more data after the onset (up to ``reseed_max_s``) and otherwise keeps its estimate.
     buffer_samples : int
         Capacity of the ring buffer of recent samples (re-seed windows and replays).
     reseed_solver : callable ``(omega_1, omega_2) -> PairCalibration`` or None
@@ -150,6 +158,7 @@ class TrackerConfig(FrozenOptions):
     reseed_window_s: float = 10.0
     reseed_max_s: float = 60.0
     reseed_probability: float = 0.999
+    reseed_min_spread: float = 0.1
     buffer_samples: int = 1 << 15
     reseed_solver: Callable | None = None
     block_size: int = 100
@@ -162,6 +171,8 @@ class TrackerConfig(FrozenOptions):
         if not isinstance(self.step_prior, StepPrior):
             raise OptionError(f"step_prior: expected a StepPrior, got {type(self.step_prior).__name__}")
         object.__setattr__(self, "gauge", Gauge.parse(self.gauge))
+        if not 0 <= self.reseed_min_spread <= 1:
+            raise OptionError(f"reseed_min_spread: expected a value in [0, 1], got {self.reseed_min_spread!r}")
         for name in ("gate_probability", "reseed_probability"):
             if not 0 < getattr(self, name) < 1:
                 raise OptionError(f"{name}: expected a value in (0, 1), got {getattr(self, name)!r}")
@@ -186,7 +197,7 @@ class TrackerConfig(FrozenOptions):
         if self.reseed_solver is not None and not callable(self.reseed_solver):
             raise OptionError(f"reseed_solver: expected a callable or None, got {type(self.reseed_solver).__name__}")
         for name in ("scale_prior_std", "gate_probability", "cusum_drift", "cusum_threshold", "reseed_window_s",
-                     "reseed_max_s", "reseed_probability"):
+                     "reseed_max_s", "reseed_probability", "reseed_min_spread"):
             object.__setattr__(self, name, float(getattr(self, name)))
         object.__setattr__(self, "gate", float(chi2.ppf(self.gate_probability, 3)))
 

@@ -13,8 +13,15 @@ two are nearly isotropic: ``A`` is a rotation up to scale factors near 1)::
 
     g_k = 1 + (a + b |omega_1(k)|)^2 |omega_1(k)|^2 / (3 sigma^2),   sigma^2 = tr(R_white) / 3
 
-so the gate and the CUSUM see honest innovations during fast motion, and a block's samples still fold
-into one update through their (weighted) moments.
+and a block's samples still fold into one update through their (weighted) moments. The misfit lies
+along the rate (``(a + b |omega|) omega``), so the innovations that the gate and the CUSUM screen
+(:meth:`ErrorStateEKF.innovation_d2`, :meth:`ErrorStateEKF.linearise_one`) see it there, as the rank-one
+term ``(a + b |omega|)^2 omega omega^T`` on top of the white covariance: spread over the three axes it
+would be a third of its size along the rate, and fast motion would raise false step alarms.
+
+Errors in variables: ``H_k`` is evaluated at the measured ``omega_2``, whose white noise is also in the
+residual; both update paths remove the resulting pull of ``A`` towards zero (:meth:`ErrorStateEKF.update_block`,
+:meth:`ErrorStateEKF.update_one`), so the per-sample and the block modes agree at rest.
 
 Error state (12): ``[dtheta (3, rad, gyro 1 frame), delta_1 (3), delta_2 (3) log-scales, db (3, rad/s)]``.
 After every update the error is folded into the nominal estimate (``R <- Exp(dtheta) R``,
@@ -118,6 +125,13 @@ def _projected_cov(std, TT) -> np.ndarray:
     return C
 
 
+def _bias_cov(step_prior) -> np.ndarray:
+    """The bias part of a :class:`~.config.StepPrior` as an error covariance."""
+    C = np.zeros((DIM, DIM))
+    C[BIAS, BIAS] = step_prior.bias**2 * np.eye(3)
+    return C
+
+
 class ErrorStateEKF:
     """filterpy's :class:`~filterpy.kalman.ExtendedKalmanFilter` on the error state plus the nominal estimate.
 
@@ -147,7 +161,7 @@ class ErrorStateEKF:
     """
 
     __slots__ = ("kf", "hold", "R", "s1", "s2", "b", "t", "noise_std", "misfit", "drift", "step_prior",
-                 "_T", "_Pi", "_q", "_shock", "_G", "_folds", "_H1", "_held", "_mis")
+                 "_T", "_Pi", "_q", "_shock", "_bias_shock", "_G", "_folds", "_H1", "_held", "_mis", "_eiv")
 
     def __init__(self, hold: ScaleHold, drift, step_prior, noise_std, R, s1, s2, b, P, t: float,
                  inflate_s: float = 0.0, misfit=(0.0, 0.0)):
@@ -182,6 +196,7 @@ class ErrorStateEKF:
         new._H1 = _one_sample_jacobian()
         TT = self._T @ self._T.T
         new._q, new._shock = _projected_cov(new.drift, TT), _projected_cov(new.step_prior, TT)
+        new._bias_shock, new._eiv = _bias_cov(new.step_prior), self._eiv
         return new
 
     # ------------------------------------------------------------------ linearisation
@@ -198,10 +213,12 @@ class ErrorStateEKF:
         TT = T @ T.T
         self._q = _projected_cov(self.drift, TT)          # process noise per second
         self._shock = _projected_cov(self.step_prior, TT)
+        self._bias_shock = _bias_cov(self.step_prior)
         A = self.A
         self.kf.R = self.noise_std[0] ** 2 * np.eye(3) + self.noise_std[1] ** 2 * (A @ A.T)
         self._mis = misfit_coefficients(self.noise_std, A, self.misfit)    # None for white noise
         self._G = None
+        self._eiv = self.eiv_correction(1.0)
         self._folds = 0
         self._held = self.hold.held_cov if self.hold.held_cov.any() else None    # None: nothing to add
 
@@ -244,10 +261,23 @@ class ErrorStateEKF:
         at the current estimate (:func:`inflation`); None when the noise is white (every factor 1)."""
         return inflation(self._mis, w1)
 
-    def innovation_d2(self, H, r, g=None) -> np.ndarray:
-        """Per-sample ``r_k^T (H_k P H_k^T + g_k R)^-1 r_k`` (``g``: :meth:`inflation`, None for 1)."""
-        R = self.kf.R if g is None else g[:, None, None] * self.kf.R
-        S = (H @ self.kf.P) @ np.swapaxes(H, 1, 2) + R
+    def eiv_correction(self, n: float) -> np.ndarray:
+        """``n sigma_2^2 sum_m G_m^T W A e_m`` (12,): the expectation of ``-sum_k H_k^T W r_k`` over ``n``
+        (weighted) samples that gyro 2's white noise causes, being in the Jacobian ``H_k`` (evaluated at the
+        measured ``omega_2``) as well as in the residual ``r_k`` (:meth:`update_block`)."""
+        W = np.linalg.inv(self.kf.R)
+        return n * self.noise_std[1] ** 2 * np.einsum("mai,am->i", self.generators()[:3], W @ self.A)
+
+    def innovation_d2(self, H, r, g=None, w1=None) -> np.ndarray:
+        """Per-sample ``r_k^T (H_k P H_k^T + R_k)^-1 r_k``: ``R_k = R`` for white noise (``g`` None), else
+        ``R + (a + b |omega_1|)^2 omega_1 omega_1^T`` (the misfit along the rate, module docstring) for the
+        gyro-1 rates ``w1`` (``g``: :meth:`inflation`, whose misfit it is)."""
+        S = (H @ self.kf.P) @ np.swapaxes(H, 1, 2) + self.kf.R
+        if g is not None:
+            a, b, _ = self._mis
+            sq = np.einsum("ka,ka->k", w1, w1)
+            m = a + b * np.sqrt(sq)
+            S += (m * m)[:, None, None] * w1[:, :, None] * w1[:, None, :]
         return np.einsum("ka,ka->k", r, np.linalg.solve(S, r[:, :, None])[:, :, 0])
 
     # ------------------------------------------------------------------ filter steps
@@ -265,10 +295,10 @@ class ErrorStateEKF:
             self.t = float(t)
 
     def linearise_one(self, w1, w2) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
-        """One sample's ``(H, r, S, d2, g)``: Jacobian (3, 12), residual (3,), innovation covariance,
-        ``r^T S^-1 r`` and the measurement covariance's factor :meth:`inflation`, with scalar arithmetic and a
-        reused Jacobian buffer (the per-sample hot path; the same values as :meth:`linearise`,
-        :meth:`inflation` and :meth:`innovation_d2`)."""
+        """One sample's ``(H, r, S, d2, g)``: Jacobian (3, 12), residual (3,), innovation covariance (with the
+        misfit along the rate, as :meth:`innovation_d2`), ``r^T S^-1 r`` and the measurement covariance's
+        factor :meth:`inflation` of the update, with scalar arithmetic and a reused Jacobian buffer (the
+        per-sample hot path; the same values as :meth:`linearise`, :meth:`inflation` and :meth:`innovation_d2`)."""
         (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = self.R.tolist()
         a0, a1, a2 = self.s1.tolist()
         c0, c1, c2 = self.s2.tolist()
@@ -295,20 +325,31 @@ class ErrorStateEKF:
             sq = y0 * y0 + y1 * y1 + y2 * y2
             m = a + b * math.sqrt(sq)
             g = 1.0 + c * (m * m) * sq
-            S += g * self.kf.R
+            S += self.kf.R
+            S += (m * m) * np.outer(w1, w1)
         return H, np.array((e0, e1, e2)), S, _quadratic_3(S, e0, e1, e2), g
 
     def update_one(self, H, r, g: float = 1.0) -> None:
         """One sample's update through filterpy's Kalman update (Joseph form), then the fold; ``g`` is the
-        sample's :meth:`inflation`."""
+        sample's :meth:`inflation`.
+
+        The errors-in-variables pull is removed as in :meth:`update_block`: the information form of the
+        update is ``x = P_post (H^T W r / g + c / g)`` with ``c`` the one-sample :meth:`eiv_correction`, so
+        ``P_post c / g`` is added to filterpy's state (``c`` is re-linearised with the measurement noise,
+        every ``REFRESH`` folds).
+        """
         R = self.kf.R if g == 1.0 else g * self.kf.R
-        self.kf.x, self.kf.P = kalman_update(self.kf.x, self.kf.P, r[:, None], R, H)
+        x, P = kalman_update(self.kf.x, self.kf.P, r[:, None], R, H)
+        x += np.dot(P, self._eiv if g == 1.0 else self._eiv / g)[:, None]
+        self.kf.x, self.kf.P = x, P
         self.fold()
 
     def update_sample(self, H, r, g: float = 1.0) -> None:
-        """One sample's update (3-d measurement through filterpy), then the fold; ``g``: its :meth:`inflation`."""
+        """One sample's update (3-d measurement through filterpy), then the fold; ``g``: its :meth:`inflation`
+        (errors in variables removed as in :meth:`update_one`)."""
         R = self.kf.R if g == 1.0 else g * self.kf.R
         self.kf.update(r[:, None], HJacobian=lambda x: H, Hx=lambda x: H @ x, R=R)
+        self.kf.x = self.kf.x + np.dot(self.kf.P, self._eiv / g)[:, None]
         self.fold()
 
     def update_block(self, w1, w2, keep, g=None) -> float:
@@ -324,8 +365,8 @@ class ErrorStateEKF:
         Errors in variables: ``H_k`` is evaluated at the measured ``omega_2``, whose white noise also enters
         ``r_k``; ``E[H_k^T W r_k]`` then holds ``-sigma_2^2 sum_m G_m^T W A e_m`` per sample, a pull of ``A``
         towards zero that dominates at rest (the measured ``omega_2`` is gyro 2's bias plus noise). It is
-        removed from ``eta`` (the update is the stacked one plus ``P_post`` times that correction). The
-        per-sample path (:meth:`linearise_one`, :meth:`update_one`) does not apply it.
+        removed from ``eta`` (the update is the stacked one plus ``P_post`` times that correction,
+        :meth:`eiv_correction`); the per-sample path (:meth:`update_one`) removes the same.
 
         Returns
         -------
@@ -361,7 +402,7 @@ class ErrorStateEKF:
         # errors in variables: gyro 2's white noise n_2 is in H_k as well as in r_k, so E[H_k^T W r_k] holds
         # -sigma_2^2 sum_m G_m^T W A e_m, which shrinks A towards zero wherever the motion is below the noise
         # (at rest: tens of % in a minute on a real board); that expectation is removed
-        eta += n * self.noise_std[1] ** 2 * np.einsum("mai,am->i", G[:3], W @ A)
+        eta += self.eiv_correction(n)
         rWr = float(np.trace(W @ (Lc @ scatter @ Lc.T)) + n * rbar @ W @ rbar)
         # block innovation statistic (Woodbury): r^T S^-1 r = rWr - eta^T P (I + Lam P)^-1 eta
         stat = rWr - float(eta @ P @ np.linalg.solve(np.eye(DIM) + Lam @ P, eta))
@@ -395,9 +436,10 @@ class ErrorStateEKF:
             self.s1, self.s2 = self.hold.express(self.s1, self.s2)
             self.relinearise()
 
-    def open_step(self) -> None:
-        """Add the step prior to the covariance (a step change is suspected)."""
-        self.kf.P = self.project(self.kf.P + self._shock)
+    def open_step(self, bias_only: bool = False) -> None:
+        """Add the step prior to the covariance (a step change is suspected); ``bias_only``: its bias part
+        alone (a step of the combined bias, e.g. a gravity-dependent bias after a change of pose)."""
+        self.kf.P = self.project(self.kf.P + (self._bias_shock if bias_only else self._shock))
 
     # ------------------------------------------------------------------ state
     def state(self) -> tuple:

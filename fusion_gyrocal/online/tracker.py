@@ -40,10 +40,13 @@ Robustness
 * step changes: a CUSUM on the (clipped) normalised innovation detects a shock; the tracker
   opens its covariance by a step prior (so it follows the step at once and its bands say so),
   solves :func:`fusion_gyrocal.calibrate_pair` (with its flex rejection) over a window after the
-  estimated onset (ring buffer of recent samples) and re-seeds from it if it differs
-  significantly from the filter's state at the alarm (chi-square test on the difference);
-  otherwise (a false alarm, e.g. a long flex burst) it restores that state and replays the
-  buffered samples;
+  estimated onset (ring buffer of recent samples) once that window excites every direction
+  (``reseed_min_spread``; a turn about one axis does not), and re-seeds from it if its rotation
+  and scale factors differ significantly from the filter's state at the alarm (chi-square test on
+  the difference, the batch covariance raised by the seed's model error, ``robust_inflation``);
+  otherwise (a step of the combined bias alone, e.g. a gravity-dependent bias after a change of
+  pose, or a false alarm such as a long flex burst) it restores that state with the bias part of
+  the step prior opened and replays the buffered samples, so the filter absorbs a bias step;
 * gaps and unsynchronised streams: :meth:`GyroPairTracker.run_streams` resamples gyro 2 onto
   gyro 1's clock (cubic spline, after adding ``time_offset_s``) only inside gyro 2's contiguous
   segments; blocks never straddle a gap.
@@ -60,6 +63,7 @@ from scipy.stats import chi2
 from ..core.model import S1, S2, PairCalibration
 from ..core.moments import as_rates, noise_pair
 from ..core.noise import NoiseModel
+from ..core.observability import explained_scatter
 from ..core.observability import seed_configuration
 from ..errors import GyroCalError, InputError, OptionError
 from ..lie import log
@@ -113,6 +117,25 @@ def _misfit_gain(noise_model) -> tuple[float, float]:
         return 0.0, 0.0
     a, b = noise_model.misfit_gain
     return float(a), float(b)
+
+
+def _model_error(cal: PairCalibration) -> float:
+    """Variance factor of the model error a re-seed batch covariance is raised by: the seed's
+    ``robust_inflation`` (block-robust over model covariance in its worst direction,
+    :mod:`fusion_gyrocal.core.robust`), 1 when it has none. A re-seed window is too short for a sandwich
+    of its own (:data:`fusion_gyrocal.core.solve.MIN_ROBUST_WINDOWS`); the pair's misfit is the same."""
+    k = float(cal.robust_inflation)
+    return k if np.isfinite(k) and k > 1.0 else 1.0
+
+
+def _spread(w1, w2) -> float:
+    """Smallest over largest eigenvalue of the scatter of gyro 1 that gyro 2 explains
+    (:func:`~fusion_gyrocal.core.observability.explained_scatter`): 1 for motion about every axis alike,
+    near 0 for a turn about one axis."""
+    from ..core.moments import Moments
+
+    ev = np.linalg.eigvalsh(explained_scatter(Moments.from_samples(w1, w2)))
+    return float(max(ev[0], 0.0) / ev[-1]) if ev[-1] > 0 else 0.0
 
 
 def _log_covariance(cal: PairCalibration, prior_std: float) -> np.ndarray:
@@ -187,12 +210,14 @@ class GyroPairTracker:
         Duration of the data the seed was estimated from. The seed estimates the window
         average, the filter starts at its end: the seed covariance is inflated by the drift over
         a third of the span (the error variance of a random walk's window mean at its end).
-    noise_model : NoiseModel, optional
+    noise_model : NoiseModel, None or "seed", optional
         The pair's identified noise (:func:`fusion_gyrocal.core.noise.identify_noise`). When its residual is
         a rate-dependent misfit (``kind`` says so), each sample's measurement covariance is its white
-        ``noise_std`` plus the misfit's variance ``(a + b |omega|)^2 |omega|^2 / 3`` per axis
-        (``misfit_gain``; :mod:`.ekf`), so fast motion does not raise false step alarms. Otherwise (or
-        None) the measurement noise is white, from ``calibration.noise_std``.
+        ``noise_std`` plus the misfit's variance ``(a + b |omega|)^2 |omega|^2`` along the rate
+        (``misfit_gain``; :mod:`.ekf`), so fast motion does not raise false step alarms. Otherwise the
+        measurement noise is white, from ``calibration.noise_std``. Default ``"seed"``: the
+        calibration's own ``noise_model`` (what :func:`fusion_gyrocal.calibrate_pair` identified), if it
+        carries one; None: white noise whatever the seed carries.
     config : TrackerConfig, optional
         The configuration (default: the defaults).
     **options
@@ -218,16 +243,19 @@ class GyroPairTracker:
     True
     """
 
-    __slots__ = ("_config", "_noise_std", "_noise_model", "_misfit", "_time_offset_s", "_configuration", "_filter",
+    __slots__ = ("_config", "_noise_std", "_noise_model", "_misfit", "_model_error", "_time_offset_s",
+                 "_configuration", "_filter",
                  "_gate", "_cusum", "_ring", "_history", "_events", "_alarm", "_replaying", "_n_samples", "_n_rejected")
 
     def __init__(self, calibration: PairCalibration, *, t0: float = 0.0, seed_span_s: float = 0.0,
-                 noise_model: NoiseModel | None = None, config: TrackerConfig | None = None, **options):
+                 noise_model: NoiseModel | None | str = "seed", config: TrackerConfig | None = None, **options):
         if not isinstance(calibration, PairCalibration):
             raise InputError(f"calibration: expected a PairCalibration, got {type(calibration).__name__}")
+        if isinstance(noise_model, str) and noise_model == "seed":
+            noise_model = calibration.noise_model if isinstance(calibration.noise_model, NoiseModel) else None
         if noise_model is not None and not isinstance(noise_model, NoiseModel):
-            raise InputError(f"noise_model: expected a NoiseModel (fusion_gyrocal.core.noise.identify_noise) or None, "
-                             f"got {type(noise_model).__name__}")
+            raise InputError(f"noise_model: expected a NoiseModel (fusion_gyrocal.core.noise.identify_noise), None "
+                             f"or 'seed', got {noise_model!r}")
         config = TrackerConfig.of(config, **options)
         self._misfit = _misfit_gain(noise_model)
         noise = np.asarray(calibration.noise_std if self._misfit == (0.0, 0.0) else noise_model.noise_std, dtype=float)
@@ -237,6 +265,7 @@ class GyroPairTracker:
         self._config = config
         self._noise_std = (float(noise[0]), float(noise[1]))
         self._noise_model = noise_model
+        self._model_error = _model_error(calibration)
         self._time_offset_s = float(calibration.time_offset_s)
         self._filter = None
         self._seed(calibration, float(t0), span_s=float(seed_span_s))
@@ -310,7 +339,7 @@ class GyroPairTracker:
         config = self._config.replace(**changes)
         new = object.__new__(type(self))
         new._config, new._noise_std, new._time_offset_s = config, self._noise_std, self._time_offset_s
-        new._noise_model, new._misfit = self._noise_model, self._misfit
+        new._noise_model, new._misfit, new._model_error = self._noise_model, self._misfit, self._model_error
         new._configuration = self._configuration
         f, alarm = self._filter, self._alarm and dataclasses.replace(self._alarm)
         if config.gauge == self._config.gauge and config.scale_prior_std == self._config.scale_prior_std:
@@ -468,13 +497,22 @@ class GyroPairTracker:
         f = self._filter
         return self._chi2(R_1_2, scale_1, scale_2, bias, (f.R, f.s1, f.s2, f.b), f.kf.P)
 
-    def _chi2(self, R_1_2, scale_1, scale_2, bias, state, P) -> float:
+    @property
+    def _extrinsic_dof(self) -> int:
+        """Observable coordinates of the rotation and the scale factors (the bias's three left out)."""
+        return self.nees_dof - 3
+
+    def _chi2(self, R_1_2, scale_1, scale_2, bias, state, P, extrinsic: bool = False) -> float:
         """``e^T P^-1 e`` in the observable coordinates for ``e`` the given values minus ``state``
-        ``(R, s1, s2, b)``: ``[Log(R_1_2 R^T), log scale - log s, bias - b]``, scales expressed in the gauge."""
+        ``(R, s1, s2, b)``: ``[Log(R_1_2 R^T), log scale - log s, bias - b]``, scales expressed in the gauge;
+        ``extrinsic``: the rotation and scale coordinates only (the marginal test without the bias)."""
         R, s1, s2, b = state
         t1, t2 = self.express_in_gauge(scale_1, scale_2)
         e = np.concatenate([log(np.asarray(R_1_2) @ R.T), np.log(t1 / s1), np.log(t2 / s2), np.asarray(bias) - b])
         V = self._filter.hold.obs_basis
+        if extrinsic:                   # the held directions lie in the scale block: drop the bias rows, re-orthonormalise
+            V = np.linalg.svd(V[:9], full_matrices=False)[0]
+            V = np.vstack([V[:, :self._extrinsic_dof], np.zeros((3, self._extrinsic_dof))])
         eo = V.T @ e
         return float(eo @ np.linalg.solve(V.T @ P @ V, eo))
 
@@ -551,11 +589,11 @@ class GyroPairTracker:
             self._n_samples += B
         H, r = f.linearise(w1, w2)
         g = f.inflation(w1)
-        d2 = f.innovation_d2(H, r, g)
+        d2 = f.innovation_d2(H, r, g, w1)
         alarm = None if (self._alarm is not None or self._replaying) else self._cusum.scan(t, d2)
         if alarm is not None:
             self._raise_alarm(float(t[alarm[0]]), alarm[1])
-            d2 = f.innovation_d2(H, r, g)          # covariance opened by the step prior
+            d2 = f.innovation_d2(H, r, g, w1)          # covariance opened by the step prior
         keep = self._gate.keep(d2, fresh=alarm is not None)
         n_used = int(np.count_nonzero(keep))
         self._n_rejected += B - n_used
@@ -603,12 +641,26 @@ class GyroPairTracker:
         self._filter.open_step()
 
     def _maybe_reseed(self) -> None:
-        """Once the window after the onset is full: batch solve, then re-seed or restore and replay."""
+        """Once the window after the onset is full and excites every direction: batch solve, then re-seed
+        (the rotation or the scale factors changed) or restore, absorb a bias step and replay."""
         a, cfg, f = self._alarm, self._config, self._filter
         if f.t - a.onset < cfg.reseed_window_s or f.t < a.next_try_t:
             return
         data = self._ring.since(a.onset)
-        thr = float(chi2.ppf(cfg.reseed_probability, self.nees_dof))
+        thr = float(chi2.ppf(cfg.reseed_probability, self._extrinsic_dof))
+        can_wait = f.t - a.onset < cfg.reseed_max_s and self._ring.oldest() <= a.onset
+        spread = _spread(data[:, 1:4], data[:, 4:7])
+        if spread < cfg.reseed_min_spread:
+            if can_wait:
+                a.next_try_t = f.t + 0.5 * cfg.reseed_window_s  # wait for motion about the other axes
+                return
+            self._restore_and_replay()
+            self._events.append(ReseedEvent(a.t_detected, a.onset, self._filter.t, False, np.nan, thr,
+                                            f"the window after the onset never excited every direction (spread "
+                                            f"{spread:.3g} < {cfg.reseed_min_spread:g}); no step of the rotation or "
+                                            "scale can be confirmed: restored, bias step absorbed, replayed"))
+            self._close_alarm()
+            return
         try:
             if cfg.reseed_solver is not None:
                 cal = cfg.reseed_solver(data[:, 1:4], data[:, 4:7])
@@ -616,23 +668,30 @@ class GyroPairTracker:
                 cal = _batch(data[:, 1:4], data[:, 4:7], self._noise_std, cfg.gauge,
                              misfit=misfit_coefficients(self._noise_std, f.A, self._misfit))
         except GyroCalError as exc:
-            if f.t - a.onset < cfg.reseed_max_s and self._ring.oldest() <= a.onset:
+            if can_wait:
                 a.next_try_t = f.t + 0.5 * cfg.reseed_window_s  # wait for more motion
                 return
             self._events.append(ReseedEvent(a.t_detected, a.onset, f.t, False, np.nan, thr,
                                             f"batch solve failed ({exc}); kept the filter with the step prior"))
             self._close_alarm()
             return
-        R0, s10, s20, b0, P0, _ = a.state       # batch minus the filter at the alarm
-        stat = self._chi2(cal.R_1_2, cal.scale_1, cal.scale_2, cal.bias, (R0, s10, s20, b0),
-                          f.project(_log_covariance(cal, cfg.scale_prior_std)) + P0)
+        R0, s10, s20, b0, P0, _ = a.state       # batch minus the filter at the alarm, rotation and scales
+        P_batch = self._model_error * f.project(_log_covariance(cal, cfg.scale_prior_std))
+        stat = self._chi2(cal.R_1_2, cal.scale_1, cal.scale_2, cal.bias, (R0, s10, s20, b0), P_batch + P0,
+                          extrinsic=True)
         accepted = stat > thr
         if accepted:
             self._seed(cal, f.t, span_s=float(data[-1, 0] - data[0, 0]))
-            reason = "step change confirmed by the batch solve over the window after the onset; re-seeded"
+            reason = ("step change of the rotation or scale factors confirmed by the batch solve over the window "
+                      "after the onset; re-seeded")
         else:
-            self._restore_and_replay()
-            reason = "batch solve agrees with the filter before the alarm (transient, e.g. flex); restored and replayed"
+            db = np.asarray(cal.bias) - b0                  # the bias: did it step?
+            Pb = P_batch[9:, 9:] + P0[9:, 9:]
+            bias_step = float(db @ np.linalg.solve(Pb, db)) > float(chi2.ppf(cfg.reseed_probability, 3))
+            self._restore_and_replay(bias_step)
+            reason = ("batch solve agrees with the filter before the alarm in rotation and scale factors; " +
+                      ("its bias stepped: restored, bias step absorbed, replayed" if bias_step else
+                       "a transient (e.g. flex): restored and replayed"))
         self._events.append(ReseedEvent(a.t_detected, a.onset, self._filter.t, bool(accepted), float(stat), thr,
                                         reason))
         self._close_alarm()
@@ -641,11 +700,15 @@ class GyroPairTracker:
         self._alarm = None
         self._cusum.reset(self._filter.t)
 
-    def _restore_and_replay(self) -> None:
-        """False alarm: return to the state at the alarm and re-process the buffered samples after its time."""
+    def _restore_and_replay(self, bias_step: bool = True) -> None:
+        """No step of the rotation or scales: return to the state at the alarm, open its bias by the step
+        prior's bias part when ``bias_step`` (a step of the combined bias, which the filter then follows)
+        and re-process the buffered samples after its time."""
         a, f = self._alarm, self._filter
         t_now = f.t
         f.restore(a.state)
+        if bias_step:
+            f.open_step(bias_only=True)
         data = self._ring.since(f.t)
         data = data[data[:, 0] > f.t]            # every buffered sample the restored state has not seen
         self._alarm = None
