@@ -293,6 +293,7 @@ class _Figure:
     value: float
     note: str = ""             # after the unit; "" for figures the caller gave (ImuNoise)
     placeholder: bool = False
+    from_model: bool = False   # made from the calibration's noise model (its header says where from)
 
 
 @dataclass(frozen=True)
@@ -405,6 +406,11 @@ def _identified(cal: PairCalibration, rates) -> tuple[tuple, tuple]:
                     "itself keeps a constant bias)")
     else:
         q = q_sd = None
+    # gyro 2 interpolated onto gyro 1's grid (its own rate differs from the model's while gyro 1's matches): its
+    # third differences are smoothed, so a split of the residual's white noise made from them is not the sensors'
+    split = nm.sources.get("split", "")
+    unsplit = (not per_sample and abs(rates[0] / nm.rate_hz - 1.0) <= 0.01 and abs(rates[1] / nm.rate_hz - 1.0) > 0.01
+               and split.startswith("third differences"))
     density = [nm.noise_std[i] / np.sqrt(fs[i]) for i in (0, 1)]
     density_sd = [nm.noise_std_uncertainty[i] / np.sqrt(fs[i]) for i in (0, 1)]
     walk = None if q is None else [q[i] * np.sqrt(fs[i]) for i in (0, 1)]
@@ -419,28 +425,40 @@ def _identified(cal: PairCalibration, rates) -> tuple[tuple, tuple]:
     per_gyro = []
     for i in (0, 1):
         figs = {}
-        if good(density[i]):
+        if unsplit:
+            figs["gyroscope_noise_density"] = _Figure(
+                _PLACEHOLDER["gyroscope_noise_density"],
+                f"{_NOT_MEASURED} (the residual's white noise could not be split between the gyros: see the header)",
+                True, True)
+        elif good(density[i]):
             figs["gyroscope_noise_density"] = _Figure(
                 density[i], "identified: " + ("the sensor's white noise (the residual is a misfit)" if misfit else
-                                           "white noise of the pair's residual") + pm(density_sd[i]))
+                                           "white noise of the pair's residual") + pm(density_sd[i]), from_model=True)
         if walk is not None and good(walk[i]):
             figs["gyroscope_random_walk"] = _Figure(walk[i], "identified: bias random walk of the pair's residual"
-                                                    + pm(walk_sd[i]))
-        elif "gyroscope_noise_density" in figs:
+                                                    + pm(walk_sd[i]), from_model=True)
+        else:
             figs["gyroscope_random_walk"] = _Figure(
                 _PLACEHOLDER["gyroscope_random_walk"],
                 f"{_NOT_MEASURED} (no random-walk term in the residual's Allan deviation up to "
-                f"tau = {nm.fit_taus[1]:.3g} s)", True)
+                f"tau = {nm.fit_taus[1]:.3g} s)", True, True)
         per_gyro.append(figs or None)
     deg = 180.0 / np.pi
     lines = _wrapped(
         f"Gyroscope noise figures IDENTIFIED by fusion_gyrocal from the moving pair's own residual (overlapping "
         f"Allan deviation fitted with white noise, bias instability and random walk, IEEE Std 952), not from a "
         f"static test: residual {nm.kind}; bias model {nm.bias_model}.")
-    for i in (0, 1):
+    for i in () if unsplit else (0, 1):
         lines.append(f"#   imu{i}: white {nm.noise_std[i] * deg:.4g} +- {nm.noise_std_uncertainty[i] * deg:.2g} deg/s "
                      f"per sample at {fs[i]:.6g} Hz = gyroscope_noise_density {density[i]:.4g} "
                      f"+- {density_sd[i]:.2g} rad/s/sqrt(Hz)")
+    if unsplit:
+        lines += _wrapped(
+            f"  NOT WRITTEN: gyro 2 was resampled from {rates[1]:.6g} Hz onto gyro 1's {nm.rate_hz:.6g} Hz grid, and "
+            f"the split between the gyros came from third differences, which the interpolation smooths. The residual's "
+            f"white noise itself is {nm.residual_noise_std / np.sqrt(nm.rate_hz):.4g} "
+            f"+- {nm.residual_noise_std_uncertainty / np.sqrt(nm.rate_hz):.2g} rad/s/sqrt(Hz) per axis "
+            "(= sqrt(N_1^2 + N_2^2 |A|_F^2 / 3)); record a few seconds at rest to split it, or measure each IMU.")
     if per_sample:
         lines += _wrapped("  The calibration had no timestamps: the model is per sample, converted to densities with "
                           "each IMU's update_rate.")
@@ -513,7 +531,7 @@ def _any_placeholder(noises) -> bool:
 
 
 def _identified_used(noises) -> bool:
-    return any(not f.placeholder and f.note for figs in noises for f in figs.values())
+    return any(f.from_model for figs in noises for f in figs.values())
 
 
 def _quoted(s: str) -> str:
