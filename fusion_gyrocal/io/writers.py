@@ -445,7 +445,7 @@ def _identified(cal: PairCalibration, rates) -> tuple[tuple, tuple]:
         per_gyro.append(figs or None)
     deg = 180.0 / np.pi
     lines = _wrapped(
-        f"Gyroscope noise figures IDENTIFIED by fusion_gyrocal from the moving pair's own residual (overlapping "
+        f"Gyroscope noise IDENTIFIED by fusion_gyrocal from the moving pair's own residual (overlapping "
         f"Allan deviation fitted with white noise, bias instability and random walk, IEEE Std 952), not from a "
         f"static test: residual {nm.kind}; bias model {nm.bias_model}.")
     for i in () if unsplit else (0, 1):
