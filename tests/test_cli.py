@@ -308,3 +308,20 @@ def test_cli_calibrate_mimu_exports_noise_density_near_static_poses(tmp_path, ca
             print(f"MIMU exp_1 IMU {k}: written {got:.4g}, static {static:.4g} rad/s/sqrt(Hz), ratio {got / static:.3f}")
             assert 1 / 3 < got / static < 3
         assert y["accelerometer_noise_density"] == 2.0e-3   # placeholder: gyro-only
+
+
+def test_cli_calibrate_array_prints_its_uncertainty_line(tmp_path, capsys):
+    rng = np.random.default_rng(11)
+    t = np.arange(0, 30, 0.01)
+    motion = HumanMotion(0.8, rng=rng)(t)
+    paths = []
+    for k in range(3):
+        R = np.eye(3) if k == 0 else random_rotation(rng)
+        w = motion @ R + rng.normal(0, PAPER_NOISE_STD, motion.shape)
+        paths.append(tmp_path / f"g{k}.csv")
+        np.savetxt(paths[-1], np.column_stack([t, w]), delimiter=",", header="t,gyro_x,gyro_y,gyro_z", comments="")
+    assert main(["calibrate", *map(str, paths)]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert text.count("uncertainty: ") == 1
+    assert ("uncertainty: noise from the residual (three-cornered hat over all pairs), its spread taken as white noise "
+            "(white ") in text and "(no block-robust check for N gyros)" in text
