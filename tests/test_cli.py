@@ -236,3 +236,92 @@ def test_main_reader_flag_a_format_does_not_take_is_refused(tmp_path, capsys):
     assert main(["calibrate", str(tmp_path / "a.csv"), str(tmp_path / "b.npz"), "--time-unit2", "ms"]) == 1
     err = capsys.readouterr().err
     assert "--time-unit1/--time-unit2 or --time-unit: not used when reading b.npz (npz" in err
+
+
+# ------------------------------------------------------------------------------- noise model and uncertainty basis
+def test_cli_calibrate_prints_one_uncertainty_line_two_rates_no_split_exported(tmp_path, capsys):
+    import yaml
+
+    p1, p2, _, _ = _write_pair(tmp_path, seed=3)
+    out = tmp_path / "cal.json"
+    assert main(["calibrate", str(p1), str(p2), "--unit2", "deg/s", "--output", str(out),
+                 "--kalibr", str(tmp_path / "k")]) == 0
+    text = " ".join(capsys.readouterr().out.split())   # the console wraps long lines
+    assert text.count("uncertainty: ") == 1
+    assert "uncertainty: noise model identified from the residual (white " in text
+    assert "residual chi2/dof" in text
+    nm = json.loads(out.read_text())["noise_model"]
+    assert nm["rate_hz"] == pytest.approx(200.0) and nm["sources"]["split"].startswith("third differences")
+    for i in (0, 1):
+        text = (tmp_path / "k" / f"imu{i}.yaml").read_text()
+        y = yaml.safe_load(text)
+        # gyro 2 (100 Hz) is interpolated onto gyro 1's 200 Hz grid and no stretch at rest splits the residual: the
+        # per-gyro densities would come from smoothed third differences, so they are placeholders saying why,
+        # and the residual's combined white noise (sqrt(N_1^2 + N_2^2), simulated 2.1e-4) is in the header
+        assert y["gyroscope_noise_density"] == 1.6968e-4 and "could not be split" in text
+        combined = nm["residual_noise_std"] / np.sqrt(nm["rate_hz"])
+        assert f"white noise itself is {combined:.4g}" in " ".join(text.replace("\n#", " ").split())
+        assert abs(combined / np.hypot(PAPER_NOISE_STD / np.sqrt(200.0), PAPER_NOISE_STD / np.sqrt(100.0)) - 1) < 0.3
+
+
+def test_cli_calibrate_noise_model_residual_exports_placeholders(tmp_path, capsys):
+    p1, p2, _, _ = _write_pair(tmp_path, seed=4)
+    assert main(["calibrate", str(p1), str(p2), "--unit2", "deg/s", "--noise-model", "residual",
+                 "--openvins", str(tmp_path / "ov.yaml")]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "uncertainty: noise from the residual" in text and "its spread taken as white noise" in text
+    chain = (tmp_path / "ov.yaml").read_text()
+    assert "IDENTIFIED" not in chain and chain.count("PLACEHOLDER, not measured\n") == 8
+
+
+def test_cli_report_writes_allan_deviation_and_noise_model(tmp_path, capsys):
+    p1, p2, _, _ = _write_pair(tmp_path, seed=5)
+    assert main(["report", str(p1), str(p2), "--unit2", "deg/s", "--out", str(tmp_path / "rep")]) == 0
+    assert f"wrote {tmp_path / 'rep' / 'allan_deviation.png'}" in capsys.readouterr().out
+    assert (tmp_path / "rep" / "allan_deviation.png").read_bytes().startswith(b"\x89PNG")
+    md = (tmp_path / "rep" / "report.md").read_text()
+    assert "![allan_deviation](allan_deviation.png)" in md and "- uncertainty: noise model identified" in md
+    assert "## Noise model (identified from the residual)" in md
+
+
+def test_cli_calibrate_mimu_exports_noise_density_near_static_poses(tmp_path, capsys):
+    """MIMU session 1, IMU 0 against IMU 2: the residual is a rate-dependent misfit (~5.6 deg/s), yet the written
+    gyroscope_noise_density is each sensor's, within 3x of its static poses (first 20 s, SOURCE.md)."""
+    import yaml
+
+    from fusion_gyrocal.io import read_npz
+
+    p = shared_data_dir() / "mimu_8imu_array" / "npz" / "exp_1.npz"
+    if not p.exists():
+        pytest.skip("../shared/data not present (real recordings are only in the project checkout)")
+    assert main(["calibrate", str(p), str(p), "--imu1", "0", "--imu2", "2", "--kalibr", str(tmp_path / "k"),
+                 "--openvins", str(tmp_path / "ov.yaml")]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "residual is rate-dependent misfit), raised to the block-robust covariance" in text
+    streams = read_npz(p)
+    rate = 62.5
+    chain = yaml.safe_load((tmp_path / "ov.yaml").read_text().split("\n", 1)[1])
+    for i, k in enumerate((0, 2)):
+        static = float(np.mean(streams[k].omega[: int(20 * rate)].std(axis=0, ddof=1))) / np.sqrt(rate)
+        y = yaml.safe_load((tmp_path / "k" / f"imu{i}.yaml").read_text())
+        for got in (y["gyroscope_noise_density"], chain[f"imu{i}"]["gyroscope_noise_density"]):
+            print(f"MIMU exp_1 IMU {k}: written {got:.4g}, static {static:.4g} rad/s/sqrt(Hz), ratio {got / static:.3f}")
+            assert 1 / 3 < got / static < 3
+        assert y["accelerometer_noise_density"] == 2.0e-3   # placeholder: gyro-only
+
+
+def test_cli_calibrate_array_prints_its_uncertainty_line(tmp_path, capsys):
+    rng = np.random.default_rng(11)
+    t = np.arange(0, 30, 0.01)
+    motion = HumanMotion(0.8, rng=rng)(t)
+    paths = []
+    for k in range(3):
+        R = np.eye(3) if k == 0 else random_rotation(rng)
+        w = motion @ R + rng.normal(0, PAPER_NOISE_STD, motion.shape)
+        paths.append(tmp_path / f"g{k}.csv")
+        np.savetxt(paths[-1], np.column_stack([t, w]), delimiter=",", header="t,gyro_x,gyro_y,gyro_z", comments="")
+    assert main(["calibrate", *map(str, paths)]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert text.count("uncertainty: ") == 1
+    assert ("uncertainty: noise from the residual (three-cornered hat over all pairs), its spread taken as white noise "
+            "(white ") in text and "(no block-robust check for N gyros)" in text

@@ -10,7 +10,8 @@ from fusion_gyrocal.evaluate.sim import simulate_pair
 from fusion_gyrocal.io.report import write_figure, write_report
 from fusion_gyrocal.pipeline.pipeline import run_pipeline
 
-NAMES = ("residual_vs_rate.png", "snr_accumulation.png", "alignment.png", "rejected_stretches.png", "report.md")
+NAMES = ("residual_vs_rate.png", "snr_accumulation.png", "alignment.png", "rejected_stretches.png",
+         "allan_deviation.png", "report.md")
 
 
 @pytest.fixture(scope="module")
@@ -110,3 +111,80 @@ def test_cli_report_unwritable_out_is_one_line_exit_1(tmp_path, capsys):
     out = capsys.readouterr()
     assert out.err == (f"gyrocal: error: cannot write the report to {tmp_path / 'taken'}: it is a file, expected a "
                        "folder (--out)\n")
+
+
+# ------------------------------------------------------------------------------- noise model and uncertainty basis
+def test_allan_deviation_draws_the_residual_fit_range_and_model_lines():
+    import numpy as np
+
+    from fusion_gyrocal.evaluate.sim import PAPER_BIAS_WALK_STD
+    from fusion_gyrocal.io.report import allan_deviation
+
+    sim = simulate_pair(rng=6, n=30000, bias_walk_std=100 * PAPER_BIAS_WALK_STD)
+    run_ = run_pipeline(sim.omega_1, sim.omega_2, t_1=sim.t, t_2=sim.t)
+    nm = run_.calibration.noise_model
+    assert nm.bias_model == "random walk"
+    ax = allan_deviation(run_).axes[0]
+    assert ax.get_xscale() == ax.get_yscale() == "log"
+    assert nm.kind in ax.get_title()
+    lines = {line.get_label(): line for line in ax.get_lines()}
+    # the residual per axis and the fitted model, in deg/s against tau
+    for i, name in enumerate("xyz"):
+        np.testing.assert_allclose(lines[f"residual, axis {name}"].get_ydata(), np.rad2deg(nm.adev[:, i]))
+    np.testing.assert_allclose(lines["fitted model (axes pooled)"].get_ydata(), np.rad2deg(nm.adev_fit))
+    white = next(v for k, v in lines.items() if k.startswith("white noise"))
+    walk = next(v for k, v in lines.items() if k.startswith("bias random walk"))
+    x, y = white.get_xdata(), white.get_ydata()
+    assert np.allclose(np.diff(np.log(y)) / np.diff(np.log(x)), -0.5)
+    # the white line is the fit's white term: N = residual_noise_std / sqrt(rate)
+    assert y[0] == pytest.approx(np.rad2deg(nm.residual_noise_std / np.sqrt(nm.rate_hz * x[0])), rel=1e-9)
+    x, y = walk.get_xdata(), walk.get_ydata()
+    assert np.allclose(np.diff(np.log(y)) / np.diff(np.log(x)), 0.5)
+    # white + walk (no flicker here) add up to the fitted model at the longest tau
+    assert nm.bias_instability == 0.0
+    assert np.hypot(white.get_ydata()[-1], walk.get_ydata()[-1]) == pytest.approx(np.rad2deg(nm.adev_fit[-1]), rel=1e-6)
+    span = [p for p in ax.patches if p.get_label().startswith("fit range")]
+    assert len(span) == 1 and f"{nm.fit_taus[0]:.3g}-{nm.fit_taus[1]:.3g} s" in span[0].get_label()
+
+
+def test_allan_deviation_none_without_noise_model():
+    from fusion_gyrocal.io.report import allan_deviation
+
+    sim = simulate_pair(rng=7, n=2000)
+    assert allan_deviation(run_pipeline(sim.omega_1, sim.omega_2, noise_std=0.002)) is None
+
+
+def test_summary_markdown_lists_the_noise_model_and_the_uncertainty_basis(run):
+    from fusion_gyrocal.io.report import summary_markdown, uncertainty_basis
+
+    md = summary_markdown(run.calibration)
+    for line in run.calibration.noise_model.describe().splitlines():
+        assert f"- {line}" in md
+    assert f"- {uncertainty_basis(run.calibration)}" in md
+    assert "## Noise model (identified from the residual)" in md
+
+
+def test_uncertainty_basis_names_noise_source_and_covariance():
+    import dataclasses
+
+    from fusion_gyrocal.io.report import uncertainty_basis
+
+    sim = simulate_pair(rng=8, n=6000)
+    cal = run_pipeline(sim.omega_1, sim.omega_2, t_1=sim.t, t_2=sim.t).calibration
+    line = uncertainty_basis(cal)
+    assert line.startswith("uncertainty: noise model identified from the residual (white ")
+    assert "bias constant; residual is white noise" in line and "\n" not in line
+    assert f"residual chi2/dof {cal.lack_of_fit:.3g}" in line
+    # a misfit raised to the block-robust covariance: the worst direction's std ratio is named
+    bad = dataclasses.replace(cal, robust_inflation=39.69, lack_of_fit=210.0,
+                              noise_model=dataclasses.replace(cal.noise_model,
+                                                              kind="not white noise: rate-dependent misfit"),
+                              covariance_basis="noise model raised to the block-robust sandwich (9 windows of 9 "
+                                               "samples) where that is significantly larger")
+    assert uncertainty_basis(bad).endswith("residual is rate-dependent misfit), raised to the block-robust covariance "
+                                           "where larger (std x6.3 in the worst direction; residual chi2/dof 210)")
+    user = run_pipeline(sim.omega_1, sim.omega_2, noise_std=0.002, covariance="model").calibration
+    assert uncertainty_basis(user).startswith("uncertainty: the given noise (white 0.115/0.115 deg/s)")
+    assert "no block-robust check" in uncertainty_basis(user)
+    res = run_pipeline(sim.omega_1, sim.omega_2, noise_model="residual").calibration
+    assert "its spread taken as white noise" in uncertainty_basis(res)

@@ -206,3 +206,136 @@ def test_writers_refuse_non_finite_array_rotation(tmp_path):
     bad = dataclasses.replace(cal, time_offset_s=np.array([0.0, np.nan, 0.0]))
     with pytest.raises(FormatError, match=r"cal\.time_offset_s: Kalibr/OpenVINS files need finite values"):
         write_kalibr_imu_configs(bad, tmp_path / "k")
+
+
+# --------------------------------------------------------------------------------- identified noise figures
+@pytest.fixture(scope="module")
+def walking_pair():
+    """A simulated pair with 100x the paper's bias walk: the identified model is white noise + random walk."""
+    from fusion_gyrocal import calibrate_pair
+    from fusion_gyrocal.evaluate.sim import PAPER_BIAS_WALK_STD, PAPER_NOISE_STD, simulate_pair
+
+    sim = simulate_pair(n=30000, bias_walk_std=100 * PAPER_BIAS_WALK_STD, rng=1)
+    cal = calibrate_pair(sim.omega_1, sim.omega_2, t_1=sim.t, t_2=sim.t)
+    assert cal.noise_model is not None and cal.noise_model.bias_model == "random walk"
+    assert cal.noise_model.rate_hz == pytest.approx(100.0)
+    # truth in Kalibr's units at 100 Hz: density sigma / sqrt(rate), random walk q * sqrt(rate)
+    return cal, PAPER_NOISE_STD / 10.0, 100 * PAPER_BIAS_WALK_STD * 10.0
+
+
+def _comment(text, key):
+    return next(line for line in text.splitlines() if line.strip().startswith(f"{key}:")).split("#", 1)[1]
+
+
+def test_write_kalibr_imu_configs_identified_noise_written_with_its_source(walking_pair, tmp_path):
+    cal, density, walk = walking_pair
+    nm = cal.noise_model
+    for i, p in enumerate(write_kalibr_imu_configs(cal, tmp_path / "k", update_rate=100.0)):
+        got, text = kalibr_imu_parameters(p), p.read_text()
+        assert got["gyroscope_noise_density"] == nm.noise_density[i]
+        assert got["gyroscope_random_walk"] == nm.random_walk[i]
+        assert abs(got["gyroscope_noise_density"] / density - 1) < 0.05
+        assert abs(got["gyroscope_random_walk"] / walk - 1) < 0.25
+        assert "identified" in _comment(text, "gyroscope_noise_density") and "+- " in _comment(text, "gyroscope_noise_density")
+        assert "identified" in _comment(text, "gyroscope_random_walk")
+        # the accelerometer figures stay placeholders (gyro-only), and say why
+        assert text.count("PLACEHOLDER, not measured (gyro-only calibration)") == 2
+        assert [k for k in NOISE_KEYS if "PLACEHOLDER" in _comment(text, k)] == list(NOISE_KEYS[:2])
+        assert "IDENTIFIED by fusion_gyrocal from the moving pair's own residual" in text
+        assert "bias model random walk" in text
+
+
+def test_write_openvins_imu_chain_identified_noise_read_by_opencv(walking_pair, tmp_path):
+    cal, _, _ = walking_pair
+    nm = cal.noise_model
+    imus = opencv_imu_chain(write_openvins_imu_chain(cal, tmp_path / "ov.yaml"), 2)
+    chain = yaml.safe_load(write_kalibr_imu_chain(cal, tmp_path / "chain.yaml").read_text())
+    for i in (0, 1):
+        for got in (imus[i], chain[f"imu{i}"]):
+            assert got["gyroscope_noise_density"] == nm.noise_density[i]
+            assert got["gyroscope_random_walk"] == nm.random_walk[i]
+            assert got["accelerometer_noise_density"] == 2.0e-3   # placeholder
+
+
+def test_write_kalibr_imu_configs_constant_bias_walk_term_split_or_placeholder(walking_pair, tmp_path):
+    cal, _, _ = walking_pair
+    nm = cal.noise_model
+    # a constant-bias model whose Allan fit found a walk term: that term, split equally between the gyros
+    const = dataclasses.replace(cal, noise_model=dataclasses.replace(nm, bias_walk_std=None, bias_model="constant"))
+    a = np.sum(cal.A * cal.A) / 3.0
+    expected = nm.residual_walk_std * np.sqrt(nm.rate_hz) / np.sqrt(1.0 + a)
+    for p in write_kalibr_imu_configs(const, tmp_path / "c"):
+        got = kalibr_imu_parameters(p)
+        assert got["gyroscope_random_walk"] == pytest.approx(expected, rel=1e-12)
+        assert "split equally" in p.read_text()
+    # no walk term at all: the random walk is a placeholder saying so, the white density is still written
+    none = dataclasses.replace(const, noise_model=dataclasses.replace(const.noise_model, residual_walk_std=0.0))
+    for i, p in enumerate(write_kalibr_imu_configs(none, tmp_path / "n")):
+        text, got = p.read_text(), kalibr_imu_parameters(p)
+        assert got["gyroscope_random_walk"] == 1.9393e-5
+        assert "PLACEHOLDER, not measured (no random-walk term" in _comment(text, "gyroscope_random_walk")
+        assert got["gyroscope_noise_density"] == nm.noise_density[i]
+
+
+def test_write_kalibr_imu_configs_misfit_writes_the_sensor_noise_not_the_residual(walking_pair, tmp_path):
+    cal, density, _ = walking_pair
+    nm = dataclasses.replace(cal.noise_model, kind="not white noise: rate-dependent misfit", misfit_share=0.9)
+    bad = dataclasses.replace(cal, noise_model=nm, residual_rms=30 * cal.residual_rms)
+    for i, p in enumerate(write_kalibr_imu_configs(bad, tmp_path / "m")):
+        got, text = kalibr_imu_parameters(p), p.read_text()
+        assert got["gyroscope_noise_density"] == nm.noise_density[i]
+        assert got["gyroscope_noise_density"] < 2 * density   # never the residual (30x larger here)
+        assert "the sensor's white noise" in _comment(text, "gyroscope_noise_density")
+        assert "The residual is NOT white noise" in text and "never the residual's spread" in text
+
+
+def test_write_kalibr_imu_configs_given_noise_wins_over_identified(walking_pair, tmp_path):
+    cal, _, _ = walking_pair
+    p0, p1 = write_kalibr_imu_configs(cal, tmp_path / "g", noise=[ImuNoise(1e-4, 2e-5, 3e-3, 4e-4), None])
+    assert kalibr_imu_parameters(p0)["gyroscope_noise_density"] == 1e-4
+    assert "PLACEHOLDER" not in p0.read_text() and "IDENTIFIED" not in p0.read_text()
+    assert kalibr_imu_parameters(p1)["gyroscope_noise_density"] == cal.noise_model.noise_density[1]
+
+
+def test_write_kalibr_imu_chain_without_noise_model_only_placeholders(walking_pair, tmp_path):
+    cal, _, _ = walking_pair
+    plain = dataclasses.replace(cal, noise_model=None, noise_source="user")
+    text = write_kalibr_imu_chain(plain, tmp_path / "p.yaml").read_text()
+    assert text.count("PLACEHOLDER, not measured  ") == 0 and text.count("PLACEHOLDER, not measured\n") == 8
+    assert "IDENTIFIED" not in text and "identified:" not in text
+
+
+def test_write_kalibr_imu_configs_per_sample_model_converted_with_update_rate(tmp_path):
+    # sample-aligned input has no rate: the model is per sample, the file's update_rate makes the densities
+    from fusion_gyrocal import calibrate_pair
+    from fusion_gyrocal.evaluate.sim import PAPER_NOISE_STD, simulate_pair
+
+    sim = simulate_pair(n=20000, bias_walk_std=0.0, rng=2)
+    cal = calibrate_pair(sim.omega_1, sim.omega_2)
+    assert cal.noise_model.rate_hz == 1.0
+    for rate in (100.0, 400.0):
+        for i, p in enumerate(write_kalibr_imu_configs(cal, tmp_path / f"r{rate:g}", update_rate=rate)):
+            got = kalibr_imu_parameters(p)
+            assert got["gyroscope_noise_density"] == pytest.approx(cal.noise_model.noise_std[i] / np.sqrt(rate))
+            # Kalibr's discrete noise at its update_rate is the per-sample white noise again
+            assert abs(got["gyro_discrete"] / PAPER_NOISE_STD - 1) < 0.05
+            assert "no timestamps" in p.read_text()
+
+
+def test_write_kalibr_imu_configs_resampled_gyro_split_by_third_differences_not_written(walking_pair, tmp_path):
+    # gyro 2 at half gyro 1's rate, interpolated onto its grid: third differences of the interpolated stream are
+    # smoothed, so their split of the residual's white noise is no sensor figure; the combined one is in the header
+    cal, _, _ = walking_pair
+    nm = dataclasses.replace(cal.noise_model, sources={**cal.noise_model.sources,
+                                                        "split": "third differences of each stream (ratio 4.8)"})
+    resampled = dataclasses.replace(cal, noise_model=nm)
+    for i, p in enumerate(write_kalibr_imu_configs(resampled, tmp_path / "r", update_rate=[100.0, 50.0])):
+        got, text = kalibr_imu_parameters(p), p.read_text()
+        assert got["gyroscope_noise_density"] == 1.6968e-4
+        assert "could not be split" in _comment(text, "gyroscope_noise_density")
+        assert got["gyroscope_random_walk"] == nm.random_walk[i]          # the walk split is equal anyway
+        assert "resampled from 50 Hz onto gyro 1's 100 Hz grid" in " ".join(text.replace("\n#", " ").split())
+        assert f"{nm.residual_noise_std / 10.0:.4g}" in text
+    # the same model with both gyros at the grid's rate: written
+    p0, _ = write_kalibr_imu_configs(resampled, tmp_path / "s", update_rate=100.0)
+    assert kalibr_imu_parameters(p0)["gyroscope_noise_density"] == nm.noise_density[0]

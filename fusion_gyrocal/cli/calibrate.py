@@ -1,7 +1,9 @@
 """``gyrocal calibrate``: recordings of two or more gyros in, calibration out (table, JSON, Kalibr, OpenVINS).
 
 Two gyros go through the pair pipeline (:func:`~fusion_gyrocal.pipeline.pipeline.run_pipeline`: time
-offset, flex gate, rigidity verdict, every option). More than two, or two with ``--array``, are calibrated
+offset, flex gate, rigidity verdict, every option). Below the table one line says what the uncertainty rests
+on (:func:`~fusion_gyrocal.io.report.uncertainty_basis`); the Kalibr and OpenVINS files carry the gyro noise
+identified from the pair's residual, with where it came from. More than two, or two with ``--array``, are calibrated
 jointly (:func:`~fusion_gyrocal.core.array.calibrate_array`, see :mod:`fusion_gyrocal.cli.array`).
 """
 
@@ -61,6 +63,7 @@ def run(args) -> int:
 
     from ..io.writers import (write_json, write_kalibr_imu_chain, write_kalibr_imu_configs,
                               write_openvins_imu_chain)
+    from ..io.report import uncertainty_basis
     from .display import array_table, console as make_console, summary_table
 
     kalibr = _kalibr_folder(args.kalibr) if args.kalibr else None
@@ -85,6 +88,7 @@ def run(args) -> int:
             notes = []
         progress.advance(task)
     console.print(array_table(cal) if joint else summary_table(cal))
+    console.print(uncertainty_basis(cal))
     for note in tuple(cal.notes) + tuple(notes):
         console.print(f"note: {note}")
     for source, stream in zip(sources, streams):   # what each reader dropped or chose

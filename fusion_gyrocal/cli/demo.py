@@ -22,6 +22,7 @@ def run(args) -> int:
 
     from ..evaluate.sim import PAPER_NOISE_STD, HumanMotion, random_rotation
     from ..pipeline.pipeline import run_pipeline
+    from ..io.report import uncertainty_basis
     from .display import console as make_console, summary_table
 
     rng = np.random.default_rng(args.seed)
@@ -45,6 +46,7 @@ def run(args) -> int:
     console.print("Demo: a simulated gyro pair (60 s of hand-held motion, gyro 1 at 200 Hz, gyro 2 at 100 Hz with "
                   "timestamp jitter, 47.3 ms clock offset, noise 0.1 deg/s per sample)")
     console.print(summary_table(cal, truth))
+    console.print(uncertainty_basis(cal))
     err = np.rad2deg(np.linalg.norm(Rotation.from_matrix(cal.R_1_2 @ R.T).as_rotvec())) * 1e3
     console.print(f"rotation error {err:.2f} mdeg (1-sigma {np.rad2deg(np.linalg.norm(cal.rotation_std_rad)) * 1e3:.2f}"
                   f" mdeg); time offset error {(cal.time_offset_s - offset) * 1e6:+.1f} us")

@@ -1,4 +1,6 @@
-"""Figures a person can read: residual versus rate norm, SNR accumulation, alignment, rejections.
+"""Figures a person can read: residual versus rate norm, SNR accumulation, alignment, rejections, the
+residual's Allan deviation with the identified noise model; and the one line saying what the uncertainty
+rests on (:func:`uncertainty_basis`, also printed by ``gyrocal calibrate``).
 
 Every function returns a :class:`matplotlib.figure.Figure` (Agg backend, no display needed);
 :func:`write_report` saves them as PNG files beside a short Markdown summary, each file written
@@ -106,6 +108,110 @@ def rejected_stretches(run: PipelineRun):
     return fig
 
 
+def allan_deviation(run: PipelineRun):
+    """The residual's overlapping Allan deviation per axis with the identified noise model (None without one).
+
+    The curves are :attr:`NoiseModel.adev <fusion_gyrocal.core.noise.NoiseModel>` (per axis) and the fit
+    ``adev_fit``, ``AVAR = N^2 / tau + (2 ln 2 / pi) B^2 + K^2 tau / 3`` (IEEE Std 952), over the range of
+    taus the fit used (shaded), with the model's white-noise line (slope -1/2, ``N`` from
+    ``residual_noise_std``) and its random-walk line (slope +1/2, ``K`` the rest of the fit at the longest
+    tau) where the fit has that term.
+    """
+    from ..core.noise import FLICKER
+
+    nm = run.calibration.noise_model
+    if nm is None:
+        return None
+    deg = np.rad2deg(1.0)
+    taus = np.asarray(nm.taus, float)
+    fit = np.asarray(nm.adev_fit, float)
+    n_sq = nm.residual_noise_std ** 2 / nm.rate_hz                 # N^2: the white term of the fit
+    b_sq = nm.bias_instability ** 2
+    k_sq = max(3.0 * (fit[-1] ** 2 - n_sq / taus[-1] - FLICKER * b_sq) / taus[-1], 0.0)
+    if k_sq < 1e-6 * fit[-1] ** 2 / taus[-1]:   # rounding of the other terms, no walk in the fit
+        k_sq = 0.0
+    per_sample = run.t is None   # sample-aligned input: the model is per sample, tau in samples
+    unit = "samples" if per_sample else "s"
+    fig, ax = _figure(figsize=(8, 5))
+    for i, (name, colour) in enumerate(zip("xyz", ("tab:blue", "tab:orange", "tab:green"))):
+        ax.loglog(taus, nm.adev[:, i] * deg, "o", ms=4, color=colour, alpha=0.8, label=f"residual, axis {name}")
+    lo, hi = nm.fit_taus
+    ax.axvspan(lo, hi, color="0.85", alpha=0.5, lw=0, label=f"fit range {lo:.3g}-{hi:.3g} {unit}")
+    for edge in (lo, hi):
+        ax.axvline(edge, color="0.5", lw=0.8)
+    ax.loglog(taus, fit * deg, "k-", lw=2, label="fitted model (axes pooled)")
+    grid = np.geomspace(taus[0], taus[-1], 64)
+    n_text = (f"{np.sqrt(n_sq) * deg:.3g} deg/s per sample" if per_sample else
+              f"{np.sqrt(n_sq) * deg * 60:.3g} deg/sqrt(h)")
+    ax.loglog(grid, np.sqrt(n_sq / grid) * deg, "--", color="tab:purple", lw=1.5,
+              label=f"white noise N = {n_text} (slope -1/2)")
+    if k_sq > 0:
+        k_text = (f"{np.sqrt(k_sq) * deg:.3g} deg/s per sample^1.5" if per_sample else
+                  f"{np.sqrt(k_sq) * deg * 3600 ** 1.5:.3g} deg/h/sqrt(h)")
+        ax.loglog(grid, np.sqrt(k_sq * grid / 3.0) * deg, ":", color="tab:red", lw=2,
+                  label=f"bias random walk K = {k_text} (slope +1/2)")
+    if b_sq > 0:
+        b_text = f"{np.sqrt(b_sq) * deg:.3g} deg/s" if per_sample else f"{np.sqrt(b_sq) * deg * 3600:.3g} deg/h"
+        ax.axhline(np.sqrt(FLICKER * b_sq) * deg, color="tab:brown", ls="-.", lw=1,
+                   label=f"bias instability B = {b_text}")
+    shown = np.concatenate([nm.adev.ravel(), fit])
+    shown = shown[np.isfinite(shown) & (shown > 0)] * deg
+    if shown.size:
+        ax.set_ylim(shown.min() / 2.0, shown.max() * 2.0)
+    ax.set_xlabel(f"averaging time tau ({unit})")
+    ax.set_ylabel("Allan deviation of the residual (deg/s)")
+    walk = "no random-walk term in the fit" if k_sq == 0 else "random-walk term in the fit"
+    where = "samples kept (quiet windows)" if nm.kind.startswith("not white noise") else "valid samples"
+    ax.set_title(f"Allan deviation of the pair's residual: {nm.kind}\n"
+                 f"on the {where}; {walk}; bias model {nm.bias_model}", fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8, loc="best")
+    return fig
+
+
+def uncertainty_basis(cal) -> str:
+    """One line saying what the reported uncertainty rests on: the noise (where it came from) and the
+    covariance (noise model, block-robust, inflated), with the residual's chi-square per degree of freedom.
+
+    ``cal`` is a :class:`PairCalibration` or an :class:`~fusion_gyrocal.core.array.ArrayCalibration`.
+    """
+    deg = np.rad2deg(1.0)
+    white = "/".join(f"{v * deg:.3g}" for v in np.atleast_1d(cal.noise_std))
+    if not isinstance(cal, PairCalibration):   # N gyros: the joint model's information, no robust check
+        inflated = any("covariance inflated" in n for n in cal.notes)
+        src = ("the given noise" if cal.noise_source == "user" else
+               f"noise from the {cal.noise_source}, its spread taken as white noise")
+        return (f"uncertainty: {src} (white {white} deg/s), inverse Fisher information of the joint model"
+                + ("; inflated by the residual's chi2/dof (see the note)" if inflated else "")
+                + " (no block-robust check for N gyros)")
+    nm = cal.noise_model
+    if nm is not None:
+        bias = "bias random walk" if nm.bias_walk_std is not None else "bias constant"
+        kind = "rate-dependent misfit" if nm.kind.startswith("not white noise") else nm.kind
+        noise = f"noise model identified from the residual (white {white} deg/s, {bias}; residual is {kind})"
+    elif cal.noise_source == "user":
+        noise = f"the given noise (white {white} deg/s)"
+    else:
+        noise = f"noise from the {cal.noise_source}, its spread taken as white noise (white {white} deg/s)"
+    if cal.bias_segments > 1:
+        noise += f", bias piecewise constant over {cal.bias_segments} segments"
+    chi = f"residual chi2/dof {cal.lack_of_fit:.3g}" if np.isfinite(cal.lack_of_fit) else "no residual chi2"
+    worst = (f"std x{np.sqrt(cal.robust_inflation):.3g} in the worst direction"
+             if np.isfinite(cal.robust_inflation) else "")
+    basis = cal.covariance_basis
+    if basis.startswith("noise model raised"):
+        cov = f"raised to the block-robust covariance where larger ({worst}; {chi})"
+    elif basis.startswith("block-robust"):
+        cov = f"block-robust covariance as asked ({worst} against the noise model; {chi})"
+    elif "not significantly larger" in basis:
+        cov = f"covariance from the noise model; the block-robust check agrees ({worst}; {chi})"
+    elif "inflated by" in basis:
+        cov = f"covariance from the noise model inflated by the {chi}"
+    else:
+        cov = f"covariance from the {basis} alone, no block-robust check ({chi})"
+    return f"uncertainty: {noise}, {cov}"
+
+
 def summary_markdown(cal: PairCalibration) -> str:
     """A short human-readable summary of a calibration."""
     rv = np.rad2deg(cal.rotvec)
@@ -122,8 +228,12 @@ def summary_markdown(cal: PairCalibration) -> str:
         f"- per-axis SNR: {np.array2string(cal.snr, precision=0)}; samples: {cal.n_samples}; "
         f"rejected: {100 * cal.rejected_fraction:.2f}%",
         f"- noise std: {np.array2string(np.rad2deg(cal.noise_std), precision=4)} deg/s ({cal.noise_source})",
+        f"- {uncertainty_basis(cal)}; covariance basis: {cal.covariance_basis}",
     ]
     lines += [f"- note: {n}" for n in cal.notes]
+    if cal.noise_model is not None:
+        lines += ["", "## Noise model (identified from the residual)", ""]
+        lines += [f"- {line}" for line in cal.noise_model.describe().splitlines()]
     return "\n".join(lines) + "\n"
 
 
@@ -166,7 +276,8 @@ def write_report(run: PipelineRun, out_dir, *, extra_figures=None) -> list[Path]
 
     out = Path(out_dir).expanduser()
     figs = {"residual_vs_rate": residual_vs_rate(run), "snr_accumulation": snr_accumulation(run),
-            "alignment": alignment_curve(run), "rejected_stretches": rejected_stretches(run)}
+            "alignment": alignment_curve(run), "rejected_stretches": rejected_stretches(run),
+            "allan_deviation": allan_deviation(run)}
     figs.update(extra_figures or {})
     paths = []
     md = summary_markdown(run.calibration)

@@ -30,9 +30,16 @@ Frame and time conventions of the YAML exports (``ARCHITECTURE.md``)
 * scale factors are known only up to one global factor (Theorem 2): the files carry the values in
   the calibration's gauge, named in a comment; scale factors the data do not determine at all
   (axis-parallel gyros, Lemmas 2-3) are written as 1 and named in a comment;
-* noise figures: the library identifies no noise model, so unless measured figures are passed
-  (:class:`ImuNoise`) the files carry placeholders marked ``PLACEHOLDER`` with how to measure them
-  (never 0, which Kalibr rejects);
+* noise figures: figures passed as :class:`ImuNoise` are written as given. Otherwise, when a pair's
+  calibration carries the noise model identified from its own residual
+  (:attr:`PairCalibration.noise_model`, :func:`~fusion_gyrocal.core.noise.identify_noise`), each gyro's
+  white noise density (``noise_density``, rad/s/sqrt(Hz)) is its ``gyroscope_noise_density`` and the bias
+  random walk ``K`` (rad/s^2/sqrt(Hz)) its ``gyroscope_random_walk``, each with a comment saying where it
+  came from and its standard uncertainty. When the residual is a rate-dependent misfit rather than noise
+  the density is still the sensor's (from the quiet windows, the model's ``sources``), never the
+  residual's spread. What nothing measured (the accelerometer figures of a gyro-only calibration, a walk
+  the Allan fit did not find, every figure of a calibration without a noise model) is a placeholder
+  marked ``PLACEHOLDER`` with how to measure it (never 0, which Kalibr rejects);
 * a pair flagged not rigid gets a WARNING comment at the top of every file;
 * topic names are written double-quoted, so ``#`` and ``:`` in them stay text.
 """
@@ -271,9 +278,22 @@ def _matrix(key: str, m: np.ndarray, indent: str) -> list[str]:
 # ----------------------------------------------------------------------------- IMU chains (Kalibr, OpenVINS)
 _NOISE_UNITS = {"accelerometer_noise_density": "m/s^2/sqrt(Hz)", "accelerometer_random_walk": "m/s^3/sqrt(Hz)",
                 "gyroscope_noise_density": "rad/s/sqrt(Hz)", "gyroscope_random_walk": "rad/s^2/sqrt(Hz)"}
-_PLACEHOLDER_HOWTO = ("# PLACEHOLDER noise figures (marked below): fusion_gyrocal does not identify a noise model. Measure "
-                      "them with an Allan-variance\n# analysis of a long static recording of this IMU (white noise at "
-                      "tau = 1 s, random walk from the +1/2 slope) and\n# replace them before estimating with them.")
+_GYRO_KEYS = ("gyroscope_noise_density", "gyroscope_random_walk")
+_NOT_MEASURED = "PLACEHOLDER, not measured"
+_PLACEHOLDER_HOWTO = ("# PLACEHOLDER noise figures (marked below, with why): nothing in this calibration measured them. "
+                      "Measure them with an\n# Allan-variance analysis of a long static recording of this IMU (white "
+                      "noise at tau = 1 s, random walk from the +1/2 slope)\n# and replace them before estimating with "
+                      "them.")
+
+
+@dataclass(frozen=True)
+class _Figure:
+    """One noise figure of an export and what its line's comment says about it."""
+
+    value: float
+    note: str = ""             # after the unit; "" for figures the caller gave (ImuNoise)
+    placeholder: bool = False
+    from_model: bool = False   # made from the calibration's noise model (its header says where from)
 
 
 @dataclass(frozen=True)
@@ -298,6 +318,8 @@ class _Chain:
     gauge: str
     configuration: str
     warning: tuple
+    identified: tuple = ()     # per IMU: {gyro key: _Figure} identified from the data, or None
+    noise_header: tuple = ()   # comment lines saying where the identified figures came from
 
 
 def _finite(name: str, v) -> None:
@@ -341,6 +363,121 @@ def _chain_of(cal) -> _Chain:
     raise InputError(f"cal: expected a PairCalibration or an ArrayCalibration, got {type(cal).__name__}")
 
 
+def _wrapped(text: str) -> list[str]:
+    """A long comment as YAML comment lines (``#`` first, continuation lines indented)."""
+    import textwrap
+
+    return textwrap.wrap(text, width=118, initial_indent="# ", subsequent_indent="#   ", break_on_hyphens=False)
+
+
+# the rate of a noise model identified from sample-aligned input without timestamps: its numbers are per
+# sample (pipeline.pipeline._identify), converted to densities with each IMU's update_rate
+_PER_SAMPLE_RATE = 1.0
+
+
+def _identified(cal: PairCalibration, rates) -> tuple[tuple, tuple]:
+    """The gyro noise figures of a pair's identified noise model (:attr:`PairCalibration.noise_model`).
+
+    Per gyro: ``gyroscope_noise_density`` = the model's white ``noise_density`` (rad/s/sqrt(Hz)), and
+    ``gyroscope_random_walk`` = its bias random walk ``K`` (``random_walk``, rad/s^2/sqrt(Hz)); for a
+    constant-bias model with a walk term in the residual's Allan fit, that term per gyro (the residual sees
+    ``b_1 - A b_2``: its step variance split equally, ``q_r^2 / (1 + |A|_F^2 / 3)`` each, as
+    :func:`~fusion_gyrocal.core.noise.identify_noise` splits a random-walk bias); no figure where the
+    fit has no walk term or a number is not finite and positive. A model identified per sample (input
+    without timestamps, ``rate_hz`` 1) is converted with the IMU's ``rates``. Returns the per-gyro figures
+    and the header's comment lines, or ``((None, None), ())`` without a noise model.
+    """
+    nm = cal.noise_model
+    if nm is None:
+        return (None, None), ()
+    per_sample = nm.rate_hz == _PER_SAMPLE_RATE
+    fs = [float(r) if per_sample else float(nm.rate_hz) for r in rates]
+    misfit = nm.kind.startswith("not white noise")
+    if nm.bias_walk_std is not None:
+        q = nm.bias_walk_std
+        share = [qi / nm.residual_walk_std if nm.residual_walk_std > 0 else np.nan for qi in q]
+        q_sd = [nm.residual_walk_std_uncertainty * f for f in share]
+        walk_how = "the identified random-walk bias model's K"
+    elif nm.residual_walk_std > 0:
+        each = 1.0 / np.sqrt(1.0 + float(np.sum(cal.A * cal.A)) / 3.0)
+        q = (nm.residual_walk_std * each,) * 2
+        q_sd = (nm.residual_walk_std_uncertainty * each,) * 2
+        walk_how = ("the walk term K of the residual's Allan fit, split equally between the gyros (the calibration "
+                    "itself keeps a constant bias)")
+    else:
+        q = q_sd = None
+    # gyro 2 interpolated onto gyro 1's grid (its own rate differs from the model's while gyro 1's matches): its
+    # third differences are smoothed, so a split of the residual's white noise made from them is not the sensors'
+    split = nm.sources.get("split", "")
+    unsplit = (not per_sample and abs(rates[0] / nm.rate_hz - 1.0) <= 0.01 and abs(rates[1] / nm.rate_hz - 1.0) > 0.01
+               and split.startswith("third differences"))
+    density = [nm.noise_std[i] / np.sqrt(fs[i]) for i in (0, 1)]
+    density_sd = [nm.noise_std_uncertainty[i] / np.sqrt(fs[i]) for i in (0, 1)]
+    walk = None if q is None else [q[i] * np.sqrt(fs[i]) for i in (0, 1)]
+    walk_sd = None if q is None else [q_sd[i] * np.sqrt(fs[i]) for i in (0, 1)]
+
+    def good(v) -> bool:
+        return v is not None and bool(np.isfinite(v)) and v > 0
+
+    def pm(sd) -> str:
+        return f", +- {sd:.2g}" if good(sd) else ", uncertainty not available"
+
+    per_gyro = []
+    for i in (0, 1):
+        figs = {}
+        if unsplit:
+            figs["gyroscope_noise_density"] = _Figure(
+                _PLACEHOLDER["gyroscope_noise_density"],
+                f"{_NOT_MEASURED} (the residual's white noise could not be split between the gyros: see the header)",
+                True, True)
+        elif good(density[i]):
+            figs["gyroscope_noise_density"] = _Figure(
+                density[i], "identified: " + ("the sensor's white noise (the residual is a misfit)" if misfit else
+                                           "white noise of the pair's residual") + pm(density_sd[i]), from_model=True)
+        if walk is not None and good(walk[i]):
+            figs["gyroscope_random_walk"] = _Figure(walk[i], "identified: bias random walk of the pair's residual"
+                                                    + pm(walk_sd[i]), from_model=True)
+        else:
+            figs["gyroscope_random_walk"] = _Figure(
+                _PLACEHOLDER["gyroscope_random_walk"],
+                f"{_NOT_MEASURED} (no random-walk term in the residual's Allan deviation up to "
+                f"tau = {nm.fit_taus[1]:.3g} s)", True, True)
+        per_gyro.append(figs or None)
+    deg = 180.0 / np.pi
+    lines = _wrapped(
+        f"Gyroscope noise IDENTIFIED by fusion_gyrocal from the moving pair's own residual (overlapping "
+        f"Allan deviation fitted with white noise, bias instability and random walk, IEEE Std 952), not from a "
+        f"static test: residual {nm.kind}; bias model {nm.bias_model}.")
+    for i in () if unsplit else (0, 1):
+        lines.append(f"#   imu{i}: white {nm.noise_std[i] * deg:.4g} +- {nm.noise_std_uncertainty[i] * deg:.2g} deg/s "
+                     f"per sample at {fs[i]:.6g} Hz = gyroscope_noise_density {density[i]:.4g} "
+                     f"+- {density_sd[i]:.2g} rad/s/sqrt(Hz)")
+    if unsplit:
+        lines += _wrapped(
+            f"  NOT WRITTEN: gyro 2 was resampled from {rates[1]:.6g} Hz onto gyro 1's {nm.rate_hz:.6g} Hz grid, and "
+            f"the split between the gyros came from third differences, which the interpolation smooths. The residual's "
+            f"white noise itself is {nm.residual_noise_std / np.sqrt(nm.rate_hz):.4g} "
+            f"+- {nm.residual_noise_std_uncertainty / np.sqrt(nm.rate_hz):.2g} rad/s/sqrt(Hz) per axis "
+            "(= sqrt(N_1^2 + N_2^2 |A|_F^2 / 3)); record a few seconds at rest to split it, or measure each IMU.")
+    if per_sample:
+        lines += _wrapped("  The calibration had no timestamps: the model is per sample, converted to densities with "
+                          "each IMU's update_rate.")
+    if walk is not None:
+        lines += _wrapped(f"  gyroscope_random_walk: {walk_how}.")
+    for key, text in nm.sources.items():
+        lines += _wrapped(f"  {key}: {text}")
+    if misfit:
+        lines += _wrapped(
+            f"The residual is NOT white noise but a rate-dependent misfit ({100 * nm.misfit_share:.0f}% of its "
+            f"variance explained by the rate; residual rms {cal.residual_rms * deg:.3g} deg/s): "
+            "gyroscope_noise_density is the sensors' white noise, from the windows where the misfit is negligible, "
+            "never the residual's spread.")
+    elif not nm.is_white:
+        for note in nm.notes:
+            lines += _wrapped(note)
+    return tuple(per_gyro), tuple(lines)
+
+
 def _per_imu(value, n: int, name: str) -> list:
     """One value for every IMU, or a sequence of ``n``."""
     if isinstance(value, (tuple, list)):
@@ -370,14 +507,31 @@ def _topics(topics, n: int) -> list[str]:
     return topics
 
 
-def _noises(noise, n: int) -> list[dict | None]:
-    """Per IMU: the four figures of a given :class:`ImuNoise`, or None (placeholders)."""
+def _noises(noise, chain: _Chain) -> list[dict]:
+    """Per IMU, every noise figure (a :class:`_Figure` per key): a given :class:`ImuNoise` as given; else the
+    gyro figures identified from the data (:func:`_identified`) and placeholders for the rest."""
+    n = len(chain.imus)
+    identified = chain.identified or (None,) * n
     out = []
-    for g in _per_imu(noise, n, "noise"):
+    for g, found in zip(_per_imu(noise, n, "noise"), identified):
         if g is not None and not isinstance(g, ImuNoise):
             raise InputError(f"noise: expected ImuNoise, None or one per IMU, got {type(g).__name__}")
-        out.append(None if g is None else {k: getattr(g, k) for k in _PLACEHOLDER})
+        if g is not None:
+            out.append({k: _Figure(getattr(g, k)) for k in _PLACEHOLDER})
+            continue
+        why = f"{_NOT_MEASURED} (gyro-only calibration)" if found else _NOT_MEASURED
+        figs = {k: _Figure(v, why, True) for k, v in _PLACEHOLDER.items()}
+        figs.update(found or {})
+        out.append(figs)
     return out
+
+
+def _any_placeholder(noises) -> bool:
+    return any(f.placeholder for figs in noises for f in figs.values())
+
+
+def _identified_used(noises) -> bool:
+    return any(f.from_model for figs in noises for f in figs.values())
 
 
 def _quoted(s: str) -> str:
@@ -385,7 +539,7 @@ def _quoted(s: str) -> str:
     return f'"{s}"'
 
 
-def _header(chain: _Chain, what: str, topics, placeholders: bool) -> list[str]:
+def _header(chain: _Chain, what: str, topics, noises) -> list[str]:
     lines = [f"# {w}" for w in chain.warning]
     lines += [f"# {what} written by fusion_gyrocal from {chain.what}."]
     for i, (imu, topic) in enumerate(zip(chain.imus, topics)):
@@ -405,15 +559,16 @@ def _header(chain: _Chain, what: str, topics, placeholders: bool) -> list[str]:
             lines.append(f"# imu{i}: 1-sigma rotation uncertainty (deg, body axes) "
                          + ", ".join(f"{v:.3g}" for v in imu.rotation_std_deg)
                          + f"; time offset {imu.time_offset_source}.")
-    if placeholders:
+    if _identified_used(noises):
+        lines += list(chain.noise_header)
+    if _any_placeholder(noises):
         lines.append(_PLACEHOLDER_HOWTO)
     return lines
 
 
-def _noise_lines(noise: dict | None, indent: str) -> list[str]:
-    values = dict(_PLACEHOLDER) if noise is None else noise
-    note = "  PLACEHOLDER, not measured" if noise is None else ""
-    return [f"{indent}{k}: {_yf(values[k])}  # [{_NOISE_UNITS[k]}]{note}" for k in _PLACEHOLDER]
+def _noise_lines(noise: dict, indent: str) -> list[str]:
+    return [f"{indent}{k}: {_yf(noise[k].value)}  # [{_NOISE_UNITS[k]}]" + (f"  {noise[k].note}" if noise[k].note else "")
+            for k in _PLACEHOLDER]
 
 
 def _determined(imu: _ChainImu) -> np.ndarray:
@@ -447,9 +602,15 @@ def _check_yaml(text: str, path, topics) -> None:
 
 
 def _prepare(cal, topics, update_rate, noise):
+    import dataclasses
+
     chain = _chain_of(cal)
     n = len(chain.imus)
-    return chain, _topics(topics, n), _rates(update_rate, n), _noises(noise, n)
+    rates = _rates(update_rate, n)
+    if isinstance(cal, PairCalibration):
+        identified, header = _identified(cal, rates)
+        chain = dataclasses.replace(chain, identified=identified, noise_header=header)
+    return chain, _topics(topics, n), rates, _noises(noise, chain)
 
 
 def write_kalibr_imu_configs(cal, folder, *, topics=None, update_rate=200.0, noise=None) -> tuple[Path, ...]:
@@ -460,7 +621,9 @@ def write_kalibr_imu_configs(cal, folder, *, topics=None, update_rate=200.0, noi
     ``accelerometer_noise_density``, ``accelerometer_random_walk``, ``gyroscope_noise_density`` and
     ``gyroscope_random_walk`` (all > 0). Kalibr estimates rotations, time offsets and intrinsics
     itself; fusion_gyrocal's estimates of them are in comments (and in :func:`write_kalibr_imu_chain`).
-    Without ``noise`` the four noise figures are placeholders, marked as such in the file.
+    Without ``noise`` the gyro figures are those a pair's calibration identified from its residual
+    (:attr:`PairCalibration.noise_model`, with where they came from in comments); what nothing measured
+    (the accelerometer figures, and every figure without a noise model) is a marked placeholder.
 
     Parameters
     ----------
@@ -472,7 +635,8 @@ def write_kalibr_imu_configs(cal, folder, *, topics=None, update_rate=200.0, noi
     update_rate : float or sequence of float
         IMU rates in Hz.
     noise : ImuNoise or sequence of (ImuNoise or None), optional
-        Measured noise figures; None writes placeholders.
+        Measured noise figures, written as given; None (for every IMU or one of them) writes the
+        identified gyro figures where the calibration carries a noise model, placeholders elsewhere.
 
     Returns
     -------
@@ -498,7 +662,9 @@ def write_kalibr_imu_configs(cal, folder, *, topics=None, update_rate=200.0, noi
         lines.append(f"# Scale factors (relative, gauge {chain.gauge}): "
                      + ", ".join(f"{'xyz'[a]} {imu.scale[a]:.6f}" if imu.observable[a] else f"{'xyz'[a]} undetermined"
                                  for a in range(3)) + ".")
-        if noises[i] is None:
+        if _identified_used(noises[i:i + 1]):
+            lines += list(chain.noise_header)
+        if _any_placeholder(noises[i:i + 1]):
             lines.append(_PLACEHOLDER_HOWTO)
         lines += [f"rostopic: {_quoted(topics[i])}", f"update_rate: {_yf(rates[i])}  # [Hz]"]
         lines += _noise_lines(noises[i], "")
@@ -515,15 +681,15 @@ def write_kalibr_imu_chain(cal, path, *, topics=None, update_rate=200.0, noise=N
     This is the layout Kalibr writes after a multi-IMU calibration and that tools reading Kalibr
     results take (OpenVINS, maplab's exporter); Kalibr itself reads :func:`write_kalibr_imu_configs`.
     Per IMU: ``T_i_b`` (4x4, body = the reference gyro, translation NOT estimated: zeros and
-    ``translation_estimated: false``), the four noise figures (placeholders unless ``noise``),
-    ``model: scale-misalignment``, ``rostopic`` (quoted), ``time_offset``, ``update_rate``,
+    ``translation_estimated: false``), the four noise figures (``noise``, else the identified gyro
+    figures, else placeholders), ``model: scale-misalignment``, ``rostopic`` (quoted), ``time_offset``, ``update_rate``,
     ``gyroscopes: {M, A, C_gyro_i}`` and ``accelerometers: {M}``. With Kalibr's gyro model
     ``omega = M C_gyro_i C_i_b omega_b + A a + b``, ``M = diag(scale)`` (Eq. 1) for the scale factors
     the data determine (1 elsewhere, named in a comment), ``C_gyro_i = I``, ``A = 0``; the
     accelerometer ``M = I`` is not estimated. Parameters as :func:`write_kalibr_imu_configs`.
     """
     chain, topics, rates, noises = _prepare(cal, topics, update_rate, noise)
-    lines = _header(chain, "Kalibr IMU chain (result layout)", topics, any(x is None for x in noises))
+    lines = _header(chain, "Kalibr IMU chain (result layout)", topics, noises)
     for i, imu in enumerate(chain.imus):
         lines.append("")
         lines += _chain_block(i, imu, noises[i], topics[i], rates[i], "scale-misalignment")
@@ -544,8 +710,8 @@ def write_openvins_imu_chain(cal, path, *, topics=None, update_rate=200.0, noise
 
     The first line is the ``%YAML:1.0`` directive OpenCV's ``cv::FileStorage`` (OpenVINS'
     ``YamlParser``) needs; the rest is plain YAML. Keys per IMU follow OpenVINS'
-    ``config/*/kalibr_imu_chain.yaml``: ``T_i_b``, the four noise figures (placeholders unless
-    ``noise``), ``rostopic`` (quoted), ``time_offset``, ``update_rate``, ``model: kalibr`` (OpenVINS
+    ``config/*/kalibr_imu_chain.yaml``: ``T_i_b``, the four noise figures (``noise``, else the
+    identified gyro figures, else placeholders), ``rostopic`` (quoted), ``time_offset``, ``update_rate``, ``model: kalibr`` (OpenVINS
     exits on ``calibrated`` when it is asked to refine the intrinsics), ``Tw``, ``R_IMUtoGYRO``,
     ``Ta``, ``R_IMUtoACC``, ``Tg``. With OpenVINS' model ``omega_m = Tw R_IMUtoGYRO omega_I + Tg a + b``:
     ``Tw = diag(scale)`` for the scale factors the data determine and 1 where they do not (a comment
@@ -554,7 +720,7 @@ def write_openvins_imu_chain(cal, path, *, topics=None, update_rate=200.0, noise
     terms. Parameters as :func:`write_kalibr_imu_configs`.
     """
     chain, topics, rates, noises = _prepare(cal, topics, update_rate, noise)
-    lines = ["%YAML:1.0"] + _header(chain, "OpenVINS kalibr_imu_chain", topics, any(x is None for x in noises))
+    lines = ["%YAML:1.0"] + _header(chain, "OpenVINS kalibr_imu_chain", topics, noises)
     for i, imu in enumerate(chain.imus):
         lines.append("")
         lines += _chain_block(i, imu, noises[i], topics[i], rates[i], "kalibr")
