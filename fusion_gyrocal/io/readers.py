@@ -485,8 +485,14 @@ def _pyarrow_floats(path: Path, *, skiprows: int, delimiter: str, usecols: Seque
     except (pa.ArrowException, ValueError, OSError):   # np.loadtxt then reads the file or says what is wrong
         return None
     x = np.empty((table.num_rows, len(names)))
-    for j, name in enumerate(names):
-        x[:, j] = table.column(name).to_numpy()
+    for j, name in enumerate(names):   # from the value buffers: (Chunked)Array.to_numpy would import pandas
+        row = 0
+        for chunk in table.column(name).chunks:
+            if chunk.null_count:
+                return None
+            n = len(chunk)
+            x[row:row + n, j] = np.frombuffer(chunk.buffers()[1], dtype=np.float64, count=n, offset=8 * chunk.offset)
+            row += n
     return x if x.shape[0] and np.isfinite(x).all() else None
 
 
