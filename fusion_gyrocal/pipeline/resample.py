@@ -80,20 +80,26 @@ def _spline_slopes(x: np.ndarray, Y: np.ndarray, first: np.ndarray, last: np.nda
 
 
 def _hermite_coefficients(x: np.ndarray, Y: np.ndarray, S: np.ndarray) -> np.ndarray:
-    """Coefficients ``(m - 1, 4, k)`` of the piecewise cubic through ``(x, Y)`` with knot slopes ``S``.
+    """Coefficients ``(4, k, m - 1)`` of the piecewise cubic through ``(x, Y)`` (``(m, k)``) with knot slopes ``S``.
 
     On ``[x_i, x_{i+1}]``: ``y = ((c0 d + c1) d + c2) d + c3`` with ``d = x - x_i`` (the cubic Hermite
-    interpolant, as scipy's ``CubicHermiteSpline``), laid out interval by interval so that one gather
-    fetches everything an evaluation needs.
+    interpolant, as scipy's ``CubicHermiteSpline``). Laid out interval-last, so an evaluation gathers
+    all ``4 k`` coefficients of its intervals with one ``take`` of 8-byte items.
     """
-    dx = np.diff(x)[:, None]
-    slope = np.diff(Y, axis=0) / dx
-    c = np.empty((x.size - 1, 4, Y.shape[1]))
-    t = (S[:-1] + S[1:] - 2.0 * slope) / dx
-    np.divide(t, dx, out=c[:, 0])
-    np.subtract((slope - S[:-1]) / dx, t, out=c[:, 1])
-    c[:, 2] = S[:-1]
-    c[:, 3] = Y[:-1]
+    Yt, St = np.ascontiguousarray(Y.T), np.ascontiguousarray(S.T)
+    dx = np.diff(x)
+    c = np.empty((4,) + Yt.shape[:1] + (x.size - 1,))
+    slope = np.diff(Yt, axis=1)
+    slope /= dx
+    t = np.add(St[:, :-1], St[:, 1:], out=c[1])
+    t -= 2.0 * slope
+    t /= dx                                  # c[1] holds t for now
+    np.divide(t, dx, out=c[0])
+    np.subtract(slope, St[:, :-1], out=c[2])
+    c[2] /= dx
+    np.subtract(c[2], t, out=c[1])
+    c[2] = St[:, :-1]
+    c[3] = Yt[:, :-1]
     return c
 
 
@@ -136,22 +142,23 @@ class _RunSplines:
         """Values (``nu`` = 0) or first derivatives (``nu`` = 1) at ``x`` (1-D, inside the knots' span)."""
         i = np.searchsorted(self.knots, x, side="right") - 1
         np.clip(i, 0, self.knots.size - 2, out=i)
-        d = (x - self.knots[i])[:, None]
-        c = self.coef[i]
+        d = x - self.knots.take(i)
+        k = self.coef.shape[1]
+        c = self.coef.reshape(4 * k, -1).take(i, axis=1).reshape(4, k, -1)
         if nu == 0:
-            out = c[:, 0] * d
-            out += c[:, 1]
+            out = c[0] * d
+            out += c[1]
         elif nu == 1:
-            out = (3.0 * d) * c[:, 0]
-            out += 2.0 * c[:, 1]
+            out = (3.0 * d) * c[0]
+            out += 2.0 * c[1]
         else:
             raise OptionError(f"nu: expected 0 (values) or 1 (first derivatives), got {nu!r}")
         out *= d
-        out += c[:, 2]
+        out += c[2]
         if nu == 0:
             out *= d
-            out += c[:, 3]
-        return out
+            out += c[3]
+        return np.ascontiguousarray(out.T)
 
     def __call__(self, x: np.ndarray, nu: int = 0, inside: np.ndarray | None = None):
         """Values (or ``nu``-th derivatives, ``nu`` <= 1) at ``x``, NaN outside the runs; returns (values, inside)."""
