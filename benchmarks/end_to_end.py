@@ -15,10 +15,15 @@ reading, its readers). Every row is the best of 3.
 from __future__ import annotations
 
 import argparse
+import os
+import sys
 from pathlib import Path
 
 import numpy as np
 from _timing import best_of  # noqa: E402  (benchmarks/ is the script's folder)
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))   # this checkout's package, in-process and in the subprocesses (not an installed one)
 
 
 def make_files(d: Path, minutes: float, rate=200.0, seed=0):
@@ -78,10 +83,11 @@ def main(argv=None):
         print(f"{name:<45} {t:8.3f} s")
     # as a user sees it: whole processes (interpreter start and imports included), as in issue 14
     import subprocess
-    import sys
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, (str(ROOT), os.environ.get("PYTHONPATH"))))}
 
     def process(args):
-        return best_of(lambda: subprocess.run([sys.executable, *args], check=True, capture_output=True))[0]
+        return best_of(lambda: subprocess.run([sys.executable, *args], check=True, capture_output=True, env=env))[0]
 
     p_cli = process(["-m", "fusion_gyrocal.cli", "calibrate", str(p1), str(p2), "--unit2", "deg/s", "--output",
                      str(Path(a.dir) / "cal.json")])

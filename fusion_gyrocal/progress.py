@@ -9,15 +9,37 @@ from __future__ import annotations
 import sys
 
 
+class _NoBar:
+    """The bar where nobody watches: the calls of :class:`rich.progress.Progress` that do nothing (and no
+    import of ``rich.progress``, about 0.05 s of a command's start)."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        return False
+
+    def add_task(self, *args, **kwargs) -> int:
+        return 0
+
+    def advance(self, *args, **kwargs) -> None:
+        return None
+
+    def update(self, *args, **kwargs) -> None:
+        return None
+
+
 def progress_bar(enabled: bool | None = None):
     """A transient rich progress bar (description, bar, done/total, time left).
 
-    ``enabled=None``: shown when stderr is a terminal. Use as a context manager; ``add_task`` / ``advance``
-    as in :class:`rich.progress.Progress`.
+    ``enabled=None``: shown when stderr is a terminal. Use as a context manager; ``add_task`` / ``advance`` /
+    ``update`` as in :class:`rich.progress.Progress` (disabled: an object whose calls do nothing).
     """
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
     if enabled is None:
         enabled = sys.stderr.isatty()
+    if not enabled:
+        return _NoBar()
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
     return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-                    disable=not enabled, transient=True)
+                    transient=True)

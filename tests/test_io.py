@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -219,6 +220,60 @@ def test_read_csv_pandas_and_loadtxt_agree_on_integer_time_and_xsens(tmp_path, m
     ref, fast = _read_both_ways(monkeypatch, read_xsens, x)
     np.testing.assert_array_equal(fast.t, [0.01, 0.02, 0.03])
     np.testing.assert_array_equal(fast.t, ref.t)
+
+
+_LAYOUTS = {  # name: (file bytes of a header and rows, delimiter or None for whitespace runs)
+    "csv, BOM, CRLF": (lambda rows: ("\ufefft,gyro_x,gyro_y,gyro_z\r\n"
+                                     + "".join(",".join(r) + "\r\n" for r in rows)).encode(), ","),
+    "tsv, extra text column": (lambda rows: ("time\tgyr_x\tgyr_y\tgyr_z\tnote\n"
+                                             + "".join("\t".join(r) + "\tok\n" for r in rows)).encode(), "\t"),
+    "semicolons, spreadsheet trailer": (lambda rows: ("t;wx;wy;wz\n" + "".join(";".join(r) + "\n" for r in rows)
+                                                      + ";;;\n\nsaved by a spreadsheet\n").encode(), ";"),
+    "whitespace runs": (lambda rows: ("t gyro_x gyro_y gyro_z\n"
+                                      + "".join("  ".join(r) + "\n" for r in rows)).encode(), None),
+}
+
+
+@pytest.mark.parametrize("parser", ["pyarrow", "pandas", "loadtxt"])
+@pytest.mark.parametrize("layout", sorted(_LAYOUTS))
+def test_read_csv_fast_parsers_and_loadtxt_give_identical_arrays(tmp_path, monkeypatch, parser, layout):
+    """Each fast parser alone (the others made unavailable) reads what np.loadtxt reads, bit for bit."""
+    if parser != "loadtxt":
+        pytest.importorskip(parser)
+    rng = np.random.default_rng(62)
+    t = 1.7e9 + np.arange(400) / 200.0 + rng.uniform(0, 1e-4, 400)
+    w = rng.normal(0, 2.0, (400, 3)) * 10.0 ** rng.integers(-6, 3, (400, 3))
+    rows = [[repr(float(t[k]))] + [f"{v:.25g}" if k % 3 else repr(float(v)) for v in w[k]] for k in range(400)]
+    build, _ = _LAYOUTS[layout]
+    p = tmp_path / "imu.csv"
+    p.write_bytes(build(rows))
+    monkeypatch.setattr(readers_mod, "PANDAS_MIN_BYTES", float("inf"))
+    ref = read_csv(p)
+    for other in {"pyarrow", "pandas"} - {parser}:   # an import that fails, as when not installed
+        monkeypatch.setitem(sys.modules, other, None)
+        monkeypatch.setitem(sys.modules, f"{other}.csv", None)
+    used = []
+
+    def spy(name):
+        fn = getattr(readers_mod, name)
+
+        def wrapped(*args, **kwargs):
+            x = fn(*args, **kwargs)
+            used.append(name if x is not None else None)
+            return x
+        monkeypatch.setattr(readers_mod, name, wrapped)
+
+    spy("_pyarrow_floats")
+    spy("_pandas_floats")
+    monkeypatch.setattr(readers_mod, "PANDAS_MIN_BYTES", 0)
+    fast = read_csv(p)
+    expected = "loadtxt" if parser == "loadtxt" or (parser == "pyarrow" and _LAYOUTS[layout][1] is None) else parser
+    assert [u for u in used if u] == ([] if expected == "loadtxt" else [f"_{expected}_floats"])
+    np.testing.assert_array_equal(ref.t, t)
+    np.testing.assert_array_equal(ref.omega, w)
+    for name in ("t", "omega", "valid"):
+        np.testing.assert_array_equal(getattr(fast, name), getattr(ref, name), err_msg=name)
+    assert fast.notes == ref.notes
 
 
 @pytest.mark.parametrize("rows", [

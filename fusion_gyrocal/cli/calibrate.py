@@ -59,18 +59,17 @@ def _topics(args, sources) -> list[str]:
 
 def run(args) -> int:
     """Calibrate; exit code 0 (a pair flagged not rigid with ``--allow-not-rigid`` too, with a warning)."""
-    from rich.progress import Progress
-
     from ..io.writers import (write_json, write_kalibr_imu_chain, write_kalibr_imu_configs,
                               write_openvins_imu_chain)
     from ..io.report import uncertainty_basis
+    from ..progress import progress_bar
     from .display import array_table, console as make_console, summary_table
 
     kalibr = _kalibr_folder(args.kalibr) if args.kalibr else None
     console = make_console()
     sources = gyro_sources(args)
     joint = len(sources) > 2 or args.array
-    with Progress(transient=True, disable=not sys.stderr.isatty()) as progress:
+    with progress_bar() as progress:
         task = progress.add_task("reading", total=len(sources) + 1)
         streams = read_sources(sources, lambda: progress.advance(task))
         progress.update(task, description="aligning and solving")

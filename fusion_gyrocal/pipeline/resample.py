@@ -7,8 +7,7 @@ interpolation"; :func:`resample` does it on plain arrays with a validity mask.
 from __future__ import annotations
 
 import numpy as np
-from scipy.interpolate import PPoly
-from scipy.linalg import solve_banded
+from scipy.linalg import solve_banded   # scipy.linalg only: the solver loads it anyway (interpolate would add ~0.2 s)
 
 from ..errors import InputError, OptionError
 from .streams import DEFAULT_GAP_PERIODS, _nominal_period, _stream
@@ -80,13 +79,28 @@ def _spline_slopes(x: np.ndarray, Y: np.ndarray, first: np.ndarray, last: np.nda
     return solve_banded((1, 1), ab, rhs, check_finite=False)
 
 
-def _hermite_ppoly(x: np.ndarray, Y: np.ndarray, S: np.ndarray, width: tuple) -> PPoly:
-    """Piecewise cubic through ``(x, Y)`` with knot slopes ``S`` (as scipy's ``CubicHermiteSpline``)."""
-    dx = np.diff(x)[:, None]
-    slope = np.diff(Y, axis=0) / dx
-    t = (S[:-1] + S[1:] - 2.0 * slope) / dx
-    c = np.stack((t / dx, (slope - S[:-1]) / dx - t, S[:-1], Y[:-1]))
-    return PPoly(c.reshape((4, x.size - 1) + width), x, extrapolate=False)
+def _hermite_coefficients(x: np.ndarray, Y: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """Coefficients ``(4, k, m - 1)`` of the piecewise cubic through ``(x, Y)`` (``(m, k)``) with knot slopes ``S``.
+
+    On ``[x_i, x_{i+1}]``: ``y = ((c0 d + c1) d + c2) d + c3`` with ``d = x - x_i`` (the cubic Hermite
+    interpolant, as scipy's ``CubicHermiteSpline``). Laid out interval-last, so an evaluation gathers
+    all ``4 k`` coefficients of its intervals with one ``take`` of 8-byte items.
+    """
+    Yt, St = np.ascontiguousarray(Y.T), np.ascontiguousarray(S.T)
+    dx = np.diff(x)
+    c = np.empty((4,) + Yt.shape[:1] + (x.size - 1,))
+    slope = np.diff(Yt, axis=1)
+    slope /= dx
+    t = np.add(St[:, :-1], St[:, 1:], out=c[1])
+    t -= 2.0 * slope
+    t /= dx                                  # c[1] holds t for now
+    np.divide(t, dx, out=c[0])
+    np.subtract(slope, St[:, :-1], out=c[2])
+    c[2] /= dx
+    np.subtract(c[2], t, out=c[1])
+    c[2] = St[:, :-1]
+    c[3] = Yt[:, :-1]
+    return c
 
 
 class _RunSplines:
@@ -95,41 +109,66 @@ class _RunSplines:
     Every run gets the not-a-knot cubic spline that scipy's ``CubicSpline`` would fit (a run of
     two samples: a line, of three: a parabola). All runs are solved together as one block-
     tridiagonal system for the knot slopes (one banded solve, however many runs a masked
-    record has) and packed into one piecewise polynomial; the interval between two runs holds
-    a Hermite bridge that is masked on evaluation (values and first derivatives at the run
-    ends are exact).
+    record has) and packed into one piecewise cubic (:func:`_hermite_coefficients`, evaluated by
+    Horner's rule in numpy); the interval between two runs holds a Hermite bridge that is masked on
+    evaluation (values and first derivatives at the run ends are exact).
     """
 
     def __init__(self, t: np.ndarray, y: np.ndarray, valid: np.ndarray, max_gap_s: float):
         self.width = y.shape[1:]
-        self.starts, self.ends, self.poly = np.empty(0), np.empty(0), None
+        self.starts, self.ends, self.knots, self.coef = np.empty(0), np.empty(0), None, None
         runs = _runs(t, valid, max_gap_s)
         if not runs:
             return
-        sel = np.concatenate(runs)
+        sel = runs[0] if len(runs) == 1 else np.concatenate(runs)
         x = t[sel]
         Y = y[sel].reshape(sel.size, -1)
         lens = np.array([r.size for r in runs])
         first = np.r_[0, np.cumsum(lens)[:-1]]
         last = first + lens - 1
         self.starts, self.ends = x[first], x[last]
-        self.poly = _hermite_ppoly(x, Y, _spline_slopes(x, Y, first, last), self.width)
+        self.knots = x
+        self.coef = _hermite_coefficients(x, Y, _spline_slopes(x, Y, first, last))
 
     def run_of(self, x: np.ndarray) -> np.ndarray:
         """Index of the run containing each query time, -1 outside every run."""
-        if self.poly is None:
+        if self.coef is None:
             return np.full(x.shape, -1)
         r = np.searchsorted(self.starts, x, side="right") - 1
         inside = (r >= 0) & (x <= self.ends[np.clip(r, 0, None)])
         return np.where(inside, r, -1)
 
+    def _eval(self, x: np.ndarray, nu: int) -> np.ndarray:
+        """Values (``nu`` = 0) or first derivatives (``nu`` = 1) at ``x`` (1-D, inside the knots' span)."""
+        i = np.searchsorted(self.knots, x, side="right") - 1
+        np.clip(i, 0, self.knots.size - 2, out=i)
+        d = x - self.knots.take(i)
+        k = self.coef.shape[1]
+        c = self.coef.reshape(4 * k, -1).take(i, axis=1).reshape(4, k, -1)
+        if nu == 0:
+            out = c[0] * d
+            out += c[1]
+        elif nu == 1:
+            out = (3.0 * d) * c[0]
+            out += 2.0 * c[1]
+        else:
+            raise OptionError(f"nu: expected 0 (values) or 1 (first derivatives), got {nu!r}")
+        out *= d
+        out += c[2]
+        if nu == 0:
+            out *= d
+            out += c[3]
+        return np.ascontiguousarray(out.T)
+
     def __call__(self, x: np.ndarray, nu: int = 0, inside: np.ndarray | None = None):
-        """Values (or ``nu``-th derivatives) at ``x``, NaN outside the runs; returns (values, inside)."""
+        """Values (or ``nu``-th derivatives, ``nu`` <= 1) at ``x``, NaN outside the runs; returns (values, inside)."""
         if inside is None:
             inside = self.run_of(x) >= 0
+        if inside.all():
+            return self._eval(x, nu).reshape(x.shape + self.width), inside
         out = np.full(x.shape + self.width, np.nan)
         if inside.any():
-            out[inside] = self.poly(x[inside], nu)
+            out[inside] = self._eval(x[inside], nu).reshape((-1,) + self.width)
         return out, inside
 
 

@@ -173,12 +173,16 @@ def saturation_mask(omega, limit: float | None = None) -> np.ndarray:
     out = np.zeros(w.shape[0], dtype=bool)
     if not finite.any():
         return out
-    biggest = float(np.max(np.abs(w[finite])))
+    if finite.all():   # the usual case: each axis's extremes without copying the finite values out
+        hi, lo = w.max(axis=0), w.min(axis=0)
+        biggest = float(max(np.abs(hi).max(), np.abs(lo).max()))
+        extremes = list(zip(hi, lo)) if w.shape[0] >= 2 else [()] * 3
+    else:
+        biggest = float(np.max(np.abs(w[finite])))
+        cols = [w[finite[:, a], a] for a in range(3)]
+        extremes = [(c.max(), c.min()) if c.size >= 2 else () for c in cols]
     for a in range(3):
-        col = w[finite[:, a], a]
-        if col.size < 2:
-            continue
-        for level in (col.max(), col.min()):
+        for level in extremes[a]:
             if level == 0 or abs(level) < 0.5 * biggest:
                 continue
             hit = w[:, a] == level
