@@ -10,7 +10,7 @@ the ratios raw_time / our_time (1.0 = as fast as the raw pass) and the peak memo
 beyond the inputs by calibrate_pair (tracemalloc).
 
 Then the target row, what users do: two separate (5e6, 3) arrays (``calibrate_pair(omega_1, omega_2)``,
-the default pipeline with the noise split estimated from the data and the flex checks) against
+the default pipeline: the noise model identified from the data, the block-robust covariance, the flex checks) against
 ``X.T @ X`` of the same data stacked as (N, 6), best of 5, with each part (the moments pass, the
 noise split) and the peak memory beyond the inputs (target: >= 0.5x, <= 64 MiB).
 
@@ -28,7 +28,9 @@ import argparse
 
 from fusion_gyrocal import Moments, calibrate_pair, solve
 from fusion_gyrocal.evaluate.sim import PAPER_NOISE_STD, random_rotation
-from fusion_gyrocal.core.noise import difference_noise_std
+from fusion_gyrocal.core.direct import solve_A
+from fusion_gyrocal.core.moments import window_stats
+from fusion_gyrocal.core.noise import difference_noise_std, identify_noise
 
 
 def target(n=5_000_000, k=5):
@@ -43,6 +45,9 @@ def target(n=5_000_000, k=5):
     cal_known = best_of(lambda: calibrate_pair(w1, w2, noise_std=PAPER_NOISE_STD), k)[0]
     mom = best_of(lambda: Moments.from_samples(w1, w2), k)[0]
     noise = best_of(lambda: (difference_noise_std(w1), difference_noise_std(w2)), k)[0]
+    A, b = solve_A(Moments.from_samples(w1, w2))
+    ident = best_of(lambda: identify_noise(w1, w2, A, b, rate_hz=1.0, window_s=100.0), k)[0]
+    windows = best_of(lambda: window_stats(w1, w2, 100), k)[0]
     X = None  # free it before measuring memory
     tracemalloc.start()
     calibrate_pair(w1, w2)
@@ -53,7 +58,9 @@ def target(n=5_000_000, k=5):
     for name, tt in (("calibrate_pair(omega_1, omega_2)", cal),
                      ("calibrate_pair(..., noise_std=known)", cal_known),
                      ("  Moments.from_samples(omega_1, omega_2)", mom),
-                     ("  noise split (difference_noise_std x 2)", noise)):
+                     ("  noise split (difference_noise_std x 2)", noise),
+                     ("  identify_noise (stretches of the log)", ident),
+                     ("  window_stats (robust covariance)", windows)):
         print(f"  {name:44} {tt:8.4f} {raw / tt:9.3f}")
     print(f"  peak memory beyond the inputs (calibrate_pair): {peak:.1f} MiB (target <= 64)")
 
@@ -61,8 +68,10 @@ def target(n=5_000_000, k=5):
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--target-only", action="store_true")
-    if p.parse_args(argv).target_only:
-        target()
+    p.add_argument("--n", type=int, default=5_000_000, help="samples of the target row (default 5e6)")
+    a = p.parse_args(argv)
+    if a.target_only:
+        target(a.n)
         return
     rng = np.random.default_rng(0)
     R = random_rotation(rng)
@@ -82,7 +91,7 @@ def main(argv=None):
         print(f"{n:10d} {core:9.4f} {ours:10.4f} {raw:12.4f} {n / core / 1e6:16.2f} {raw / core:9.3f} "
               f"{raw / ours:12.3f} {peak:8.2f}")
         X = None
-    target()
+    target(a.n)
 
 
 if __name__ == "__main__":
