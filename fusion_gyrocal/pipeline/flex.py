@@ -374,7 +374,8 @@ def gate(w1, w2, mask, cal, mom, moments_of, solve_on, options, gate_window):
                 mom = moments_of(keep)
                 A_ls, b_ls = solve_A(mom)
                 L = robust_whitener(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole)
-        cut = flex_cut(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, L)
+        # a bend shows as a residual growing with the rate; without that growth there is no rate to cut above
+        cut = None if grows is None else flex_cut(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, L)
         if cut is not None:
             fast = above_rate(w1, cut, n)
             keep = ~fast if keep is None else (keep & ~fast)
