@@ -143,3 +143,36 @@ def test_calibrate_pair_cross_axis_flags_skew_the_rigid_model_cannot_absorb():
     cal = calibrate_pair(sim.omega_1, sim.omega_2, noise_std=PAPER_NOISE_STD)
     assert cal.cross_axis_chi2 > 100.0 and np.abs(cal.cross_axis).max() > 2e-4
     assert any("full linear map fits significantly better" in n for n in cal.notes)
+
+
+def test_calibrate_array_identifies_each_gyros_noise():
+    from fusion_gyrocal.core.array import calibrate_array
+    from fusion_gyrocal.evaluate.sim import HumanMotion, random_rotation
+    rng = np.random.default_rng(13)
+    motion = HumanMotion(0.8, rng=rng)(np.arange(30000) / 100.0)
+    sigma = np.array([0.1, 0.2, 0.15]) * DEG
+    Rs = [np.eye(3), random_rotation(rng), random_rotation(rng)]
+    omegas = [motion @ R + rng.normal(0.0, s, motion.shape) for R, s in zip(Rs, sigma)]
+    cal = calibrate_array(omegas, rate_hz=100.0)
+    assert cal.noise_source.startswith("identified")
+    np.testing.assert_allclose(cal.noise_std, sigma, rtol=0.1)
+    assert "not significantly larger" in cal.covariance_basis
+
+
+@needs_data
+def test_calibrate_array_mimu_sessions_spread_is_covered_by_the_covariance():
+    from fusion_gyrocal.core.array import calibrate_array
+    from fusion_gyrocal.io import read_npz
+    cals = []
+    for e in range(1, 10):
+        s = read_npz(DATA / "mimu_8imu_array" / "npz" / f"exp_{e}.npz")
+        mask = np.all([g.valid for g in s], axis=0)
+        cals.append(calibrate_array([g.omega for g in s[:4]], mask=mask, rate_hz=62.5))
+    for k in (1, 2, 3):
+        z2 = []
+        for a, b in itertools.combinations(cals, 2):
+            pa, pb = a.pair(0, k), b.pair(0, k)
+            d = log(pa.R_1_2 @ pb.R_1_2.T)
+            z2.append(d @ np.linalg.solve(pa.covariance[:3, :3] + pb.covariance[:3, :3], d))
+        assert 0.75 <= np.mean(z2) <= 6.0, (k, np.mean(z2))
+    assert all(0.05 * DEG < c.noise_std[0] < 0.5 * DEG for c in cals)          # static poses: 0.146 deg/s

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 ARRAY_OPTIONS = ("noise_std", "gauge", "parallel_tol_deg", "min_snr", "time_offset_s", "max_offset_s", "rate_hz",
-                 "saturation_limit", "bias_window", "max_rate", "flex_rejection")
+                 "saturation_limit", "bias_window", "max_rate", "flex_rejection", "noise_model", "covariance")
 """The options (of :class:`~fusion_gyrocal.options.Options`) the joint calibration applies; others are refused.
 ``flex_rejection`` is accepted because the joint solver has no flex gate (``--no-flex-rejection`` changes nothing)."""
 
@@ -84,8 +84,11 @@ def calibrate_streams(streams, args):
     mask = aligned.valid
     if o.max_rate is not None:
         mask = mask & (np.linalg.norm(aligned.omegas, axis=2) <= o.max_rate).all(axis=1)
+    t = aligned.t
+    rate = (len(t) - 1) / (t[-1] - t[0]) if len(t) > 1 and t[-1] > t[0] else None
     cal = calibrate_array(aligned.omegas, mask=mask, noise_std=settings.noise_std, gauge=o.gauge,
-                          bias_window=o.bias_window, parallel_tol_deg=o.parallel_tol_deg, min_snr=o.min_snr)
+                          bias_window=o.bias_window, parallel_tol_deg=o.parallel_tol_deg, min_snr=o.min_snr,
+                          rate_hz=rate, noise_model=o.noise_model, covariance=o.covariance)
     cal = dataclasses.replace(cal, time_offset_s=aligned.time_offset_s, time_offset_std_s=aligned.time_offset_std_s,
                               time_offset_source=aligned.time_offset_source)
     notes = ["joint calibration: no flex/outlier gate (Eq. 42 is per pair); calibrate a suspect gyro against gyro 1 "

@@ -39,11 +39,11 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from .solve import pair_covariance, solve
+from .solve import MIN_ROBUST_WINDOWS, pair_covariance, solve
 from ..errors import ConfigurationError, FormatError, GyroCalError, InputError, OptionError
 from .gauge import Gauge, constrained_inverse
 from .model import PairCalibration, from_json_list, to_json_list, to_json_number, mark_undetermined
-from .moments import Moments, as_rates, window_moments
+from .moments import Moments, WindowStats, as_rates, stacked_window_stats, window_moments
 from .observability import A_of, classify, dA_dp, per_axis_snr, residual_weight
 from ..lie import exp, skew
 from .refine import fisher_scoring, residual_scatter
@@ -299,6 +299,10 @@ class ArrayCalibration:
         reference and for sample-aligned input).
     time_offset_std_s : ndarray (N,)
         Standard deviation of ``time_offset_s`` (0 where it was given, not estimated).
+    covariance_basis : str
+        What ``covariance`` rests on (see :attr:`PairCalibration.covariance_basis`).
+    robust_inflation : float
+        Largest ratio of the block-robust variance to the noise model's (NaN when not computed).
     time_offset_source : tuple of str (N,)
         Where each offset came from: ``"reference"``, ``"estimated"`` (rate-norm correlation refined by
         the rigid-model misfit, :func:`~fusion_gyrocal.pipeline.alignment.align_streams`), ``"given"``,
@@ -327,6 +331,8 @@ class ArrayCalibration:
     time_offset_s: np.ndarray | None = None
     time_offset_std_s: np.ndarray | None = None
     time_offset_source: tuple | None = None
+    covariance_basis: str = "noise model"
+    robust_inflation: float = float("nan")
 
     def __post_init__(self):
         n = np.asarray(self.scale).shape[0]
@@ -412,7 +418,8 @@ class ArrayCalibration:
             R_1_2=R, scale_1=s1, scale_2=s2, bias=m.mean_1 - A @ m.mean_2,
             configuration=self.configurations[i][j], scale_observable=obs, covariance=cov,
             gauge=self.gauge, snr=per_axis_snr(m, noise), n_samples=int(m.count), noise_std=np.array(noise),
-            noise_source=self.noise_source,
+            noise_source=self.noise_source, covariance_basis=self.covariance_basis,
+            robust_inflation=self.robust_inflation,
             residual_rms=float(np.sqrt(max(np.trace(M), 0.0) / (3.0 * max(m.dof, 1.0)))),
             method="ml_array", iterations=self.iterations, bias_segments=m.segments,
             time_offset_s=float(self.time_offset_s[j] - self.time_offset_s[i]),
@@ -556,6 +563,16 @@ def joint_information(R, s, noise_std, Omega_c) -> np.ndarray:
     DO = np.einsum("pab,bc->pac", D, Omega_c)
     F = np.einsum("pac,qac->pq", DO, PD)
     return 0.5 * (F + F.T)
+
+
+def _window_scores(R, s, noise_std, windows: WindowStats) -> np.ndarray:
+    """Scores (W, 6N) of :func:`joint_cost` per window: :func:`joint_gradient` is linear in the scatter."""
+    from .robust import centred_scatters
+
+    P, K, _ = _projector(_H_of(R, s), np.asarray(noise_std, float) ** 2)
+    PD = np.einsum("ab,pbc->pac", P, _dH(R, s))                 # (6N, 3N, 3)
+    KS = np.matmul(K, centred_scatters(windows))                # (W, 3, 3N)
+    return -2.0 * np.einsum("pac,wca->wp", PD, KS)
 
 
 def _signal_scatter(R, s, scatter, noise_std, dof):
@@ -705,7 +722,9 @@ def _refine(R, s, moments_scatter, dof, noise, constraints, regauge, max_iter, t
 
 # ---------------------------------------------------------------------------------------- public solvers
 def solve_array(moments: ArrayMoments, *, reference: int = 0, noise_std=None, gauge: str = "unit_prior",
-                parallel_tol_deg: float = 5.0, min_snr: float = 10.0, max_iter: int = 50) -> ArrayCalibration:
+                parallel_tol_deg: float = 5.0, min_snr: float = 10.0, max_iter: int = 50,
+                windows: WindowStats | None = None, covariance: str = "auto",
+                noise_source: str | None = None) -> ArrayCalibration:
     """Jointly calibrate N gyros from their pairwise sufficient statistics (maximum likelihood).
 
     Parameters
@@ -729,6 +748,13 @@ def solve_array(moments: ArrayMoments, *, reference: int = 0, noise_std=None, ga
         reference (Lemma 1).
     max_iter : int
         Fisher-scoring iterations at most (per noise update).
+    windows : WindowStats, optional
+        Per-window statistics of the stacked gyros (:func:`~fusion_gyrocal.core.moments.stacked_window_stats`):
+        with them the covariance is also computed block-robustly (:mod:`~fusion_gyrocal.core.robust`) and
+        ``covariance`` chooses what is reported (``"auto"``, ``"model"``, ``"robust"``, as
+        :class:`~fusion_gyrocal.options.Options`).
+    noise_source : str, optional
+        Where a given ``noise_std`` came from (default ``"user"``).
 
     Returns
     -------
@@ -770,7 +796,7 @@ def solve_array(moments: ArrayMoments, *, reference: int = 0, noise_std=None, ga
     if user_noise is not None:
         noise = user_noise
         R, s, total_it, converged = _refine(R, s, Sc, dof, noise, constraints, regauge, max_iter)
-        noise_source = "user"
+        noise_source = noise_source or "user"
     else:
         noise = _noise_from_pairs(moments, R, s)
         for _ in range(4):  # alternate: weights from the current fit, fit with the current weights
@@ -794,8 +820,25 @@ def solve_array(moments: ArrayMoments, *, reference: int = 0, noise_std=None, ga
     cost = joint_cost(R, s, Sc, noise)
     chi2_dof = max(3.0 * (n - 1) * dof - (6 * n - len(C)), 1.0)
     ratio = cost / chi2_dof
-    if user_noise is not None and ratio > 1.5:
+    basis, inflation = "noise model (inverse Fisher information, Appendix B)", float("nan")
+    if windows is not None and covariance != "model" and windows.n_windows >= MIN_ROBUST_WINDOWS:
+        from .robust import effective_windows, larger, sandwich, score_variance
+        P_rob = sandwich(F, score_variance(_window_scores(R, s, noise, windows), windows), C)
+        P_max, inflation = larger(P, P_rob, effective_windows(windows))
+        where = f"{windows.n_windows} windows of {windows.window} samples"
+        if covariance == "robust":
+            basis = f"block-robust (sandwich over {where})"
+        elif P_max is not P:
+            basis = f"noise model raised to the block-robust sandwich ({where}) where that is significantly larger"
+        else:
+            basis += f"; the block-robust sandwich ({where}) is not significantly larger"
+        P = P_rob if covariance == "robust" else P_max
+        if inflation > 2.0:
+            notes.append(f"the estimate scatters up to {np.sqrt(inflation):.3g}x more than the noise model explains "
+                         f"(residual chi2/dof {ratio:.3g}); the covariance is the block-robust one in those directions")
+    elif user_noise is not None and ratio > 1.5:
         P = P * ratio
+        basis += f", inflated by the residual's chi2/dof {ratio:.3g}"
         notes.append(f"residuals are {np.sqrt(ratio):.2f}x larger than noise_std explains (flex, skew, timing "
                      f"or a wrong noise_std?); covariance inflated by {ratio:.2f}")
 
@@ -842,11 +885,13 @@ def solve_array(moments: ArrayMoments, *, reference: int = 0, noise_std=None, ga
         R_ref_k=R, scale=s, bias=bias, reference=reference, scale_observable=obs, scale_groups=groups,
         configurations=configs, covariance=cov, gauge=_describe(gauge, n, len(groups)), snr=snr,
         n_samples=int(moments.count), noise_std=noise, noise_source=noise_source, residual_rms=residual_rms,
-        iterations=total_it, bias_segments=moments.segments, notes=tuple(notes), moments=moments)
+        iterations=total_it, bias_segments=moments.segments, notes=tuple(notes), moments=moments,
+        covariance_basis=basis, robust_inflation=inflation)
 
 
 def calibrate_array(omegas, *, reference: int = 0, noise_std=None, gauge: str = "unit_prior", mask=None,
-                    bias_window: int | None = None, parallel_tol_deg: float = 5.0, min_snr: float = 10.0
+                    bias_window: int | None = None, parallel_tol_deg: float = 5.0, min_snr: float = 10.0,
+                    rate_hz: float | None = None, noise_model: str = "identify", covariance: str = "auto"
                     ) -> ArrayCalibration:
     """Jointly calibrate N rigidly mounted gyroscopes from sample-aligned angular rates.
 
@@ -866,6 +911,16 @@ def calibrate_array(omegas, *, reference: int = 0, noise_std=None, gauge: str = 
         Model every bias as piecewise constant over windows of this many samples.
     parallel_tol_deg, min_snr
         See :func:`solve_array`.
+    rate_hz : float, optional
+        Sample rate (Hz): windows of about a second for the noise model and the block-robust covariance
+        (100 samples without it).
+    noise_model : {"identify", "residual"}
+        Where the noise comes from without ``noise_std``: each gyro's white noise identified from its
+        pair with the reference (:func:`~fusion_gyrocal.core.noise.identify_noise`: the pair's residual,
+        split by steady stretches or third differences), or the pairwise least-squares residuals
+        (three-cornered hat), which also carry every model error.
+    covariance : {"auto", "model", "robust"}
+        As :class:`~fusion_gyrocal.options.Options`' ``covariance``.
 
     Returns
     -------
@@ -884,9 +939,47 @@ def calibrate_array(omegas, *, reference: int = 0, noise_std=None, gauge: str = 
     >>> bool(np.allclose(cal.R_ref_k, R, atol=1e-3))
     True
     """
+    if noise_model not in ("identify", "residual"):
+        raise OptionError(f"noise_model: expected 'identify' or 'residual', got {noise_model!r}")
+    if covariance not in ("auto", "model", "robust"):
+        raise OptionError(f"covariance: expected 'auto', 'model' or 'robust', got {covariance!r}")
+    rates, mask = _checked_rates(omegas, mask)
     if bias_window is None:
-        moments = ArrayMoments.from_samples(omegas, mask=mask)
+        moments = ArrayMoments.from_samples(rates, mask=mask)
     else:
-        moments = ArrayMoments.from_windows(omegas, int(bias_window), mask=mask)
+        moments = ArrayMoments.from_windows(rates, int(bias_window), mask=mask)
+    window = int(bias_window) if bias_window is not None else (max(16, int(round(rate_hz))) if rate_hz else 100)
+    windows = stacked_window_stats(rates, window, mask=mask, pooled=bias_window is not None)
+    source = None
+    if noise_std is None and noise_model == "identify":
+        noise_std, source = _identified_noise(rates, moments, reference, mask, rate_hz)
     return solve_array(moments, reference=reference, noise_std=noise_std, gauge=gauge,
-                       parallel_tol_deg=parallel_tol_deg, min_snr=min_snr)
+                       parallel_tol_deg=parallel_tol_deg, min_snr=min_snr, windows=windows, covariance=covariance,
+                       noise_source=source)
+
+
+def _identified_noise(rates, moments: ArrayMoments, reference: int, mask, rate_hz):
+    """Every gyro's white noise from its pair with the reference (:func:`identify_noise`): gyro k's from its
+    pair, the reference's the median over its pairs. ``(None, None)`` when a pair cannot be identified."""
+    from ..errors import GyroCalError
+    from .direct import solve_A
+    from .noise import identify_noise
+
+    n = len(rates)
+    noise, ref_noise, kinds = np.zeros(n), [], []
+    for k in range(n):
+        if k == reference:
+            continue
+        try:
+            A, b = solve_A(moments.pair(reference, k))
+            nm = (identify_noise(rates[reference], rates[k], A, b, rate_hz=rate_hz, mask=mask) if rate_hz else
+                  identify_noise(rates[reference], rates[k], A, b, rate_hz=1.0, mask=mask, window_s=100.0))
+        except GyroCalError:
+            return None, None
+        noise[k] = nm.noise_std[1]
+        ref_noise.append(nm.noise_std[0])
+        kinds.append(nm.kind)
+    noise[reference] = float(np.median(ref_noise))
+    kind = max(set(kinds), key=kinds.count)
+    return noise, (f"identified from each gyro's pair with the reference (core/noise.py; residuals mostly "
+                   f"'{kind}'), the reference's the median over its {n - 1} pairs")

@@ -406,6 +406,7 @@ class WindowStats:
     count : ndarray (W,)
         Valid samples in each window.
     mean : ndarray (W, 6)
+        (W, 3 k) for k stacked gyros (:func:`stacked_window_stats`).
     scatter : ndarray (W, 6, 6)
         Scatter of each window about its own mean.
     run : ndarray (W,) of int
@@ -442,12 +443,19 @@ def window_stats(omega_1, omega_2, window: int, *, mask=None, pooled: bool = Fal
     """
     w1 = as_rates("omega_1", omega_1)
     w2 = as_rates("omega_2", omega_2, length=w1.shape[0])
+    return stacked_window_stats([w1, w2], window, mask=mask, pooled=pooled, max_windows=max_windows)
+
+
+def stacked_window_stats(streams, window: int, *, mask=None, pooled: bool = False,
+                         max_windows: int = MAX_SCORE_WINDOWS) -> WindowStats:
+    """:func:`window_stats` of any number of checked, sample-aligned (N, 3) streams (stacked ``3 k`` wide)."""
     window = int(window)
     if window < 2:
         raise OptionError(f"window: expected at least 2 samples per window, got {window}")
-    n_win = w1.shape[0] // window
+    width = 3 * len(streams)
+    n_win = streams[0].shape[0] // window
     if n_win == 0:
-        return _join([], window, 0.0, pooled)
+        return _join([], window, 0.0, pooled, width)
     if n_win <= max_windows:      # every window: one run
         starts, run_len = np.array([0]), n_win
     else:                         # runs of consecutive windows spread evenly over the log
@@ -460,17 +468,18 @@ def window_stats(omega_1, omega_2, window: int, *, mask=None, pooled: bool = Fal
         if run_len * window > 65536:   # one long run (every window of a long log): in pieces
             sl = [slice(a, min(a + 65536 // window * window, s.stop)) for s in sl for a in range(s.start, s.stop,
                                                                                              65536 // window * window)]
-        x = np.concatenate([np.concatenate([w1[q], w2[q]], axis=1) for q in sl]).astype(np.float64, copy=False)
+        x = np.concatenate([np.concatenate([w[q] for w in streams], axis=1) for q in sl]).astype(np.float64,
+                                                                                                 copy=False)
         m = None if mask is None else np.concatenate([mask[q] for q in sl]).reshape(-1, window)
         run = np.repeat(np.arange(lo, lo + len(sl)) if run_len != n_win else np.zeros(len(sl), int),
                         [(q.stop - q.start) // window for q in sl])
-        parts.append(_stats_of(x.reshape(-1, window, 6), m, run))
+        parts.append(_stats_of(x.reshape(-1, window, width), m, run))
     total = float(n_win * window if mask is None else np.count_nonzero(mask[: n_win * window]))
-    return _join(parts, window, total, pooled)
+    return _join(parts, window, total, pooled, width)
 
 
 def _stats_of(x, m, run):
-    """Per-window (count, mean, scatter, run) of ``x`` (W, n, 6); ``m`` (W, n) marks valid rows."""
+    """Per-window (count, mean, scatter, run) of ``x`` (W, n, width); ``m`` (W, n) marks valid rows."""
     if np.isfinite(x.sum()) and (m is None or m.all()):      # the common case: every row valid, no copies
         cnt = np.full(x.shape[0], float(x.shape[1]))
         mean = x.mean(axis=1)
@@ -487,10 +496,11 @@ def _stats_of(x, m, run):
     return cnt, mean, np.matmul(xc.transpose(0, 2, 1), xc), run
 
 
-def _join(parts, window: int, total: float, pooled: bool) -> WindowStats:
+def _join(parts, window: int, total: float, pooled: bool, width: int = 6) -> WindowStats:
     cnt, mean, scatter, run = (np.concatenate([p[i] for p in parts]) if parts else None for i in range(4))
     if cnt is None or cnt.size == 0:
-        return WindowStats(np.zeros(0), np.zeros((0, 6)), np.zeros((0, 6, 6)), np.zeros(0, int), window, 1.0, pooled)
+        return WindowStats(np.zeros(0), np.zeros((0, width)), np.zeros((0, width, width)), np.zeros(0, int), window,
+                           1.0, pooled)
     return WindowStats(cnt, mean, scatter, run, window, max(total / cnt.sum(), 1.0), pooled)
 
 

@@ -36,6 +36,15 @@ from .observability import A_of, dA_dp, residual_weight
 LAGS = 2   # neighbouring windows whose scores may be correlated (Bartlett weights)
 
 
+def centred_scatters(stats: WindowStats) -> np.ndarray:
+    """Each window's scatter about the log's mean (W, d, d): what its share of the log's centred
+    scatter is; about its own mean for bias segments (``pooled``)."""
+    if stats.pooled:
+        return stats.scatter
+    d = stats.mean - (stats.count[:, None] * stats.mean).sum(axis=0) / stats.count.sum()
+    return stats.scatter + stats.count[:, None, None] * d[:, :, None] * d[:, None, :]
+
+
 def window_scores(R, s1, s2, noise_std, stats: WindowStats) -> np.ndarray:
     """Scores ``g_w`` (W, 9): gradient of each window's cost w.r.t. ``[dtheta, log s_1, log s_2]``.
 
@@ -46,12 +55,7 @@ def window_scores(R, s1, s2, noise_std, stats: WindowStats) -> np.ndarray:
     A = A_of(R, s1, s2)
     D = dA_dp(R, s1, s2)                               # (9, 3, 3)
     W = residual_weight(A, noise_std)
-    S = stats.scatter
-    if not stats.pooled:
-        total = stats.count.sum()
-        centre = (stats.count[:, None] * stats.mean).sum(axis=0) / total
-        d = stats.mean - centre
-        S = S + stats.count[:, None, None] * d[:, :, None] * d[:, None, :]
+    S = centred_scatters(stats)
     S11, S12, S22 = S[:, :3, :3], S[:, :3, 3:], S[:, 3:, 3:]
     AS22 = A @ S22                                     # (W, 3, 3)
     M = S11 - S12 @ A.T - A @ S12.transpose(0, 2, 1) + AS22 @ A.T
@@ -176,11 +180,7 @@ def cross_axis(A_ls, R, s1, s2, moments, noise_std, windows: WindowStats | None 
     S22_inv = np.linalg.inv(S22)
     cov = np.kron(np.linalg.inv(residual_weight(A_r, noise_std)), S22_inv)     # row-major vec(A)
     if windows is not None and windows.n_windows >= 2:
-        S = windows.scatter
-        if not windows.pooled:
-            total = windows.count.sum()
-            d = windows.mean - (windows.count[:, None] * windows.mean).sum(axis=0) / total
-            S = S + windows.count[:, None, None] * d[:, :, None] * d[:, None, :]
+        S = centred_scatters(windows)
         U = (S[:, :3, 3:] - A_ls @ S[:, 3:, 3:]) @ S22_inv                       # each window's pull on A
         V = _newey_west(U.reshape(U.shape[0], 9) - U.reshape(U.shape[0], 9).mean(axis=0), windows, lags)
         cov = larger(cov, V * windows.weight)[0]

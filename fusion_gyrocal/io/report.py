@@ -177,25 +177,22 @@ def uncertainty_basis(cal) -> str:
     """
     deg = np.rad2deg(1.0)
     white = "/".join(f"{v * deg:.3g}" for v in np.atleast_1d(cal.noise_std))
-    if not isinstance(cal, PairCalibration):   # N gyros: the joint model's information, no robust check
-        inflated = any("covariance inflated" in n for n in cal.notes)
-        src = ("the given noise" if cal.noise_source == "user" else
-               f"noise from the {cal.noise_source}, its spread taken as white noise")
-        return (f"uncertainty: {src} (white {white} deg/s), inverse Fisher information of the joint model"
-                + ("; inflated by the residual's chi2/dof (see the note)" if inflated else "")
-                + " (no block-robust check for N gyros)")
-    nm = cal.noise_model
+    pair = isinstance(cal, PairCalibration)
+    nm = cal.noise_model if pair else None
     if nm is not None:
         bias = "bias random walk" if nm.bias_walk_std is not None else "bias constant"
         kind = "rate-dependent misfit" if nm.kind.startswith("not white noise") else nm.kind
         noise = f"noise model identified from the residual (white {white} deg/s, {bias}; residual is {kind})"
     elif cal.noise_source == "user":
         noise = f"the given noise (white {white} deg/s)"
+    elif cal.noise_source.startswith("identified"):
+        noise = f"noise identified for every gyro from its pair with the reference (white {white} deg/s)"
     else:
         noise = f"noise from the {cal.noise_source}, its spread taken as white noise (white {white} deg/s)"
     if cal.bias_segments > 1:
         noise += f", bias piecewise constant over {cal.bias_segments} segments"
-    chi = f"residual chi2/dof {cal.lack_of_fit:.3g}" if np.isfinite(cal.lack_of_fit) else "no residual chi2"
+    lack = cal.lack_of_fit if pair else float("nan")
+    chi = f"residual chi2/dof {lack:.3g}" if np.isfinite(lack) else "no residual chi2"
     worst = (f"std x{np.sqrt(cal.robust_inflation):.3g} in the worst direction"
              if np.isfinite(cal.robust_inflation) else "")
     basis = cal.covariance_basis
@@ -206,7 +203,7 @@ def uncertainty_basis(cal) -> str:
     elif "not significantly larger" in basis:
         cov = f"covariance from the noise model; the block-robust check agrees ({worst}; {chi})"
     elif "inflated by" in basis:
-        cov = f"covariance from the noise model inflated by the {chi}"
+        cov = "covariance from the noise model inflated by the residual's chi2/dof (see the note)"
     else:
         cov = f"covariance from the {basis} alone, no block-robust check ({chi})"
     return f"uncertainty: {noise}, {cov}"
