@@ -36,6 +36,7 @@ import numpy as np
 
 EDGES = (0.03, 0.1, 0.3, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)   # bin edges (rad/s): rest, slow, human, fast, violent
 CHI2_3_SPREAD = 2.0 / 3.0                  # variance of chi-square(3) / 3
+BLOCK_MEMORY = 100                          # blocks over which the correlation factor is averaged
 MATURE = 100                                # samples a bin has seen before the CUSUM screens its samples
 
 
@@ -50,7 +51,8 @@ class NoiseScale:
         Clip of ``d^2`` (the gate's chi-square(3) quantile; the CUSUM's clip).
     """
 
-    __slots__ = ("memory", "clip", "scale", "spread", "count", "_edges", "mature_count", "_prev")
+    __slots__ = ("memory", "clip", "scale", "spread", "count", "_edges", "mature_count", "_prev", "correlation",
+                 "_n_blocks")
 
     def __init__(self, memory: int, clip: float):
         self.memory, self.clip = int(memory), float(clip)
@@ -60,10 +62,12 @@ class NoiseScale:
         self._edges = np.array(EDGES)
         self.mature_count = min(MATURE, self.memory)
         self._prev = None                   # the last gyro-1 sample binned (its change to the next one)
+        self.correlation, self._n_blocks = 1.0, 0
 
     def copy(self) -> "NoiseScale":
         new = NoiseScale(self.memory, self.clip)
         new.scale, new.spread, new.count, new._prev = self.scale.copy(), self.spread.copy(), self.count.copy(), self._prev
+        new.correlation, new._n_blocks = self.correlation, self._n_blocks
         return new
 
     def bins(self, w1) -> np.ndarray:
@@ -107,6 +111,15 @@ class NoiseScale:
         self.scale[seen] = np.maximum(s * (1.0 - beta + beta * x[seen] / mm), 1.0)
         self.spread[seen] += beta * (v[seen] / mm - self.spread[seen])
         self.count[seen] += mm
+
+    def learn_block(self, score: float, dof: int) -> None:
+        """Update the correlation factor from a block update's score statistic (``score`` ~ chi-square(dof) when
+        the block's samples are independent with the adapted covariance; larger when their errors are correlated)."""
+        if dof <= 0 or not np.isfinite(score):
+            return
+        self._n_blocks += 1
+        n = min(self._n_blocks, BLOCK_MEMORY)
+        self.correlation = max(self.correlation + (self.correlation * score / dof - self.correlation) / n, 1.0)
 
     # ---------------------------------------------------------------- one sample (the per-sample hot path)
     def bin_one(self, w1) -> int:

@@ -161,7 +161,7 @@ class ErrorStateEKF:
     """
 
     __slots__ = ("kf", "hold", "R", "s1", "s2", "b", "t", "noise_std", "misfit", "drift", "step_prior",
-                 "_T", "_Pi", "_q", "_shock", "_bias_shock", "_G", "_folds", "_H1", "_held", "_mis", "_eiv")
+                 "_T", "_Pi", "_q", "_shock", "_bias_shock", "_G", "_folds", "_H1", "_held", "_mis", "_eiv", "score")
 
     def __init__(self, hold: ScaleHold, drift, step_prior, noise_std, R, s1, s2, b, P, t: float,
                  inflate_s: float = 0.0, misfit=(0.0, 0.0)):
@@ -175,6 +175,7 @@ class ErrorStateEKF:
         self.s1, self.s2 = hold.express(s1, s2)
         self.t = float(t)
         self._H1 = _one_sample_jacobian()
+        self.score = (0.0, 0)
         self.relinearise()
         P = self.project(P)
         if inflate_s > 0:
@@ -194,6 +195,7 @@ class ErrorStateEKF:
         new.R, new.s1, new.s2, new.b, new.t = self.R, self.s1, self.s2, self.b, self.t   # never modified in place
         new._T, new._Pi, new._G, new._folds, new._held = self._T, self._Pi, self._G, self._folds, self._held
         new._H1 = _one_sample_jacobian()
+        new.score = self.score
         TT = self._T @ self._T.T
         new._q, new._shock = _projected_cov(new.drift, TT), _projected_cov(new.step_prior, TT)
         new._bias_shock, new._eiv = _bias_cov(new.step_prior), self._eiv
@@ -415,6 +417,8 @@ class ErrorStateEKF:
         sq = np.sqrt(np.where(ok, lam, 0.0))
         Hp = sq[:, None] * V.T
         zp = np.where(ok, (V.T @ eta) / np.where(ok, sq, 1.0), 0.0)
+        # the block's score test: Cov zp = I + Hp P Hp^T under the model (independent samples)
+        self.score = (float(zp @ np.linalg.solve(np.eye(DIM) + Hp @ P @ Hp.T, zp)), int(ok.sum()))
         self.kf.update(zp[:, None], HJacobian=lambda x: Hp, Hx=lambda x: Hp @ x, R=np.eye(DIM))
         self.fold()
         return stat

@@ -641,7 +641,11 @@ class GyroPairTracker:
             f.update_sample(H[k], r[k], 1.0 if g is None else float(g[k]))
             nis = d2[k] / 3.0
         elif n_used > 1:
+            if ns is not None and ns.correlation != 1.0:
+                g = g * ns.correlation             # correlated errors: each sample is worth less
             nis = f.update_block(w1, w2, keep, g) / (3.0 * n_used)
+            if ns is not None and self._alarm is None:
+                ns.learn_block(*f.score)
         if not self._replaying:
             self._history.add(t_mid, f.R, f.s1, f.s2, f.b, f.kf.P, nis, n_used, mode)
             if self._alarm is not None:
