@@ -51,7 +51,7 @@ class NoiseScale:
         Clip of ``d^2`` (the gate's chi-square(3) quantile; the CUSUM's clip).
     """
 
-    __slots__ = ("memory", "clip", "scale", "spread", "count", "_edges", "mature_count", "_prev", "correlation",
+    __slots__ = ("memory", "clip", "scale", "spread", "count", "_edges", "mature_count", "_prev", "_corr",
                  "_n_blocks")
 
     def __init__(self, memory: int, clip: float):
@@ -62,12 +62,12 @@ class NoiseScale:
         self._edges = np.array(EDGES)
         self.mature_count = min(MATURE, self.memory)
         self._prev = None                   # the last gyro-1 sample binned (its change to the next one)
-        self.correlation, self._n_blocks = 1.0, 0
+        self._corr, self._n_blocks = 1.0, 0
 
     def copy(self) -> "NoiseScale":
         new = NoiseScale(self.memory, self.clip)
         new.scale, new.spread, new.count, new._prev = self.scale.copy(), self.spread.copy(), self.count.copy(), self._prev
-        new.correlation, new._n_blocks = self.correlation, self._n_blocks
+        new._corr, new._n_blocks = self._corr, self._n_blocks
         return new
 
     def bins(self, w1) -> np.ndarray:
@@ -119,7 +119,15 @@ class NoiseScale:
             return
         self._n_blocks += 1
         n = min(self._n_blocks, BLOCK_MEMORY)
-        self.correlation = max(self.correlation + (self.correlation * score / dof - self.correlation) / n, 1.0)
+        self._corr += (self.correlation * score / dof - self._corr) / n    # the running mean itself unclipped
+
+    @property
+    def correlation(self) -> float:
+        """Factor ``>= 1`` of the block updates' measurement covariance: the running mean over
+        :data:`BLOCK_MEMORY` blocks of their score statistic per degree of freedom (times the factor it was
+        computed with), 1 for independent samples; the block-robust sandwich of
+        :mod:`fusion_gyrocal.core.robust` as one online number."""
+        return self._corr if self._corr > 1.0 else 1.0
 
     # ---------------------------------------------------------------- one sample (the per-sample hot path)
     def bin_one(self, w1) -> int:
