@@ -397,6 +397,7 @@ class GyroPairTracker:
     reseed_window_s = _read_only("reseed_window_s", "Data after the onset used for the re-seeding solve (s).")
     reseed_max_s = _read_only("reseed_max_s", "Give up re-seeding after this long (s).")
     reseed_probability = _read_only("reseed_probability", "Chi-square quantile for accepting a re-seed.")
+    noise_memory = _read_only("noise_memory", "Samples per rate bin of the adapted measurement noise (0: none).")
 
     @property
     def noise_std(self) -> tuple[float, float]:
