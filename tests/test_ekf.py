@@ -699,10 +699,9 @@ def test_run_rate_dependent_scale_no_alarm_and_within_3sigma():
 
 
 # the issue's target on the real board (benchmarks/ekf.py section 4 for all 27 cases)
-_MIMU_OPEN = pytest.mark.xfail(strict=True, reason="open (issue 12 item 5): no re-seed, but the final rotation is 247 "
-                                                   "mdeg from the batch, z = 3.4 (sigma EKF 58, batch 44 mdeg): the "
-                                                   "seed's misfit, fitted below 5 rad/s, is extrapolated to the ~30 rad/s "
-                                                   "of the dynamic phase")
+_MIMU_OPEN = pytest.mark.xfail(strict=True, reason="open (issue 12 item 5): no re-seed and no alarm with the adapted "
+                                                   "noise, but the final rotation is 264 mdeg from the batch, z = 3.03 "
+                                                   "(sigma EKF 75, batch 44 mdeg)")
 
 
 def _mimu_run(session: int, imu: int):
