@@ -136,6 +136,11 @@ class TrackerConfig(FrozenOptions):
     block_size : int
         Samples per block of :meth:`~fusion_gyrocal.online.tracker.GyroPairTracker.run` in the fast
         mode when the call does not give one.
+    noise_memory : int
+        Samples per rate bin over which the tracker adapts its measurement noise to the innovations
+        (:class:`~fusion_gyrocal.online.adapt.NoiseScale`: a factor >= 1 of the modelled covariance per
+        ``|omega|`` bin, so that the normalised innovations the CUSUM screens stay near 1 and the covariance
+        covers the model error). 0: no adaptation (the modelled noise as it is).
     history_max_rows : int or None
         Bound on the rows of the tracker's history (264 bytes each). When reached, every other row
         is dropped and then only every 2nd (4th, ...) update is recorded: memory stays flat over
@@ -162,6 +167,7 @@ class TrackerConfig(FrozenOptions):
     buffer_samples: int = 1 << 15
     reseed_solver: Callable | None = None
     block_size: int = 100
+    noise_memory: int = 2000
     history_max_rows: int | None = None
     gate: float = field(init=False, repr=False, compare=False)
 
@@ -184,7 +190,7 @@ class TrackerConfig(FrozenOptions):
         if not (self.reseed_window_s > 0 and self.reseed_max_s >= self.reseed_window_s):
             raise OptionError(f"reseed_window_s, reseed_max_s: expected 0 < window <= max, got "
                               f"{self.reseed_window_s}, {self.reseed_max_s}")
-        for name, low in (("gate_neighbours", 0), ("buffer_samples", 1), ("block_size", 1)):
+        for name, low in (("gate_neighbours", 0), ("buffer_samples", 1), ("block_size", 1), ("noise_memory", 0)):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
                 raise OptionError(f"{name}: expected an integer >= {low}, got {v!r}")

@@ -161,7 +161,7 @@ class ErrorStateEKF:
     """
 
     __slots__ = ("kf", "hold", "R", "s1", "s2", "b", "t", "noise_std", "misfit", "drift", "step_prior",
-                 "_T", "_Pi", "_q", "_shock", "_bias_shock", "_G", "_folds", "_H1", "_held", "_mis", "_eiv")
+                 "_T", "_Pi", "_q", "_shock", "_bias_shock", "_G", "_folds", "_H1", "_held", "_mis", "_eiv", "score")
 
     def __init__(self, hold: ScaleHold, drift, step_prior, noise_std, R, s1, s2, b, P, t: float,
                  inflate_s: float = 0.0, misfit=(0.0, 0.0)):
@@ -175,6 +175,7 @@ class ErrorStateEKF:
         self.s1, self.s2 = hold.express(s1, s2)
         self.t = float(t)
         self._H1 = _one_sample_jacobian()
+        self.score = (0.0, 0)
         self.relinearise()
         P = self.project(P)
         if inflate_s > 0:
@@ -194,6 +195,7 @@ class ErrorStateEKF:
         new.R, new.s1, new.s2, new.b, new.t = self.R, self.s1, self.s2, self.b, self.t   # never modified in place
         new._T, new._Pi, new._G, new._folds, new._held = self._T, self._Pi, self._G, self._folds, self._held
         new._H1 = _one_sample_jacobian()
+        new.score = self.score
         TT = self._T @ self._T.T
         new._q, new._shock = _projected_cov(new.drift, TT), _projected_cov(new.step_prior, TT)
         new._bias_shock, new._eiv = _bias_cov(new.step_prior), self._eiv
@@ -268,16 +270,20 @@ class ErrorStateEKF:
         W = np.linalg.inv(self.kf.R)
         return n * self.noise_std[1] ** 2 * np.einsum("mai,am->i", self.generators()[:3], W @ self.A)
 
-    def innovation_d2(self, H, r, g=None, w1=None) -> np.ndarray:
-        """Per-sample ``r_k^T (H_k P H_k^T + R_k)^-1 r_k``: ``R_k = R`` for white noise (``g`` None), else
-        ``R + (a + b |omega_1|)^2 omega_1 omega_1^T`` (the misfit along the rate, module docstring) for the
-        gyro-1 rates ``w1`` (``g``: :meth:`inflation`, whose misfit it is)."""
-        S = (H @ self.kf.P) @ np.swapaxes(H, 1, 2) + self.kf.R
-        if g is not None:
+    def innovation_d2(self, H, r, g=None, w1=None, lam=None) -> np.ndarray:
+        """Per-sample ``r_k^T (H_k P H_k^T + lambda_k R_k)^-1 r_k``: ``R_k = R`` for white noise (``g`` None),
+        else ``R + (a + b |omega_1|)^2 omega_1 omega_1^T`` (the misfit along the rate, module docstring) for
+        the gyro-1 rates ``w1`` (``g``: :meth:`inflation`, whose misfit it is); ``lam`` (B,): the adapted
+        factors of :class:`~.adapt.NoiseScale` (None: 1)."""
+        S = np.broadcast_to(self.kf.R, H.shape[:1] + (3, 3)).copy()
+        if g is not None and self._mis is not None:
             a, b, _ = self._mis
             sq = np.einsum("ka,ka->k", w1, w1)
             m = a + b * np.sqrt(sq)
             S += (m * m)[:, None, None] * w1[:, :, None] * w1[:, None, :]
+        if lam is not None:
+            S *= lam[:, None, None]
+        S += (H @ self.kf.P) @ np.swapaxes(H, 1, 2)
         return np.einsum("ka,ka->k", r, np.linalg.solve(S, r[:, :, None])[:, :, 0])
 
     # ------------------------------------------------------------------ filter steps
@@ -294,8 +300,9 @@ class ErrorStateEKF:
             self.kf.P = self.kf.P + Q
             self.t = float(t)
 
-    def linearise_one(self, w1, w2) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
-        """One sample's ``(H, r, S, d2, g)``: Jacobian (3, 12), residual (3,), innovation covariance (with the
+    def linearise_one(self, w1, w2, lam: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+        """One sample's ``(H, r, S, d2, g)`` with the adapted factor ``lam`` (:class:`~.adapt.NoiseScale`) on its
+        measurement covariance: Jacobian (3, 12), residual (3,), innovation covariance (with the
         misfit along the rate, as :meth:`innovation_d2`), ``r^T S^-1 r`` and the measurement covariance's
         factor :meth:`inflation` of the update, with scalar arithmetic and a reused Jacobian buffer (the
         per-sample hot path; the same values as :meth:`linearise`, :meth:`inflation` and :meth:`innovation_d2`)."""
@@ -318,15 +325,14 @@ class ErrorStateEKF:
         e0, e1, e2 = y0 - d0 - b0, y1 - d1 - b1, y2 - d2 - b2        # omega_1 - A omega_2 - b
         S = np.dot(np.dot(H, self.kf.P), H.T)     # np.dot: less call overhead than @ on tiny arrays
         if self._mis is None:
-            g = 1.0
-            S += self.kf.R
+            g = lam
+            S += self.kf.R if lam == 1.0 else lam * self.kf.R
         else:
             a, b, c = self._mis
             sq = y0 * y0 + y1 * y1 + y2 * y2
             m = a + b * math.sqrt(sq)
-            g = 1.0 + c * (m * m) * sq
-            S += self.kf.R
-            S += (m * m) * np.outer(w1, w1)
+            g = (1.0 + c * (m * m) * sq) * lam
+            S += lam * (self.kf.R + (m * m) * np.outer(w1, w1))
         return H, np.array((e0, e1, e2)), S, _quadratic_3(S, e0, e1, e2), g
 
     def update_one(self, H, r, g: float = 1.0) -> None:
@@ -411,6 +417,8 @@ class ErrorStateEKF:
         sq = np.sqrt(np.where(ok, lam, 0.0))
         Hp = sq[:, None] * V.T
         zp = np.where(ok, (V.T @ eta) / np.where(ok, sq, 1.0), 0.0)
+        # the block's score test: Cov zp = I + Hp P Hp^T under the model (independent samples)
+        self.score = (float(zp @ np.linalg.solve(np.eye(DIM) + Hp @ P @ Hp.T, zp)), int(ok.sum()))
         self.kf.update(zp[:, None], HJacobian=lambda x: Hp, Hx=lambda x: Hp @ x, R=np.eye(DIM))
         self.fold()
         return stat

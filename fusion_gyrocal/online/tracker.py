@@ -74,6 +74,7 @@ from .ekf import ErrorStateEKF, inflation, misfit_coefficients
 from .figures import plot_history, track_figure_for_report
 from .history import HistoryRecorder, PairTruth, ReseedEvent, TrackHistory
 from .hold import DIM, ScaleHold
+from .adapt import NoiseScale
 from .steps import Cusum, InnovationGate, SampleRing
 
 __all__ = ["DriftNoise", "GyroPairTracker", "PairTruth", "ReseedEvent", "StepPrior", "TrackHistory",
@@ -245,7 +246,7 @@ class GyroPairTracker:
 
     __slots__ = ("_config", "_noise_std", "_noise_model", "_misfit", "_model_error", "_time_offset_s",
                  "_configuration", "_filter",
-                 "_gate", "_cusum", "_ring", "_history", "_events", "_alarm", "_replaying", "_n_samples", "_n_rejected")
+                 "_gate", "_cusum", "_noise_scale", "_ring", "_history", "_events", "_alarm", "_replaying", "_n_samples", "_n_rejected")
 
     def __init__(self, calibration: PairCalibration, *, t0: float = 0.0, seed_span_s: float = 0.0,
                  noise_model: NoiseModel | None | str = "seed", config: TrackerConfig | None = None, **options):
@@ -271,6 +272,7 @@ class GyroPairTracker:
         self._seed(calibration, float(t0), span_s=float(seed_span_s))
         self._gate = InnovationGate(config.gate, config.gate_neighbours)
         self._cusum = Cusum(config.cusum_drift, config.cusum_threshold, config.gate, float(t0))
+        self._noise_scale = NoiseScale(config.noise_memory, config.gate) if config.noise_memory else None
         self._ring = SampleRing(config.buffer_samples)
         self._history = HistoryRecorder(config.history_max_rows)
         self._events: list[ReseedEvent] = []
@@ -315,7 +317,22 @@ class GyroPairTracker:
                 noise_model = dataclasses.replace(noise_model, noise_std=noise_pair(noise_std))
             cal = _batch(w1, w2, noise_model.noise_std, config.gauge,
                          misfit=misfit_coefficients(noise_model.noise_std, cal.A, misfit))
-        return cls(cal, t0=float(t[-1]), seed_span_s=float(t[-1] - t[0]), noise_model=noise_model, config=config)
+        tracker = cls(cal, t0=float(t[-1]), seed_span_s=float(t[-1] - t[0]), noise_model=noise_model, config=config)
+        tracker._learn_noise(t, np.asarray(w1, dtype=float), np.asarray(w2, dtype=float))
+        return tracker
+
+    def _learn_noise(self, t, w1, w2) -> None:
+        """Start the adapted measurement noise (:class:`~.adapt.NoiseScale`) on the seed window: its blocks'
+        innovations at the seed estimate, without updating the filter (the seed has used them)."""
+        ns, f = self._noise_scale, self._filter
+        if ns is None:
+            return
+        for s, e in _blocks(t, self._config.block_size, None):
+            H, r = f.linearise(w1[s:e], w2[s:e])
+            g = f.inflation(w1[s:e])
+            bins = ns.bins(w1[s:e])
+            lam = ns.factors(bins)
+            ns.learn(bins, f.innovation_d2(H, r, g, w1[s:e], lam))
 
     def _seed(self, cal: PairCalibration, t: float, span_s: float = 0.0) -> None:
         """Start the filter from a calibration at time ``t`` (construction, re-seed)."""
@@ -354,6 +371,9 @@ class GyroPairTracker:
         new._gate = InnovationGate(config.gate, config.gate_neighbours, self._gate.pending)
         new._cusum = Cusum(config.cusum_drift, config.cusum_threshold, config.gate, self._cusum.zero_t)
         new._cusum.level = self._cusum.level
+        new._noise_scale = None if not config.noise_memory else (
+            self._noise_scale.copy() if self._noise_scale is not None and config.noise_memory ==
+            self._noise_scale.memory else NoiseScale(config.noise_memory, config.gate))
         new._ring = self._ring.resized(config.buffer_samples)
         new._history = self._history.copy(config.history_max_rows)
         new._events, new._alarm, new._replaying = list(self._events), alarm, False
@@ -377,6 +397,7 @@ class GyroPairTracker:
     reseed_window_s = _read_only("reseed_window_s", "Data after the onset used for the re-seeding solve (s).")
     reseed_max_s = _read_only("reseed_max_s", "Give up re-seeding after this long (s).")
     reseed_probability = _read_only("reseed_probability", "Chi-square quantile for accepting a re-seed.")
+    noise_memory = _read_only("noise_memory", "Samples per rate bin of the adapted measurement noise (0: none).")
 
     @property
     def noise_std(self) -> tuple[float, float]:
@@ -589,11 +610,29 @@ class GyroPairTracker:
             self._n_samples += B
         H, r = f.linearise(w1, w2)
         g = f.inflation(w1)
-        d2 = f.innovation_d2(H, r, g, w1)
-        alarm = None if (self._alarm is not None or self._replaying) else self._cusum.scan(t, d2)
+        ns = self._noise_scale
+        bins = lam = None
+        if ns is not None:
+            bins = ns.bins(w1)
+            lam = ns.factors(bins)
+            g = lam if g is None else g * lam
+        d2 = f.innovation_d2(H, r, g, w1, lam)
+        alarm = None
+        if self._alarm is None and not self._replaying:
+            screened = None if ns is None else ns.mature(bins)
+            if screened is None:
+                alarm = self._cusum.scan(t, d2)
+                if alarm is not None:
+                    alarm = (float(t[alarm[0]]), alarm[1])
+            elif screened.any():
+                alarm = self._cusum.scan(t[screened], ns.screened(bins, d2)[screened])
+                if alarm is not None:
+                    alarm = (float(t[screened][alarm[0]]), alarm[1])
         if alarm is not None:
-            self._raise_alarm(float(t[alarm[0]]), alarm[1])
-            d2 = f.innovation_d2(H, r, g, w1)          # covariance opened by the step prior
+            self._raise_alarm(*alarm)
+            d2 = f.innovation_d2(H, r, g, w1, lam)     # covariance opened by the step prior
+        elif ns is not None and self._alarm is None:
+            ns.learn(bins, d2)                         # never while a step is suspected
         keep = self._gate.keep(d2, fresh=alarm is not None)
         n_used = int(np.count_nonzero(keep))
         self._n_rejected += B - n_used
@@ -603,7 +642,11 @@ class GyroPairTracker:
             f.update_sample(H[k], r[k], 1.0 if g is None else float(g[k]))
             nis = d2[k] / 3.0
         elif n_used > 1:
+            if ns is not None and ns.correlation != 1.0:
+                g = g * ns.correlation             # correlated errors: each sample is worth less
             nis = f.update_block(w1, w2, keep, g) / (3.0 * n_used)
+            if ns is not None and self._alarm is None:
+                ns.learn_block(*f.score)
         if not self._replaying:
             self._history.add(t_mid, f.R, f.s1, f.s2, f.b, f.kf.P, nis, n_used, mode)
             if self._alarm is not None:
@@ -618,11 +661,24 @@ class GyroPairTracker:
         if not self._replaying:
             self._ring.push_one(t, w1, w2)
             self._n_samples += 1
-        H, r, S, d2, g = f.linearise_one(w1, w2)
-        alarm = None if (self._alarm is not None or self._replaying) else self._cusum.scan_one(t, d2)
+        ns = self._noise_scale
+        if ns is None:
+            lam = 1.0
+        else:
+            j = ns.bin_one(w1)
+            lam = float(ns.scale[j])
+        H, r, S, d2, g = f.linearise_one(w1, w2, lam)
+        alarm = None
+        if self._alarm is None and not self._replaying:
+            if ns is None:
+                alarm = self._cusum.scan_one(t, d2)
+            elif ns.count[j] >= ns.mature_count:
+                alarm = self._cusum.scan_one(t, ns.screened_one(j, d2))
         if alarm is not None:
             self._raise_alarm(t, alarm[1])
-            H, r, S, d2, g = f.linearise_one(w1, w2)    # covariance opened by the step prior
+            H, r, S, d2, g = f.linearise_one(w1, w2, lam)    # covariance opened by the step prior
+        elif ns is not None and self._alarm is None:
+            ns.learn_one(j, d2)
         used = self._gate.keep_one(d2, fresh=alarm is not None)
         if used:
             f.update_one(H, r, g)

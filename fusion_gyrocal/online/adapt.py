@@ -1,0 +1,160 @@
+"""The tracker's online adaptation of its measurement noise: a running scale per rate bin.
+
+The measurement covariance of :mod:`.ekf` is a model: the seed's white noise plus the identified
+misfit ``(a + b |omega|) omega`` (:func:`fusion_gyrocal.core.noise.identify_noise`), fitted on the seed
+window. On a real board the residual at rates the seed never saw (a violent phase after static poses),
+or during fast turns (time misalignment, acceleration sensitivity: errors that grow with the angular
+acceleration rather than the rate), is several to hundreds of times larger than the model says. The
+filter then (a) counts those samples as information they do not carry, so its covariance is far too
+small, and (b) its CUSUM sees normalised innovations far above 1 and raises step alarms on a rigid board.
+
+:class:`NoiseScale` multiplies each sample's modelled covariance by a factor ``lambda_j >= 1`` of its
+rate bin ``j`` (``|omega_1|`` in the bins :data:`EDGES`, rad/s)::
+
+    Cov n(k) = lambda_j(k) R_k
+
+estimated from the innovations, as adaptive Kalman filters do: ``lambda_j`` is the running mean (the last
+``memory`` samples of the bin, exponential forgetting; a plain mean until the bin has that many) of
+``lambda_j x_k``, ``x_k = min(d_k^2, c) / 3`` the clipped normalised innovation of sample ``k``
+(``d_k^2 = r_k^T S_k^-1 r_k``, ``S_k`` with the current factor, ``c`` the gate's chi-square(3) quantile).
+Its fixed point is ``E[min(d^2, c)] = 3``: the statistic the CUSUM screens (:class:`~.steps.Cusum`) then has
+its nominal mean and the detector does not fire on the model error; the clip makes a burst of outliers
+count as the gate, not as its square. The factor never drops below 1 (the model's noise is a floor).
+
+A step change must not be learnt as noise: the tracker learns only while no alarm is open (a step raises
+an alarm within a few samples, the scale of a bin forgets over ``memory`` samples), and samples of a bin
+that has not yet seen :data:`MATURE` samples are not screened by the CUSUM (their scale is still being
+learnt; the gate still screens them).
+"""
+
+from __future__ import annotations
+
+import math
+from bisect import bisect_right
+
+import numpy as np
+
+EDGES = (0.03, 0.1, 0.3, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)   # bin edges (rad/s): rest, slow, human, fast, violent
+CHI2_3_SPREAD = 2.0 / 3.0                  # variance of chi-square(3) / 3
+BLOCK_MEMORY = 100                          # blocks over which the correlation factor is averaged
+MATURE = 100                                # samples a bin has seen before the CUSUM screens its samples
+
+
+class NoiseScale:
+    """Running factor of the modelled measurement covariance per ``|omega_1|`` bin (module docstring).
+
+    Parameters
+    ----------
+    memory : int
+        Samples per bin over which the factor is averaged (exponential forgetting beyond).
+    clip : float
+        Clip of ``d^2`` (the gate's chi-square(3) quantile; the CUSUM's clip).
+    """
+
+    __slots__ = ("memory", "clip", "scale", "spread", "count", "_edges", "mature_count", "_prev", "_corr",
+                 "_n_blocks")
+
+    def __init__(self, memory: int, clip: float):
+        self.memory, self.clip = int(memory), float(clip)
+        self.scale = np.ones(len(EDGES) + 1)
+        self.spread = np.full(len(EDGES) + 1, CHI2_3_SPREAD)
+        self.count = np.zeros(len(EDGES) + 1, dtype=np.int64)
+        self._edges = np.array(EDGES)
+        self.mature_count = min(MATURE, self.memory)
+        self._prev = None                   # the last gyro-1 sample binned (its change to the next one)
+        self._corr, self._n_blocks = 1.0, 0
+
+    def copy(self) -> "NoiseScale":
+        new = NoiseScale(self.memory, self.clip)
+        new.scale, new.spread, new.count, new._prev = self.scale.copy(), self.spread.copy(), self.count.copy(), self._prev
+        new._corr, new._n_blocks = self._corr, self._n_blocks
+        return new
+
+    def bins(self, w1) -> np.ndarray:
+        """Bin index (B,) of consecutive gyro-1 rates (B, 3): by ``max(|omega_k|, |omega_k - omega_{k-1}|)``
+        (the previous sample of the first one is the last sample binned before)."""
+        v = np.einsum("ka,ka->k", w1, w1)
+        d = np.diff(w1, axis=0, prepend=(w1[:1] if self._prev is None else np.array([self._prev])))
+        np.maximum(v, np.einsum("ka,ka->k", d, d), out=v)
+        self._prev = tuple(w1[-1].tolist())
+        return np.searchsorted(self._edges, np.sqrt(v), side="right")
+
+    def factors(self, bins) -> np.ndarray:
+        """Per-sample factors ``lambda`` (B,) of the bins."""
+        return self.scale[bins]
+
+    def mature(self, bins) -> np.ndarray:
+        """Samples whose bin has seen enough samples for the CUSUM to screen them (B,) bool."""
+        return self.count[bins] >= self.mature_count
+
+    def screened(self, bins, d2) -> np.ndarray:
+        """``d2`` (B,) as the CUSUM screens it: ``3 (1 + (x - 1) / k)``, ``x = min(d^2, c) / 3``, with
+        ``k = max(1, sqrt(v_j / v_0))`` for ``v_j`` the bin's running mean of ``(x - 1)^2`` and ``v_0`` its
+        value for chi-square(3) innovations: a bin whose normalised innovations scatter more than the
+        Gaussian model's (heavy tails, bursts) weighs less in the detector, never more."""
+        k = self.spread[bins]
+        x = np.minimum(np.nan_to_num(d2, nan=self.clip), self.clip)
+        return 3.0 + (x - 3.0) / np.sqrt(np.maximum(k / CHI2_3_SPREAD, 1.0))
+
+    def learn(self, bins, d2) -> None:
+        """Update the factors from a block's normalised innovations ``d2`` (B,) (computed with the factors)."""
+        nb = self.scale.shape[0]
+        m = np.bincount(bins, minlength=nb)
+        xk = np.minimum(np.nan_to_num(d2, nan=self.clip), self.clip) / 3.0
+        x = np.bincount(bins, weights=xk, minlength=nb)
+        v = np.bincount(bins, weights=(xk - 1.0) ** 2, minlength=nb)
+        seen = m > 0
+        mm = m[seen]
+        n = np.minimum(self.count[seen] + mm, self.memory)
+        beta = np.minimum(mm / n, 1.0)
+        s = self.scale[seen]
+        self.scale[seen] = np.maximum(s * (1.0 - beta + beta * x[seen] / mm), 1.0)
+        self.spread[seen] += beta * (v[seen] / mm - self.spread[seen])
+        self.count[seen] += mm
+
+    def learn_block(self, score: float, dof: int) -> None:
+        """Update the correlation factor from a block update's score statistic (``score`` ~ chi-square(dof) when
+        the block's samples are independent with the adapted covariance; larger when their errors are correlated)."""
+        if dof <= 0 or not np.isfinite(score):
+            return
+        self._n_blocks += 1
+        n = min(self._n_blocks, BLOCK_MEMORY)
+        self._corr += (self.correlation * score / dof - self._corr) / n    # the running mean itself unclipped
+
+    @property
+    def correlation(self) -> float:
+        """Factor ``>= 1`` of the block updates' measurement covariance: the running mean over
+        :data:`BLOCK_MEMORY` blocks of their score statistic per degree of freedom (times the factor it was
+        computed with), 1 for independent samples; the block-robust sandwich of
+        :mod:`fusion_gyrocal.core.robust` as one online number."""
+        return self._corr if self._corr > 1.0 else 1.0
+
+    # ---------------------------------------------------------------- one sample (the per-sample hot path)
+    def bin_one(self, w1) -> int:
+        """:meth:`bins` of one sample."""
+        x0, x1, x2 = w1.tolist()
+        p = self._prev
+        self._prev = (x0, x1, x2)
+        v = x0 * x0 + x1 * x1 + x2 * x2
+        if p is not None:
+            d0, d1, d2 = x0 - p[0], x1 - p[1], x2 - p[2]
+            d = d0 * d0 + d1 * d1 + d2 * d2
+            v = d if d > v else v
+        return bisect_right(EDGES, math.sqrt(v))
+
+    def screened_one(self, j: int, d2: float) -> float:
+        """:meth:`screened` for one sample of bin ``j``."""
+        k = float(self.spread[j]) / CHI2_3_SPREAD
+        x = d2 if d2 <= self.clip else self.clip                   # NaN counts as the clip
+        return x if k <= 1.0 else 3.0 + (x - 3.0) / math.sqrt(k)
+
+    def learn_one(self, j: int, d2: float) -> None:
+        """:meth:`learn` for one sample of bin ``j``."""
+        c = self.count[j] + 1
+        self.count[j] = c
+        x = (d2 if d2 <= self.clip else self.clip) / 3.0          # NaN counts as the clip
+        n = c if c < self.memory else self.memory
+        s = self.scale[j]
+        s += s * (x - 1.0) / n
+        self.scale[j] = s if s > 1.0 else 1.0
+        self.spread[j] += ((x - 1.0) ** 2 - self.spread[j]) / n
