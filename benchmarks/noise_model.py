@@ -5,9 +5,9 @@
    white std per gyro and bias walk against the truth, and the time per call against Moments.from_samples.
 2. MIMU board (../shared/data/mimu_8imu_array, 9 sessions, 62.5 Hz): IMU 1 against IMUs 2..8, the identified
    white noise per gyro against the std of each IMU over its first 20 s (at rest).
-3. What wiring it into the pipeline would give on the drifting-bias case: rotation and scale RMSE over
-   ``--runs`` Monte Carlo runs of ``calibrate_pair`` with the identified model, with the defaults, and with
-   the true model, as ratios to the constant-bias Cramer-Rao bound (as benchmarks/beyond_paper.py).
+3. The drifting-bias case: rotation and scale RMSE over ``--runs`` Monte Carlo runs of ``calibrate_pair``
+   with the identified model passed explicitly, with the defaults (which identify it), and with the true
+   model, as ratios to the constant-bias Cramer-Rao bound (as benchmarks/beyond_paper.py).
 
     python benchmarks/noise_model.py [--runs 30] [--workers 2]
 """
@@ -86,7 +86,7 @@ def mimu():
     rate = 62.5
     rest = slice(0, int(20 * rate))
     print("\n2. MIMU board, IMU 1 vs IMU k: identified white noise per gyro (deg/s per sample) vs the std of each IMU "
-          "over its first 20 s at rest; residual std = what the library reports today (LS residual)")
+          "over its first 20 s at rest; resid = the least-squares residual's std (what noise_model='residual' reports)")
     print(f"{'sess':>4} {'k':>2} {'kind':>40} {'bias':>9} {'id IMU1':>8} {'rest 1':>7} {'id IMUk':>8} {'rest k':>7} "
           f"{'resid':>7} {'ms/call':>8} {'Mom ms':>7}")
     ratios = []
