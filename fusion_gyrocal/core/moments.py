@@ -389,7 +389,7 @@ def window_moments(omega_1, omega_2, window: int, *, mask=None, with_starts: boo
     return out
 
 
-MAX_SCORE_WINDOWS = 2048   # windows behind a block-robust covariance: all of them up to this many
+MAX_SCORE_WINDOWS = 1024   # windows behind a block-robust covariance: all of them up to this many
 _RUN = 16                  # else runs of this many consecutive windows, spread evenly over the log
 
 

@@ -51,7 +51,7 @@ COLOURED_FACTOR = 1.5                 # Allan variance at the shortest tau off t
 #: correlation of the overlapping Allan variance at neighbouring octave taus, by the dominant noise
 #: (white, flicker, random walk), measured on simulated noise
 NEIGHBOUR_CORRELATION = np.array([0.5, 0.7, 0.85])
-MAX_IDENTIFY_SAMPLES = 2 ** 17   # longer logs: identified on stretches spread over them (bounded time and memory)
+MAX_IDENTIFY_SAMPLES = 2 ** 16   # longer logs: identified on stretches spread over them (bounded time and memory)
 STRETCH_WINDOWS = 64             # windows per stretch
 NOISE_SPLIT_SAMPLES = 16384   # samples behind the noise split: 16 blocks of 1024 spread over the log
 _NOISE_BLOCK = 1024
