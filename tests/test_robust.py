@@ -176,3 +176,16 @@ def test_calibrate_array_mimu_sessions_spread_is_covered_by_the_covariance():
             z2.append(d @ np.linalg.solve(pa.covariance[:3, :3] + pb.covariance[:3, :3], d))
         assert 0.75 <= np.mean(z2) <= 6.0, (k, np.mean(z2))
     assert all(0.05 * DEG < c.noise_std[0] < 0.5 * DEG for c in cals)          # static poses: 0.146 deg/s
+
+
+def test_streaming_calibrator_sliding_window_bins_give_the_robust_covariance():
+    from fusion_gyrocal.online.stream import StreamingCalibrator
+    sim, _, w2 = _rate_scale_pair(np.random.default_rng(5))
+    bases = []
+    for second in (w2, sim.omega_2):
+        sc = StreamingCalibrator(window_s=200.0, rate_hz=100.0)
+        for a in range(0, 20000, 1000):
+            sc.update(sim.omega_1[a:a + 1000], second[a:a + 1000])
+        bases.append(sc.estimate().covariance_basis)
+    assert bases[0].startswith("noise model raised") and "32 windows" in bases[0]
+    assert "not significantly larger" in bases[1]

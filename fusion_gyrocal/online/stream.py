@@ -193,6 +193,10 @@ class StreamingCalibrator:
     def estimate(self) -> PairCalibration:
         """The calibration from the current statistics (:func:`fusion_gyrocal.solve`), cached until the next update.
 
+        With a sliding window the bins are the windows of the block-robust covariance
+        (:mod:`~fusion_gyrocal.core.robust`, ``options.covariance``); with forgetting the covariance is the
+        noise model's.
+
         Raises
         ------
         InputError
@@ -205,5 +209,19 @@ class StreamingCalibrator:
             if m.count < 4:
                 raise InputError(f"no estimate yet: expected at least 4 samples in the statistics, got "
                                  f"{m.count:.3g} after {self._samples_seen} sample(s)")
-            self._cache = solve(m, self.options)
+            self._cache = solve(m, self.options, windows=self._window_stats())
         return self._cache
+
+    def _window_stats(self):
+        """The sliding window's bins as :class:`~fusion_gyrocal.core.moments.WindowStats` (consecutive bins in
+        one run), for the block-robust covariance; None with forgetting (no per-window record is kept)."""
+        from ..core.moments import WindowStats
+
+        bins = [(i, m) for i, m in self._bins if m.count >= 2]
+        if self.window_s is None or len(bins) < 2:
+            return None
+        idx = np.array([i for i, _ in bins])
+        run = np.concatenate([[0], np.cumsum(np.diff(idx) != 1)])
+        count = np.array([m.count for _, m in bins])
+        return WindowStats(count, np.stack([m.mean for _, m in bins]), np.stack([m.scatter for _, m in bins]), run,
+                           int(round(count.mean())))
