@@ -39,7 +39,8 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from .solve import MIN_ROBUST_WINDOWS, pair_covariance, solve
+from .robust import MIN_ROBUST_WINDOWS
+from .solve import pair_covariance, solve
 from ..errors import ConfigurationError, FormatError, GyroCalError, InputError, OptionError
 from .gauge import Gauge, constrained_inverse
 from .model import PairCalibration, from_json_list, to_json_list, to_json_number, mark_undetermined
@@ -822,20 +823,10 @@ def solve_array(moments: ArrayMoments, *, reference: int = 0, noise_std=None, ga
     ratio = cost / chi2_dof
     basis, inflation = "noise model (inverse Fisher information, Appendix B)", float("nan")
     if windows is not None and covariance != "model" and windows.n_windows >= MIN_ROBUST_WINDOWS:
-        from .robust import effective_windows, larger, sandwich, score_variance
+        from .robust import choose, sandwich, score_variance
         P_rob = sandwich(F, score_variance(_window_scores(R, s, noise, windows), windows), C)
-        P_max, inflation = larger(P, P_rob, effective_windows(windows))
-        where = f"{windows.n_windows} windows of {windows.window} samples"
-        if covariance == "robust":
-            basis = f"block-robust (sandwich over {where})"
-        elif P_max is not P:
-            basis = f"noise model raised to the block-robust sandwich ({where}) where that is significantly larger"
-        else:
-            basis += f"; the block-robust sandwich ({where}) is not significantly larger"
-        P = P_rob if covariance == "robust" else P_max
-        if inflation > 2.0:
-            notes.append(f"the estimate scatters up to {np.sqrt(inflation):.3g}x more than the noise model explains "
-                         f"(residual chi2/dof {ratio:.3g}); the covariance is the block-robust one in those directions")
+        P, inflation, basis, more = choose(P, P_rob, windows, covariance, basis, ratio)
+        notes += more
     elif user_noise is not None and ratio > 1.5:
         P = P * ratio
         basis += f", inflated by the residual's chi2/dof {ratio:.3g}"

@@ -34,6 +34,8 @@ from .moments import WindowStats
 from .observability import A_of, dA_dp, residual_weight
 
 LAGS = 2   # neighbouring windows whose scores may be correlated (Bartlett weights)
+#: Fewest windows behind a block-robust covariance (fewer give too noisy an estimate of the scores' variance).
+MIN_ROBUST_WINDOWS = 20
 
 
 def centred_scatters(stats: WindowStats) -> np.ndarray:
@@ -140,6 +142,24 @@ def larger(P_model, P_robust, n_effective: float | None = None, rtol: float = 1e
     TV = T @ V[:, big]                                 # P_model plus the excess where it is significant
     P = P_model + (TV * (mu[big] - 1.0)) @ TV.T
     return 0.5 * (P + P.T), float(mu.max())
+
+
+def choose(P_model, P_robust, windows: WindowStats, covariance: str, model_basis: str, lack_of_fit: float):
+    """What is reported for ``covariance`` ("auto", "robust"; "model" never gets here): the covariance, the
+    largest variance ratio, the ``covariance_basis`` text and the notes (one place for the pair and the array)."""
+    where = f"{windows.n_windows} windows of {windows.window} samples"
+    P_max, inflation = larger(P_model, P_robust, effective_windows(windows))
+    notes = []
+    if inflation > 2.0:
+        notes.append(f"the estimate scatters up to {np.sqrt(inflation):.3g}x more than the noise model explains "
+                     f"(residual chi2/dof {lack_of_fit:.3g}: rate-dependent scale or cross-axis error, coloured noise, "
+                     "timing, flex); the covariance is the block-robust one in those directions")
+    if covariance == "robust":
+        return P_robust, inflation, f"block-robust (sandwich over {where})", notes
+    if P_max is not P_model:
+        return (P_max, inflation, f"noise model raised to the block-robust sandwich ({where}) where that is "
+                "significantly larger", notes)
+    return P_model, inflation, f"{model_basis}; the block-robust sandwich ({where}) is not significantly larger", notes
 
 
 def bias_variance(A, bias, stats: WindowStats, lags: int = LAGS) -> np.ndarray:

@@ -19,6 +19,7 @@ from .moments import Moments, WindowStats, noise_pair
 from .observability import (PRIOR_GAUGE, A_of, check_excitation, check_samples, classify, dA_dp, fisher_information,
                             per_axis_snr, prior_held_covariance, residual_weight, signal_scatter)
 from .refine import residual_scatter, refine_ml
+from .robust import MIN_ROBUST_WINDOWS
 
 
 def _residual_noise(moments: Moments, A, ratio: float = 1.0) -> tuple[float, float]:
@@ -43,9 +44,6 @@ def _skew_compensation(intrinsics):
 
 #: 99.9 % points of the chi-square distribution with 1..9 degrees of freedom (the cross-axis test).
 CHI2_999 = (10.83, 13.82, 16.27, 18.47, 20.52, 22.46, 24.32, 26.12, 27.88)
-
-#: Fewest windows behind a block-robust covariance (fewer give too noisy an estimate of the scores' variance).
-MIN_ROBUST_WINDOWS = 20
 
 #: Largest plausible ratio of the two gyros' rate magnitudes (scale factors of real gyros differ by percent).
 MAX_GAIN_RATIO = 1.5
@@ -202,30 +200,18 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
     robust = windows is not None and rigid and method == "ml" and o.covariance != "model" \
         and windows.n_windows >= MIN_ROBUST_WINDOWS
     if robust:
-        from .robust import bias_variance, effective_windows, larger, sandwich, score_variance, window_scores
+        from .robust import bias_variance, choose, effective_windows, larger, sandwich, score_variance, window_scores
         V = score_variance(window_scores(R, s1, s2, noise, windows), windows)
         # the data's part in the gauge the covariance is expressed in; a prior's part (what the data leave
         # free) is the model's and stays
         held = PRIOR_GAUGE if scale_prior_std is not None else gauge
         C = held.constraints(config.groups, [s1, s2], 3)
-        P_rob = P9 + sandwich(F, V, C) - constrained_inverse(F, C)
-        n_eff = effective_windows(windows)
-        P9_max, inflation = larger(P9, P_rob, n_eff)
+        P9, inflation, basis, more = choose(P9, P9 + sandwich(F, V, C) - constrained_inverse(F, C), windows,
+                                            o.covariance, basis, lack_of_fit)
+        notes += more
         if not windows.pooled and moments.segments == 1:
-            Sigma_r = larger(Sigma_r, bias_variance(A, bias, windows), n_eff)[0] if o.covariance == "auto" else \
-                bias_variance(A, bias, windows)
-        where = f"{windows.n_windows} windows of {windows.window} samples"
-        if o.covariance == "robust":
-            basis = f"block-robust (sandwich over {where})"
-        elif P9_max is not P9:
-            basis = f"noise model raised to the block-robust sandwich ({where}) where that is significantly larger"
-        else:
-            basis += f"; the block-robust sandwich ({where}) is not significantly larger"
-        P9 = P_rob if o.covariance == "robust" else P9_max
-        if inflation > 2.0:
-            notes.append(f"the estimate scatters up to {np.sqrt(inflation):.3g}x more than the noise model explains (residual "
-                         f"chi2/dof {lack_of_fit:.3g}: rate-dependent scale or cross-axis error, coloured noise, timing, "
-                         "flex); the covariance is the block-robust one in those directions")
+            Sigma_b = bias_variance(A, bias, windows)
+            Sigma_r = Sigma_b if o.covariance == "robust" else larger(Sigma_r, Sigma_b, effective_windows(windows))[0]
     elif o.covariance == "robust":
         raise OptionError("covariance='robust': expected per-window statistics (windows=...) of an 'ml' solve of a "
                           f"rigid pair with at least {MIN_ROBUST_WINDOWS} windows; calibrate_pair computes them")
