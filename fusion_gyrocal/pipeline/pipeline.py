@@ -293,12 +293,11 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
                     "percentile: comms glitches?) masked before the rigidity test",))
         if not_rigid is not None:
             raise not_rigid
-    mom0 = mom
     rejected = 0.0
     corr = float("nan")
     if o.flex_rejection is not False and cal.rigid:
         from . import flex
-        cal, mask, rejected, corr = flex.gate(w1, w2, mask, cal, mom0, lambda use: moments_of(use)[0],
+        cal, mask, rejected, corr = flex.gate(w1, w2, mask, cal, mom, lambda use: moments_of(use)[0],
                                               lambda use: solve_on(use)[0], o, gate_window)
     cal = _replace(cal, time_offset_s=offset, time_offset_std_s=offset_std, rejected_fraction=rejected,
                    rate_residual_correlation=corr)
