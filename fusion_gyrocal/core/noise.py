@@ -141,6 +141,9 @@ class NoiseModel:
     sources : dict
         Where each number came from (keys ``noise``, ``split``, ``bias``, ``misfit``).
     notes : tuple of str
+    rate_known : bool
+        False when the input had no sample rate (sample-aligned arrays): ``rate_hz`` is then 1 and
+        the times are in samples; the per-sample figures hold at any rate, the densities need one.
     """
 
     rate_hz: float
@@ -164,6 +167,7 @@ class NoiseModel:
     fit_taus: tuple
     sources: dict = field(default_factory=dict)
     notes: tuple = ()
+    rate_known: bool = True
 
     @property
     def is_white(self) -> bool:
@@ -233,8 +237,10 @@ class NoiseModel:
         deg = 180.0 / np.pi
         lines = [f"residual: {self.kind}"]
         for i in (0, 1):
+            density = (f" ({self.noise_density[i] * deg * 3600 / 60:.4g} deg/sqrt(h))" if self.rate_known else
+                       " (sample rate unknown: times are in samples)")
             lines.append(f"gyro {i + 1}: white {self.noise_std[i] * deg:.4g} +- {self.noise_std_uncertainty[i] * deg:.2g} "
-                         f"deg/s per sample ({self.noise_density[i] * deg * 3600 / 60:.4g} deg/sqrt(h))")
+                         f"deg/s per sample{density}")
         if self.bias_walk_std is not None:
             lines.append(f"bias random walk {self.bias_walk_std[0] * deg:.3g} deg/s per sample per gyro")
         else:

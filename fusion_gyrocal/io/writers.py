@@ -372,7 +372,6 @@ def _wrapped(text: str) -> list[str]:
 
 # the rate of a noise model identified from sample-aligned input without timestamps: its numbers are per
 # sample (pipeline.pipeline._identify), converted to densities with each IMU's update_rate
-_PER_SAMPLE_RATE = 1.0
 
 
 def _identified(cal: PairCalibration, rates) -> tuple[tuple, tuple]:
@@ -384,13 +383,13 @@ def _identified(cal: PairCalibration, rates) -> tuple[tuple, tuple]:
     ``b_1 - A b_2``: its step variance split equally, ``q_r^2 / (1 + |A|_F^2 / 3)`` each, as
     :func:`~fusion_gyrocal.core.noise.identify_noise` splits a random-walk bias); no figure where the
     fit has no walk term or a number is not finite and positive. A model identified per sample (input
-    without timestamps, ``rate_hz`` 1) is converted with the IMU's ``rates``. Returns the per-gyro figures
+    without timestamps: ``rate_known`` False) is converted with the IMU's ``rates``. Returns the per-gyro figures
     and the header's comment lines, or ``((None, None), ())`` without a noise model.
     """
     nm = cal.noise_model
     if nm is None:
         return (None, None), ()
-    per_sample = nm.rate_hz == _PER_SAMPLE_RATE
+    per_sample = not nm.rate_known
     fs = [float(r) if per_sample else float(nm.rate_hz) for r in rates]
     misfit = nm.kind.startswith("not white noise")
     if nm.bias_walk_std is not None:

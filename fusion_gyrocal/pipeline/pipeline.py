@@ -323,7 +323,9 @@ def _identify(w1, w2, mask, rate_hz, moments: Moments):
     try:   # too short, too little motion, constant input...: the solve says why, with the residual noise
         A, b = solve_A(moments)
         if rate_hz is None:
-            return identify_noise(w1, w2, A, b, rate_hz=1.0, mask=mask, window_s=float(NOMINAL_WINDOW))
+            import dataclasses
+            nm = identify_noise(w1, w2, A, b, rate_hz=1.0, mask=mask, window_s=float(NOMINAL_WINDOW))
+            return dataclasses.replace(nm, rate_known=False)
         return identify_noise(w1, w2, A, b, rate_hz=rate_hz, mask=mask)
     except GyroCalError:
         return None
