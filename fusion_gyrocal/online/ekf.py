@@ -279,15 +279,20 @@ class ErrorStateEKF:
         else ``R + (a + b |omega_1|)^2 omega_1 omega_1^T`` (the misfit along the rate, module docstring) for
         the gyro-1 rates ``w1`` (``g``: :meth:`inflation`, whose misfit it is); ``lam`` (B,): the adapted
         factors of :class:`~.adapt.NoiseScale` (None: 1)."""
-        S = np.broadcast_to(self.kf.R, H.shape[:1] + (3, 3)).copy()
+        S = (H @ self.kf.P) @ np.swapaxes(H, 1, 2)
         if g is not None and self._mis is not None:
             a, b, _ = self._mis
             sq = np.einsum("ka,ka->k", w1, w1)
             m = a + b * np.sqrt(sq)
-            S += (m * m)[:, None, None] * w1[:, :, None] * w1[:, None, :]
-        if lam is not None:
-            S *= lam[:, None, None]
-        S += (H @ self.kf.P) @ np.swapaxes(H, 1, 2)
+            Rk = (m * m)[:, None, None] * w1[:, :, None] * w1[:, None, :]
+            Rk += self.kf.R
+            if lam is not None:
+                Rk *= lam[:, None, None]
+            S += Rk
+        elif lam is not None:
+            S += self.kf.R * lam[:, None, None]          # one (B, 3, 3) temporary
+        else:
+            S += self.kf.R
         return np.einsum("ka,ka->k", r, np.linalg.solve(S, r[:, :, None])[:, :, 0])
 
     # ------------------------------------------------------------------ filter steps
