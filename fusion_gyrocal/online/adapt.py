@@ -51,14 +51,16 @@ class NoiseScale:
         Clip of ``d^2`` (the gate's chi-square(3) quantile; the CUSUM's clip).
     """
 
-    __slots__ = ("memory", "clip", "scale", "spread", "count", "_edges", "mature_count", "_prev", "_corr",
+    __slots__ = ("memory", "clip", "_scale", "_spread", "_count", "_edges", "mature_count", "_prev", "_corr",
                  "_n_blocks")
 
     def __init__(self, memory: int, clip: float):
         self.memory, self.clip = int(memory), float(clip)
-        self.scale = np.ones(len(EDGES) + 1)
-        self.spread = np.full(len(EDGES) + 1, CHI2_3_SPREAD)
-        self.count = np.zeros(len(EDGES) + 1, dtype=np.int64)
+        # per-bin state as Python lists of floats/ints: the per-sample path reads and writes one entry a
+        # sample (numpy scalar indexing and arithmetic cost several times more); the block path converts
+        self._scale = [1.0] * (len(EDGES) + 1)
+        self._spread = [CHI2_3_SPREAD] * (len(EDGES) + 1)
+        self._count = [0] * (len(EDGES) + 1)
         self._edges = np.array(EDGES)
         self.mature_count = min(MATURE, self.memory)
         self._prev = None                   # the last gyro-1 sample binned (its change to the next one)
@@ -66,9 +68,24 @@ class NoiseScale:
 
     def copy(self) -> "NoiseScale":
         new = NoiseScale(self.memory, self.clip)
-        new.scale, new.spread, new.count, new._prev = self.scale.copy(), self.spread.copy(), self.count.copy(), self._prev
-        new._corr, new._n_blocks = self._corr, self._n_blocks
+        new._scale, new._spread, new._count = list(self._scale), list(self._spread), list(self._count)
+        new._prev, new._corr, new._n_blocks = self._prev, self._corr, self._n_blocks
         return new
+
+    @property
+    def scale(self) -> np.ndarray:
+        """The factors ``lambda_j`` per bin (a copy)."""
+        return np.array(self._scale)
+
+    @property
+    def spread(self) -> np.ndarray:
+        """Running mean of ``(x - 1)^2`` per bin (a copy)."""
+        return np.array(self._spread)
+
+    @property
+    def count(self) -> np.ndarray:
+        """Samples each bin has learnt from (a copy)."""
+        return np.array(self._count, dtype=np.int64)
 
     def bins(self, w1) -> np.ndarray:
         """Bin index (B,) of consecutive gyro-1 rates (B, 3): by ``max(|omega_k|, |omega_k - omega_{k-1}|)``
@@ -81,36 +98,38 @@ class NoiseScale:
 
     def factors(self, bins) -> np.ndarray:
         """Per-sample factors ``lambda`` (B,) of the bins."""
-        return self.scale[bins]
+        return np.array(self._scale)[bins]
 
     def mature(self, bins) -> np.ndarray:
         """Samples whose bin has seen enough samples for the CUSUM to screen them (B,) bool."""
-        return self.count[bins] >= self.mature_count
+        return np.array(self._count)[bins] >= self.mature_count
 
     def screened(self, bins, d2) -> np.ndarray:
         """``d2`` (B,) as the CUSUM screens it: ``3 (1 + (x - 1) / k)``, ``x = min(d^2, c) / 3``, with
         ``k = max(1, sqrt(v_j / v_0))`` for ``v_j`` the bin's running mean of ``(x - 1)^2`` and ``v_0`` its
         value for chi-square(3) innovations: a bin whose normalised innovations scatter more than the
         Gaussian model's (heavy tails, bursts) weighs less in the detector, never more."""
-        k = self.spread[bins]
+        k = np.array(self._spread)[bins]
         x = np.minimum(np.nan_to_num(d2, nan=self.clip), self.clip)
         return 3.0 + (x - 3.0) / np.sqrt(np.maximum(k / CHI2_3_SPREAD, 1.0))
 
     def learn(self, bins, d2) -> None:
         """Update the factors from a block's normalised innovations ``d2`` (B,) (computed with the factors)."""
-        nb = self.scale.shape[0]
+        nb = len(self._scale)
         m = np.bincount(bins, minlength=nb)
         xk = np.minimum(np.nan_to_num(d2, nan=self.clip), self.clip) / 3.0
         x = np.bincount(bins, weights=xk, minlength=nb)
         v = np.bincount(bins, weights=(xk - 1.0) ** 2, minlength=nb)
+        scale, spread, count = np.array(self._scale), np.array(self._spread), np.array(self._count, dtype=np.int64)
         seen = m > 0
         mm = m[seen]
-        n = np.minimum(self.count[seen] + mm, self.memory)
+        n = np.minimum(count[seen] + mm, self.memory)
         beta = np.minimum(mm / n, 1.0)
-        s = self.scale[seen]
-        self.scale[seen] = np.maximum(s * (1.0 - beta + beta * x[seen] / mm), 1.0)
-        self.spread[seen] += beta * (v[seen] / mm - self.spread[seen])
-        self.count[seen] += mm
+        s = scale[seen]
+        scale[seen] = np.maximum(s * (1.0 - beta + beta * x[seen] / mm), 1.0)
+        spread[seen] += beta * (v[seen] / mm - spread[seen])
+        count[seen] += mm
+        self._scale, self._spread, self._count = scale.tolist(), spread.tolist(), count.tolist()
 
     def learn_block(self, score: float, dof: int) -> None:
         """Update the correlation factor from a block update's score statistic (``score`` ~ chi-square(dof) when
@@ -130,8 +149,8 @@ class NoiseScale:
         return self._corr if self._corr > 1.0 else 1.0
 
     # ---------------------------------------------------------------- one sample (the per-sample hot path)
-    def bin_one(self, w1) -> int:
-        """:meth:`bins` of one sample."""
+    def bin_one(self, w1) -> tuple[int, float, bool]:
+        """:meth:`bins`, :meth:`factors` and :meth:`mature` of one sample: ``(bin, factor, mature)``."""
         x0, x1, x2 = w1.tolist()
         p = self._prev
         self._prev = (x0, x1, x2)
@@ -140,21 +159,22 @@ class NoiseScale:
             d0, d1, d2 = x0 - p[0], x1 - p[1], x2 - p[2]
             d = d0 * d0 + d1 * d1 + d2 * d2
             v = d if d > v else v
-        return bisect_right(EDGES, math.sqrt(v))
+        j = bisect_right(EDGES, math.sqrt(v))
+        return j, self._scale[j], self._count[j] >= self.mature_count
 
     def screened_one(self, j: int, d2: float) -> float:
         """:meth:`screened` for one sample of bin ``j``."""
-        k = float(self.spread[j]) / CHI2_3_SPREAD
+        k = self._spread[j] / CHI2_3_SPREAD
         x = d2 if d2 <= self.clip else self.clip                   # NaN counts as the clip
         return x if k <= 1.0 else 3.0 + (x - 3.0) / math.sqrt(k)
 
     def learn_one(self, j: int, d2: float) -> None:
         """:meth:`learn` for one sample of bin ``j``."""
-        c = self.count[j] + 1
-        self.count[j] = c
+        c = self._count[j] + 1
+        self._count[j] = c
         x = (d2 if d2 <= self.clip else self.clip) / 3.0          # NaN counts as the clip
         n = c if c < self.memory else self.memory
-        s = self.scale[j]
+        s = self._scale[j]
         s += s * (x - 1.0) / n
-        self.scale[j] = s if s > 1.0 else 1.0
-        self.spread[j] += ((x - 1.0) ** 2 - self.spread[j]) / n
+        self._scale[j] = s if s > 1.0 else 1.0
+        self._spread[j] += ((x - 1.0) ** 2 - self._spread[j]) / n

@@ -161,7 +161,8 @@ class ErrorStateEKF:
     """
 
     __slots__ = ("kf", "hold", "R", "s1", "s2", "b", "t", "noise_std", "misfit", "drift", "step_prior",
-                 "_T", "_Pi", "_q", "_shock", "_bias_shock", "_G", "_folds", "_H1", "_held", "_mis", "_eiv", "score")
+                 "_T", "_Pi", "_q", "_shock", "_bias_shock", "_G", "_folds", "_H1", "_held", "_mis", "_eiv", "score",
+                 "_R_rows", "_gR")
 
     def __init__(self, hold: ScaleHold, drift, step_prior, noise_std, R, s1, s2, b, P, t: float,
                  inflate_s: float = 0.0, misfit=(0.0, 0.0)):
@@ -199,6 +200,7 @@ class ErrorStateEKF:
         TT = self._T @ self._T.T
         new._q, new._shock = _projected_cov(new.drift, TT), _projected_cov(new.step_prior, TT)
         new._bias_shock, new._eiv = _bias_cov(new.step_prior), self._eiv
+        new._R_rows, new._gR = self._R_rows, None
         return new
 
     # ------------------------------------------------------------------ linearisation
@@ -218,6 +220,8 @@ class ErrorStateEKF:
         self._bias_shock = _bias_cov(self.step_prior)
         A = self.A
         self.kf.R = self.noise_std[0] ** 2 * np.eye(3) + self.noise_std[1] ** 2 * (A @ A.T)
+        self._R_rows = self.kf.R.tolist()          # its entries as floats (the per-sample misfit term)
+        self._gR = None                            # (g, R, g R) of the last white sample (:meth:`update_one`)
         self._mis = misfit_coefficients(self.noise_std, A, self.misfit)    # None for white noise
         self._G = None
         self._eiv = self.eiv_correction(1.0)
@@ -275,15 +279,20 @@ class ErrorStateEKF:
         else ``R + (a + b |omega_1|)^2 omega_1 omega_1^T`` (the misfit along the rate, module docstring) for
         the gyro-1 rates ``w1`` (``g``: :meth:`inflation`, whose misfit it is); ``lam`` (B,): the adapted
         factors of :class:`~.adapt.NoiseScale` (None: 1)."""
-        S = np.broadcast_to(self.kf.R, H.shape[:1] + (3, 3)).copy()
+        S = (H @ self.kf.P) @ np.swapaxes(H, 1, 2)
         if g is not None and self._mis is not None:
             a, b, _ = self._mis
             sq = np.einsum("ka,ka->k", w1, w1)
             m = a + b * np.sqrt(sq)
-            S += (m * m)[:, None, None] * w1[:, :, None] * w1[:, None, :]
-        if lam is not None:
-            S *= lam[:, None, None]
-        S += (H @ self.kf.P) @ np.swapaxes(H, 1, 2)
+            Rk = (m * m)[:, None, None] * w1[:, :, None] * w1[:, None, :]
+            Rk += self.kf.R
+            if lam is not None:
+                Rk *= lam[:, None, None]
+            S += Rk
+        elif lam is not None:
+            S += self.kf.R * lam[:, None, None]          # one (B, 3, 3) temporary
+        else:
+            S += self.kf.R
         return np.einsum("ka,ka->k", r, np.linalg.solve(S, r[:, :, None])[:, :, 0])
 
     # ------------------------------------------------------------------ filter steps
@@ -326,13 +335,23 @@ class ErrorStateEKF:
         S = np.dot(np.dot(H, self.kf.P), H.T)     # np.dot: less call overhead than @ on tiny arrays
         if self._mis is None:
             g = lam
-            S += self.kf.R if lam == 1.0 else lam * self.kf.R
+            if lam == 1.0:
+                S += self.kf.R
+            else:
+                R = self.kf.R
+                gR = lam * R
+                S += gR
+                self._gR = (lam, R, gR)            # the update's measurement covariance (update_one)
         else:
             a, b, c = self._mis
             sq = y0 * y0 + y1 * y1 + y2 * y2
             m = a + b * math.sqrt(sq)
             g = (1.0 + c * (m * m) * sq) * lam
-            S += lam * (self.kf.R + (m * m) * np.outer(w1, w1))
+            mm = m * m        # lam (R + m^2 omega_1 omega_1^T) entry by entry (no temporaries)
+            (q00, q01, q02), (q10, q11, q12), (q20, q21, q22) = self._R_rows
+            S += np.array(((lam * (q00 + mm * (y0 * y0)), lam * (q01 + mm * (y0 * y1)), lam * (q02 + mm * (y0 * y2))),
+                           (lam * (q10 + mm * (y1 * y0)), lam * (q11 + mm * (y1 * y1)), lam * (q12 + mm * (y1 * y2))),
+                           (lam * (q20 + mm * (y2 * y0)), lam * (q21 + mm * (y2 * y1)), lam * (q22 + mm * (y2 * y2)))))
         return H, np.array((e0, e1, e2)), S, _quadratic_3(S, e0, e1, e2), g
 
     def update_one(self, H, r, g: float = 1.0) -> None:
@@ -344,7 +363,10 @@ class ErrorStateEKF:
         ``P_post c / g`` is added to filterpy's state (``c`` is re-linearised with the measurement noise,
         every ``REFRESH`` folds).
         """
-        R = self.kf.R if g == 1.0 else g * self.kf.R
+        R = self.kf.R
+        if g != 1.0:
+            c = self._gR               # g R of this sample when linearise_one made it (white noise)
+            R = c[2] if c is not None and c[0] == g and c[1] is R else g * R
         x, P = kalman_update(self.kf.x, self.kf.P, r[:, None], R, H)
         x += np.dot(P, self._eiv if g == 1.0 else self._eiv / g)[:, None]
         self.kf.x, self.kf.P = x, P

@@ -665,14 +665,13 @@ class GyroPairTracker:
         if ns is None:
             lam = 1.0
         else:
-            j = ns.bin_one(w1)
-            lam = float(ns.scale[j])
+            j, lam, mature = ns.bin_one(w1)
         H, r, S, d2, g = f.linearise_one(w1, w2, lam)
         alarm = None
         if self._alarm is None and not self._replaying:
             if ns is None:
                 alarm = self._cusum.scan_one(t, d2)
-            elif ns.count[j] >= ns.mature_count:
+            elif mature:
                 alarm = self._cusum.scan_one(t, ns.screened_one(j, d2))
         if alarm is not None:
             self._raise_alarm(t, alarm[1])
