@@ -370,10 +370,6 @@ def _wrapped(text: str) -> list[str]:
     return textwrap.wrap(text, width=118, initial_indent="# ", subsequent_indent="#   ", break_on_hyphens=False)
 
 
-# the rate of a noise model identified from sample-aligned input without timestamps: its numbers are per
-# sample (pipeline.pipeline._identify), converted to densities with each IMU's update_rate
-
-
 def _identified(cal: PairCalibration, rates) -> tuple[tuple, tuple]:
     """The gyro noise figures of a pair's identified noise model (:attr:`PairCalibration.noise_model`).
 
