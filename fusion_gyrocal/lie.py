@@ -47,7 +47,12 @@ def exp(theta) -> np.ndarray:
     theta = np.asarray(theta, dtype=float)
     if theta.shape != (3,):
         return exp_and_right_jacobian(theta)[0]
-    x, y, z = theta.tolist()    # one vector (the trackers' per-sample path): scalar arithmetic
+    return exp3(*theta.tolist())
+
+
+def exp3(x: float, y: float, z: float) -> np.ndarray:
+    """:func:`exp` of one rotation vector ``(x, y, z)`` given as floats (the trackers' per-sample path:
+    scalar arithmetic, no array conversion); (3, 3)."""
     t2 = x * x + y * y + z * z
     if t2 < 1e-8:
         a, b = 1.0 - t2 / 6.0, 0.5 - t2 / 24.0

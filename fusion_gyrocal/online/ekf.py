@@ -41,7 +41,7 @@ from ..core.model import BIAS, ROT
 from ..core.moments import Moments
 from ..core.observability import A_of
 from ..errors import InputError
-from ..lie import exp, skew
+from ..lie import exp3, skew
 from .hold import DIM, LOG, ScaleHold
 
 REFRESH = 50      # folds between re-linearisations of the gauge projector and the measurement noise
@@ -162,7 +162,7 @@ class ErrorStateEKF:
 
     __slots__ = ("kf", "hold", "R", "s1", "s2", "b", "t", "noise_std", "misfit", "drift", "step_prior",
                  "_T", "_Pi", "_q", "_shock", "_bias_shock", "_G", "_folds", "_H1", "_held", "_mis", "_eiv", "score",
-                 "_R_rows", "_gR")
+                 "_R_rows", "_gR", "_Qdt", "_H1f", "_eiv_g")
 
     def __init__(self, hold: ScaleHold, drift, step_prior, noise_std, R, s1, s2, b, P, t: float,
                  inflate_s: float = 0.0, misfit=(0.0, 0.0)):
@@ -176,6 +176,8 @@ class ErrorStateEKF:
         self.s1, self.s2 = hold.express(s1, s2)
         self.t = float(t)
         self._H1 = _one_sample_jacobian()
+        self._H1f = self._H1.reshape(-1)           # its flat view (:meth:`linearise_one` writes through it)
+        self._bias_shock = _bias_cov(step_prior)  # fixed with the step prior
         self.score = (0.0, 0)
         self.relinearise()
         P = self.project(P)
@@ -196,11 +198,13 @@ class ErrorStateEKF:
         new.R, new.s1, new.s2, new.b, new.t = self.R, self.s1, self.s2, self.b, self.t   # never modified in place
         new._T, new._Pi, new._G, new._folds, new._held = self._T, self._Pi, self._G, self._folds, self._held
         new._H1 = _one_sample_jacobian()
+        new._H1f = new._H1.reshape(-1)
         new.score = self.score
         TT = self._T @ self._T.T
         new._q, new._shock = _projected_cov(new.drift, TT), _projected_cov(new.step_prior, TT)
+        new._Qdt = None
         new._bias_shock, new._eiv = _bias_cov(new.step_prior), self._eiv
-        new._R_rows, new._gR = self._R_rows, None
+        new._R_rows, new._gR, new._eiv_g = self._R_rows, None, None
         return new
 
     # ------------------------------------------------------------------ linearisation
@@ -216,8 +220,8 @@ class ErrorStateEKF:
         self._T, self._Pi = T, Pi
         TT = T @ T.T
         self._q = _projected_cov(self.drift, TT)          # process noise per second
+        self._Qdt = None                                  # (dt, Q) of the last prediction (:meth:`predict_to`)
         self._shock = _projected_cov(self.step_prior, TT)
-        self._bias_shock = _bias_cov(self.step_prior)
         A = self.A
         self.kf.R = self.noise_std[0] ** 2 * np.eye(3) + self.noise_std[1] ** 2 * (A @ A.T)
         self._R_rows = self.kf.R.tolist()          # its entries as floats (the per-sample misfit term)
@@ -225,6 +229,7 @@ class ErrorStateEKF:
         self._mis = misfit_coefficients(self.noise_std, A, self.misfit)    # None for white noise
         self._G = None
         self._eiv = self.eiv_correction(1.0)
+        self._eiv_g = None                         # (g, eiv / g) of the last sample with g != 1 (update_one)
         self._folds = 0
         self._held = self.hold.held_cov if self.hold.held_cov.any() else None    # None: nothing to add
 
@@ -305,7 +310,10 @@ class ErrorStateEKF:
         if dt > 0:
             # filterpy's predict with F = I and the error state at zero (reset by every fold) is exactly
             # P + Q: done directly, without its per-call copies of the prior (the per-sample hot path)
-            self.kf.Q = Q = self._q * dt       # process_noise(dt)
+            Q = self._Qdt
+            if Q is None or Q[0] != dt:        # a steady sample rate: the same Q = process_noise(dt) again
+                Q = self._Qdt = (dt, self._q * dt)
+            self.kf.Q = Q = Q[1]               # never modified in place (a new P below)
             self.kf.P = self.kf.P + Q
             self.t = float(t)
 
@@ -320,12 +328,13 @@ class ErrorStateEKF:
         c0, c1, c2 = self.s2.tolist()
         b0, b1, b2 = self.b.tolist()
         x0, x1, x2 = w2.tolist()
-        u0, u1, u2 = np.dot(self.R, w2 / self.s2).tolist()     # R diag(1/s2) omega_2
+        v0, v1, v2 = x0 / c0, x1 / c1, x2 / c2                  # R diag(1/s2) omega_2
+        u0, u1, u2 = r00 * v0 + r01 * v1 + r02 * v2, r10 * v0 + r11 * v1 + r12 * v2, r20 * v0 + r21 * v1 + r22 * v2
         A00, A01, A02 = a0 * r00 / c0, a0 * r01 / c1, a0 * r02 / c2     # A = diag(s1) R diag(1/s2)
         A10, A11, A12 = a1 * r10 / c0, a1 * r11 / c1, a1 * r12 / c2
         A20, A21, A22 = a2 * r20 / c0, a2 * r21 / c1, a2 * r22 / c2
         H = self._H1                               # its varying entries, written through the flat view
-        H.reshape(-1)[_H1_VARYING] = (a0 * u2, -a0 * u1, a0 * u0, A00 * -x0, A01 * -x1, A02 * -x2,   # row 0
+        self._H1f[_H1_VARYING] = (a0 * u2, -a0 * u1, a0 * u0, A00 * -x0, A01 * -x1, A02 * -x2,   # row 0
                                       -a1 * u2, a1 * u0, a1 * u1, A10 * -x0, A11 * -x1, A12 * -x2,   # row 1
                                       a2 * u1, -a2 * u0, a2 * u2, A20 * -x0, A21 * -x1, A22 * -x2)   # row 2
         y0, y1, y2 = w1.tolist()
@@ -368,9 +377,15 @@ class ErrorStateEKF:
             c = self._gR               # g R of this sample when linearise_one made it (white noise)
             R = c[2] if c is not None and c[0] == g and c[1] is R else g * R
         x, P = kalman_update(self.kf.x, self.kf.P, r[:, None], R, H)
-        x += np.dot(P, self._eiv if g == 1.0 else self._eiv / g)[:, None]
-        self.kf.x, self.kf.P = x, P
-        self.fold()
+        self.kf.P = P
+        if g == 1.0:
+            c = self._eiv
+        else:
+            c = self._eiv_g
+            if c is None or c[0] != g:
+                c = self._eiv_g = (g, self._eiv / g)
+            c = c[1]
+        self._fold(x[:, 0] + np.dot(P, c))        # filterpy's x (12, 1), flat
 
     def update_sample(self, H, r, g: float = 1.0) -> None:
         """One sample's update (3-d measurement through filterpy), then the fold; ``g``: its :meth:`inflation`
@@ -452,12 +467,16 @@ class ErrorStateEKF:
         a fixed scale and of the pairs' log-means). Every ``REFRESH`` folds the nonlinear gauge is
         re-imposed and everything linearised is re-linearised at the new estimate.
         """
-        x = self.kf.x
-        e = np.exp(np.dot(self._T, x[LOG, 0]))   # never move a held direction
-        self.R = np.dot(exp(x[ROT, 0]), self.R)
+        self._fold(self.kf.x[:, 0])
+
+    def _fold(self, x) -> None:
+        """:meth:`fold` of the error state ``x`` (12,) (the per-sample path passes its own, flat)."""
+        e = np.exp(np.dot(self._T, x[LOG]))      # never move a held direction
+        t0, t1, t2 = x[ROT].tolist()
+        self.R = np.dot(exp3(t0, t1, t2), self.R)
         self.s1 = self.s1 * e[:3]
         self.s2 = self.s2 * e[3:]
-        self.b = self.b + x[BIAS, 0]
+        self.b = self.b + x[BIAS]
         self.kf.x = _ZERO_X            # filterpy's updates return a new state: sharing the zero is safe
         self.kf.P = self.project(self.kf.P)
         self._G = None
