@@ -49,6 +49,9 @@ REFRESH = 50      # folds between re-linearisations of the gauge projector and t
 _GENERATOR_RATES = np.vstack([np.eye(3), np.zeros((1, 3))])
 _ZERO_X = np.zeros((DIM, 1))
 _ZERO_X.flags.writeable = False    # the error state after every fold (read-only: never modified in place)
+_ROT_DIAG, _BIAS_DIAG = (np.arange(3), np.arange(3)), (np.arange(9, 12), np.arange(9, 12))
+_I3 = np.eye(3)
+_I3.flags.writeable = False
 
 
 def measurement_jacobian(R, s1, s2, w2, A=None) -> np.ndarray:
@@ -62,6 +65,21 @@ def measurement_jacobian(R, s1, s2, w2, A=None) -> np.ndarray:
     H[:, :, 6:9] = -A[None, :, :] * w2[:, None, :]               # d/d delta_2 = -A diag(omega_2)
     H[:, idx, 9 + idx] = 1.0                                     # d/d b
     return H
+
+
+def _generators(R, s1, s2, A) -> np.ndarray:
+    """:func:`measurement_jacobian` at the unit rates minus at zero, and at zero (the generators ``G`` of
+    :meth:`ErrorStateEKF.generators`), entry by entry from the Jacobian's structure: with
+    ``u_m = R diag(1/s2) e_m``, ``G_m = [-diag(s1) skew(u_m), diag(s1 u_m), -A e_m e_m^T, 0]`` and
+    ``G_3 = [0, 0, 0, I]``."""
+    U = R * (1.0 / s2)[None, :]                  # column m: u_m
+    G = np.zeros((4, 3, DIM))
+    G[:3, :, 0:3] = -s1[None, :, None] * skew(U.T)
+    idx = np.arange(3)
+    G[:3, idx, 3 + idx] = s1[None, :] * U.T
+    G[idx, :, 6 + idx] = -A.T
+    G[3, idx, 9 + idx] = 1.0
+    return G
 
 
 def misfit_coefficients(noise_std, A, misfit) -> tuple[float, float, float] | None:
@@ -119,9 +137,9 @@ def _one_sample_jacobian() -> np.ndarray:
 def _projected_cov(std, TT) -> np.ndarray:
     """Independent per-parameter std (DriftNoise, StepPrior) as an error covariance off the held directions."""
     C = np.zeros((DIM, DIM))
-    C[ROT, ROT] = std.rotation**2 * np.eye(3)
+    C[_ROT_DIAG] = std.rotation**2                  # (std^2 I on the diagonal blocks)
     C[LOG, LOG] = std.log_scale**2 * TT
-    C[BIAS, BIAS] = std.bias**2 * np.eye(3)
+    C[_BIAS_DIAG] = std.bias**2
     return C
 
 
@@ -222,13 +240,13 @@ class ErrorStateEKF:
         self._q = _projected_cov(self.drift, TT)          # process noise per second
         self._Qdt = None                                  # (dt, Q) of the last prediction (:meth:`predict_to`)
         self._shock = _projected_cov(self.step_prior, TT)
-        A = self.A
-        self.kf.R = self.noise_std[0] ** 2 * np.eye(3) + self.noise_std[1] ** 2 * (A @ A.T)
+        A = self.A                                 # once for everything below
+        self.kf.R = self.noise_std[0] ** 2 * _I3 + self.noise_std[1] ** 2 * np.dot(A, A.T)
         self._R_rows = self.kf.R.tolist()          # its entries as floats (the per-sample misfit term)
         self._gR = None                            # (g, R, g R) of the last white sample (:meth:`update_one`)
         self._mis = misfit_coefficients(self.noise_std, A, self.misfit)    # None for white noise
-        self._G = None
-        self._eiv = self.eiv_correction(1.0)
+        self._G = _generators(self.R, self.s1, self.s2, A)
+        self._eiv = self.eiv_correction(1.0, A)
         self._eiv_g = None                         # (g, eiv / g) of the last sample with g != 1 (update_one)
         self._folds = 0
         self._held = self.hold.held_cov if self.hold.held_cov.any() else None    # None: nothing to add
@@ -263,8 +281,7 @@ class ErrorStateEKF:
     def generators(self) -> np.ndarray:
         """``G`` (4, 3, 12) with ``H(omega_2) = sum_m omega_2[m] G[m] + G[3]``, once per estimate."""
         if self._G is None:
-            J = measurement_jacobian(self.R, self.s1, self.s2, _GENERATOR_RATES)
-            self._G = np.concatenate([J[:3] - J[3], J[3:]], axis=0)
+            self._G = _generators(self.R, self.s1, self.s2, self.A)
         return self._G
 
     def inflation(self, w1) -> np.ndarray | None:
@@ -272,12 +289,14 @@ class ErrorStateEKF:
         at the current estimate (:func:`inflation`); None when the noise is white (every factor 1)."""
         return inflation(self._mis, w1)
 
-    def eiv_correction(self, n: float) -> np.ndarray:
+    def eiv_correction(self, n: float, A=None) -> np.ndarray:
         """``n sigma_2^2 sum_m G_m^T W A e_m`` (12,): the expectation of ``-sum_k H_k^T W r_k`` over ``n``
         (weighted) samples that gyro 2's white noise causes, being in the Jacobian ``H_k`` (evaluated at the
-        measured ``omega_2``) as well as in the residual ``r_k`` (:meth:`update_block`)."""
+        measured ``omega_2``) as well as in the residual ``r_k`` (:meth:`update_block`); ``A``: :attr:`A`
+        when the caller has it."""
         W = np.linalg.inv(self.kf.R)
-        return n * self.noise_std[1] ** 2 * np.einsum("mai,am->i", self.generators()[:3], W @ self.A)
+        return n * self.noise_std[1] ** 2 * np.einsum("mai,am->i", self.generators()[:3],
+                                                      W @ (self.A if A is None else A))
 
     def innovation_d2(self, H, r, g=None, w1=None, lam=None) -> np.ndarray:
         """Per-sample ``r_k^T (H_k P H_k^T + lambda_k R_k)^-1 r_k``: ``R_k = R`` for white noise (``g`` None),
