@@ -60,9 +60,9 @@ def exp3(x: float, y: float, z: float) -> np.ndarray:
         t = math.sqrt(t2)
         a, b = math.sin(t) / t, (1.0 - math.cos(t)) / t2
     xx, yy, zz, xy, yz, zx = x * x, y * y, z * z, x * y, y * z, z * x
-    return np.array([[1.0 - b * (yy + zz), b * xy - a * z, b * zx + a * y],
-                     [b * xy + a * z, 1.0 - b * (xx + zz), b * yz - a * x],
-                     [b * zx - a * y, b * yz + a * x, 1.0 - b * (xx + yy)]])
+    return np.array([1.0 - b * (yy + zz), b * xy - a * z, b * zx + a * y,          # a flat list: converts faster
+                     b * xy + a * z, 1.0 - b * (xx + zz), b * yz - a * x,
+                     b * zx - a * y, b * yz + a * x, 1.0 - b * (xx + yy)]).reshape(3, 3)
 
 
 def exp_and_right_jacobian(theta) -> tuple[np.ndarray, np.ndarray]:

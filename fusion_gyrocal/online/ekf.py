@@ -180,7 +180,7 @@ class ErrorStateEKF:
 
     __slots__ = ("kf", "hold", "R", "s1", "s2", "b", "t", "noise_std", "misfit", "drift", "step_prior",
                  "_T", "_Pi", "_q", "_shock", "_bias_shock", "_G", "_folds", "_H1", "_held", "_mis", "_eiv", "score",
-                 "_R_rows", "_gR", "_Qdt", "_H1f", "_eiv_g")
+                 "_R_rows", "_gR", "_Qdt", "_H1f", "_eiv_g", "_s12")
 
     def __init__(self, hold: ScaleHold, drift, step_prior, noise_std, R, s1, s2, b, P, t: float,
                  inflate_s: float = 0.0, misfit=(0.0, 0.0)):
@@ -192,6 +192,7 @@ class ErrorStateEKF:
         self.misfit = (float(misfit[0]), float(misfit[1]))
         self.R, self.b = np.array(R, dtype=float), np.array(b, dtype=float)
         self.s1, self.s2 = hold.express(s1, s2)
+        self._s12 = np.concatenate((self.s1, self.s2))     # [s1; s2] (the fold scales both at once)
         self.t = float(t)
         self._H1 = _one_sample_jacobian()
         self._H1f = self._H1.reshape(-1)           # its flat view (:meth:`linearise_one` writes through it)
@@ -214,6 +215,7 @@ class ErrorStateEKF:
         new.drift = self.drift if drift is None else drift
         new.step_prior = self.step_prior if step_prior is None else step_prior
         new.R, new.s1, new.s2, new.b, new.t = self.R, self.s1, self.s2, self.b, self.t   # never modified in place
+        new._s12 = self._s12
         new._T, new._Pi, new._G, new._folds, new._held = self._T, self._Pi, self._G, self._folds, self._held
         new._H1 = _one_sample_jacobian()
         new._H1f = new._H1.reshape(-1)
@@ -256,7 +258,7 @@ class ErrorStateEKF:
         P = np.dot(np.dot(self._Pi, P), self._Pi.T)     # a new array: updated in place below
         if self._held is not None:
             P += self._held
-        P += P.T                                        # (numpy buffers the overlapping transpose)
+        P = P + P.T                                     # (a new array: cheaper than buffering the overlap of +=)
         P *= 0.5
         return P
 
@@ -493,8 +495,8 @@ class ErrorStateEKF:
         e = np.exp(np.dot(self._T, x[LOG]))      # never move a held direction
         t0, t1, t2 = x[ROT].tolist()
         self.R = np.dot(exp3(t0, t1, t2), self.R)
-        self.s1 = self.s1 * e[:3]
-        self.s2 = self.s2 * e[3:]
+        self._s12 = s = self._s12 * e             # s1 and s2: views of it
+        self.s1, self.s2 = s[:3], s[3:]
         self.b = self.b + x[BIAS]
         self.kf.x = _ZERO_X            # filterpy's updates return a new state: sharing the zero is safe
         self.kf.P = self.project(self.kf.P)
@@ -502,6 +504,7 @@ class ErrorStateEKF:
         self._folds += 1
         if self._folds >= REFRESH:
             self.s1, self.s2 = self.hold.express(self.s1, self.s2)
+            self._s12 = np.concatenate((self.s1, self.s2))
             self.relinearise()
 
     def open_step(self, bias_only: bool = False) -> None:
@@ -518,6 +521,7 @@ class ErrorStateEKF:
         """Return to a :meth:`state` (error zero, everything re-linearised there)."""
         R, s1, s2, b, P, t = state
         self.R, self.s1, self.s2, self.b = R, s1, s2, b
+        self._s12 = np.concatenate((s1, s2))
         self.kf.x = np.zeros((DIM, 1))
         self.kf.P = P
         self.t = t
