@@ -198,6 +198,7 @@ class ErrorStateEKF:
         self._H1f = self._H1.reshape(-1)           # its flat view (:meth:`linearise_one` writes through it)
         self._bias_shock = _bias_cov(step_prior)  # fixed with the step prior
         self.score = (0.0, 0)
+        self._held = hold.held_cov if hold.held_cov.any() else None    # fixed with the hold; None: nothing to add
         self.relinearise()
         P = self.project(P)
         if inflate_s > 0:
@@ -221,7 +222,7 @@ class ErrorStateEKF:
         new._H1f = new._H1.reshape(-1)
         new.score = self.score
         TT = self._T @ self._T.T
-        new._q, new._shock = _projected_cov(new.drift, TT), _projected_cov(new.step_prior, TT)
+        new._q, new._shock = _projected_cov(new.drift, TT), None
         new._Qdt = None
         new._bias_shock, new._eiv = _bias_cov(new.step_prior), self._eiv
         new._R_rows, new._gR, new._eiv_g = self._R_rows, None, None
@@ -241,7 +242,7 @@ class ErrorStateEKF:
         TT = T @ T.T
         self._q = _projected_cov(self.drift, TT)          # process noise per second
         self._Qdt = None                                  # (dt, Q) of the last prediction (:meth:`predict_to`)
-        self._shock = _projected_cov(self.step_prior, TT)
+        self._shock = None                                # the step prior, when a step is suspected (open_step)
         A = self.A                                 # once for everything below
         self.kf.R = self.noise_std[0] ** 2 * _I3 + self.noise_std[1] ** 2 * np.dot(A, A.T)
         self._R_rows = self.kf.R.tolist()          # its entries as floats (the per-sample misfit term)
@@ -251,7 +252,6 @@ class ErrorStateEKF:
         self._eiv = self.eiv_correction(1.0, A)
         self._eiv_g = None                         # (g, eiv / g) of the last sample with g != 1 (update_one)
         self._folds = 0
-        self._held = self.hold.held_cov if self.hold.held_cov.any() else None    # None: nothing to add
 
     def project(self, P) -> np.ndarray:
         """``P`` moved off the held directions, which get the hold's covariance."""
@@ -510,7 +510,13 @@ class ErrorStateEKF:
     def open_step(self, bias_only: bool = False) -> None:
         """Add the step prior to the covariance (a step change is suspected); ``bias_only``: its bias part
         alone (a step of the combined bias, e.g. a gravity-dependent bias after a change of pose)."""
-        self.kf.P = self.project(self.kf.P + (self._bias_shock if bias_only else self._shock))
+        if bias_only:
+            shock = self._bias_shock
+        else:
+            if self._shock is None:
+                self._shock = _projected_cov(self.step_prior, self._T @ self._T.T)
+            shock = self._shock
+        self.kf.P = self.project(self.kf.P + shock)
 
     # ------------------------------------------------------------------ state
     def state(self) -> tuple:
