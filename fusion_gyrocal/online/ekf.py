@@ -67,18 +67,31 @@ def measurement_jacobian(R, s1, s2, w2, A=None) -> np.ndarray:
     return H
 
 
+# flat indices in G (4, 3, 12) of :func:`_generators`' entries: per G_m (m < 3) and row, the two off-diagonal
+# entries of -diag(s1) skew(u_m), diag(s1 u_m) and -A e_m in column 6 + m; then G_3's bias block
+_G_ENTRIES = np.array([36 * m + 12 * i + c for m in range(3) for i in range(3)
+                       for c in ((1, 2, 3 + i, 6 + m), (0, 2, 3 + i, 6 + m), (0, 1, 3 + i, 6 + m))[i]]
+                      + [108 + 12 * i + 9 + i for i in range(3)])
+
+
 def _generators(R, s1, s2, A) -> np.ndarray:
     """:func:`measurement_jacobian` at the unit rates minus at zero, and at zero (the generators ``G`` of
     :meth:`ErrorStateEKF.generators`), entry by entry from the Jacobian's structure: with
     ``u_m = R diag(1/s2) e_m``, ``G_m = [-diag(s1) skew(u_m), diag(s1 u_m), -A e_m e_m^T, 0]`` and
     ``G_3 = [0, 0, 0, I]``."""
-    U = R * (1.0 / s2)[None, :]                  # column m: u_m
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R.tolist()
+    a0, a1, a2 = s1.tolist()
+    v0, v1, v2 = (1.0 / s2).tolist()
+    (A00, A01, A02), (A10, A11, A12), (A20, A21, A22) = A.tolist()
+    vals = []
+    for (u0, u1, u2), (c0, c1, c2) in (((r00 * v0, r10 * v0, r20 * v0), (A00, A10, A20)),     # u_m, A e_m
+                                       ((r01 * v1, r11 * v1, r21 * v1), (A01, A11, A21)),
+                                       ((r02 * v2, r12 * v2, r22 * v2), (A02, A12, A22))):
+        vals += (a0 * u2, -a0 * u1, a0 * u0, -c0,          # row 0: -s1_0 skew(u)[0, 1:], s1_0 u_0, -A[0, m]
+                 -a1 * u2, a1 * u0, a1 * u1, -c1,
+                 a2 * u1, -a2 * u0, a2 * u2, -c2)
     G = np.zeros((4, 3, DIM))
-    G[:3, :, 0:3] = -s1[None, :, None] * skew(U.T)
-    idx = np.arange(3)
-    G[:3, idx, 3 + idx] = s1[None, :] * U.T
-    G[idx, :, 6 + idx] = -A.T
-    G[3, idx, 9 + idx] = 1.0
+    G.reshape(-1)[_G_ENTRIES] = vals + [1.0, 1.0, 1.0]
     return G
 
 
