@@ -309,9 +309,8 @@ class ErrorStateEKF:
         (weighted) samples that gyro 2's white noise causes, being in the Jacobian ``H_k`` (evaluated at the
         measured ``omega_2``) as well as in the residual ``r_k`` (:meth:`update_block`); ``A``: :attr:`A`
         when the caller has it."""
-        W = np.linalg.inv(self.kf.R)
-        return n * self.noise_std[1] ** 2 * np.einsum("mai,am->i", self.generators()[:3],
-                                                      W @ (self.A if A is None else A))
+        WA = np.dot(np.linalg.inv(self.kf.R), self.A if A is None else A)
+        return n * self.noise_std[1] ** 2 * np.dot(WA.T.ravel(), self.generators()[:3].reshape(3 * 3, DIM))
 
     def innovation_d2(self, H, r, g=None, w1=None, lam=None) -> np.ndarray:
         """Per-sample ``r_k^T (H_k P H_k^T + lambda_k R_k)^-1 r_k``: ``R_k = R`` for white noise (``g`` None),
@@ -373,7 +372,7 @@ class ErrorStateEKF:
                                       a2 * u1, -a2 * u0, a2 * u2, A20 * -x0, A21 * -x1, A22 * -x2)   # row 2
         y0, y1, y2 = w1.tolist()
         # A omega_2 through numpy's product, as in :meth:`linearise` (BLAS fuses the multiply-adds)
-        d0, d1, d2 = np.dot(np.array(((A00, A01, A02), (A10, A11, A12), (A20, A21, A22))), w2).tolist()
+        d0, d1, d2 = np.dot(np.array((A00, A01, A02, A10, A11, A12, A20, A21, A22)).reshape(3, 3), w2).tolist()
         e0, e1, e2 = y0 - d0 - b0, y1 - d1 - b1, y2 - d2 - b2        # omega_1 - A omega_2 - b
         S = np.dot(np.dot(H, self.kf.P), H.T)     # np.dot: less call overhead than @ on tiny arrays
         if self._mis is None:
@@ -392,9 +391,10 @@ class ErrorStateEKF:
             g = (1.0 + c * (m * m) * sq) * lam
             mm = m * m        # lam (R + m^2 omega_1 omega_1^T) entry by entry (no temporaries)
             (q00, q01, q02), (q10, q11, q12), (q20, q21, q22) = self._R_rows
-            S += np.array(((lam * (q00 + mm * (y0 * y0)), lam * (q01 + mm * (y0 * y1)), lam * (q02 + mm * (y0 * y2))),
-                           (lam * (q10 + mm * (y1 * y0)), lam * (q11 + mm * (y1 * y1)), lam * (q12 + mm * (y1 * y2))),
-                           (lam * (q20 + mm * (y2 * y0)), lam * (q21 + mm * (y2 * y1)), lam * (q22 + mm * (y2 * y2)))))
+            S += np.array((lam * (q00 + mm * (y0 * y0)), lam * (q01 + mm * (y0 * y1)), lam * (q02 + mm * (y0 * y2)),
+                           lam * (q10 + mm * (y1 * y0)), lam * (q11 + mm * (y1 * y1)), lam * (q12 + mm * (y1 * y2)),
+                           lam * (q20 + mm * (y2 * y0)), lam * (q21 + mm * (y2 * y1)), lam * (q22 + mm * (y2 * y2))
+                           )).reshape(3, 3)
         return H, np.array((e0, e1, e2)), S, _quadratic_3(S, e0, e1, e2), g
 
     def update_one(self, H, r, g: float = 1.0) -> None:
