@@ -1,6 +1,7 @@
 """SO(3), the one place: hat, Exp, Log, the right Jacobian, the nearest rotation, canonical rotation vectors.
 
-Every function takes stacks (``(..., 3)`` vectors, ``(..., 3, 3)`` matrices). Rotation errors follow
+Every function takes stacks (``(..., 3)`` vectors, ``(..., 3, 3)`` matrices), except :func:`exp3` (one
+rotation vector as three floats, the trackers' per-sample path). Rotation errors follow
 the library's convention ``R_true = Exp(dtheta) @ R_estimate`` (``dtheta`` in the left frame).
 
 Examples

@@ -46,7 +46,6 @@ from .hold import DIM, LOG, ScaleHold
 
 REFRESH = 50      # folds between re-linearisations of the gauge projector and the measurement noise
                   # (they change at second order only: the scale factors move by < 1e-3 between them)
-_GENERATOR_RATES = np.vstack([np.eye(3), np.zeros((1, 3))])
 _ZERO_X = np.zeros((DIM, 1))
 _ZERO_X.flags.writeable = False    # the error state after every fold (read-only: never modified in place)
 _ROT_DIAG, _BIAS_DIAG = (np.arange(3), np.arange(3)), (np.arange(9, 12), np.arange(9, 12))
