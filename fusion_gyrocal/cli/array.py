@@ -74,6 +74,7 @@ def calibrate_streams(streams, args):
 
     from ..core.array import calibrate_array
     from ..pipeline.alignment import align_to_reference
+    from ..pipeline.streams import grid_rate
 
     n = len(streams)
     settings = array_settings(args, n, streams[0].rate_hz)
@@ -84,11 +85,9 @@ def calibrate_streams(streams, args):
     mask = aligned.valid
     if o.max_rate is not None:
         mask = mask & (np.linalg.norm(aligned.omegas, axis=2) <= o.max_rate).all(axis=1)
-    t = aligned.t
-    rate = (len(t) - 1) / (t[-1] - t[0]) if len(t) > 1 and t[-1] > t[0] else None
     cal = calibrate_array(aligned.omegas, mask=mask, noise_std=settings.noise_std, gauge=o.gauge,
                           bias_window=o.bias_window, parallel_tol_deg=o.parallel_tol_deg, min_snr=o.min_snr,
-                          rate_hz=rate, noise_model=o.noise_model, covariance=o.covariance)
+                          rate_hz=grid_rate(aligned.t), noise_model=o.noise_model, covariance=o.covariance)
     cal = dataclasses.replace(cal, time_offset_s=aligned.time_offset_s, time_offset_std_s=aligned.time_offset_std_s,
                               time_offset_source=aligned.time_offset_source)
     notes = ["joint calibration: no flex/outlier gate (Eq. 42 is per pair); calibrate a suspect gyro against gyro 1 "

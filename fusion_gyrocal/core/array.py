@@ -44,7 +44,7 @@ from .solve import pair_covariance, solve
 from ..errors import ConfigurationError, FormatError, GyroCalError, InputError, OptionError
 from .gauge import Gauge, constrained_inverse
 from .model import PairCalibration, from_json_list, to_json_list, to_json_number, mark_undetermined
-from .moments import Moments, WindowStats, as_rates, stacked_window_stats, window_moments
+from .moments import Moments, WindowStats, as_rates, stacked_window_stats, window_moments, window_samples
 from .observability import A_of, classify, dA_dp, per_axis_snr, residual_weight
 from ..lie import exp, skew
 from .refine import fisher_scoring, residual_scatter
@@ -904,7 +904,7 @@ def calibrate_array(omegas, *, reference: int = 0, noise_std=None, gauge: str = 
         See :func:`solve_array`.
     rate_hz : float, optional
         Sample rate (Hz): windows of about a second for the noise model and the block-robust covariance
-        (100 samples without it).
+        (:func:`~fusion_gyrocal.core.moments.window_samples`; per sample without it).
     noise_model : {"identify", "residual"}
         Where the noise comes from without ``noise_std``: each gyro's white noise identified from its
         pair with the reference (:func:`~fusion_gyrocal.core.noise.identify_noise`: the pair's residual,
@@ -939,7 +939,7 @@ def calibrate_array(omegas, *, reference: int = 0, noise_std=None, gauge: str = 
         moments = ArrayMoments.from_samples(rates, mask=mask)
     else:
         moments = ArrayMoments.from_windows(rates, int(bias_window), mask=mask)
-    window = int(bias_window) if bias_window is not None else (max(16, int(round(rate_hz))) if rate_hz else 100)
+    window = int(bias_window) if bias_window is not None else window_samples(rate_hz)
     windows = stacked_window_stats(rates, window, mask=mask, pooled=bias_window is not None)
     source = None
     if noise_std is None and noise_model == "identify":
@@ -963,8 +963,7 @@ def _identified_noise(rates, moments: ArrayMoments, reference: int, mask, rate_h
             continue
         try:
             A, b = solve_A(moments.pair(reference, k))
-            nm = (identify_noise(rates[reference], rates[k], A, b, rate_hz=rate_hz, mask=mask) if rate_hz else
-                  identify_noise(rates[reference], rates[k], A, b, rate_hz=1.0, mask=mask, window_s=100.0))
+            nm = identify_noise(rates[reference], rates[k], A, b, rate_hz=rate_hz, mask=mask)
         except GyroCalError:
             return None, None
         noise[k] = nm.noise_std[1]

@@ -389,6 +389,14 @@ def window_moments(omega_1, omega_2, window: int, *, mask=None, with_starts: boo
     return out
 
 
+NOMINAL_WINDOW = 100      # samples per window (noise model, robust covariance) when the sample rate is unknown
+
+
+def window_samples(rate_hz: float | None) -> int:
+    """Samples in a window of about one second at ``rate_hz`` (at least 16); :data:`NOMINAL_WINDOW` without a rate."""
+    return max(16, int(round(rate_hz))) if rate_hz else NOMINAL_WINDOW
+
+
 MAX_SCORE_WINDOWS = 1024   # windows behind a block-robust covariance: all of them up to this many
 _RUN = 16                  # else runs of this many consecutive windows, spread evenly over the log
 

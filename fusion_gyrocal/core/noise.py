@@ -39,7 +39,7 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from ..errors import InputError, OptionError
-from .moments import as_rates
+from .moments import NOMINAL_WINDOW, as_rates
 
 FLICKER = 2.0 * np.log(2.0) / np.pi   # AVAR of bias instability B: (2 ln 2 / pi) B^2 (IEEE Std 952)
 MISFIT_SHARE = 0.1                    # rate-explained share of the residual variance that is flagged
@@ -487,7 +487,7 @@ def _fit_allan(taus, avar, edf):
 
 
 # ---------------------------------------------------------------------------------------------- entry point
-def identify_noise(omega_1, omega_2, A, bias, *, rate_hz: float, mask=None, window_s: float = 1.0) -> NoiseModel:
+def identify_noise(omega_1, omega_2, A, bias, *, rate_hz: float | None, mask=None, window_s: float = 1.0) -> NoiseModel:
     """Identify white noise, bias drift and model error of a rigid pair from its residual.
 
     Parameters
@@ -498,8 +498,10 @@ def identify_noise(omega_1, omega_2, A, bias, *, rate_hz: float, mask=None, wind
         ``S_1 R_1_2 S_2^-1`` (Eq. 4), e.g. from :func:`~fusion_gyrocal.core.direct.solve_A`.
     bias : array_like (3,)
         The combined bias ``b_1 - A b_2`` (Eq. 5) that goes with ``A``.
-    rate_hz : float
-        Sample rate (Hz): converts per-sample numbers to densities and sets the windows.
+    rate_hz : float or None
+        Sample rate (Hz): converts per-sample numbers to densities and sets the windows. None for input
+        without one (sample-aligned arrays): the model is identified per sample, ``window_s`` counting
+        :data:`~fusion_gyrocal.core.moments.NOMINAL_WINDOW` samples a second, and says so (``rate_known``).
     mask : array_like of bool (N,), optional
         Samples to use (non-finite samples are always left out). Masked samples are skipped in the
         Allan computation (the kept samples are joined; the walk is corrected for the time left out).
@@ -528,6 +530,10 @@ def identify_noise(omega_1, omega_2, A, bias, *, rate_hz: float, mask=None, wind
     >>> nm.kind, nm.bias_model
     ('white noise', 'constant')
     """
+    if rate_hz is None:   # per sample: times in samples, the figures hold at any rate
+        import dataclasses
+        nm = identify_noise(omega_1, omega_2, A, bias, rate_hz=1.0, mask=mask, window_s=window_s * NOMINAL_WINDOW)
+        return dataclasses.replace(nm, rate_known=False)
     if not (np.isfinite(rate_hz) and rate_hz > 0):
         raise OptionError(f"rate_hz: expected a positive sample rate in Hz, got {rate_hz!r}")
     if not (np.isfinite(window_s) and window_s > 0):

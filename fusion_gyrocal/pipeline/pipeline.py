@@ -14,16 +14,16 @@ import numpy as np
 
 from ..core.direct import solve_A
 from ..core.model import PairCalibration
-from ..core.moments import Moments, as_rate_pair, window_moments, window_stats
+from ..core.moments import Moments, as_rate_pair, window_moments, window_samples, window_stats
 from ..core.noise import difference_noise_std
 from ..core.solve import solve
 from ..errors import InputError, NotRigidError, OptionError
 from ..options import TIMESTAMP_OPTIONS, Options
+from .streams import grid_rate
 
 PLAUSIBILITY_QUANTILE = 0.99  # of the rate norm: isolated glitches do not decide the unit
 GLITCH_FACTOR = 10.0         # a gross outlier: this many times the 99th percentile of the log
 MAX_GLITCH_FRACTION = 0.01   # more "outliers" than this are the motion itself, not glitches
-NOMINAL_WINDOW = 100         # samples per window (noise model, robust covariance) without a sample rate
 
 
 def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Options | None = None,
@@ -230,8 +230,8 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
     t_grid = None if pair is None else pair.t
     offset = 0.0 if pair is None else pair.time_offset_s
     offset_std = pair.time_offset.std_s if pair is not None and pair.time_offset is not None else 0.0
-    rate_hz = _sample_rate(t_grid)
-    window = max(16, int(round(rate_hz))) if rate_hz is not None else NOMINAL_WINDOW   # about 1 s
+    rate_hz = None if t_grid is None else grid_rate(t_grid)
+    window = window_samples(rate_hz)   # about 1 s
     noise_model, noise_ratio = None, None
     base, base_mask = None, mask        # the moments of every usable sample, computed once
     if o.noise_std is None and o.noise_model == "identify":
@@ -304,28 +304,14 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
     return PipelineRun(cal, t_grid, np.asarray(w1), np.asarray(w2), valid_in, mask, pair)
 
 
-def _sample_rate(t) -> float | None:
-    """Sample rate (Hz) of the solver's grid, None for sample-aligned input (no times)."""
-    if t is None or len(t) < 2 or not t[-1] > t[0]:
-        return None
-    return float((len(t) - 1) / (t[-1] - t[0]))
-
-
 def _identify(w1, w2, mask, rate_hz, moments: Moments):
-    """The noise model identified from the pair's residual (None when the log is too short for it).
-
-    Sample-aligned input has no sample rate: the model is then identified per sample (``rate_hz``
-    1, windows of :data:`NOMINAL_WINDOW` samples) and its per-sample numbers hold at any rate.
-    """
+    """The noise model identified from the pair's residual (None when the log is too short for it; without a
+    sample rate it is identified per sample, :func:`~fusion_gyrocal.core.noise.identify_noise`)."""
     from ..core.noise import identify_noise
     from ..errors import GyroCalError
 
     try:   # too short, too little motion, constant input...: the solve says why, with the residual noise
         A, b = solve_A(moments)
-        if rate_hz is None:
-            import dataclasses
-            nm = identify_noise(w1, w2, A, b, rate_hz=1.0, mask=mask, window_s=float(NOMINAL_WINDOW))
-            return dataclasses.replace(nm, rate_known=False)
         return identify_noise(w1, w2, A, b, rate_hz=rate_hz, mask=mask)
     except GyroCalError:
         return None

@@ -232,3 +232,11 @@ def _stream(name_t, t, name_w, omega, valid) -> tuple[np.ndarray, np.ndarray, np
 
 def _nominal_period(t: np.ndarray) -> float:
     return float(np.median(np.diff(t)))
+
+
+def grid_rate(t) -> float | None:
+    """Mean sample rate (Hz) of an aligned time grid ``t`` (s): ``(N - 1) / span``; None with fewer than
+    two samples or no span."""
+    if len(t) < 2 or not t[-1] > t[0]:
+        return None
+    return float((len(t) - 1) / (t[-1] - t[0]))
