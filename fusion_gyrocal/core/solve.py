@@ -19,7 +19,8 @@ from .moments import Moments, WindowStats, noise_pair
 from .observability import (PRIOR_GAUGE, A_of, check_excitation, check_samples, classify, dA_dp, fisher_information,
                             per_axis_snr, prior_held_covariance, residual_weight, signal_scatter)
 from .refine import residual_scatter, refine_ml
-from .robust import MIN_ROBUST_WINDOWS
+from .robust import (MIN_ROBUST_WINDOWS, bias_variance, choose, cross_axis, effective_windows, larger, sandwich,
+                     score_variance, window_scores)
 
 
 def _residual_noise(moments: Moments, A, ratio: float = 1.0) -> tuple[float, float]:
@@ -200,7 +201,6 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
     robust = windows is not None and rigid and method == "ml" and o.covariance != "model" \
         and windows.n_windows >= MIN_ROBUST_WINDOWS
     if robust:
-        from .robust import bias_variance, choose, effective_windows, larger, sandwich, score_variance, window_scores
         V = score_variance(window_scores(R, s1, s2, noise, windows), windows)
         # the data's part in the gauge the covariance is expressed in; a prior's part (what the data leave
         # free) is the model's and stays
@@ -223,7 +223,6 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
                      f"offset or a wrong noise_std?); covariance inflated by {lack_of_fit:.2f}")
     E, cross_chi2, cross_dof = np.zeros((3, 3)), float("nan"), 0
     if rigid:
-        from .robust import cross_axis
         E, cross_chi2, cross_dof = cross_axis(A_ls, R, s1, s2, moments, noise, windows)
         if cross_dof and cross_chi2 > CHI2_999[cross_dof - 1]:
             off = np.abs(E - np.diag(np.diag(E))).max()
