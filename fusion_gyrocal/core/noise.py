@@ -76,15 +76,20 @@ def difference_noise_std(omega, mask=None, *, max_samples: int = NOISE_SPLIT_SAM
         spans = [(int(a), int(a) + _NOISE_BLOCK) for a in starts]
     else:
         spans = [(0, n)]
-    parts = []
-    for a, b in spans:
-        x = np.asarray(w[a:b], dtype=np.float64)
-        ok = np.isfinite(x).all(axis=1)
-        if mask is not None:
-            ok &= np.asarray(mask[a:b], dtype=bool)
-        x = (x if ok.all() else x[ok]).T              # (3, m): rows contiguous for the partitions below
-        if x.shape[1] > 3:
-            parts.append((x[:, 3:] - x[:, :-3]) - 3.0 * (x[:, 2:-1] - x[:, 1:-2]))
+    x = np.concatenate([np.asarray(w[a:b], dtype=np.float64) for a, b in spans])
+    if mask is None and x.shape[0] > 3 and np.isfinite(x.sum()):   # every block whole: differenced at once, (3, blocks, length)
+        x = np.ascontiguousarray(x.T).reshape(3, len(spans), -1)
+        parts = [((x[..., 3:] - x[..., :-3]) - 3.0 * (x[..., 2:-1] - x[..., 1:-2])).reshape(3, -1)]
+    else:
+        parts = []
+        for a, b in spans:
+            x = np.asarray(w[a:b], dtype=np.float64)
+            ok = np.isfinite(x).all(axis=1)
+            if mask is not None:
+                ok &= np.asarray(mask[a:b], dtype=bool)
+            x = (x if ok.all() else x[ok]).T              # (3, m): rows contiguous for the partitions below
+            if x.shape[1] > 3:
+                parts.append((x[:, 3:] - x[:, :-3]) - 3.0 * (x[:, 2:-1] - x[:, 1:-2]))
     d = np.concatenate(parts, axis=1) if parts else np.zeros((3, 0))
     if d.shape[1] < 10:
         return float("nan")
@@ -353,32 +358,38 @@ def _steady_split(win: _Windows, rate_hz: float):
 
 # ---------------------------------------------------------------------------------------------- Allan
 def _allan(y: np.ndarray, rate_hz: float):
-    """Overlapping Allan deviation per axis at octave taus, with the phase subsampled by ``m // 4`` at
-    ``tau = m / rate_hz`` (the overlapping estimator evaluated every ``m / 4`` samples: the cost of all
-    taus together is about four passes). Returns taus, adev (T, 3), and per tau the length and averaging
-    factor of the subsampled phase (for the degrees of freedom).
+    """Overlapping Allan deviation per axis at octave taus, with the phase subsampled by ``b = m // 4`` at
+    ``tau = m / rate_hz`` (the overlapping estimator evaluated every ``m / 4`` samples: all taus together
+    cost about two passes). Returns taus, adev (T, 3), and per tau the length and averaging factor of the
+    subsampled phase (for the degrees of freedom).
 
     The estimator is the standard one on the phase ``x`` (the integrated rate, IEEE Std 1139):
-    ``AVAR(tau) = sum_i (x_{i+2m} - 2 x_{i+m} + x_i)^2 / (2 tau^2 (N - 2m))``; ``tests/test_noise.py``
-    checks it against allantools' ``oadev``, whose import (scipy.stats, scipy.interpolate) would cost the
-    command line more than the whole calibration of an hour-long log.
+    ``AVAR(tau) = sum_i (x_{i+2m} - 2 x_{i+m} + x_i)^2 / (2 tau^2 (N - 2m))``. The second difference of the
+    phase is the difference of two consecutive sums of ``m`` rates, so it is formed from block sums of
+    ``b`` samples (halved level by level) and their moving sums, with no cumulative sum (serial in numpy).
+    ``tests/test_noise.py`` checks it against allantools' ``oadev``, whose import (scipy.stats,
+    scipy.interpolate) would cost the command line more than the whole calibration of an hour-long log.
     """
     n = y.shape[0]
     ms = 2 ** np.arange(0, int(np.floor(np.log2(max(n / 4.0, 1.0)))) + 1)
-    ph = np.empty((n + 1, 3))
-    ph[0] = 0.0
-    np.cumsum(y - y.mean(axis=0), axis=0, out=ph[1:])
-    ph /= rate_hz
+    blocks = np.ascontiguousarray(y.T, dtype=np.float64)   # (3, n): numpy reduces (N, 3) along axis 0 slowly
+    blocks -= blocks.mean(axis=1)[:, None]
     adev = np.empty((ms.size, 3))
     sub_n, sub_m = np.empty(ms.size), np.empty(ms.size)
+    b = 1
     for i, m in enumerate(ms):
-        b = max(1, int(m) // 4)
-        p = ph[::b]
+        while b < max(1, int(m) // 4):      # sums of 2b samples from those of b
+            k = blocks.shape[1] // 2
+            blocks = blocks[:, 0:2 * k:2] + blocks[:, 1:2 * k:2]
+            b *= 2
         mm = int(m) // b
-        d = p[2 * mm:] - 2.0 * p[mm:-mm] + p[:-2 * mm]
-        tau = m / rate_hz
-        adev[i] = np.sqrt(np.einsum("ka,ka->a", d, d) / (2.0 * tau * tau * d.shape[0]))
-        sub_n[i], sub_m[i] = p.shape[0], mm
+        s, width = blocks, 1
+        while width < mm:                    # moving sums of mm blocks (mm is 1, 2 or 4)
+            s = s[:, :-width] + s[:, width:]
+            width *= 2
+        d = s[:, mm:] - s[:, :-mm]           # (x_{i+2m} - 2 x_{i+m} + x_i) * rate_hz
+        adev[i] = np.sqrt(np.einsum("ak,ak->a", d, d) / (2.0 * float(m) ** 2 * d.shape[1]))
+        sub_n[i], sub_m[i] = blocks.shape[1] + 1, mm
     return ms / rate_hz, adev, sub_n, sub_m
 
 
@@ -547,11 +558,12 @@ def identify_noise(omega_1, omega_2, A, bias, *, rate_hz: float | None, mask=Non
             raise InputError(f"mask: expected shape ({n},), got {mask.shape}")
     if n > MAX_IDENTIFY_SAMPLES:   # a long log: contiguous stretches spread over it, joined
         w = max(8, int(round(window_s * rate_hz)))
-        idx = _stretches(n, w)
-        nm = _identify(np.asarray(w1[idx], dtype=np.float64), np.asarray(w2[idx], dtype=np.float64), A, bias, rate_hz,
-                       None if mask is None else mask[idx], window_s, stride=n / idx.size)
+        spans = _stretches(n, w)
+        size = sum(b - a for a, b in spans)
+        nm = _identify(_join(w1, spans, np.float64), _join(w2, spans, np.float64), A, bias, rate_hz,
+                       None if mask is None else _join(mask, spans, bool), window_s, stride=n / size)
         sources = dict(nm.sources)
-        sources["noise"] += (f"; on {idx.size} samples in {idx.size // (STRETCH_WINDOWS * w)} stretches spread over the "
+        sources["noise"] += (f"; on {size} samples in {len(spans)} stretches spread over the "
                              f"{n}-sample log (the walk scaled to the time between them)")
         import dataclasses
         return dataclasses.replace(nm, sources=sources)
@@ -559,13 +571,18 @@ def identify_noise(omega_1, omega_2, A, bias, *, rate_hz: float | None, mask=Non
                      window_s)
 
 
-def _stretches(n: int, window: int) -> np.ndarray:
-    """Indices of contiguous stretches of :data:`STRETCH_WINDOWS` windows, evenly spread over ``n`` samples,
-    :data:`MAX_IDENTIFY_SAMPLES` in all (windows never straddle two stretches)."""
+def _stretches(n: int, window: int) -> list[tuple[int, int]]:
+    """``(start, stop)`` of contiguous stretches of :data:`STRETCH_WINDOWS` windows, evenly spread over ``n``
+    samples, :data:`MAX_IDENTIFY_SAMPLES` in all (windows never straddle two stretches)."""
     length = STRETCH_WINDOWS * window
     count = max(1, MAX_IDENTIFY_SAMPLES // length)
     starts = np.linspace(0, n - length, count).astype(np.int64) // window * window
-    return (starts[:, None] + np.arange(length)[None, :]).ravel()
+    return [(int(a), int(a) + length) for a in starts]
+
+
+def _join(a, spans, dtype) -> np.ndarray:
+    """The rows of ``spans`` of ``a`` as one contiguous array (slices: far cheaper than a fancy index)."""
+    return np.concatenate([np.asarray(a[lo:hi], dtype=dtype) for lo, hi in spans])
 
 
 def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0) -> NoiseModel:
@@ -573,9 +590,12 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0) -> 
     A = np.asarray(A, dtype=float).reshape(3, 3)
     bias = np.asarray(bias, dtype=float).reshape(3)
     n = w1.shape[0]
-    valid = np.isfinite(w1).all(axis=1) & np.isfinite(w2).all(axis=1)
-    if mask is not None:
-        valid &= mask
+    if mask is None and np.isfinite(w1.sum() + w2.sum()):   # all finite: no per-sample test (slow along rows)
+        valid = np.ones(n, bool)
+    else:
+        valid = np.isfinite(w1).all(axis=1) & np.isfinite(w2).all(axis=1)
+        if mask is not None:
+            valid &= mask
     everything = bool(valid.all())
     if not everything:
         w1, w2 = np.where(valid[:, None], w1, 0.0), np.where(valid[:, None], w2, 0.0)
