@@ -476,32 +476,38 @@ def stacked_window_stats(streams, window: int, *, mask=None, pooled: bool = Fals
         if run_len * window > 65536:   # one long run (every window of a long log): in pieces
             sl = [slice(a, min(a + 65536 // window * window, s.stop)) for s in sl for a in range(s.start, s.stop,
                                                                                              65536 // window * window)]
-        x = np.concatenate([np.concatenate([w[q] for w in streams], axis=1) for q in sl]).astype(np.float64,
-                                                                                                 copy=False)
+        wins = sum((q.stop - q.start) // window for q in sl)
+        x = np.empty((wins, width, window))   # windows x channels x samples: sums run along contiguous rows
+        for k, w in enumerate(streams):
+            x[:, 3 * k:3 * k + 3, :] = np.concatenate([w[q] for q in sl]).reshape(wins, window, 3).transpose(0, 2, 1)
         m = None if mask is None else np.concatenate([mask[q] for q in sl]).reshape(-1, window)
         run = np.repeat(np.arange(lo, lo + len(sl)) if run_len != n_win else np.zeros(len(sl), int),
                         [(q.stop - q.start) // window for q in sl])
-        parts.append(_stats_of(x.reshape(-1, window, width), m, run))
+        parts.append(_stats_of(x, m, run))
     total = float(n_win * window if mask is None else np.count_nonzero(mask[: n_win * window]))
     return _join(parts, window, total, pooled, width)
 
 
 def _stats_of(x, m, run):
-    """Per-window (count, mean, scatter, run) of ``x`` (W, n, width); ``m`` (W, n) marks valid rows."""
-    if np.isfinite(x.sum()) and (m is None or m.all()):      # the common case: every row valid, no copies
-        cnt = np.full(x.shape[0], float(x.shape[1]))
-        mean = x.mean(axis=1)
-        xc = x - mean[:, None, :]
-        return cnt, mean, np.matmul(xc.transpose(0, 2, 1), xc), run
-    ok = np.isfinite(x).all(axis=2)
+    """Per-window (count, mean, scatter, run) of ``x`` (W, width, n), overwritten; ``m`` (W, n) marks valid samples.
+
+    The layout keeps each window's channel contiguous: numpy reduces an (n, 6) block along its rows
+    several times slower than a (6, n) one along its columns."""
+    if np.isfinite(x.sum()) and (m is None or m.all()):      # the common case: every sample valid
+        cnt = np.full(x.shape[0], float(x.shape[2]))
+        mean = x.mean(axis=2)
+        x -= mean[:, :, None]
+        return cnt, mean, np.matmul(x, x.transpose(0, 2, 1)), run
+    ok = np.isfinite(x).all(axis=1)
     m = ok if m is None else (m & ok)
-    x = np.where(m[:, :, None], x, 0.0)
+    x = np.where(m[:, None, :], x, 0.0)
     cnt = m.sum(axis=1).astype(np.float64)
     keep = cnt >= 2
     x, m, cnt, run = x[keep], m[keep], cnt[keep], run[keep]
-    mean = x.sum(axis=1) / cnt[:, None]
-    xc = (x - mean[:, None, :]) * m[:, :, None]
-    return cnt, mean, np.matmul(xc.transpose(0, 2, 1), xc), run
+    mean = x.sum(axis=2) / cnt[:, None]
+    x -= mean[:, :, None]
+    x *= m[:, None, :]
+    return cnt, mean, np.matmul(x, x.transpose(0, 2, 1)), run
 
 
 def _join(parts, window: int, total: float, pooled: bool, width: int = 6) -> WindowStats:
@@ -590,7 +596,8 @@ def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask
             out = out.merge(Moments.from_samples(y[lo:, :3], y[lo:, 3:]))
             if window is not None and len(y) - lo >= window:
                 k = (len(y) - lo) // window
-                parts.append(_stats_of(y[lo:lo + k * window].reshape(k, window, 6), None, np.full(k, start)))
+                parts.append(_stats_of(y[lo:lo + k * window].reshape(k, window, 6).transpose(0, 2, 1).copy(), None,
+                                            np.full(k, start)))
     if out.count < 4:
         raise InputError(f"expected more than {settle} samples for the drifting-bias filter to settle, got {idx.size}")
     moments = Moments(out.count, raw.mean, out.scatter, 1)
