@@ -275,19 +275,21 @@ def _windows(r, w1, aw2, valid, w) -> _Windows:
     idx = np.flatnonzero(cnt >= max(w // 2, 4))
     pick = slice(None) if idx.size == n_win else idx  # no copy when every window is kept
     cnt = cnt[pick].astype(float)
-    R = r[:m].reshape(n_win, w, 3)[pick]
-    X1 = w1[:m].reshape(n_win, w, 3)[pick]
-    X2 = aw2[:m].reshape(n_win, w, 3)[pick]
-    v_r = np.einsum("jki,jki->j", R, R) / (3.0 * cnt)
-    sq = np.einsum("jki,jki->jk", X1, X1)
+
+    def per_window(a):   # (3, windows, w): sums along contiguous rows (numpy sums (N, 3) along axis 0 slowly)
+        return np.ascontiguousarray(a[:m].T).reshape(3, n_win, w)[:, pick]
+
+    R, X1, X2 = per_window(r), per_window(w1), per_window(aw2)
+    v_r = np.einsum("ijk,ijk->j", R, R) / (3.0 * cnt)
+    sq = np.einsum("ijk,ijk->jk", X1, X1)
     rate_powers = (np.column_stack([sq.sum(axis=1), (sq * np.sqrt(sq)).sum(axis=1), (sq * sq).sum(axis=1)])
                    / (3.0 * cnt[:, None]))  # per axis
     # centred (co)variances per axis from window sums (rates and biases are far below 1e8 x the noise)
-    m1, m2 = X1.sum(axis=1), X2.sum(axis=1)
+    m1, m2 = X1.sum(axis=2), X2.sum(axis=2)
     k = 3.0 * (cnt - 1.0)
-    v1 = (sq.sum(axis=1) - np.einsum("ji,ji->j", m1, m1) / cnt) / k
-    v2 = (np.einsum("jki,jki->j", X2, X2) - np.einsum("ji,ji->j", m2, m2) / cnt) / k
-    c = (np.einsum("jki,jki->j", X1, X2) - np.einsum("ji,ji->j", m1, m2) / cnt) / k
+    v1 = (sq.sum(axis=1) - np.einsum("ij,ij->j", m1, m1) / cnt) / k
+    v2 = (np.einsum("ijk,ijk->j", X2, X2) - np.einsum("ij,ij->j", m2, m2) / cnt) / k
+    c = (np.einsum("ijk,ijk->j", X1, X2) - np.einsum("ij,ij->j", m1, m2) / cnt) / k
     return _Windows(idx * w, v_r, rate_powers, v1 - c, v2 - c, c, w)
 
 
