@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from fusion_gyrocal import ConfigurationError, OptionError
-from fusion_gyrocal.core.gauge import Gauge, constrained_inverse, null_directions, oblique_projector
+from fusion_gyrocal.core.gauge import Gauge, constrained_inverse, null_directions, null_space, oblique_projector
 from fusion_gyrocal.core.observability import classify, seed_configuration
 
 EVERY = (tuple((g, a) for g in (0, 1) for a in range(3)),)
@@ -99,3 +99,14 @@ def test_gauge_condition_holds_after_apply_and_constraints_are_its_derivative():
                                 - gauge.condition(groups, np.exp(log_s - eps * e).reshape(2, 3))) / (2 * eps)
                                for e in np.eye(6)])
         np.testing.assert_allclose(gauge.constraints(groups, s), num, rtol=1e-6, atol=1e-9)
+
+
+def test_null_space_orthonormal_basis_of_the_kernel_with_numerical_rank():
+    rng = np.random.default_rng(2)
+    M = rng.normal(size=(3, 9))
+    M[2] = M[0] - 2.0 * M[1] + 1e-17   # rank 2: the dependent row is dropped at the numerical rank
+    Z = null_space(M)
+    assert Z.shape == (9, 7)
+    np.testing.assert_allclose(Z.T @ Z, np.eye(7), atol=1e-14)
+    np.testing.assert_allclose(M @ Z, 0.0, atol=1e-14)
+    assert null_space(np.eye(4)).shape == (4, 0)

@@ -68,3 +68,17 @@ def test_canonical_rotvec_does_not_flip_across_a_half_turn():
     np.testing.assert_allclose(lie.exp(b), above, atol=1e-12)
     v = np.deg2rad(170.0) * u
     np.testing.assert_allclose(lie.canonical_rotvec(-v), -v, atol=1e-12)
+
+
+def test_log_matches_scipy_near_and_at_a_half_turn():
+    # large angles go through the quaternion (no scipy at run time); the same rotation vectors as scipy's
+    rng = np.random.default_rng(8)
+    axes = rng.normal(size=(300, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    angles = np.concatenate([rng.uniform(np.pi / 3, np.pi, 200), np.pi - np.geomspace(1e-12, 1e-3, 99), [np.pi]])
+    R = Rotation.from_rotvec(axes * angles[:, None]).as_matrix()
+    v = lie.log(R)
+    np.testing.assert_allclose(np.linalg.norm(v, axis=1), angles, atol=1e-12)
+    np.testing.assert_allclose(lie.exp(v), R, atol=1e-14)
+    below = angles < np.pi - 1e-6     # away from the half turn the vector is unique
+    np.testing.assert_allclose(v[below], Rotation.from_matrix(R[below]).as_rotvec(), atol=1e-13)

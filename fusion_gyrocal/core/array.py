@@ -44,7 +44,8 @@ from .solve import pair_covariance, solve
 from ..errors import ConfigurationError, FormatError, GyroCalError, InputError, OptionError
 from .gauge import Gauge, constrained_inverse
 from .model import PairCalibration, from_json_list, to_json_list, to_json_number, mark_undetermined
-from .moments import Moments, WindowStats, as_rates, stacked_window_stats, window_moments, window_samples
+from .moments import (Moments, WindowStats, as_rates, finite_rows, stacked_window_stats, window_moments,
+                      window_samples)
 from .observability import A_of, classify, dA_dp, per_axis_snr, residual_weight
 from ..lie import exp, skew
 from .refine import fisher_scoring, residual_scatter
@@ -227,7 +228,7 @@ def _checked_rates(omegas, mask):
         if mask.shape != (n,):
             raise InputError(f"mask: expected shape ({n},), got {mask.shape}")
     for k, w in enumerate(rates):
-        bad = ~np.isfinite(w).all(axis=1)
+        bad = ~finite_rows(w)
         if mask is not None:
             bad &= mask
         if bad.any():

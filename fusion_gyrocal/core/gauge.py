@@ -172,9 +172,16 @@ def oblique_projector(N, G) -> np.ndarray:
     return np.eye(N.shape[0]) - N @ np.linalg.solve(GN, G)
 
 
+def null_space(M) -> np.ndarray:
+    """Orthonormal basis (columns) of the null space of ``M`` (k, n): the right singular vectors beyond its
+    numerical rank (singular values above ``max(k, n) eps`` times the largest)."""
+    M = np.atleast_2d(np.asarray(M, dtype=float))
+    _, s, vt = np.linalg.svd(M, full_matrices=True)
+    rank = int(np.count_nonzero(s > max(M.shape) * np.finfo(float).eps * (s[0] if s.size else 0.0)))
+    return vt[rank:].T
+
+
 def constrained_inverse(F, constraints, rcond: float = 1e-12) -> np.ndarray:
     """Inverse of the information ``F`` in the tangent space ``constraints @ dx = 0``: ``Z pinv(Z^T F Z) Z^T``."""
-    from scipy.linalg import null_space
-
     Z = null_space(constraints) if len(constraints) else np.eye(F.shape[0])
     return Z @ np.linalg.pinv(Z.T @ F @ Z, rcond=rcond, hermitian=True) @ Z.T

@@ -31,6 +31,35 @@ from ..errors import InputError, OptionError
 CHUNK_SIZE = 8192    # rows per chunk: the (7, 8192) float64 buffer (448 KiB per thread) stays in the L2 cache
 
 
+# ---------------------------------------------------------------------------------------------- row helpers
+# numpy reduces an (N, 3) array along its short rows (``.all(axis=1)``, ``linalg.norm(axis=1)``) or down
+# its columns (``.max(axis=0)``) 3-15x slower than these equivalents; the whole library uses them.
+def finite_rows(x) -> np.ndarray:
+    """``np.isfinite(x).all(axis=1)`` of a 2-D array: bool (N,), True where every entry of the row is finite."""
+    x = np.asarray(x)
+    if x.dtype.kind in "biu":
+        return np.ones(x.shape[0], dtype=bool)
+    with np.errstate(over="ignore", invalid="ignore"):
+        if np.isfinite(x.sum()):        # the usual case, one summed test (overflow falls through to the full one)
+            return np.ones(x.shape[0], dtype=bool)
+    f = np.isfinite(x)
+    out = f[:, 0].copy()
+    for j in range(1, x.shape[1]):
+        out &= f[:, j]
+    return out
+
+
+def row_sumsq(x) -> np.ndarray:
+    """``(x ** 2).sum(axis=1)`` of an (N, k) float array (squared row norms)."""
+    x = np.asarray(x, dtype=np.float64)
+    return np.einsum("ij,ij->i", x, x)
+
+
+def row_norms(x) -> np.ndarray:
+    """``np.linalg.norm(x, axis=1)`` of an (N, k) float array."""
+    return np.sqrt(row_sumsq(x))
+
+
 def as_rates(name: str, omega, *, length: int | None = None) -> np.ndarray:
     """Return ``omega`` as a read-only ``(N, 3)`` float array (no copy when already fine).
 
@@ -202,7 +231,7 @@ def _too_large(w1, w2, lo: int, hi: int) -> InputError:
 
 
 def _first_bad_row(name: str, arr: np.ndarray, offset: int) -> InputError:
-    bad = np.flatnonzero(~np.isfinite(arr).all(axis=1))
+    bad = np.flatnonzero(~finite_rows(arr))
     idx = offset + int(bad[0]) if bad.size else offset
     count = int(bad.size)
     return InputError(

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from ..errors import InputError, OptionError
-from .moments import NOMINAL_WINDOW, as_rates
+from .moments import NOMINAL_WINDOW, as_rates, finite_rows
 
 FLICKER = 2.0 * np.log(2.0) / np.pi   # AVAR of bias instability B: (2 ln 2 / pi) B^2 (IEEE Std 952)
 MISFIT_SHARE = 0.1                    # rate-explained share of the residual variance that is flagged
@@ -84,7 +84,7 @@ def difference_noise_std(omega, mask=None, *, max_samples: int = NOISE_SPLIT_SAM
         parts = []
         for a, b in spans:
             x = np.asarray(w[a:b], dtype=np.float64)
-            ok = np.isfinite(x).all(axis=1)
+            ok = finite_rows(x)
             if mask is not None:
                 ok &= np.asarray(mask[a:b], dtype=bool)
             x = (x if ok.all() else x[ok]).T              # (3, m): rows contiguous for the partitions below
@@ -592,12 +592,9 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0) -> 
     A = np.asarray(A, dtype=float).reshape(3, 3)
     bias = np.asarray(bias, dtype=float).reshape(3)
     n = w1.shape[0]
-    if mask is None and np.isfinite(w1.sum() + w2.sum()):   # all finite: no per-sample test (slow along rows)
-        valid = np.ones(n, bool)
-    else:
-        valid = np.isfinite(w1).all(axis=1) & np.isfinite(w2).all(axis=1)
-        if mask is not None:
-            valid &= mask
+    valid = finite_rows(w1) & finite_rows(w2)
+    if mask is not None:
+        valid &= mask
     everything = bool(valid.all())
     if not everything:
         w1, w2 = np.where(valid[:, None], w1, 0.0), np.where(valid[:, None], w2, 0.0)

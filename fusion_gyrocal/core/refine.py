@@ -19,9 +19,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import null_space
 
 from ..lie import exp
+from .gauge import null_space
 from .moments import Moments
 from .observability import A_of, dA_dp, fisher_information, residual_weight, signal_scatter
 

@@ -42,7 +42,7 @@ from ..pipeline.pipeline import calibrate_pair
 
 from ..errors import FormatError, GyroCalError, InputError
 from ..core.model import PairCalibration
-from ..core.moments import Moments
+from ..core.moments import Moments, finite_rows
 from ..pipeline.streams import check_timestamps
 
 COLUMNS = ("t", "w1x", "w1y", "w1z", "w2x", "w2y", "w2z")
@@ -175,7 +175,7 @@ def calibrate_device(path, options: Options | None = None, **keywords) -> PairCa
         raise FormatError(f"{path}: expected a .parquet file, a <name>.parquet folder of .parquet parts or a folder "
                           f"with {GYRO_FILES[0]}.* and {GYRO_FILES[1]}.*")
     w1, w2 = _read_parquet_device(path)
-    finite = np.isfinite(w1).all(axis=1) & np.isfinite(w2).all(axis=1)
+    finite = finite_rows(w1) & finite_rows(w2)
     aligned = options.replace(**{n: getattr(Options(), n) for n in TIMESTAMP_OPTIONS})
     return calibrate_pair(np.where(finite[:, None], w1, 0.0), np.where(finite[:, None], w2, 0.0),
                           mask=finite, options=aligned)
@@ -358,7 +358,7 @@ def chunk_moments(file: str, row_group: int) -> Moments:
         raise FormatError(f"{file}: row group {row_group}: could not read: {exc}") from exc
     x = np.column_stack([np.asarray(table.column(c).to_numpy(zero_copy_only=False), dtype=np.float64)
                          for c in COLUMNS[1:]])
-    finite = np.isfinite(x).all(axis=1)
+    finite = finite_rows(x)
     if not finite.all():
         x[~finite] = 0.0
         return Moments.from_samples(x[:, :3], x[:, 3:], mask=finite)

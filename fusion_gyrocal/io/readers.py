@@ -43,6 +43,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ..core.moments import finite_rows
 from ..errors import FormatError, InputError, OptionError
 from ..pipeline.streams import UNITS, check_timestamps, to_rad_per_s
 
@@ -127,7 +128,7 @@ class ImuStream:
             raise InputError(f"{name}: expected angular rates of shape (N, 3), got {omega.shape}")
         t = np.array(check_timestamps(f"{name}.t", self.t, length=omega.shape[0]), dtype=np.float64)
         dt = np.diff(t)
-        valid = np.isfinite(omega).all(axis=1)
+        valid = finite_rows(omega)
         if self.valid is not None:
             given = np.asarray(self.valid)
             if given.shape != valid.shape:
@@ -910,7 +911,7 @@ def read_xsens(path, *, unit: str = "rad/s", rate_hz: float | None = None, name:
             skipped.append(f"{what} is empty")
             continue
         x = _read_floats(path, skiprows=skip, delimiter=delim, usecols=cols, end=end)
-        missing = ~np.isfinite(x).all(axis=1)
+        missing = ~finite_rows(x)
         if missing.any():
             skipped.append(f"{what} is missing in {int(missing.sum())} of {len(x)} rows")
             continue

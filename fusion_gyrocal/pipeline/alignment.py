@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core.moments import Moments
+from ..core.moments import Moments, row_norms
 from ..errors import OptionError, TimeAlignmentError
 from .resample import _MARGIN, _RunSplines, _runs, resample
 from .streams import DEFAULT_GAP_PERIODS, _freeze, _nominal_period, _stream, valid_mask
@@ -151,7 +151,7 @@ def _norm_on_grid(t, w, ok, k_lo: int, k_hi: int, h: float, gap):
         k = np.searchsorted(tl[first], grid, side="right") - 1
         ins = (k >= 0) & (grid <= tl[last[np.clip(k, 0, None)]])
         sel = np.flatnonzero(okl)
-        x[lo:lo + grid.size][ins] = np.interp(grid[ins], tl[sel], np.linalg.norm(wl[sel], axis=1))
+        x[lo:lo + grid.size][ins] = np.interp(grid[ins], tl[sel], row_norms(wl[sel]))
         inside[lo:lo + grid.size] = ins
     if inside.sum() < 2:
         return x, inside
@@ -338,13 +338,14 @@ def _offset_std(spl2: _RunSplines, x1, y1, tau: float, h: float) -> float:
     """
     delta = 0.25 * h
     xe, ye, cost = _span_misfit(spl2, x1, y1, tau - delta, tau + delta)
-    half_curv = 0.5 * (cost(tau + delta) - 2.0 * cost(tau) + cost(tau - delta)) / delta**2
-    if not half_curv > 0:
-        return float("inf")
     inside = np.ones(xe.size, dtype=bool)
     w2 = spl2(xe - tau, inside=inside)[0]
-    dw2 = spl2(xe - tau, nu=1, inside=inside)[0]
     m, S22p, A = _profile_fit(ye, w2)
+    at_tau = float(np.trace(m.S11) - np.trace(A @ m.S12.T))   # cost(tau), from the fit needed below anyway
+    half_curv = 0.5 * (cost(tau + delta) - 2.0 * at_tau + cost(tau - delta)) / delta**2
+    if not half_curv > 0:
+        return float("inf")
+    dw2 = spl2(xe - tau, nu=1, inside=inside)[0]
     resid = (ye - m.mean_1) - (w2 - m.mean_2) @ A.T
     md = Moments.from_samples(dw2, w2)  # project d/dt omega_2 on the regressors [omega_2, 1]
     d = ((dw2 - md.mean_1) - (w2 - md.mean_2) @ (md.S12 @ S22p).T) @ A.T

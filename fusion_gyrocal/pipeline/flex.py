@@ -24,6 +24,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..core.moments import row_norms, row_sumsq
+
 CHI2_3_MEDIAN = 2.365973884375338   # median of chi-square with 3 dof
 CHI2_3_GATE = 14.156413609126677    # chi2.ppf(0.9973, 3): the 3-sigma false-alarm rate in 3-D
 MAX_FLEX_SHARE = 0.15               # share of the rate-dependent excess along the rate below which it is a bend
@@ -51,12 +53,6 @@ def gather(ranges, *arrays):
     """
     return tuple(None if a is None else np.concatenate([np.asarray(a[lo:hi]) for lo, hi in ranges])
                  for a in arrays)
-
-
-def row_sumsq(x: np.ndarray) -> np.ndarray:
-    """``sum_j x_ij^2`` of each row of an (N, 3) array (einsum: numpy's ``(x ** 2).sum(axis=1)`` on three
-    columns is ~3x slower)."""
-    return np.einsum("ij,ij->i", x, x)
 
 
 def scatter_cov(x: np.ndarray) -> np.ndarray:
@@ -157,7 +153,7 @@ def bend_per_bin(r: np.ndarray, w: np.ndarray, W: np.ndarray, bins: int = 20):
     """
     from ..lie import skew
 
-    rate = np.linalg.norm(w, axis=1)
+    rate = row_norms(w)
     order = np.argsort(rate)
     starts = np.array([g[0] for g in np.array_split(np.arange(order.size), bins)])
     J = -skew(w[order])                                           # r = J phi
@@ -204,7 +200,7 @@ def flex_cut(g1, g2, A, bias, used, window, L, bins: int = 20, max_steps: int = 
     (at most ``max_steps`` times; each step works on the subsample only).
     """
     base = np.ones(g1.shape[0], bool) if used is None else np.asarray(used, bool)
-    rate = np.linalg.norm(np.asarray(g1, dtype=np.float64), axis=1)
+    rate = row_norms(g1)
     whole = [(0, g1.shape[0])]
     cut, kept = None, used
     for _ in range(max_steps):
@@ -247,7 +243,7 @@ def along_rate_share(r: np.ndarray, w: np.ndarray, noise_cov: np.ndarray) -> flo
     perpendicular to the rate; the noise (covariance ``noise_cov``) puts ``u' C u`` along each rate
     direction ``u`` and the rest across it, and is subtracted from both parts before the share is taken.
     """
-    s = np.linalg.norm(w, axis=1)
+    s = row_norms(w)
     ok = s > 0
     u = w[ok] / s[ok, None]
     r = r[ok]
@@ -286,7 +282,7 @@ def above_rate(w1, cut: float, n: int, chunk: int = 65536) -> np.ndarray:
     """Boolean mask of samples whose gyro-1 rate norm is at least ``cut`` (chunked)."""
     out = np.zeros(n, bool)
     for s in range(0, n, chunk):
-        out[s:s + chunk] = np.linalg.norm(np.asarray(w1[s:s + chunk], dtype=np.float64), axis=1) >= cut
+        out[s:s + chunk] = row_norms(w1[s:s + chunk]) >= cut
     return out
 
 

@@ -14,7 +14,8 @@ import numpy as np
 
 from ..core.direct import solve_A
 from ..core.model import PairCalibration
-from ..core.moments import Moments, as_rate_pair, window_moments, window_samples, window_stats
+from ..core.moments import (Moments, as_rate_pair, finite_rows, row_norms, window_moments, window_samples,
+                            window_stats)
 from ..core.noise import difference_noise_std
 from ..core.solve import solve
 from ..errors import InputError, NotRigidError, OptionError
@@ -159,17 +160,15 @@ def prepare_samples(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options:
 
 def _rate_norms(w1, w2, mask, max_points: int | None = 30_000):
     """Rate norms ``(n1, n2)`` of the usable samples of a bounded subsample of the log (about 30k samples)."""
-    from .flex import block_ranges, gather, row_sumsq
+    from .flex import block_ranges, gather
     g1, g2, gm = gather(block_ranges(len(w1), None, max_points=max_points), w1, w2, mask)
     g1, g2 = np.asarray(g1, dtype=np.float64), np.asarray(g2, dtype=np.float64)
     with np.errstate(over="ignore", invalid="ignore"):   # beyond ~1e154 the norms are inf: refused by check_rate_units
-        n1, n2 = np.sqrt(row_sumsq(g1)), np.sqrt(row_sumsq(g2))
-    if gm is None and np.isfinite(n1.sum() + n2.sum()):   # the common case: every sample finite
-        return n1, n2
-    ok = np.isfinite(g1).all(axis=1) & np.isfinite(g2).all(axis=1)
+        n1, n2 = row_norms(g1), row_norms(g2)
+    ok = finite_rows(g1) & finite_rows(g2)
     if gm is not None:
         ok &= gm
-    return n1[ok], n2[ok]
+    return (n1, n2) if ok.all() else (n1[ok], n2[ok])
 
 
 def check_rate_units(w1, w2, mask=None, *, limit: float = 100.0) -> None:
@@ -218,7 +217,7 @@ def gross_outliers(w1, w2, mask=None, chunk: int = 65536) -> np.ndarray:
     lim_diff = GLITCH_FACTOR * float(np.quantile(np.abs(n1 - n2), 0.99))
     out = np.zeros(len(w1), bool)
     for s in range(0, len(w1), chunk):
-        a, b = (np.linalg.norm(np.asarray(w[s:s + chunk], dtype=np.float64), axis=1) for w in (w1, w2))
+        a, b = (row_norms(w[s:s + chunk]) for w in (w1, w2))
         with np.errstate(invalid="ignore"):
             out[s:s + chunk] = (np.maximum(a, b) > lim_rate) | (np.abs(a - b) > lim_diff)
     if mask is not None:

