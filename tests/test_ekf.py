@@ -864,3 +864,67 @@ def test_run_final_state_pinned_across_speedups(noise, mode, block):
     got, want = _pinned_state(tr, h), np.array(_PINNED_RUNS[noise, mode, block])
     np.testing.assert_array_equal(got[-2:], want[-2:])              # rejected samples, alarms
     np.testing.assert_allclose(got, want, rtol=1e-12, atol=0.0)
+
+
+def test_noise_scale_release_unseen_lets_only_unseen_bins_fall_below_one():
+    """The bins the seed window filled keep the floor 1; the others may fall to MISFIT_FLOOR; the per-sample and
+    the block learning agree, and a sample held at the white noise counts at what it implies."""
+    from fusion_gyrocal.online.adapt import MISFIT_FLOOR, NoiseScale
+
+    rng = np.random.default_rng(50)
+    ns = NoiseScale(2000, 16.27)
+    ns.learn(np.zeros(200, int), rng.chisquare(3, 200) * 0.1)         # bin 0 filled: it stays at 1
+    ns.learn(np.full(20, 5), rng.chisquare(3, 20))                      # bin 5: 20 samples only
+    ns.release_unseen()
+    assert ns.floor.tolist() == [1.0] + [MISFIT_FLOOR] * 9
+    assert ns.scale[0] == 1.0
+    one = ns.copy()
+    d2 = rng.chisquare(3, 50) * 1e-3
+    ns.learn(np.full(50, 7), d2)                                        # a fresh bin: the block's mean at once
+    assert ns.scale[7] == pytest.approx(d2.mean() / 3.0, rel=1e-12)
+    for x in d2:
+        one.learn_one(7, float(x))                                      # per sample (d2 not recomputed here)
+    assert MISFIT_FLOOR <= one.scale[7] < 1e-3
+    ns.learn(np.zeros(50, int), rng.chisquare(3, 50) * 1e-3)
+    assert ns.scale[0] == 1.0                                           # a filled bin never drops below 1
+    held = ns.copy()
+    held.learn(np.full(50, 8), d2, np.full(50, 4.0))       # a fresh bin whose samples were held at 4x their model
+    assert held.scale[8] == pytest.approx(4.0 * d2.mean() / 3.0, rel=1e-12)
+
+
+def test_run_misfit_overestimated_at_unseen_rates_is_learnt_down():
+    """A seed on slow motion whose misfit model, extrapolated to fast motion, is ~300 times too large (the MIMU
+    board's case: a fit on static poses and turns, then violent rotation): the bins the seed never reached learn
+    their factor below 1 (down to what the data say, never below the white noise), so the fast samples carry
+    their information; a tracker without that (the factor held at >= 1, as before) stays near its seed."""
+    from fusion_gyrocal.core.noise import identify_noise
+
+    rng = np.random.default_rng(49)
+    t = np.arange(0.0, 150.0, 1.0 / RATE)
+    motion = np.where((t < 60.0)[:, None], HumanMotion(rms=0.3, rng=rng)(t), HumanMotion(rms=4.0, rng=rng)(t))
+    R0 = general_rotation(rng, 15.0)
+    w1, w2, _ = simulate_drifting_pair(t, R0, 1 + rng.normal(0, 0.01, 3), 1 + rng.normal(0, 0.01, 3),
+                                       bias_1=rng.normal(0, 0.01, 3), noise_std=NOISE, omega_true_1=motion, rng=rng)
+    n0 = int(60 * RATE)
+    cal = calibrate_pair(w1[:n0], w2[:n0])
+    nm = dataclasses.replace(identify_noise(w1[:n0], w2[:n0], cal.A, cal.bias, rate_hz=RATE),
+                             kind="not white noise: rate-dependent misfit", misfit_gain=(0.0, 0.02))
+    sigma, err = {}, {}
+    for name in ("released", "held", "white"):
+        if name == "released":
+            tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0], noise_model=nm, drift=DriftNoise.constant())
+        elif name == "held":          # no seed window seen: no bin released, every factor >= 1
+            tr = GyroPairTracker(cal, t0=t[n0 - 1], seed_span_s=t[n0 - 1],
+                                 noise_model=nm, drift=DriftNoise.constant())
+        else:
+            tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0], drift=DriftNoise.constant())
+        tr.run(t[n0:], w1[n0:], w2[n0:])
+        sigma[name] = np.sqrt(np.trace(tr.error_covariance[:3, :3]))
+        err[name] = rotation_error(tr.R_1_2, R0)
+        if name == "released":
+            ns = tr._noise_scale
+            fast = ns.count[ns.floor < 1.0] >= 1000
+            assert fast.any() and np.all(ns.scale[ns.floor < 1.0][fast] < 0.05), (ns.scale, ns.count)
+    assert err["released"] < 3.0 * sigma["released"], (err, sigma)
+    assert sigma["released"] < 2.0 * sigma["white"], sigma           # the fast samples count
+    assert sigma["held"] > 5.0 * sigma["released"], sigma            # held at the model: they hardly do
