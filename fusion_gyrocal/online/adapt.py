@@ -8,8 +8,8 @@ acceleration rather than the rate), is several to hundreds of times larger than 
 filter then (a) counts those samples as information they do not carry, so its covariance is far too
 small, and (b) its CUSUM sees normalised innovations far above 1 and raises step alarms on a rigid board.
 
-:class:`NoiseScale` multiplies each sample's modelled covariance by a factor ``lambda_j >= 1`` of its
-rate bin ``j`` (``|omega_1|`` in the bins :data:`EDGES`, rad/s)::
+:class:`NoiseScale` multiplies each sample's modelled covariance by a factor ``lambda_j`` (>= 1 but in the bins
+the seed did not reach, below) of its rate bin ``j`` (``|omega_1|`` in the bins :data:`EDGES`, rad/s)::
 
     Cov n(k) = lambda_j(k) R_k
 

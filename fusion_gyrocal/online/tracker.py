@@ -214,8 +214,9 @@ class GyroPairTracker:
     noise_model : NoiseModel, None or "seed", optional
         The pair's identified noise (:func:`fusion_gyrocal.core.noise.identify_noise`). When its residual is
         a rate-dependent misfit (``kind`` says so), each sample's measurement covariance is its white
-        ``noise_std`` plus the misfit's variance ``(a + b |omega|)^2 |omega|^2`` along the rate
-        (``misfit_gain``; :mod:`.ekf`), so fast motion does not raise false step alarms. Otherwise the
+        ``noise_std`` plus the misfit's variance ``(a + b |omega|)^2 |omega|^2`` spread over the axes
+        (``misfit_gain``; :mod:`.ekf`), so fast motion does not raise false step alarms (the factor adapted per
+        rate bin, :mod:`.adapt`, corrects its level, also where the seed never reached). Otherwise the
         measurement noise is white, from ``calibration.noise_std``. Default ``"seed"``: the
         calibration's own ``noise_model`` (what :func:`fusion_gyrocal.calibrate_pair` identified), if it
         carries one; None: white noise whatever the seed carries.
