@@ -17,7 +17,12 @@
    Printed per session: step alarms (every one false on a rigid board), accepted re-seeds,
    the final rotation minus the batch ``calibrate_pair`` over the whole session with its timestamps (mdeg), the tracker's
    reported rotation sigma (sqrt of the trace of its rotation covariance), the batch's, and
-   ``z = |diff| / sqrt(sigma_ekf^2 + sigma_batch^2)``.
+   ``z = |diff| / sqrt(sigma_ekf^2 + sigma_batch^2)``; "open" marks an alarm still open at the end (the
+   covariance then carries the step prior: a small z there says nothing; the z of the state at the alarm,
+   which a rejected alarm returns to, is printed below the table). Then the honesty of the final
+   covariances on one soldered PCB: the session-to-session rotation differences of each IMU (36 pairs)
+   against the reported covariances, mean ``z^2 = d^T (P_a + P_b)^-1 d`` (3 = honest), for the tracker and
+   the batch (``benchmarks/honesty.py`` section 2 measures the batch the same way).
 
     python benchmarks/ekf.py [--runs 40] [--sample-runs 8] [--mimu-only]
 """
@@ -129,8 +134,19 @@ def history_memory(n=20000):
     return out
 
 
+def _z_at_alarm(alarm, batch) -> tuple[float, float, float]:
+    """``(t_detected, diff_mdeg, z)`` of the filter's state at an open alarm against the batch."""
+    from fusion_gyrocal.lie import log
+
+    R0, P0 = alarm.state[0], alarm.state[4]
+    d = np.linalg.norm(log(R0 @ batch.R_1_2.T))
+    se, sb = np.sqrt(np.trace(P0[:3, :3])), np.sqrt(np.trace(np.asarray(batch.covariance)[:3, :3]))
+    return alarm.t_detected, d / DEG * 1e3, d / np.hypot(se, sb)
+
+
 def mimu(sessions=range(1, 10), imus=(2, 3, 6), seed_s=120.0):
-    """Rows ``(session, imu, alarms, accepted, diff_mdeg, sigma_ekf_mdeg, sigma_batch_mdeg, z, misfit)``."""
+    """Rows ``(session, imu, alarms, accepted, diff_mdeg, sigma_ekf_mdeg, sigma_batch_mdeg, z, misfit, open, fit)``
+    with ``fit = (R_ekf, P_ekf, R_batch, P_batch)`` (rotation and its 3x3 covariance)."""
     from fusion_gyrocal.evaluate.sim import shared_data_dir
     from fusion_gyrocal.io import read_npz
     from fusion_gyrocal.lie import log
@@ -156,7 +172,8 @@ def mimu(sessions=range(1, 10), imus=(2, 3, 6), seed_s=120.0):
             sb = np.sqrt(np.trace(np.asarray(batch.covariance)[:3, :3]))
             rows.append((s, k, len(h.reseeds), sum(ev.accepted for ev in h.reseeds), np.linalg.norm(d) / DEG * 1e3,
                          se / DEG * 1e3, sb / DEG * 1e3, np.linalg.norm(d) / np.hypot(se, sb),
-                         tr.misfit_gain != (0.0, 0.0)))
+                         tr.misfit_gain != (0.0, 0.0), None if tr._alarm is None else _z_at_alarm(tr._alarm, batch),
+                         (tr.R_1_2, tr.error_covariance[:3, :3], batch.R_1_2, np.asarray(batch.covariance)[:3, :3])))
     return rows
 
 
@@ -214,15 +231,35 @@ def print_mimu():
         print("   ../shared/data/mimu_8imu_array not present: skipped")
         return
     print(f"   {'session':>7} {'IMU':>4} {'alarms':>7} {'re-seeds':>9} {'EKF-batch mdeg':>15} {'sigma EKF':>10} "
-          f"{'sigma batch':>12} {'z':>6} {'misfit':>7}")
-    for s, k, n_alarm, n_acc, diff, se, sb, z, mis in rows:
-        print(f"   {s:7d} {k:4d} {n_alarm:7d} {n_acc:9d} {diff:15.1f} {se:10.1f} {sb:12.1f} {z:6.2f} {str(mis):>7}")
+          f"{'sigma batch':>12} {'z':>6} {'misfit':>7} {'open':>5}")
+    for s, k, n_alarm, n_acc, diff, se, sb, z, mis, op, _ in rows:
+        print(f"   {s:7d} {k:4d} {n_alarm:7d} {n_acc:9d} {diff:15.1f} {se:10.1f} {sb:12.1f} {z:6.2f} {str(mis):>7} "
+              f"{'' if op is None else 'open':>5}")
     acc = np.array([r[3] for r in rows])
     z = np.array([r[7] for r in rows])
     alarms = np.array([r[2] for r in rows])
     print(f"   sessions with <= 1 re-seed: {np.sum(acc <= 1)} of {len(rows)}; |z| <= 3: {np.sum(z <= 3)} of {len(rows)}")
     print(f"   step alarms (all rigid: false): {alarms.sum()} in all, at most {alarms.max()} a session; "
-          f"<= 1 alarm: {np.sum(alarms <= 1)} of {len(rows)}")
+          f"<= 1 alarm: {np.sum(alarms <= 1)} of {len(rows)}; open at the end: {sum(r[9] is not None for r in rows)}")
+    for r in rows:
+        if r[9] is not None:
+            print(f"   session {r[0]} IMU {r[1]}: alarm open since t = {r[9][0]:.1f} s; the state at the alarm is "
+                  f"{r[9][1]:.1f} mdeg from the batch, z {r[9][2]:.2f}")
+    print("   session-to-session rotation differences against the final covariances (mean z^2 over session pairs, "
+          "3 = honest):")
+    import itertools
+
+    from fusion_gyrocal.lie import log
+
+    for k in sorted({r[1] for r in rows}):
+        fits = [r[10] for r in rows if r[1] == k and r[9] is None]
+        z2 = {"EKF": [], "batch": []}
+        for a, b in itertools.combinations(fits, 2):
+            for name, i in (("EKF", 0), ("batch", 2)):
+                d = log(a[i] @ b[i].T)
+                z2[name].append(float(d @ np.linalg.solve(a[i + 1] + b[i + 1], d)))
+        print(f"   IMU {k}: {len(fits)} sessions (none with an alarm open), {len(z2['EKF'])} pairs: mean z^2 EKF "
+              f"{np.mean(z2['EKF']):.2f}, batch {np.mean(z2['batch']):.2f}")
 
 
 if __name__ == "__main__":

@@ -698,10 +698,11 @@ def test_run_rate_dependent_scale_no_alarm_and_within_3sigma():
     assert white.run(t[n0:], w1[n0:], w2[n0:]).reseeds
 
 
-# the issue's target on the real board (benchmarks/ekf.py section 4 for all 27 cases)
-_MIMU_OPEN = pytest.mark.xfail(strict=True, reason="open (issue 12 item 5): no re-seed and no alarm with the adapted "
-                                                   "noise, but the final rotation is 264 mdeg from the batch, z = 3.03 "
-                                                   "(sigma EKF 75, batch 44 mdeg)")
+# the issue's target on the real board (benchmarks/ekf.py section 4 for all 27 cases). Session 1 IMU 2 was
+# 264.9 mdeg from the batch, z 3.03 (sigma EKF 75.5, batch 44.1 mdeg): the misfit fitted on the static poses,
+# extrapolated to the violent last ~100 s, weighed those samples ~1e7 times too light. With the update's own
+# covariance screened and learnt, and the unseen rate bins free to learn their factor below 1: 78.1 mdeg,
+# sigma EKF 37.0, z 1.36 (27/27 cases z <= 3).
 
 
 def _mimu_run(session: int, imu: int):
@@ -722,17 +723,24 @@ def _mimu_run(session: int, imu: int):
 
 
 @pytest.mark.shared_data
-@pytest.mark.parametrize("session, imu", [(1, 3), pytest.param(1, 2, marks=_MIMU_OPEN), (2, 3), (2, 2)])
+@pytest.mark.parametrize("session, imu", [(1, 3), (1, 2), (2, 3), (2, 2)])
 def test_run_mimu_board_at_most_one_reseed_and_within_3sigma_of_batch(session, imu):
     """A rigid PCB (all axes parallel, Lemma 2): seeded on the first 120 s, at most one re-seed over the
-    session and the final rotation within 3 sigma (tracker and batch combined) of the batch estimate."""
+    session and the final rotation within 3 sigma (tracker and batch combined) of the batch estimate, with no
+    alarm open at the end (its step prior would widen the tracker's sigma) and the violent phase used: the rate
+    bins the seed never reached learnt a factor below 1 of the misfit extrapolated there."""
     from fusion_gyrocal.lie import log
 
     tr, h, batch = _mimu_run(session, imu)
     d = np.linalg.norm(log(tr.R_1_2 @ batch.R_1_2.T))
     sigma = np.hypot(np.sqrt(np.trace(tr.error_covariance[:3, :3])), np.sqrt(np.trace(batch.covariance[:3, :3])))
     assert sum(ev.accepted for ev in h.reseeds) <= 1
+    assert tr._alarm is None
     assert d < 3.0 * sigma, (d / DEG, sigma / DEG)
+    ns = tr._noise_scale
+    if tr.misfit_gain != (0.0, 0.0):
+        fast = (ns.floor < 1.0) & (ns.count >= 1000)
+        assert fast.any() and np.all(ns.scale[fast] < 1.0), (ns.scale, ns.count)
 
 
 @pytest.mark.shared_data
@@ -789,7 +797,9 @@ def test_run_sample_mode_agrees_with_fast_mode_at_rest():
 # final state of short runs computed before the per-sample/block speed-ups of issue 14 (noise adaptation
 # on): R_1_2 (9), scale_1, scale_2, bias (9), diag of the error covariance (12), the NoiseScale factors (10)
 # and spreads (10) per rate bin, its correlation factor, the sum of the recorded NIS, rejected samples, alarms
-# (the two misfit runs re-pinned when unseen rate bins began to start at the slower bins' factor, a deliberate change)
+# (the two misfit runs re-pinned when unseen rate bins began to start at the slower bins' factor, and again when the
+# gate, the CUSUM and the adaptation began to see the update's covariance g_k R instead of the misfit along the rate,
+# unseen bins free to fall below 1: estimate within 1e-4 relative, covariance diagonal within 0.4 %; deliberate)
 _PINNED_RUNS = {
     ("white", "sample", 1): [
         0.07543606468278612, -0.9584001405327713, 0.2752790779771352, 0.925245997565091, -0.0356560709593542,
@@ -804,17 +814,17 @@ _PINNED_RUNS = {
         0.6666666666666666, 0.6666666666666666, 0.6666666666666666, 0.6666666666666666, 1.0, 1958.239626509599, 2.0,
         0.0],
     ("misfit", "sample", 1): [
-        -0.005966677792431591, -0.6163104201311825, -0.7874807075693006, 0.6324642729668699, 0.6076520718135112,
-        -0.48036226229923384, 0.7745665511604632, -0.5009195800310325, 0.3861686576677612, 1.0119664561888857,
-        0.9857730370264388, 0.9741149651357909, 0.9877400630694346, 1.0042402143584261, 0.9862249902759241,
-        -0.007122500596064421, -0.01743968743309203, 0.007336972762796667, 7.549422130428908e-09,
-        6.988683663339362e-09, 6.608839342246859e-09, 1.9211805253896784e-08, 4.9239440310269085e-08,
-        5.331359059882325e-08, 2.2196309085000678e-08, 4.9222839495196116e-08, 4.254832299328428e-08,
-        5.545659331235711e-09, 4.890554039274823e-09, 4.300800560658189e-09, 1.0, 1.0, 1.1663578367539367,
-        1.0598975582525265, 1.0254128657230457, 1.0029968937073452, 1.0184624977672139, 1.0, 1.0, 1.0,
-        0.6666666666666666, 0.6666666666666666, 0.942716142388762, 0.5729041909445466, 0.6005064437044184,
-        0.5432754550948596, 0.3802415770862962, 0.6666666666666666, 0.6666666666666666, 0.6666666666666666, 1.0,
-        1898.193812401261, 2.0, 0.0],
+        -0.005966688418500917, -0.6163102197405895, -0.7874808643215464, 0.6324642570575452, 0.6076522001483087,
+        -0.4803621209041834, 0.7745665640691972, -0.5009196709036495, 0.3861685139001056, 1.0119674771933496,
+        0.9857733758825494, 0.9741146451679322, 0.9877389912094037, 1.004239268550455, 0.9862252574539911,
+        -0.007122389912908471, -0.017439677937728996, 0.0073376864920494935, 7.570514154562522e-09,
+        7.009547152754216e-09, 6.6286345546022e-09, 1.9267408555224602e-08, 4.9361632716799975e-08,
+        5.3460014285155417e-08, 2.2260901915401537e-08, 4.934020061486542e-08, 4.2672195847177643e-08,
+        5.565851860434516e-09, 4.906278064975636e-09, 4.311410913069457e-09, 1.0, 1.0, 1.1496228351031796,
+        1.0661956959966874, 1.0304119414278068, 1.0133287250154341, 1.0, 1.0, 1.0, 1.0, 0.6666666666666666,
+        0.6666666666666666, 1.0484552730836803, 0.5803127882862308, 0.6070512559601611, 0.5422518416526041,
+        0.13030638620249024, 0.6666666666666666, 0.6666666666666666, 0.6666666666666666, 1.0, 1906.4423565478737, 2.0,
+        0.0],
     ("white", "fast", 50): [
         0.07543554925381664, -0.9584001678903784, 0.2752791239750423, 0.9252462888858595, -0.035656350180926895,
         -0.37768760847388166, 0.37179131621343664, 0.28319206005724684, 0.8840664422478736, 0.9950920121207251,
@@ -828,17 +838,17 @@ _PINNED_RUNS = {
         0.6666666666666666, 0.6666666666666666, 0.6666666666666666, 0.6666666666666666, 1.006011375653008,
         39.061697931088915, 3.0, 0.0],
     ("misfit", "fast", 50): [
-        -0.005975014486125055, -0.6162889286160144, -0.7874974639116086, 0.6324823929686897, 0.6076501735756863,
-        -0.4803408051977674, 0.7745516908421873, -0.5009483237009221, 0.386161177741556, 1.0119465799305911,
-        0.9857378385654665, 0.9739737027866868, 0.9877609098095436, 1.00427151679369, 0.9862922762240106,
-        -0.007121133355365684, -0.017503633222873616, 0.0074222951674175345, 1.1621758242330207e-08,
-        1.0796680349466357e-08, 1.0292160978651387e-08, 2.9590175830813787e-08, 7.147071282963138e-08,
-        7.907757098579799e-08, 3.423139116942473e-08, 6.962460976954168e-08, 6.410599409904548e-08,
-        1.0801843634580798e-08, 8.45962430069318e-09, 6.25414417713525e-09, 1.0, 1.0, 1.1255488741112396,
-        1.0680019760786992, 1.034202266598213, 1.0057835865402251, 1.0184624977672139, 1.0, 1.0, 1.0,
-        0.6666666666666666, 0.6666666666666666, 1.073765762939341, 0.5768384424808247, 0.6026549175808908,
-        0.5265569696526278, 0.3802415770862962, 0.6666666666666666, 0.6666666666666666, 0.6666666666666666,
-        2.6747884966740014, 13.63420224746302, 3.0, 0.0],
+        -0.005974661168985806, -0.6162890305860342, -0.787497386791374, 0.6324821939369947, 0.6076503794859016,
+        -0.48034080678543745, 0.7745518560926448, -0.500947948483638, 0.38616133303772493, 1.0119517490789494,
+        0.9857391661336111, 0.9739753647619847, 0.9877554829392144, 1.0042653287685483, 0.9862905049448304,
+        -0.007121570915410936, -0.017503301564993284, 0.007422555842869708, 1.1632771610914573e-08,
+        1.0817743677109762e-08, 1.0310085761462618e-08, 2.9635110235003285e-08, 7.153671203691989e-08,
+        7.916393523244581e-08, 3.428337352923125e-08, 6.972169720849134e-08, 6.419641147173508e-08,
+        1.0809518720882515e-08, 8.46388292416112e-09, 6.255382496537367e-09, 1.0, 1.0, 1.1417942305321644,
+        1.075478196225353, 1.0402343118861583, 1.035558499375652, 1.0, 1.0, 1.0, 1.0, 0.6666666666666666,
+        0.6666666666666666, 1.1450505750165274, 0.5854341070749928, 0.6113224849237765, 0.5381783603916194,
+        0.13030638620249024, 0.6666666666666666, 0.6666666666666666, 0.6666666666666666, 2.645771216697929,
+        13.608760293114994, 3.0, 0.0],
 }
 
 
@@ -864,3 +874,67 @@ def test_run_final_state_pinned_across_speedups(noise, mode, block):
     got, want = _pinned_state(tr, h), np.array(_PINNED_RUNS[noise, mode, block])
     np.testing.assert_array_equal(got[-2:], want[-2:])              # rejected samples, alarms
     np.testing.assert_allclose(got, want, rtol=1e-12, atol=0.0)
+
+
+def test_noise_scale_release_unseen_lets_only_unseen_bins_fall_below_one():
+    """The bins the seed window filled keep the floor 1; the others may fall to MISFIT_FLOOR; the per-sample and
+    the block learning agree, and a sample held at the white noise counts at what it implies."""
+    from fusion_gyrocal.online.adapt import MISFIT_FLOOR, NoiseScale
+
+    rng = np.random.default_rng(50)
+    ns = NoiseScale(2000, 16.27)
+    ns.learn(np.zeros(200, int), rng.chisquare(3, 200) * 0.1)         # bin 0 filled: it stays at 1
+    ns.learn(np.full(20, 5), rng.chisquare(3, 20))                      # bin 5: 20 samples only
+    ns.release_unseen()
+    assert ns.floor.tolist() == [1.0] + [MISFIT_FLOOR] * 9
+    assert ns.scale[0] == 1.0
+    one = ns.copy()
+    d2 = rng.chisquare(3, 50) * 1e-3
+    ns.learn(np.full(50, 7), d2)                                        # a fresh bin: the block's mean at once
+    assert ns.scale[7] == pytest.approx(d2.mean() / 3.0, rel=1e-12)
+    for x in d2:
+        one.learn_one(7, float(x))                                      # per sample (d2 not recomputed here)
+    assert MISFIT_FLOOR <= one.scale[7] < 1e-3
+    ns.learn(np.zeros(50, int), rng.chisquare(3, 50) * 1e-3)
+    assert ns.scale[0] == 1.0                                           # a filled bin never drops below 1
+    held = ns.copy()
+    held.learn(np.full(50, 8), d2, np.full(50, 4.0))       # a fresh bin whose samples were held at 4x their model
+    assert held.scale[8] == pytest.approx(4.0 * d2.mean() / 3.0, rel=1e-12)
+
+
+def test_run_misfit_overestimated_at_unseen_rates_is_learnt_down():
+    """A seed on slow motion whose misfit model, extrapolated to fast motion, is ~300 times too large (the MIMU
+    board's case: a fit on static poses and turns, then violent rotation): the bins the seed never reached learn
+    their factor below 1 (down to what the data say, never below the white noise), so the fast samples carry
+    their information; a tracker without that (the factor held at >= 1, as before) stays near its seed."""
+    from fusion_gyrocal.core.noise import identify_noise
+
+    rng = np.random.default_rng(49)
+    t = np.arange(0.0, 150.0, 1.0 / RATE)
+    motion = np.where((t < 60.0)[:, None], HumanMotion(rms=0.3, rng=rng)(t), HumanMotion(rms=4.0, rng=rng)(t))
+    R0 = general_rotation(rng, 15.0)
+    w1, w2, _ = simulate_drifting_pair(t, R0, 1 + rng.normal(0, 0.01, 3), 1 + rng.normal(0, 0.01, 3),
+                                       bias_1=rng.normal(0, 0.01, 3), noise_std=NOISE, omega_true_1=motion, rng=rng)
+    n0 = int(60 * RATE)
+    cal = calibrate_pair(w1[:n0], w2[:n0])
+    nm = dataclasses.replace(identify_noise(w1[:n0], w2[:n0], cal.A, cal.bias, rate_hz=RATE),
+                             kind="not white noise: rate-dependent misfit", misfit_gain=(0.0, 0.02))
+    sigma, err = {}, {}
+    for name in ("released", "held", "white"):
+        if name == "released":
+            tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0], noise_model=nm, drift=DriftNoise.constant())
+        elif name == "held":          # no seed window seen: no bin released, every factor >= 1
+            tr = GyroPairTracker(cal, t0=t[n0 - 1], seed_span_s=t[n0 - 1],
+                                 noise_model=nm, drift=DriftNoise.constant())
+        else:
+            tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0], drift=DriftNoise.constant())
+        tr.run(t[n0:], w1[n0:], w2[n0:])
+        sigma[name] = np.sqrt(np.trace(tr.error_covariance[:3, :3]))
+        err[name] = rotation_error(tr.R_1_2, R0)
+        if name == "released":
+            ns = tr._noise_scale
+            fast = ns.count[ns.floor < 1.0] >= 1000
+            assert fast.any() and np.all(ns.scale[ns.floor < 1.0][fast] < 0.05), (ns.scale, ns.count)
+    assert err["released"] < 3.0 * sigma["released"], (err, sigma)
+    assert sigma["released"] < 2.0 * sigma["white"], sigma           # the fast samples count
+    assert sigma["held"] > 5.0 * sigma["released"], sigma            # held at the model: they hardly do

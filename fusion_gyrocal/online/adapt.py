@@ -8,8 +8,8 @@ acceleration rather than the rate), is several to hundreds of times larger than 
 filter then (a) counts those samples as information they do not carry, so its covariance is far too
 small, and (b) its CUSUM sees normalised innovations far above 1 and raises step alarms on a rigid board.
 
-:class:`NoiseScale` multiplies each sample's modelled covariance by a factor ``lambda_j >= 1`` of its
-rate bin ``j`` (``|omega_1|`` in the bins :data:`EDGES`, rad/s)::
+:class:`NoiseScale` multiplies each sample's modelled covariance by a factor ``lambda_j`` (>= 1 but in the bins
+the seed did not reach, below) of its rate bin ``j`` (``|omega_1|`` in the bins :data:`EDGES`, rad/s)::
 
     Cov n(k) = lambda_j(k) R_k
 
@@ -19,7 +19,18 @@ estimated from the innovations, as adaptive Kalman filters do: ``lambda_j`` is t
 (``d_k^2 = r_k^T S_k^-1 r_k``, ``S_k`` with the current factor, ``c`` the gate's chi-square(3) quantile).
 Its fixed point is ``E[min(d^2, c)] = 3``: the statistic the CUSUM screens (:class:`~.steps.Cusum`) then has
 its nominal mean and the detector does not fire on the model error; the clip makes a burst of outliers
-count as the gate, not as its square. The factor never drops below 1 (the model's noise is a floor).
+count as the gate, not as its square.
+
+The factor never drops below 1 (the model's noise is a floor) in the bins where the model was fitted. An
+identified misfit ``g_k`` (:func:`~.ekf.inflation`) extrapolated beyond the rates of the seed window can be
+far too large, though: on the MIMU board a misfit fitted on static poses and their turns (``|omega|`` < 5
+rad/s) predicts a residual of ~36 rad/s at 37 rad/s where the data show 0.6 rad/s; a factor held at 1 keeps
+those samples, which carry most of the information, out of the estimate. So the bins the seed window did
+not reach (:meth:`NoiseScale.release_unseen`, fewer than :data:`MATURE` samples) may drop below 1, each
+sample's covariance then held at the white noise, ``max(lambda_j g_k, 1) R``; a sample held there counts in
+the running mean at what it implies, ``max(lambda_j g_k, 1) x_k / g_k`` (the argument ``held`` of
+:meth:`NoiseScale.learn`). In the bins the seed filled the factor stays >= 1: there the model was fitted,
+and a factor free to fall with the chance scatter of a few hundred samples lets the CUSUM fire on it.
 
 A bin seen for the first time starts at the largest factor of the slower bins already seen, not at 1: the
 model error grows with the rate, and a violent phase after a static start would otherwise be taken as
@@ -42,6 +53,8 @@ EDGES = (0.03, 0.1, 0.3, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)   # bin edges (rad/s): 
 CHI2_3_SPREAD = 2.0 / 3.0                  # variance of chi-square(3) / 3
 BLOCK_MEMORY = 100                          # blocks over which the correlation factor is averaged
 MATURE = 100                                # samples a bin has seen before the CUSUM screens its samples
+MISFIT_FLOOR = 1e-9                         # smallest factor of an unseen bin's misfit (a numerical guard: the white
+                                            # noise is the floor of each sample's covariance)
 
 
 class NoiseScale:
@@ -55,7 +68,7 @@ class NoiseScale:
         Clip of ``d^2`` (the gate's chi-square(3) quantile; the CUSUM's clip).
     """
 
-    __slots__ = ("memory", "clip", "_scale", "_spread", "_count", "_edges", "mature_count", "_prev", "_corr",
+    __slots__ = ("memory", "clip", "_floor", "_scale", "_spread", "_count", "_edges", "mature_count", "_prev", "_corr",
                  "_n_blocks")
 
     def __init__(self, memory: int, clip: float):
@@ -63,6 +76,7 @@ class NoiseScale:
         # per-bin state as Python lists of floats/ints: the per-sample path reads and writes one entry a
         # sample (numpy scalar indexing and arithmetic cost several times more); the block path converts
         self._scale = [1.0] * (len(EDGES) + 1)
+        self._floor = [1.0] * (len(EDGES) + 1)     # smallest factor per bin (release_unseen)
         self._spread = [CHI2_3_SPREAD] * (len(EDGES) + 1)
         self._count = [0] * (len(EDGES) + 1)
         self._edges = np.array(EDGES)
@@ -73,6 +87,7 @@ class NoiseScale:
     def copy(self) -> "NoiseScale":
         new = NoiseScale(self.memory, self.clip)
         new._scale, new._spread, new._count = list(self._scale), list(self._spread), list(self._count)
+        new._floor = list(self._floor)
         new._prev, new._corr, new._n_blocks = self._prev, self._corr, self._n_blocks
         return new
 
@@ -80,6 +95,21 @@ class NoiseScale:
     def scale(self) -> np.ndarray:
         """The factors ``lambda_j`` per bin (a copy)."""
         return np.array(self._scale)
+
+    @property
+    def floor(self) -> np.ndarray:
+        """The smallest factor per bin (a copy): 1, or :data:`MISFIT_FLOOR` in the bins :meth:`release_unseen`
+        released."""
+        return np.array(self._floor)
+
+    def release_unseen(self) -> None:
+        """Let the factor of every bin with fewer than :data:`MATURE` samples so far drop below 1 (to
+        :data:`MISFIT_FLOOR`): called at the end of the seed window when the modelled covariance carries an
+        identified misfit, whose extrapolation to rates the seed did not see may be far too large (module
+        docstring). The covariance of each sample is then held at the white noise by the caller."""
+        for j, c in enumerate(self._count):
+            if c < self.mature_count:
+                self._floor[j] = MISFIT_FLOOR
 
     @property
     def spread(self) -> np.ndarray:
@@ -127,12 +157,14 @@ class NoiseScale:
         x = np.minimum(np.nan_to_num(d2, nan=self.clip), self.clip)
         return 3.0 + (x - 3.0) / np.sqrt(np.maximum(k / CHI2_3_SPREAD, 1.0))
 
-    def learn(self, bins, d2) -> None:
-        """Update the factors from a block's normalised innovations ``d2`` (B,) (computed with the factors)."""
+    def learn(self, bins, d2, held=None) -> None:
+        """Update the factors from a block's normalised innovations ``d2`` (B,) (computed with the factors);
+        ``held`` (B,): ``max(lambda g, 1) / (lambda g)`` of samples held at the white noise (None: none)."""
         nb = len(self._scale)
         m = np.bincount(bins, minlength=nb)
         xk = np.minimum(np.nan_to_num(d2, nan=self.clip), self.clip) / 3.0
-        x = np.bincount(bins, weights=xk, minlength=nb)
+        xs = xk if held is None else xk * held
+        x = np.bincount(bins, weights=xs, minlength=nb)
         v = np.bincount(bins, weights=(xk - 1.0) ** 2, minlength=nb)
         scale, spread, count = np.array(self._scale), np.array(self._spread), np.array(self._count, dtype=np.int64)
         seen = m > 0
@@ -140,7 +172,7 @@ class NoiseScale:
         n = np.minimum(count[seen] + mm, self.memory)
         beta = np.minimum(mm / n, 1.0)
         s = scale[seen]
-        scale[seen] = np.maximum(s * (1.0 - beta + beta * x[seen] / mm), 1.0)
+        scale[seen] = np.maximum(s * (1.0 - beta + beta * x[seen] / mm), np.array(self._floor)[seen])
         spread[seen] += beta * (v[seen] / mm - spread[seen])
         count[seen] += mm
         self._scale, self._spread, self._count = scale.tolist(), spread.tolist(), count.tolist()
@@ -184,13 +216,14 @@ class NoiseScale:
         x = d2 if d2 <= self.clip else self.clip                   # NaN counts as the clip
         return x if k <= 1.0 else 3.0 + (x - 3.0) / math.sqrt(k)
 
-    def learn_one(self, j: int, d2: float) -> None:
-        """:meth:`learn` for one sample of bin ``j``."""
+    def learn_one(self, j: int, d2: float, held: float = 1.0) -> None:
+        """:meth:`learn` for one sample of bin ``j`` (``held``: as in :meth:`learn`)."""
         c = self._count[j] + 1
         self._count[j] = c
         x = (d2 if d2 <= self.clip else self.clip) / 3.0          # NaN counts as the clip
         n = c if c < self.memory else self.memory
         s = self._scale[j]
-        s += s * (x - 1.0) / n
-        self._scale[j] = s if s > 1.0 else 1.0
+        s += s * (x * held - 1.0) / n
+        f = self._floor[j]
+        self._scale[j] = s if s > f else f
         self._spread[j] += ((x - 1.0) ** 2 - self._spread[j]) / n

@@ -13,11 +13,14 @@ two are nearly isotropic: ``A`` is a rotation up to scale factors near 1)::
 
     g_k = 1 + (a + b |omega_1(k)|)^2 |omega_1(k)|^2 / (3 sigma^2),   sigma^2 = tr(R_white) / 3
 
-and a block's samples still fold into one update through their (weighted) moments. The misfit lies
-along the rate (``(a + b |omega|) omega``), so the innovations that the gate and the CUSUM screen
-(:meth:`ErrorStateEKF.innovation_d2`, :meth:`ErrorStateEKF.linearise_one`) see it there, as the rank-one
-term ``(a + b |omega|)^2 omega omega^T`` on top of the white covariance: spread over the three axes it
-would be a third of its size along the rate, and fast motion would raise false step alarms.
+and a block's samples still fold into one update through their (weighted) moments. The gate, the CUSUM
+and the noise adaptation (:meth:`ErrorStateEKF.innovation_d2`, :meth:`ErrorStateEKF.linearise_one`) see the
+same covariance ``g_k R`` the update uses: the misfit is identified from the residual's mean square
+(:func:`fusion_gyrocal.core.noise.identify_noise`), not from its direction, and a covariance screened in
+one shape but folded in another would let the adapted factor (:class:`~.adapt.NoiseScale`) that fits the
+first weigh the samples wrongly in the second. On the MIMU board about half of the fast residual lies
+across the rate, ~4000 times the white noise per axis: the factor fitted to ``R + (a + b |omega|)^2 omega
+omega^T`` (``~3000``) made the fast samples ~1e7 times too light in the isotropic update (Issue 12).
 
 Errors in variables: ``H_k`` is evaluated at the measured ``omega_2``, whose white noise is also in the
 residual; both update paths remove the resulting pull of ``A`` towards zero (:meth:`ErrorStateEKF.update_block`,
@@ -311,23 +314,13 @@ class ErrorStateEKF:
         WA = np.dot(np.linalg.inv(self.kf.R), self.A if A is None else A)
         return n * self.noise_std[1] ** 2 * np.dot(WA.T.ravel(), self.generators()[:3].reshape(3 * 3, DIM))
 
-    def innovation_d2(self, H, r, g=None, w1=None, lam=None) -> np.ndarray:
-        """Per-sample ``r_k^T (H_k P H_k^T + lambda_k R_k)^-1 r_k``: ``R_k = R`` for white noise (``g`` None),
-        else ``R + (a + b |omega_1|)^2 omega_1 omega_1^T`` (the misfit along the rate, module docstring) for
-        the gyro-1 rates ``w1`` (``g``: :meth:`inflation`, whose misfit it is); ``lam`` (B,): the adapted
-        factors of :class:`~.adapt.NoiseScale` (None: 1)."""
+    def innovation_d2(self, H, r, g=None) -> np.ndarray:
+        """Per-sample ``r_k^T (H_k P H_k^T + g_k R)^-1 r_k`` with ``g_k`` (B,) the factor of the measurement
+        covariance the update uses (:meth:`inflation` times the adapted factor of :class:`~.adapt.NoiseScale`;
+        None: 1)."""
         S = (H @ self.kf.P) @ np.swapaxes(H, 1, 2)
-        if g is not None and self._mis is not None:
-            a, b, _ = self._mis
-            sq = np.einsum("ka,ka->k", w1, w1)
-            m = a + b * np.sqrt(sq)
-            Rk = (m * m)[:, None, None] * w1[:, :, None] * w1[:, None, :]
-            Rk += self.kf.R
-            if lam is not None:
-                Rk *= lam[:, None, None]
-            S += Rk
-        elif lam is not None:
-            S += self.kf.R * lam[:, None, None]          # one (B, 3, 3) temporary
+        if g is not None:
+            S += self.kf.R * g[:, None, None]          # one (B, 3, 3) temporary
         else:
             S += self.kf.R
         return np.einsum("ka,ka->k", r, np.linalg.solve(S, r[:, :, None])[:, :, 0])
@@ -351,10 +344,11 @@ class ErrorStateEKF:
 
     def linearise_one(self, w1, w2, lam: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
         """One sample's ``(H, r, S, d2, g)`` with the adapted factor ``lam`` (:class:`~.adapt.NoiseScale`) on its
-        measurement covariance: Jacobian (3, 12), residual (3,), innovation covariance (with the
-        misfit along the rate, as :meth:`innovation_d2`), ``r^T S^-1 r`` and the measurement covariance's
-        factor :meth:`inflation` of the update, with scalar arithmetic and a reused Jacobian buffer (the
-        per-sample hot path; the same values as :meth:`linearise`, :meth:`inflation` and :meth:`innovation_d2`)."""
+        measurement covariance: Jacobian (3, 12), residual (3,), innovation covariance ``H P H^T + g_s R``,
+        ``r^T S^-1 r`` and ``g = lam`` times :meth:`inflation` (``g_s = max(g, 1)``: the covariance the
+        update uses, never below the white one), with scalar arithmetic and a reused Jacobian
+        buffer (the per-sample hot path; the same values as :meth:`linearise`, :meth:`inflation` and
+        :meth:`innovation_d2`)."""
         (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = self.R.tolist()
         a0, a1, a2 = self.s1.tolist()
         c0, c1, c2 = self.s2.tolist()
@@ -376,24 +370,19 @@ class ErrorStateEKF:
         S = np.dot(np.dot(H, self.kf.P), H.T)     # np.dot: less call overhead than @ on tiny arrays
         if self._mis is None:
             g = lam
-            if lam == 1.0:
-                S += self.kf.R
-            else:
-                R = self.kf.R
-                gR = lam * R
-                S += gR
-                self._gR = (lam, R, gR)            # the update's measurement covariance (update_one)
         else:
             a, b, c = self._mis
             sq = y0 * y0 + y1 * y1 + y2 * y2
             m = a + b * math.sqrt(sq)
             g = (1.0 + c * (m * m) * sq) * lam
-            mm = m * m        # lam (R + m^2 omega_1 omega_1^T) entry by entry (no temporaries)
-            (q00, q01, q02), (q10, q11, q12), (q20, q21, q22) = self._R_rows
-            S += np.array((lam * (q00 + mm * (y0 * y0)), lam * (q01 + mm * (y0 * y1)), lam * (q02 + mm * (y0 * y2)),
-                           lam * (q10 + mm * (y1 * y0)), lam * (q11 + mm * (y1 * y1)), lam * (q12 + mm * (y1 * y2)),
-                           lam * (q20 + mm * (y2 * y0)), lam * (q21 + mm * (y2 * y1)), lam * (q22 + mm * (y2 * y2))
-                           )).reshape(3, 3)
+        gs = g if g > 1.0 else 1.0                 # the covariance is never below the white noise
+        if gs == 1.0:
+            S += self.kf.R
+        else:
+            R = self.kf.R
+            gR = gs * R
+            S += gR
+            self._gR = (gs, R, gR)                 # the update's measurement covariance (update_one)
         return H, np.array((e0, e1, e2)), S, _quadratic_3(S, e0, e1, e2), g
 
     def update_one(self, H, r, g: float = 1.0) -> None:

@@ -214,8 +214,9 @@ class GyroPairTracker:
     noise_model : NoiseModel, None or "seed", optional
         The pair's identified noise (:func:`fusion_gyrocal.core.noise.identify_noise`). When its residual is
         a rate-dependent misfit (``kind`` says so), each sample's measurement covariance is its white
-        ``noise_std`` plus the misfit's variance ``(a + b |omega|)^2 |omega|^2`` along the rate
-        (``misfit_gain``; :mod:`.ekf`), so fast motion does not raise false step alarms. Otherwise the
+        ``noise_std`` plus the misfit's variance ``(a + b |omega|)^2 |omega|^2`` spread over the axes
+        (``misfit_gain``; :mod:`.ekf`), so fast motion does not raise false step alarms (the factor adapted per
+        rate bin, :mod:`.adapt`, corrects its level, also where the seed never reached). Otherwise the
         measurement noise is white, from ``calibration.noise_std``. Default ``"seed"``: the
         calibration's own ``noise_model`` (what :func:`fusion_gyrocal.calibrate_pair` identified), if it
         carries one; None: white noise whatever the seed carries.
@@ -329,10 +330,24 @@ class GyroPairTracker:
             return
         for s, e in _blocks(t, self._config.block_size, None):
             H, r = f.linearise(w1[s:e], w2[s:e])
-            g = f.inflation(w1[s:e])
             bins = ns.bins(w1[s:e])
-            lam = ns.factors(bins)
-            ns.learn(bins, f.innovation_d2(H, r, g, w1[s:e], lam))
+            g, held = self._factors(f.inflation(w1[s:e]), ns.factors(bins))
+            ns.learn(bins, f.innovation_d2(H, r, g), held)
+        if self._misfit != (0.0, 0.0):
+            ns.release_unseen()        # the misfit extrapolated beyond the seed's rates: free to fall below 1
+
+    @staticmethod
+    def _factors(g, lam):
+        """The measurement covariance's factors (B,) of a block, ``max(lambda_j g_k, 1)`` (never below the white
+        noise), from the misfit's :meth:`~.ekf.ErrorStateEKF.inflation` ``g`` (None: white) and the adapted
+        ``lam``, and ``held``: ``max(lambda_j g_k, 1) / (lambda_j g_k)`` (None when no sample is held)."""
+        if g is None:
+            return lam, None              # white noise: lam >= 1
+        g = g * lam
+        if g.min() >= 1.0:
+            return g, None
+        gs = np.maximum(g, 1.0)
+        return gs, gs / g
 
     def _seed(self, cal: PairCalibration, t: float, span_s: float = 0.0) -> None:
         """Start the filter from a calibration at time ``t`` (construction, re-seed)."""
@@ -611,12 +626,11 @@ class GyroPairTracker:
         H, r = f.linearise(w1, w2)
         g = f.inflation(w1)
         ns = self._noise_scale
-        bins = lam = None
+        bins = held = None
         if ns is not None:
             bins = ns.bins(w1)
-            lam = ns.factors(bins)
-            g = lam if g is None else g * lam
-        d2 = f.innovation_d2(H, r, g, w1, lam)
+            g, held = self._factors(g, ns.factors(bins))
+        d2 = f.innovation_d2(H, r, g)
         alarm = None
         if self._alarm is None and not self._replaying:
             screened = None if ns is None else ns.mature(bins)
@@ -630,9 +644,9 @@ class GyroPairTracker:
                     alarm = (float(t[screened][alarm[0]]), alarm[1])
         if alarm is not None:
             self._raise_alarm(*alarm)
-            d2 = f.innovation_d2(H, r, g, w1, lam)     # covariance opened by the step prior
+            d2 = f.innovation_d2(H, r, g)              # covariance opened by the step prior
         elif ns is not None and self._alarm is None:
-            ns.learn(bins, d2)                         # never while a step is suspected
+            ns.learn(bins, d2, held)                   # never while a step is suspected
         keep = self._gate.keep(d2, fresh=alarm is not None)
         n_used = int(np.count_nonzero(keep))
         self._n_rejected += B - n_used
@@ -677,10 +691,10 @@ class GyroPairTracker:
             self._raise_alarm(t, alarm[1])
             H, r, S, d2, g = f.linearise_one(w1, w2, lam)    # covariance opened by the step prior
         elif ns is not None and self._alarm is None:
-            ns.learn_one(j, d2)
+            ns.learn_one(j, d2, 1.0 if g >= 1.0 else 1.0 / g)   # (a sample held at the white noise: 1 / g)
         used = self._gate.keep_one(d2, fresh=alarm is not None)
         if used:
-            f.update_one(H, r, g)
+            f.update_one(H, r, g if g > 1.0 else 1.0)
         else:
             self._n_rejected += 1
         if not self._replaying:
