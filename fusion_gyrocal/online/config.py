@@ -139,8 +139,9 @@ class TrackerConfig(FrozenOptions):
     noise_memory : int
         Samples per rate bin over which the tracker adapts its measurement noise to the innovations
         (:class:`~fusion_gyrocal.online.adapt.NoiseScale`: a factor of the modelled covariance per
-        ``|omega|`` bin, >= 1 but below 1 allowed where the seed window did not reach, so that the normalised innovations the CUSUM screens stay near 1 and the covariance
-        covers the model error). 0: no adaptation (the modelled noise as it is).
+        ``|omega|`` bin, >= 1 except where the seed window did not reach, so that the normalised innovations
+        the CUSUM screens stay near 1 and the covariance covers the model error). 0: no adaptation (the
+        modelled noise as it is).
     history_max_rows : int or None
         Bound on the rows of the tracker's history (264 bytes each). When reached, every other row
         is dropped and then only every 2nd (4th, ...) update is recorded: memory stays flat over
