@@ -189,3 +189,20 @@ def test_streaming_calibrator_sliding_window_bins_give_the_robust_covariance():
         bases.append(sc.estimate().covariance_basis)
     assert bases[0].startswith("noise model raised") and "32 windows" in bases[0]
     assert "not significantly larger" in bases[1]
+
+
+def test_basis_kind_reads_back_every_text_choose_and_inflated_write():
+    from fusion_gyrocal.core.moments import WindowStats
+    from fusion_gyrocal.core.robust import basis_kind, choose, inflated
+
+    rng = np.random.default_rng(4)
+    W = 200
+    stats = WindowStats(np.full(W, 100.0), np.zeros((W, 6)), np.zeros((W, 6, 6)), np.zeros(W, int), 100)
+    P = np.eye(3)
+    model = "noise model (inverse Fisher information, Appendix B)"
+    assert basis_kind(choose(P, 0.5 * P, stats, "robust", model, 1.0)[2]) == "robust"
+    assert basis_kind(choose(P, 50.0 * P, stats, "auto", model, 1.0)[2]) == "raised"
+    small = P + 0.01 * np.diag(rng.random(3))
+    assert basis_kind(choose(P, small, stats, "auto", model, 1.0)[2]) == "checked"
+    assert basis_kind(inflated(P, 2.5, model, "flex")[1]) == "inflated"
+    assert basis_kind(model) == "model"

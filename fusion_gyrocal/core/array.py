@@ -829,10 +829,9 @@ def solve_array(moments: ArrayMoments, *, reference: int = 0, noise_std=None, ga
         P, inflation, basis, more = choose(P, P_rob, windows, covariance, basis, ratio)
         notes += more
     elif user_noise is not None and ratio > 1.5:
-        P = P * ratio
-        basis += f", inflated by the residual's chi2/dof {ratio:.3g}"
-        notes.append(f"residuals are {np.sqrt(ratio):.2f}x larger than noise_std explains (flex, skew, timing "
-                     f"or a wrong noise_std?); covariance inflated by {ratio:.2f}")
+        from .robust import inflated
+        P, basis, note = inflated(P, ratio, basis, "flex, skew, timing")
+        notes.append(note)
 
     # biases against the reference (Eq. 5, 12) and the full covariance
     means = moments.mean.reshape(n, 3)

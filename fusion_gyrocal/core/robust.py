@@ -144,6 +144,34 @@ def larger(P_model, P_robust, n_effective: float | None = None, rtol: float = 1e
     return 0.5 * (P + P.T), float(mu.max())
 
 
+# the covariance_basis texts: written here and read back by basis_kind (one place for both)
+_RAISED = "noise model raised to the block-robust sandwich"
+_ROBUST = "block-robust (sandwich"
+_CHECKED = "is not significantly larger"
+_INFLATED = ", inflated by the residual's chi2/dof"
+
+
+def basis_kind(basis: str) -> str:
+    """What a ``covariance_basis`` text (:func:`choose`, :func:`inflated`) says was reported: "raised" (the noise
+    model raised to the block-robust covariance where larger), "robust" (asked for), "checked" (the noise model;
+    the block-robust check agrees), "inflated" (by the residual's chi2/dof) or "model" (no check)."""
+    if basis.startswith(_RAISED):
+        return "raised"
+    if basis.startswith(_ROBUST):
+        return "robust"
+    if basis.endswith(_CHECKED):
+        return "checked"
+    return "inflated" if _INFLATED in basis else "model"
+
+
+def inflated(P, lack_of_fit: float, basis: str, what: str):
+    """The covariance ``P`` inflated by the residual's chi-square per dof (a user's noise that the residual
+    exceeds, with no block-robust check), its basis text and note; ``what`` lists the usual causes."""
+    return (P * lack_of_fit, basis + f"{_INFLATED} {lack_of_fit:.3g}",
+            f"residuals are {np.sqrt(lack_of_fit):.2f}x larger than noise_std explains ({what} or a wrong noise_std?); "
+            f"covariance inflated by {lack_of_fit:.2f}")
+
+
 def choose(P_model, P_robust, windows: WindowStats, covariance: str, model_basis: str, lack_of_fit: float):
     """What is reported for ``covariance`` ("auto", "robust"; "model" never gets here): the covariance, the
     largest variance ratio, the ``covariance_basis`` text and the notes (one place for the pair and the array)."""
@@ -155,11 +183,10 @@ def choose(P_model, P_robust, windows: WindowStats, covariance: str, model_basis
                      f"(residual chi2/dof {lack_of_fit:.3g}: rate-dependent scale or cross-axis error, coloured noise, "
                      "timing, flex); the covariance is the block-robust one in those directions")
     if covariance == "robust":
-        return P_robust, inflation, f"block-robust (sandwich over {where})", notes
+        return P_robust, inflation, f"{_ROBUST} over {where})", notes
     if P_max is not P_model:
-        return (P_max, inflation, f"noise model raised to the block-robust sandwich ({where}) where that is "
-                "significantly larger", notes)
-    return P_model, inflation, f"{model_basis}; the block-robust sandwich ({where}) is not significantly larger", notes
+        return P_max, inflation, f"{_RAISED} ({where}) where that is significantly larger", notes
+    return P_model, inflation, f"{model_basis}; the block-robust sandwich ({where}) {_CHECKED}", notes
 
 
 def bias_variance(A, bias, stats: WindowStats, lags: int = LAGS) -> np.ndarray:

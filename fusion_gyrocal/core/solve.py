@@ -19,8 +19,8 @@ from .moments import Moments, WindowStats, noise_pair
 from .observability import (PRIOR_GAUGE, A_of, check_excitation, check_samples, classify, dA_dp, fisher_information,
                             per_axis_snr, prior_held_covariance, residual_weight, signal_scatter)
 from .refine import residual_scatter, refine_ml
-from .robust import (MIN_ROBUST_WINDOWS, bias_variance, choose, cross_axis, effective_windows, larger, sandwich,
-                     score_variance, window_scores)
+from .robust import (MIN_ROBUST_WINDOWS, bias_variance, choose, cross_axis, effective_windows, inflated, larger,
+                     sandwich, score_variance, window_scores)
 
 
 def _residual_noise(moments: Moments, A, ratio: float = 1.0) -> tuple[float, float]:
@@ -216,11 +216,9 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         raise OptionError("covariance='robust': expected per-window statistics (windows=...) of an 'ml' solve of a "
                           f"rigid pair with at least {MIN_ROBUST_WINDOWS} windows; calibrate_pair computes them")
     elif noise_source == "user" and lack_of_fit > 1.5:
-        P9 = P9 * lack_of_fit
+        P9, basis, note = inflated(P9, lack_of_fit, basis, "flex, skew, time offset")
         Sigma_r = Sigma_r * lack_of_fit
-        basis += f", inflated by the residual's chi2/dof {lack_of_fit:.3g}"
-        notes.append(f"residuals are {np.sqrt(lack_of_fit):.2f}x larger than noise_std explains (flex, skew, time "
-                     f"offset or a wrong noise_std?); covariance inflated by {lack_of_fit:.2f}")
+        notes.append(note)
     E, cross_chi2, cross_dof = np.zeros((3, 3)), float("nan"), 0
     if rigid:
         E, cross_chi2, cross_dof = cross_axis(A_ls, R, s1, s2, moments, noise, windows)

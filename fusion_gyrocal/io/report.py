@@ -15,6 +15,7 @@ import numpy as np
 
 from ..pipeline.pipeline import PipelineRun
 from ..core.model import PairCalibration
+from ..core.robust import basis_kind
 
 
 def _figure(nrows=1, ncols=1, **kw):
@@ -195,17 +196,17 @@ def uncertainty_basis(cal) -> str:
     chi = f"residual chi2/dof {lack:.3g}" if np.isfinite(lack) else "no residual chi2"
     worst = (f"std x{np.sqrt(cal.robust_inflation):.3g} in the worst direction"
              if np.isfinite(cal.robust_inflation) else "")
-    basis = cal.covariance_basis
-    if basis.startswith("noise model raised"):
+    kind = basis_kind(cal.covariance_basis)
+    if kind == "raised":
         cov = f"raised to the block-robust covariance where larger ({worst}; {chi})"
-    elif basis.startswith("block-robust"):
+    elif kind == "robust":
         cov = f"block-robust covariance as asked ({worst} against the noise model; {chi})"
-    elif "not significantly larger" in basis:
+    elif kind == "checked":
         cov = f"covariance from the noise model; the block-robust check agrees ({worst}; {chi})"
-    elif "inflated by" in basis:
+    elif kind == "inflated":
         cov = "covariance from the noise model inflated by the residual's chi2/dof (see the note)"
     else:
-        cov = f"covariance from the {basis} alone, no block-robust check ({chi})"
+        cov = f"covariance from the {cal.covariance_basis} alone, no block-robust check ({chi})"
     return f"uncertainty: {noise}, {cov}"
 
 
