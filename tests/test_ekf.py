@@ -639,6 +639,18 @@ def test_seed_window_skips_rest_and_prefers_the_earliest_well_excited_stretch():
     assert seed_window(w, w, 5000) == (0, 1000)
 
 
+def test_seed_window_leaves_a_seed_length_to_track_when_the_motion_peaks_at_the_end():
+    # the MIMU sessions: moderate motion, then the most violent stretch at the very end of the log
+    from fusion_gyrocal.online.figures import seed_window
+
+    rng = np.random.default_rng(2)
+    w = rng.normal(0, 1.0, (2000, 3))
+    w[1600:] *= 30.0
+    a, b = seed_window(w, w, 400)
+    assert b - a == 400 and b <= 2000 - 400           # a seed's length left to track
+    assert seed_window(w, w, 1200)[1] == 2000          # a log shorter than two seeds: the best stretch, as before
+
+
 # ---------------------------------------------------------------------------- identified noise: rate-dependent misfit
 def test_update_block_with_misfit_equals_stacked_update():
     """With the misfit's per-sample covariance g_k R the weighted moments give the stacked update exactly."""

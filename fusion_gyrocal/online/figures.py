@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import textwrap
+
 import numpy as np
 
+from ..core.moments import finite_rows
 from ..errors import InputError
 from ..lie import log
 from .config import DriftNoise
@@ -74,7 +77,10 @@ def seed_window(omega_1, omega_2, size: int, *, share: float = 0.8) -> tuple[int
     The log is cut into quarter-size pieces (:func:`~fusion_gyrocal.core.moments.window_moments`); each
     run of four consecutive pieces is a candidate, scored by the smallest eigenvalue of gyro 1's centred
     scatter over it (the excitation of its weakest direction, Lemma 1). The earliest candidate scoring at
-    least ``share`` of the best is returned, so a log that starts at rest is not seeded on the rest.
+    least ``share`` of the best is returned, so a log that starts at rest is not seeded on the rest. When
+    the log is at least twice ``size`` long, only candidates that leave ``size`` samples after them are
+    considered: a log whose most violent motion is at its end (the MIMU sessions) is not seeded there
+    with nothing left to track.
     """
     from ..core.moments import Moments, window_moments
 
@@ -86,8 +92,11 @@ def seed_window(omega_1, omega_2, size: int, *, share: float = 0.8) -> tuple[int
     pieces = window_moments(omega_1, omega_2, quarter, with_starts=True)
     if len(pieces) < 4:
         return 0, size
+    last = len(pieces) - 3
+    if n >= 2 * size:                       # leave at least a seed's length to track
+        last = max(1, min(last, sum(1 for st, _ in pieces if st + 4 * quarter <= n - size)))
     scores = [np.linalg.eigvalsh(Moments.merge_all(m for _, m in pieces[i:i + 4]).S11)[0]
-              for i in range(len(pieces) - 3)]
+              for i in range(last)]
     best = int(np.flatnonzero(np.asarray(scores) >= share * max(scores))[0])
     start = pieces[best][0]
     return start, min(start + 4 * quarter, n)
@@ -121,7 +130,7 @@ def track_figure_for_report(run, *, seed_fraction: float = 0.2, rate_hz: float =
     w1, w2 = np.asarray(run.omega_1, float), np.asarray(run.omega_2, float)
     n = w1.shape[0]
     t = np.arange(n) / float(rate_hz) if run.t is None else np.asarray(run.t, float)
-    keep = np.isfinite(w1).all(axis=1) & np.isfinite(w2).all(axis=1)
+    keep = finite_rows(w1) & finite_rows(w2)
     if run.valid is not None:
         keep = keep & np.asarray(run.valid, bool)       # never modify the run's arrays
     t, w1, w2 = t[keep], w1[keep], w2[keep]
@@ -134,5 +143,6 @@ def track_figure_for_report(run, *, seed_fraction: float = 0.2, rate_hz: float =
         block_size = max(1, int(round(1.0 / float(np.median(np.diff(t))))))
     h = tracker.run(t[b:], w1[b:], w2[b:], block_size=block_size) if b < t.size else tracker.history()
     where = f"{t[a] - t[0]:.0f}-{t[b - 1] - t[0]:.0f} s"
-    return plot_history(h, title=f"Drift tracking (EKF, seeded on {100 * seed_fraction:.0f} % of the log at {where}; "
-                                 f"{len(h.reseeds)} step alarm(s); gauge: {h.gauge})")
+    title = (f"Drift tracking (EKF, seeded on {100 * seed_fraction:.0f} % of the log at {where}; "
+             f"{len(h.reseeds)} step alarm(s); gauge: {h.gauge})")
+    return plot_history(h, title=textwrap.fill(title, 130))
