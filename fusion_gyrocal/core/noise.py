@@ -77,7 +77,7 @@ def difference_noise_std(omega, mask=None, *, max_samples: int = NOISE_SPLIT_SAM
     else:
         spans = [(0, n)]
     x = np.concatenate([np.asarray(w[a:b], dtype=np.float64) for a, b in spans])
-    if mask is None and x.shape[0] > 3 and np.isfinite(x.sum()):   # every block whole: differenced at once, (3, blocks, length)
+    if mask is None and x.shape[0] > 3 and np.isfinite(x.sum()):   # all whole: differenced at once, (3, blocks, len)
         x = np.ascontiguousarray(x.T).reshape(3, len(spans), -1)
         parts = [((x[..., 3:] - x[..., :-3]) - 3.0 * (x[..., 2:-1] - x[..., 1:-2])).reshape(3, -1)]
     else:
