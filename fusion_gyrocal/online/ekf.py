@@ -407,7 +407,7 @@ class ErrorStateEKF:
             if c is None or c[0] != g:
                 c = self._eiv_g = (g, self._eiv / g)
             c = c[1]
-        self._fold(x[:, 0] + np.dot(P, c))        # filterpy's x (12, 1), flat
+        self._fold(x[:, 0] + np.dot(P, c), project=self._held is not None)   # filterpy's x (12, 1), flat
 
     def update_sample(self, H, r, g: float = 1.0) -> None:
         """One sample's update (3-d measurement through filterpy), then the fold; ``g``: its :meth:`inflation`
@@ -491,8 +491,14 @@ class ErrorStateEKF:
         """
         self._fold(self.kf.x[:, 0])
 
-    def _fold(self, x) -> None:
-        """:meth:`fold` of the error state ``x`` (12,) (the per-sample path passes its own, flat)."""
+    def _fold(self, x, project: bool = True) -> None:
+        """:meth:`fold` of the error state ``x`` (12,) (the per-sample path passes its own, flat).
+
+        ``project=False`` (the per-sample path, no hold covariance) skips the projection of ``P``
+        between re-linearisations: a Kalman update keeps ``P`` in the projector's range (its gain
+        ``P H^T S^-1`` lies there, and so does the projected process noise), so that projection only
+        removed rounding; it is done at every re-linearisation instead (results equal to ~1e-15).
+        """
         e = np.exp(np.dot(self._T, x[LOG]))      # never move a held direction
         t0, t1, t2 = x[ROT].tolist()
         self.R = np.dot(exp3(t0, t1, t2), self.R)
@@ -500,13 +506,16 @@ class ErrorStateEKF:
         self.s1, self.s2 = s[:3], s[3:]
         self.b = self.b + x[BIAS]
         self.kf.x = _ZERO_X            # filterpy's updates return a new state: sharing the zero is safe
-        self.kf.P = self.project(self.kf.P)
+        if project:
+            self.kf.P = self.project(self.kf.P)
         self._G = None
         self._folds += 1
         if self._folds >= REFRESH:
             self.s1, self.s2 = self.hold.express(self.s1, self.s2)
             self._s12 = np.concatenate((self.s1, self.s2))
             self.relinearise()
+            if not project:
+                self.kf.P = self.project(self.kf.P)      # with the new projector
 
     def open_step(self, bias_only: bool = False) -> None:
         """Add the step prior to the covariance (a step change is suspected); ``bias_only``: its bias part
