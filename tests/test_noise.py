@@ -200,3 +200,38 @@ def test_identify_noise_long_log_on_stretches_keeps_the_walk():
     np.testing.assert_allclose(nm.noise_std, PAPER_NOISE_STD, rtol=0.1)
     assert nm.bias_model == "random walk"
     assert 0.5 * walk < nm.bias_walk_std[0] < 2.0 * walk
+
+
+def test_identify_noise_two_rate_pair_each_sensors_own_density():
+    # gyro 1 at 100 Hz, gyro 2 at 400 Hz spline-resampled onto gyro 1's grid (a fractional offset): the grid's
+    # noise of gyro 2 is aliased (no anti-alias filter) and its per-sample level is not the sensor's; referred
+    # back through the Resampling, both densities are the sensors' own; without it gyro 2's is ~1.9x too large
+    from fusion_gyrocal.evaluate.sim import general_rotation
+    from fusion_gyrocal.pipeline.pipeline import run_pipeline
+
+    rng = np.random.default_rng(3)
+    motion = HumanMotion(0.8, rng=rng)
+    R = general_rotation(rng, 15.0)
+    sigma, rates = (0.002, 0.006), (100.0, 400.0)
+    t1, t2 = np.arange(0, 150.0, 1 / rates[0]), np.arange(0.0031, 150.0, 1 / rates[1])
+    w1 = motion(t1) + rng.normal(0, sigma[0], (t1.size, 3))
+    w2 = motion(t2 + 0.0213) @ R + rng.normal(0, sigma[1], (t2.size, 3))
+    run = run_pipeline(w1, w2, t_1=t1, t_2=t2)
+    nm = run.calibration.noise_model
+    truth = np.array(sigma) / np.sqrt(rates)
+    assert nm.sensor_rates == pytest.approx(rates, rel=1e-6)
+    np.testing.assert_allclose(nm.noise_density, truth, rtol=0.1)
+    A, b = solve_A(Moments.from_samples(run.omega_1, run.omega_2, mask=run.valid))
+    grid_only = identify_noise(run.omega_1, run.omega_2, A, b, rate_hz=rates[0], mask=run.valid)
+    assert grid_only.noise_density[1] / truth[1] > 1.5
+
+
+def test_noise_factors_decimation_aliases_and_interpolation_smooths():
+    from fusion_gyrocal.pipeline.resample import noise_factors
+
+    t = np.arange(100_000) / 200.0
+    variance, diff3, density, white_from = noise_factors(t, np.arange(40_000) / 100.0 + 0.1)   # every other sample
+    assert variance == pytest.approx(1.0, abs=0.02) and diff3 == pytest.approx(1.0, abs=0.02)
+    assert density == pytest.approx(2.0, rel=0.05) and white_from == 1                    # aliased: twice the density
+    variance, diff3, density, white_from = noise_factors(np.arange(50_000) / 100.0, np.arange(80_000) / 200.0 + 0.1)
+    assert variance < 0.95 and diff3 < 0.1 and density == pytest.approx(1.0, rel=0.05) and white_from > 4

@@ -322,20 +322,15 @@ def test_write_kalibr_imu_configs_per_sample_model_converted_with_update_rate(tm
             assert "no timestamps" in p.read_text()
 
 
-def test_write_kalibr_imu_configs_resampled_gyro_split_by_third_differences_not_written(walking_pair, tmp_path):
-    # gyro 2 at half gyro 1's rate, interpolated onto its grid: third differences of the interpolated stream are
-    # smoothed, so their split of the residual's white noise is no sensor figure; the combined one is in the header
+def test_write_kalibr_imu_configs_resampled_gyro_writes_its_own_density_and_rate(walking_pair, tmp_path):
+    # gyro 2 at half gyro 1's rate, interpolated onto its grid: its figure is the sensor's own density at its own
+    # rate (identify_noise with a Resampling), not the grid's per-sample noise over the grid's rate
     cal, _, _ = walking_pair
-    nm = dataclasses.replace(cal.noise_model, sources={**cal.noise_model.sources,
-                                                        "split": "third differences of each stream (ratio 4.8)"})
+    own = (1.1e-4, 3.3e-4)
+    nm = dataclasses.replace(cal.noise_model, rates_hz=(100.0, 50.0), densities=own)
     resampled = dataclasses.replace(cal, noise_model=nm)
     for i, p in enumerate(write_kalibr_imu_configs(resampled, tmp_path / "r", update_rate=[100.0, 50.0])):
         got, text = kalibr_imu_parameters(p), p.read_text()
-        assert got["gyroscope_noise_density"] == 1.6968e-4
-        assert "could not be split" in _comment(text, "gyroscope_noise_density")
-        assert got["gyroscope_random_walk"] == nm.random_walk[i]          # the walk split is equal anyway
-        assert "resampled from 50 Hz onto gyro 1's 100 Hz grid" in " ".join(text.replace("\n#", " ").split())
-        assert f"{nm.residual_noise_std / 10.0:.4g}" in text
-    # the same model with both gyros at the grid's rate: written
-    p0, _ = write_kalibr_imu_configs(resampled, tmp_path / "s", update_rate=100.0)
-    assert kalibr_imu_parameters(p0)["gyroscope_noise_density"] == nm.noise_density[0]
+        assert got["gyroscope_noise_density"] == own[i]
+        assert got["gyroscope_random_walk"] == nm.random_walk[i]          # walk steps per grid sample
+        assert f"per sample at its {(100.0, 50.0)[i]:.6g} Hz = gyroscope_noise_density {own[i]:.4g}" in text

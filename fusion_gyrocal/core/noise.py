@@ -100,6 +100,33 @@ def difference_noise_std(omega, mask=None, *, max_samples: int = NOISE_SPLIT_SAM
 
 
 @dataclass(frozen=True)
+class Resampling:
+    """How each stream of an aligned pair reached the grid (:func:`~fusion_gyrocal.pipeline.resample.noise_factors`).
+
+    Attributes
+    ----------
+    rates_hz : tuple of float
+        Each gyro's own sample rate (Hz).
+    variance : tuple of float
+        Variance of each stream's white noise on the grid over that at its own samples (1: not resampled).
+    diff3 : tuple of float
+        The same for its third differences (against the 20 sigma^2 of white noise).
+    density : tuple of float
+        Each stream's low-frequency noise density on the grid over its own (1 when upsampled; about
+        ``variance f_own / f_grid`` when downsampled: aliasing).
+    white_from : int
+        Grid samples from which the interpolated noise's Allan variance is within 5 % of its white line (the
+        residual's Allan fit starts there).
+    """
+
+    rates_hz: tuple
+    variance: tuple = (1.0, 1.0)
+    diff3: tuple = (1.0, 1.0)
+    density: tuple = (1.0, 1.0)
+    white_from: int = 1
+
+
+@dataclass(frozen=True)
 class NoiseModel:
     """Noise of a gyro pair identified from its residual (:func:`identify_noise`).
 
@@ -149,6 +176,13 @@ class NoiseModel:
     rate_known : bool
         False when the input had no sample rate (sample-aligned arrays): ``rate_hz`` is then 1 and
         the times are in samples; the per-sample figures hold at any rate, the densities need one.
+    rates_hz : tuple of float or None
+        Each gyro's own sample rate when a stream was resampled onto the grid (:class:`Resampling`); None:
+        both at ``rate_hz``.
+    densities : tuple of float or None
+        Each gyro's own white rate-noise density (rad/s/sqrt(Hz)) when a stream was resampled (interpolation
+        changes the noise per grid sample, not the density at low frequencies); None: ``noise_std /
+        sqrt(rate_hz)``.
     """
 
     rate_hz: float
@@ -173,6 +207,8 @@ class NoiseModel:
     sources: dict = field(default_factory=dict)
     notes: tuple = ()
     rate_known: bool = True
+    rates_hz: tuple | None = None
+    densities: tuple | None = None
 
     @property
     def is_white(self) -> bool:
@@ -181,8 +217,16 @@ class NoiseModel:
 
     @property
     def noise_density(self) -> tuple:
-        """White rate noise density of each gyro, ``noise_std / sqrt(rate_hz)`` (rad/s/sqrt(Hz))."""
+        """White rate noise density of each gyro (rad/s/sqrt(Hz)): ``noise_std / sqrt(rate_hz)``, or the sensor's
+        own (``densities``) when a stream was resampled onto the grid."""
+        if self.densities is not None:
+            return tuple(float(d) for d in self.densities)
         return tuple(float(s / np.sqrt(self.rate_hz)) for s in self.noise_std)
+
+    @property
+    def sensor_rates(self) -> tuple:
+        """Each gyro's own sample rate (Hz): ``rates_hz``, or ``rate_hz`` for both."""
+        return tuple(float(r) for r in (self.rates_hz or (self.rate_hz, self.rate_hz)))
 
     @property
     def random_walk(self) -> tuple | None:
@@ -225,7 +269,8 @@ class NoiseModel:
             kw = dict(d)
             for name in ("taus", "adev_fit", "adev"):
                 kw[name] = from_json_list(kw[name], np.float64)
-            for name in ("noise_std", "noise_std_uncertainty", "misfit_gain", "fit_taus", "bias_walk_std"):
+            for name in ("noise_std", "noise_std_uncertainty", "misfit_gain", "fit_taus", "bias_walk_std", "rates_hz",
+                         "densities"):
                 if kw.get(name) is not None:
                     kw[name] = tuple(num(x) for x in kw[name])
             for name in ("rate_hz", "residual_noise_std", "residual_noise_std_uncertainty", "residual_walk_std",
@@ -475,13 +520,13 @@ def _wls(taus, avar, edf, terms):
     return coef, cov, chi2, pred
 
 
-def _fit_allan(taus, avar, edf):
+def _fit_allan(taus, avar, edf, first: int = 0):
     """Forward selection of the terms (white first, then the walk and the flicker term while each lowers
-    the chi-square by more than :data:`SIGNIFICANT_CHI2`). While the shortest tau is off the fitted curve by
-    more than a factor :data:`COLOURED_FACTOR` in variance, or the white term does not dominate the three shortest (coloured
-    noise: the standard terms do not describe it), it is dropped and the fit repeated. Returns coefficients, covariance, the index of the
-    first tau used, the predicted AVAR."""
-    lo = 0
+    the chi-square by more than :data:`SIGNIFICANT_CHI2`), from the tau of index ``first`` on. While the shortest
+    tau is off the fitted curve by more than a factor :data:`COLOURED_FACTOR` in variance, or the white term does
+    not dominate the three shortest (coloured noise: the standard terms do not describe it), it is dropped and
+    the fit repeated. Returns coefficients, covariance, the index of the first tau used, the predicted AVAR."""
+    lo = min(int(first), max(taus.size - 6, 0))
     while True:
         t, a, e = taus[lo:], avar[lo:], edf[lo:]
         terms = [0]
@@ -500,7 +545,8 @@ def _fit_allan(taus, avar, edf):
 
 
 # ---------------------------------------------------------------------------------------------- entry point
-def identify_noise(omega_1, omega_2, A, bias, *, rate_hz: float | None, mask=None, window_s: float = 1.0) -> NoiseModel:
+def identify_noise(omega_1, omega_2, A, bias, *, rate_hz: float | None, mask=None, window_s: float = 1.0,
+                   resampling: Resampling | None = None) -> NoiseModel:
     """Identify white noise, bias drift and model error of a rigid pair from its residual.
 
     Parameters
@@ -520,6 +566,10 @@ def identify_noise(omega_1, omega_2, A, bias, *, rate_hz: float | None, mask=Non
         Allan computation (the kept samples are joined; the walk is corrected for the time left out).
     window_s : float
         Length of the windows of the heteroscedastic regression and the steady-stretch search (s).
+    resampling : Resampling, optional
+        How the streams reached the grid (a two-rate pair, a fractional offset): the split between the gyros
+        and their densities are then the sensors' own (``densities``, ``rates_hz``), while ``noise_std`` stays
+        the noise per grid sample the solver weighs.
 
     Returns
     -------
@@ -563,14 +613,15 @@ def identify_noise(omega_1, omega_2, A, bias, *, rate_hz: float | None, mask=Non
         spans = _stretches(n, w)
         size = sum(b - a for a, b in spans)
         nm = _identify(_join(w1, spans, np.float64), _join(w2, spans, np.float64), A, bias, rate_hz,
-                       None if mask is None else _join(mask, spans, bool), window_s, stride=n / size)
+                       None if mask is None else _join(mask, spans, bool), window_s, stride=n / size,
+                       resampling=resampling)
         sources = dict(nm.sources)
         sources["noise"] += (f"; on {size} samples in {len(spans)} stretches spread over the "
                              f"{n}-sample log (the walk scaled to the time between them)")
         import dataclasses
         return dataclasses.replace(nm, sources=sources)
     return _identify(np.asarray(w1, dtype=np.float64), np.asarray(w2, dtype=np.float64), A, bias, rate_hz, mask,
-                     window_s)
+                     window_s, resampling=resampling)
 
 
 def _stretches(n: int, window: int) -> list[tuple[int, int]]:
@@ -587,7 +638,8 @@ def _join(a, spans, dtype) -> np.ndarray:
     return np.concatenate([np.asarray(a[lo:hi], dtype=dtype) for lo, hi in spans])
 
 
-def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0) -> NoiseModel:
+def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0,
+              resampling: Resampling | None = None) -> NoiseModel:
     """:func:`identify_noise` on float64 rates; ``stride`` log samples per sample given (joined stretches)."""
     A = np.asarray(A, dtype=float).reshape(3, 3)
     bias = np.asarray(bias, dtype=float).reshape(3)
@@ -653,7 +705,9 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0) -> 
     taus, adev, sub_n, sub_m = _allan(y, rate_hz)
     avar = (adev ** 2).mean(axis=1)
     edf = _edf_table(sub_n, sub_m)
-    c, cov, lo, pred_avar = _fit_allan(taus, avar, edf)
+    # an interpolated stream is smoother than white noise over its first grid samples (Resampling.white_from)
+    first = 0 if resampling is None else int(np.searchsorted(taus, (resampling.white_from - 0.5) / rate_hz))
+    c, cov, lo, pred_avar = _fit_allan(taus, avar, edf, first)
     compress = kept / (span * stride)  # joined samples: the walk per joined step covers span / size samples
     Nsq, Bsq, Ksq = c
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0)) if np.isfinite(cov).all() else np.full(3, np.nan)
@@ -668,10 +722,13 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0) -> 
     B = float(np.sqrt(Bsq))
     B_sd = float(sd[1] / (2.0 * B)) if B > 0 else 0.0
     tau_fit = (float(taus[lo]), float(taus[-1]))
-    coloured = lo > 0
+    coloured = lo > first          # beyond what interpolation onto the grid explains
     where = "samples kept" if misfit else "valid samples"
     sources["noise"] = (f"white rate noise (slope -1/2) of the residual's Allan fit at tau {tau_fit[0]:.3g}-"
                         f"{tau_fit[1]:.3g} s on {kept / rate_hz:.0f} s of {where}")
+    if first > 0:
+        sources["noise"] += (f" (from tau {taus[first]:.3g} s on: the interpolation onto the grid smooths the noise "
+                             "over the first samples)")
     if coloured:
         notes.append(f"the residual is coloured below tau = {tau_fit[0]:.3g} s (its Allan deviation there is not "
                      "that of white noise): noise_std is the white level of the longer taus, where the motion is")
@@ -696,27 +753,37 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0) -> 
         notes.append(f"the residual has a bias-instability (flicker) floor B = {B:.3g} rad/s, which neither bias model "
                      "describes exactly")
 
-    # 4. split between the gyros
+    # 4. split between the gyros, by their own densities N_i: on the grid (Resampling) a stream's noise per
+    #    sample is kv_i f_i N_i^2 and its low-frequency density g_i N_i^2, so the Allan fit's white level is
+    #    Nsq = g_1 N_1^2 + a g_2 N_2^2
     a = float(np.sum(A * A) / 3.0)  # Var(A n_2) per axis = sigma_2^2 |A|_F^2 / 3
+    rs = resampling or Resampling((rate_hz, rate_hz))
+    kv, kd, fr, g = rs.variance, rs.diff3, rs.rates_hz, rs.density
     split = _steady_split(win, rate_hz)
     if split is not None:
-        rho2, rho2_relvar, text, _ = split
+        ratio, rho2_relvar, text, _ = split
+        grid2 = a * ratio                  # sigma_1^2 / sigma_2^2 per grid sample (e_2 carries |A|_F^2 / 3)
         sources["split"] = text
     else:
         head = slice(0, 200_000) if idx is None else idx[:200_000]  # plenty for a noise level
         d1, d2 = difference_noise_std(w1[head]), difference_noise_std(w2[head])
         if d1 > 0 and d2 > 0:
-            rho2 = (d1 / d2) ** 2
+            grid2 = (kv[0] * d1 ** 2 / kd[0]) / (kv[1] * d2 ** 2 / kd[1])
             rho2_relvar = 2.0 * (2.0 * 1.3 ** 2 / min(kept, 200_000))  # MAD of third differences, both streams
-            sources["split"] = (f"third differences of each stream (ratio {np.sqrt(rho2):.3g}; fast motion at a low "
+            sources["split"] = (f"third differences of each stream (ratio {np.sqrt(grid2):.3g}; fast motion at a low "
                                 "sample rate biases it)")
         else:
-            rho2, rho2_relvar = 1.0, 0.0
-            sources["split"] = "equal split (no steady stretch, third differences unusable)"
-    s2_sq = R_r / (rho2 + a)
-    s1_sq = rho2 * s2_sq
+            grid2, rho2_relvar = kv[0] * fr[0] / (kv[1] * fr[1]), 0.0
+            sources["split"] = "equal densities (no steady stretch, third differences unusable)"
+    if resampling is not None:
+        sources["split"] += (f"; each stream's grid noise referred to its own rate ({fr[0]:.6g} / {fr[1]:.6g} Hz; "
+                             f"interpolation keeps {kv[0]:.3g} / {kv[1]:.3g} of the variance)")
+    rho2 = grid2 * (kv[1] * fr[1]) / (kv[0] * fr[0])         # N_1^2 / N_2^2
+    n2_sq = Nsq / (g[0] * rho2 + a * g[1])
+    dens_sq = (rho2 * n2_sq, n2_sq)
+    s1_sq, s2_sq = (kv[i] * fr[i] * dens_sq[i] for i in (0, 1))   # per grid sample, what the solver weighs
     rel_R = (R_sd / R_r) ** 2 if R_r > 0 else np.inf
-    f1, f2 = a / (rho2 + a), rho2 / (rho2 + a)
+    f1, f2 = a * g[1] / (g[0] * rho2 + a * g[1]), g[0] * rho2 / (g[0] * rho2 + a * g[1])
     sd1 = np.sqrt(s1_sq) * 0.5 * np.sqrt(rel_R + f1 ** 2 * rho2_relvar)
     sd2 = np.sqrt(s2_sq) * 0.5 * np.sqrt(rel_R + f2 ** 2 * rho2_relvar)
     noise_std = (float(np.sqrt(s1_sq)), float(np.sqrt(s2_sq)))
@@ -725,7 +792,10 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0) -> 
         d1, d2 = difference_noise_std(w1[head]), difference_noise_std(w2[head])
         if d1 > 0 and d2 > 0:
             rel = 1.3 / np.sqrt(head.size)   # MAD of third differences
-            noise_std, sd1, sd2 = (float(d1), float(d2)), d1 * rel, d2 * rel
+            own = (d1 / np.sqrt(kd[0]), d2 / np.sqrt(kd[1]))      # each sensor's noise per own sample
+            noise_std = (float(own[0] * np.sqrt(kv[0])), float(own[1] * np.sqrt(kv[1])))
+            dens_sq = (own[0] ** 2 / fr[0], own[1] ** 2 / fr[1])
+            sd1, sd2 = noise_std[0] * rel, noise_std[1] * rel
             sources["noise"] = ("third differences of each stream: the residual carries the rate-dependent misfit "
                                 "in every window, so its Allan deviation is no noise figure")
     q_each = q_r / np.sqrt(1.0 + a)
@@ -742,4 +812,6 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0) -> 
         white_std_at_rest=float(np.sqrt(v0)), misfit_gain=(gain_a, gain_b), misfit_share=share, kind=kind,
         taus=taus, adev=adev, adev_fit=np.sqrt(np.maximum(
             np.column_stack([1.0 / taus, np.full_like(taus, FLICKER), taus / 3.0]) @ c, 0.0)),
-        fit_taus=tau_fit, sources=sources, notes=tuple(notes))
+        fit_taus=tau_fit, sources=sources, notes=tuple(notes),
+        rates_hz=None if resampling is None else tuple(float(f) for f in fr),
+        densities=None if resampling is None else tuple(float(np.sqrt(d)) for d in dens_sq))

@@ -386,7 +386,8 @@ def _identified(cal: PairCalibration, rates) -> tuple[tuple, tuple]:
     if nm is None:
         return (None, None), ()
     per_sample = not nm.rate_known
-    fs = [float(r) if per_sample else float(nm.rate_hz) for r in rates]
+    fs = [float(r) for r in rates] if per_sample else list(nm.sensor_rates)    # each IMU's own rate
+    fq = fs if per_sample else [float(nm.rate_hz)] * 2                        # the rate of the walk's steps
     misfit = nm.kind.startswith("not white noise")
     if nm.bias_walk_std is not None:
         q = nm.bias_walk_std
@@ -401,15 +402,12 @@ def _identified(cal: PairCalibration, rates) -> tuple[tuple, tuple]:
                     "itself keeps a constant bias)")
     else:
         q = q_sd = None
-    # gyro 2 interpolated onto gyro 1's grid (its own rate differs from the model's while gyro 1's matches): its
-    # third differences are smoothed, so a split of the residual's white noise made from them is not the sensors'
-    split = nm.sources.get("split", "")
-    unsplit = (not per_sample and abs(rates[0] / nm.rate_hz - 1.0) <= 0.01 and abs(rates[1] / nm.rate_hz - 1.0) > 0.01
-               and split.startswith("third differences"))
-    density = [nm.noise_std[i] / np.sqrt(fs[i]) for i in (0, 1)]
-    density_sd = [nm.noise_std_uncertainty[i] / np.sqrt(fs[i]) for i in (0, 1)]
-    walk = None if q is None else [q[i] * np.sqrt(fs[i]) for i in (0, 1)]
-    walk_sd = None if q is None else [q_sd[i] * np.sqrt(fs[i]) for i in (0, 1)]
+    # the sensors' own densities (a stream resampled onto the grid keeps its density, not its per-sample noise)
+    density = [nm.noise_std[i] / np.sqrt(fs[i]) for i in (0, 1)] if per_sample else list(nm.noise_density)
+    density_sd = [density[i] * nm.noise_std_uncertainty[i] / nm.noise_std[i] if nm.noise_std[i] > 0 else np.nan
+                  for i in (0, 1)]
+    walk = None if q is None else [q[i] * np.sqrt(fq[i]) for i in (0, 1)]
+    walk_sd = None if q is None else [q_sd[i] * np.sqrt(fq[i]) for i in (0, 1)]
 
     def good(v) -> bool:
         return v is not None and bool(np.isfinite(v)) and v > 0
@@ -420,12 +418,7 @@ def _identified(cal: PairCalibration, rates) -> tuple[tuple, tuple]:
     per_gyro = []
     for i in (0, 1):
         figs = {}
-        if unsplit:
-            figs["gyroscope_noise_density"] = _Figure(
-                _PLACEHOLDER["gyroscope_noise_density"],
-                f"{_NOT_MEASURED} (the residual's white noise could not be split between the gyros: see the header)",
-                True, True)
-        elif good(density[i]):
+        if good(density[i]):
             figs["gyroscope_noise_density"] = _Figure(
                 density[i], "identified: " + ("the sensor's white noise (the residual is a misfit)" if misfit else
                                            "white noise of the pair's residual") + pm(density_sd[i]), from_model=True)
@@ -443,17 +436,11 @@ def _identified(cal: PairCalibration, rates) -> tuple[tuple, tuple]:
         f"Gyroscope noise IDENTIFIED by fusion_gyrocal from the moving pair's own residual (overlapping "
         f"Allan deviation fitted with white noise, bias instability and random walk, IEEE Std 952), not from a "
         f"static test: residual {nm.kind}; bias model {nm.bias_model}.")
-    for i in () if unsplit else (0, 1):
-        lines.append(f"#   imu{i}: white {nm.noise_std[i] * deg:.4g} +- {nm.noise_std_uncertainty[i] * deg:.2g} deg/s "
-                     f"per sample at {fs[i]:.6g} Hz = gyroscope_noise_density {density[i]:.4g} "
+    for i in (0, 1):
+        own = density[i] * np.sqrt(fs[i])
+        lines.append(f"#   imu{i}: white {own * deg:.4g} +- {own * deg * density_sd[i] / density[i]:.2g} deg/s "
+                     f"per sample at its {fs[i]:.6g} Hz = gyroscope_noise_density {density[i]:.4g} "
                      f"+- {density_sd[i]:.2g} rad/s/sqrt(Hz)")
-    if unsplit:
-        lines += _wrapped(
-            f"  NOT WRITTEN: gyro 2 was resampled from {rates[1]:.6g} Hz onto gyro 1's {nm.rate_hz:.6g} Hz grid, and "
-            f"the split between the gyros came from third differences, which the interpolation smooths. The residual's "
-            f"white noise itself is {nm.residual_noise_std / np.sqrt(nm.rate_hz):.4g} "
-            f"+- {nm.residual_noise_std_uncertainty / np.sqrt(nm.rate_hz):.2g} rad/s/sqrt(Hz) per axis "
-            "(= sqrt(N_1^2 + N_2^2 |A|_F^2 / 3)); record a few seconds at rest to split it, or measure each IMU.")
     if per_sample:
         lines += _wrapped("  The calibration had no timestamps: the model is per sample, converted to densities with "
                           "each IMU's update_rate.")

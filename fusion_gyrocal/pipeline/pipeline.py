@@ -239,7 +239,7 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
     base, base_mask = None, mask        # the moments of every usable sample, computed once
     if o.noise_std is None and o.noise_model == "identify":
         base = Moments.from_samples(w1, w2, mask=mask)
-        noise_model = _identify(w1, w2, mask, rate_hz, base)
+        noise_model = _identify(w1, w2, mask, rate_hz, base, _resampling(t_1, t_2, pair, o))
         if noise_model is not None:
             walk = noise_model.bias_walk_std if o.bias_window is None else None
             o = o.replace(noise_std=noise_model.noise_std, bias_walk_std=walk)
@@ -307,7 +307,7 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
     return PipelineRun(cal, t_grid, np.asarray(w1), np.asarray(w2), valid_in, mask, pair)
 
 
-def _identify(w1, w2, mask, rate_hz, moments: Moments):
+def _identify(w1, w2, mask, rate_hz, moments: Moments, resampling=None):
     """The noise model identified from the pair's residual (None when the log is too short for it; without a
     sample rate it is identified per sample, :func:`~fusion_gyrocal.core.noise.identify_noise`)."""
     from ..core.noise import identify_noise
@@ -315,9 +315,26 @@ def _identify(w1, w2, mask, rate_hz, moments: Moments):
 
     try:   # too short, too little motion, constant input...: the solve says why, with the residual noise
         A, b = solve_A(moments)
-        return identify_noise(w1, w2, A, b, rate_hz=rate_hz, mask=mask)
+        return identify_noise(w1, w2, A, b, rate_hz=rate_hz, mask=mask, resampling=resampling)
     except GyroCalError:
         return None
+
+
+def _resampling(t_1, t_2, pair, options: Options):
+    """How the aligned streams reached the grid (:class:`~fusion_gyrocal.core.noise.Resampling`): each gyro's own
+    rate and what the spline interpolation did to its white noise (gyro 1 keeps its samples unless ``rate_hz``
+    resamples both); None for sample-aligned input."""
+    if pair is None:
+        return None
+    from ..core.noise import Resampling
+    from .resample import noise_factors
+    from .streams import _nominal_period
+
+    t1, t2 = (np.asarray(t, dtype=np.float64) for t in (t_1, t_2))
+    f1 = noise_factors(t1, pair.t) if options.rate_hz is not None else (1.0, 1.0, 1.0, 1)
+    f2 = noise_factors(t2, pair.t - pair.time_offset_s)
+    return Resampling((1.0 / _nominal_period(t1), 1.0 / _nominal_period(t2)), (f1[0], f2[0]), (f1[1], f2[1]),
+                      (f1[2], f2[2]), max(f1[3], f2[3]))
 
 
 def _replace(cal: PairCalibration, **changes) -> PairCalibration:
