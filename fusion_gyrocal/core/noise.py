@@ -181,7 +181,7 @@ class NoiseModel:
         both at ``rate_hz``.
     densities : tuple of float or None
         Each gyro's own white rate-noise density (rad/s/sqrt(Hz)) when a stream was resampled (interpolation
-        changes the noise per grid sample, not the density at low frequencies); None: ``noise_std /
+        changes its noise per grid sample, and aliasing its density on a coarser grid); None: ``noise_std /
         sqrt(rate_hz)``.
     """
 
