@@ -313,7 +313,7 @@ def noise_factors(t_src, t_query, *, max_points: int = 1 << 16, block: int = 64,
     k = out.shape[0] // block
     means = out[:k * block].reshape(k, block, 3).mean(axis=1)
     span = (q[k * block - 1] - q[0]) * block / (k * block - 1)          # duration of a block (s)
-    f_src = (t.size - 1) / (t[-1] - t[0])
+    f_src = (i1 - i0 - 1) / (t[i1 - 1] - t[i0])        # the source's rate over the stretch used
     density = float(np.mean(means * means) * span * f_src / var0)
     from ..core.noise import _allan
     taus, adev, _, _ = _allan(out, (q.size - 1) / (q[-1] - q[0]))
