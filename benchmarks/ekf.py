@@ -134,14 +134,15 @@ def history_memory(n=20000):
     return out
 
 
-def _z_at_alarm(alarm, batch) -> tuple[float, float, float]:
-    """``(t_detected, diff_mdeg, z)`` of the filter's state at an open alarm against the batch."""
+def _z_at_alarm(tr, batch) -> tuple[float, float, float]:
+    """``(t_detected, diff_mdeg, z)`` of the filter's state at its open alarm (the state it returns to if no step is
+    confirmed; a private field, for this diagnostic only) against the batch."""
     from fusion_gyrocal.lie import log
 
-    R0, P0 = alarm.state[0], alarm.state[4]
+    R0, P0 = tr._alarm.state[0], tr._alarm.state[4]
     d = np.linalg.norm(log(R0 @ batch.R_1_2.T))
     se, sb = np.sqrt(np.trace(P0[:3, :3])), np.sqrt(np.trace(np.asarray(batch.covariance)[:3, :3]))
-    return alarm.t_detected, d / DEG * 1e3, d / np.hypot(se, sb)
+    return tr.open_alarm[0], d / DEG * 1e3, d / np.hypot(se, sb)
 
 
 def mimu(sessions=range(1, 10), imus=(2, 3, 6), seed_s=120.0):
@@ -172,7 +173,7 @@ def mimu(sessions=range(1, 10), imus=(2, 3, 6), seed_s=120.0):
             sb = np.sqrt(np.trace(np.asarray(batch.covariance)[:3, :3]))
             rows.append((s, k, len(h.reseeds), sum(ev.accepted for ev in h.reseeds), np.linalg.norm(d) / DEG * 1e3,
                          se / DEG * 1e3, sb / DEG * 1e3, np.linalg.norm(d) / np.hypot(se, sb),
-                         tr.misfit_gain != (0.0, 0.0), None if tr._alarm is None else _z_at_alarm(tr._alarm, batch),
+                         tr.misfit_gain != (0.0, 0.0), None if tr.open_alarm is None else _z_at_alarm(tr, batch),
                          (tr.R_1_2, tr.error_covariance[:3, :3], batch.R_1_2, np.asarray(batch.covariance)[:3, :3])))
     return rows
 

@@ -247,6 +247,20 @@ def test_run_tracks_rotation_step_within_2sigma():
     assert rotation_error(h.R_1_2[-1], truth.R_1_2[-1]) <= 2.0 * np.linalg.norm(h.rotation_std[-1])
 
 
+def test_open_alarm_when_the_data_end_before_the_step_is_decided():
+    # the step at 58 s, the data end at 60 s: the re-seed window (10 s) is not full; the alarm stays open, the
+    # calibration says so, and its covariance carries the step prior
+    rng = np.random.default_rng(4)
+    t, w1, w2, _ = scenario(rng, 60.0, step=(58.0, 0.5 * DEG * np.array([0.6, -0.48, 0.64])))
+    n0 = int(30 * RATE)
+    tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0])
+    before = np.sqrt(np.trace(tr.covariance[:3, :3]))
+    tr.run(t[n0:], w1[n0:], w2[n0:], mode="fast")
+    assert tr.open_alarm is not None and 58.0 <= tr.open_alarm[0] <= 58.5 and abs(tr.open_alarm[1] - 58.0) <= 0.5
+    assert any("suspected since" in n for n in tr.calibration.notes)
+    assert np.sqrt(np.trace(tr.covariance[:3, :3])) > before
+
+
 def test_run_nees_consistent_over_monte_carlo():
     """Truth drawn from the process model: average NEES at the end inside the 95 % chi-square interval."""
     rng = np.random.default_rng(5)
@@ -747,7 +761,7 @@ def test_run_mimu_board_at_most_one_reseed_and_within_3sigma_of_batch(session, i
     d = np.linalg.norm(log(tr.R_1_2 @ batch.R_1_2.T))
     sigma = np.hypot(np.sqrt(np.trace(tr.error_covariance[:3, :3])), np.sqrt(np.trace(batch.covariance[:3, :3])))
     assert sum(ev.accepted for ev in h.reseeds) <= 1
-    assert tr._alarm is None
+    assert tr.open_alarm is None and "suspected" not in " ".join(tr.calibration.notes)
     assert d < 3.0 * sigma, (d / DEG, sigma / DEG)
     ns = tr._noise_scale
     if tr.misfit_gain != (0.0, 0.0):

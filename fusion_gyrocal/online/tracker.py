@@ -501,10 +501,23 @@ class GyroPairTracker:
         return self._filter.hold.nees_dof
 
     @property
+    def open_alarm(self) -> tuple[float, float] | None:
+        """``(t_detected, onset)`` (s) of a step alarm still open, None otherwise: a step of the mounting is
+        suspected and not yet confirmed or rejected (that takes ``reseed_window_s`` of exciting motion after the
+        onset), so the covariance carries the step prior until then."""
+        a = self._alarm
+        return None if a is None else (float(a.t_detected), float(a.onset))
+
+    @property
     def calibration(self) -> PairCalibration:
-        """The current estimate as a :class:`PairCalibration` (``method="ekf"``)."""
+        """The current estimate as a :class:`PairCalibration` (``method="ekf"``); a note says when a step alarm is
+        open (:attr:`open_alarm`)."""
         f = self._filter
         notes = [f"EKF estimate at t = {f.t:.3f} s; {self._n_rejected} of {self._n_samples} samples gated"]
+        if self._alarm is not None:
+            notes.append(f"a step of the mounting is suspected since t = {self._alarm.t_detected:.3f} s (onset "
+                         f"{self._alarm.onset:.3f} s), not yet confirmed or rejected: the covariance carries the step "
+                         "prior until the data after the onset decide")
         if f.hold.prior_groups:
             notes.append("scale factors of parallel axis pairs: only their ratio is tracked; the common factor is "
                          f"held by a prior of std {self._config.scale_prior_std:g}")
