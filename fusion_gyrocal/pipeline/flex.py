@@ -119,7 +119,7 @@ def used_residuals(w1, w2, A, bias, mask, window, ranges):
 def normalised_residuals(w1, w2, A, bias, mask, window, ranges, L):
     """``(d2, rate)`` of the used samples in ``ranges``: squared whitened residual and gyro 1's rate norm."""
     r, w = used_residuals(w1, w2, A, bias, mask, window, ranges)
-    return row_sumsq(r @ L), np.sqrt(row_sumsq(w))
+    return row_sumsq(r @ L), row_norms(w)
 
 
 def _rate_bins(d2: np.ndarray, rate: np.ndarray, bins: int, order: np.ndarray | None = None):
@@ -266,7 +266,7 @@ def rate_dependence(w1, w2, A, bias, mask, window, ranges, L, bins: int = 20,
     argsort of those samples' rate norms, when the caller has it (:class:`RateOrder`).
     """
     r, w = used_residuals(w1, w2, A, bias, mask, window, ranges)
-    d2, rate = row_sumsq(r @ L), np.sqrt(row_sumsq(w))
+    d2, rate = row_sumsq(r @ L), row_norms(w)
     if d2.size < 20 * bins:
         return None
     groups, means, ref, inflated = _rate_bins(d2, rate, bins, order)
@@ -291,7 +291,7 @@ class RateOrder:
     ranks of the rate bins of :func:`rate_dependence` and of :func:`spearman`)."""
 
     def __init__(self, g1: np.ndarray):
-        self.order = np.argsort(np.sqrt(row_sumsq(g1)))
+        self.order = np.argsort(row_norms(g1))
 
     def of(self, used: np.ndarray | None) -> np.ndarray:
         """``argsort`` of the rate norms of the ``used`` samples (indices into the used samples)."""
