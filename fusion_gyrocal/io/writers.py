@@ -402,7 +402,7 @@ def _identified(cal: PairCalibration, rates) -> tuple[tuple, tuple]:
                     "itself keeps a constant bias)")
     else:
         q = q_sd = None
-    # the sensors' own densities (a stream resampled onto the grid keeps its density, not its per-sample noise)
+    # the sensors' own densities (identified on the grid, referred back to each sensor: NoiseModel.noise_density)
     density = [nm.noise_std[i] / np.sqrt(fs[i]) for i in (0, 1)] if per_sample else list(nm.noise_density)
     density_sd = [density[i] * nm.noise_std_uncertainty[i] / nm.noise_std[i] if nm.noise_std[i] > 0 else np.nan
                   for i in (0, 1)]

@@ -33,9 +33,9 @@ def solve_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, rh
 
     Each level eliminates the even-numbered unknowns from the odd-numbered rows, halving the system, so
     the whole solve is ~log2(m) vectorised numpy steps (a Thomas sweep is a Python loop per row; scipy's
-    banded solver would cost the command line ~0.25 s of import). Without pivoting: for the diagonally
-    dominant systems of cubic splines (whose not-a-knot end rows are diagonally dominant after one
-    elimination step); ``tests/test_preprocess.py`` compares it with a dense solve.
+    banded solver would cost the command line ~0.25 s of import). Without pivoting, so for well-conditioned
+    systems like the splines' (diagonally dominant rows but the not-a-knot ends): ``tests/test_preprocess.py``
+    compares it with a dense solve, and :func:`resample` with scipy's ``CubicSpline``.
     """
     a = np.asarray(lower, dtype=np.float64).copy()
     a[:1] = 0.0
