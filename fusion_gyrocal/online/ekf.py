@@ -409,14 +409,6 @@ class ErrorStateEKF:
             c = c[1]
         self._fold(x[:, 0] + np.dot(P, c), project=self._held is not None)   # filterpy's x (12, 1), flat
 
-    def update_sample(self, H, r, g: float = 1.0) -> None:
-        """One sample's update (3-d measurement through filterpy), then the fold; ``g``: its :meth:`inflation`
-        (errors in variables removed as in :meth:`update_one`)."""
-        R = self.kf.R if g == 1.0 else g * self.kf.R
-        self.kf.update(r[:, None], HJacobian=lambda x: H, Hx=lambda x: H @ x, R=R)
-        self.kf.x = self.kf.x + np.dot(self.kf.P, self._eiv / g)[:, None]
-        self.fold()
-
     def update_block(self, w1, w2, keep, g=None) -> float:
         """ONE update from the samples ``keep`` of a block through their moments, then the fold.
 

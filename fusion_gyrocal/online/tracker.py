@@ -246,8 +246,8 @@ class GyroPairTracker:
     """
 
     __slots__ = ("_config", "_noise_std", "_noise_model", "_misfit", "_model_error", "_time_offset_s",
-                 "_configuration", "_filter",
-                 "_gate", "_cusum", "_noise_scale", "_ring", "_history", "_events", "_alarm", "_replaying", "_n_samples", "_n_rejected")
+                 "_configuration", "_filter", "_gate", "_cusum", "_noise_scale", "_ring", "_history", "_events",
+                 "_alarm", "_replaying", "_n_samples", "_n_rejected")
 
     def __init__(self, calibration: PairCalibration, *, t0: float = 0.0, seed_span_s: float = 0.0,
                  noise_model: NoiseModel | None | str = "seed", config: TrackerConfig | None = None, **options):
@@ -631,7 +631,7 @@ class GyroPairTracker:
         B = t.shape[0]
         if B == 1:
             return self._step_one(float(t[0]), w1[0], w2[0], mode)
-        t_mid = float(t.sum()) / B if B > 1 else float(t[0])      # the block's mean time
+        t_mid = float(t.sum()) / B                                 # the block's mean time
         f.predict_to(t_mid)
         if not self._replaying:
             self._ring.push(t, w1, w2)
@@ -647,14 +647,11 @@ class GyroPairTracker:
         alarm = None
         if self._alarm is None and not self._replaying:
             screened = None if ns is None else ns.mature(bins)
-            if screened is None:
-                alarm = self._cusum.scan(t, d2)
+            if screened is None or screened.any():
+                ts, d2s = (t, d2) if screened is None else (t[screened], ns.screened(bins, d2)[screened])
+                alarm = self._cusum.scan(ts, d2s)
                 if alarm is not None:
-                    alarm = (float(t[alarm[0]]), alarm[1])
-            elif screened.any():
-                alarm = self._cusum.scan(t[screened], ns.screened(bins, d2)[screened])
-                if alarm is not None:
-                    alarm = (float(t[screened][alarm[0]]), alarm[1])
+                    alarm = (float(ts[alarm[0]]), alarm[1])
         if alarm is not None:
             self._raise_alarm(*alarm)
             d2 = f.innovation_d2(H, r, g)              # covariance opened by the step prior
@@ -666,7 +663,7 @@ class GyroPairTracker:
         nis = np.nan
         if n_used == 1:
             k = int(np.argmax(keep))
-            f.update_sample(H[k], r[k], 1.0 if g is None else float(g[k]))
+            f.update_one(H[k], r[k], 1.0 if g is None else float(g[k]))
             nis = d2[k] / 3.0
         elif n_used > 1:
             if ns is not None and ns.correlation != 1.0:
