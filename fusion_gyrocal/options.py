@@ -39,6 +39,7 @@ METHODS = ("ml", "direct")
 GAUGES = ("unit_prior", "fixed")
 COVARIANCES = ("auto", "model", "robust")
 NOISE_MODELS = ("identify", "residual")
+LINEAR_MAPS = ("auto", "rigid", "full")
 
 
 # ------------------------------------------------------------------------------------------ checks
@@ -235,6 +236,23 @@ class Options(FrozenOptions):
         "reported in ``skew_rotation_covariance`` and added to the covariance.",
         "--skew-std", type=float, nargs="+", metavar="STD",
         help="remaining skew uncertainty for the error budget, one value or one per gyro")
+    linear_map: str = _option(
+        "auto", _choice(LINEAR_MAPS), "solve",
+        "The sensor model (:mod:`~fusion_gyrocal.core.linear_map`). ``'auto'`` (default): the full linear map "
+        "(rotation, scale factors and the symmetric relative cross-axis terms) when it fits significantly better "
+        "than rotation + scale factors (the cross-axis chi-square, p < 0.001), else the paper's model; "
+        "``'rigid'``: the paper's model ``A = S_1 R S_2^-1`` (Eq. 4) always; ``'full'``: the full map always. "
+        "``method='ml'`` only (the direct solution is the paper's).",
+        "--linear-map", choices=LINEAR_MAPS,
+        help="sensor model: auto (cross-axis terms when the data show them, default), rigid (paper), full")
+    cross_axis_std: float = _option(
+        0.01, _positive, "solve",
+        "Std of each gyro's cross-axis sensitivity (a fraction; MEMS datasheets give 1-2 %): the prior of the "
+        "full linear map's relative cross-axis terms where the data do not determine them, and the rotation's "
+        "uncertainty from their antisymmetric part, which no data see (added to ``skew_rotation_covariance`` when "
+        "the full map is used).",
+        "--cross-axis-std", type=float, metavar="FRACTION",
+        help="std of each gyro's cross-axis sensitivity for the full map (default 0.01)")
     covariance: str = _option(
         "auto", _choice(COVARIANCES), "solve",
         "Which covariance is reported (``'ml'`` solves of :func:`~fusion_gyrocal.calibrate_pair`). ``'auto'`` "

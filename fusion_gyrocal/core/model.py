@@ -31,10 +31,10 @@ import numpy as np
 from ..errors import FormatError, InputError
 from ..lie import canonical_rotvec, log
 
-FORMAT_VERSION = "1.2"
+FORMAT_VERSION = "1.3"
 #: Versions :meth:`PairCalibration.from_dict` reads: 1.0 wrote every non-finite number as ``null``
 #: (read back as inf in arrays, NaN in scalars); 1.1 writes them as the strings of :data:`NON_FINITE`.
-READABLE_VERSIONS = ("1.0", "1.1", FORMAT_VERSION)
+READABLE_VERSIONS = ("1.0", "1.1", "1.2", FORMAT_VERSION)
 #: Non-finite numbers in JSON: strings any standard JSON parser reads, distinct for NaN and +-inf.
 NON_FINITE = {"NaN": float("nan"), "Infinity": float("inf"), "-Infinity": float("-inf")}
 CONFIGURATIONS = ("general", "one_axis_pair_parallel", "all_axes_parallel")
@@ -49,7 +49,7 @@ ROT, S1, S2, BIAS = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)
 _ARRAY_SHAPES = {
     "R_1_2": (3, 3), "scale_1": (3,), "scale_2": (3,), "bias": (3,), "scale_observable": (2, 3),
     "covariance": (12, 12), "snr": (3,), "noise_std": (2,), "skew_rotation_covariance": (3, 3),
-    "cross_axis": (3, 3),
+    "cross_axis": (3, 3), "cross_axis_terms": (3,), "cross_axis_covariance": (3, 3),
 }
 
 
@@ -144,6 +144,15 @@ class PairCalibration:
     cross_axis_chi2 : float
         Its chi-square with ``cross_axis_dof`` degrees of freedom (NaN when not computed).
     cross_axis_dof : int
+    linear_map : {"rigid", "full"}
+        The sensor model of the estimate: ``"rigid"`` the paper's ``A = S_1 R S_2^-1`` (Eq. 4), ``"full"`` the
+        full linear map ``A = S_1 (I + K) R S_2^-1`` with symmetric relative cross-axis terms
+        (:mod:`~fusion_gyrocal.core.linear_map`; ``R_1_2`` is the rotation under that convention).
+    cross_axis_terms : ndarray (3,)
+        The full map's relative cross-axis terms ``(K_xy, K_yz, K_zx)`` (fractions, gyro 1's axes); zeros for
+        ``"rigid"``.
+    cross_axis_covariance : ndarray (3, 3)
+        Their covariance (zeros for ``"rigid"``).
     noise_model : NoiseModel or None
         The noise model identified from the pair's residual (:func:`~fusion_gyrocal.core.noise.identify_noise`)
         when ``noise_std`` came from it.
@@ -180,6 +189,9 @@ class PairCalibration:
     cross_axis: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
     cross_axis_chi2: float = float("nan")
     cross_axis_dof: int = 0
+    linear_map: str = "rigid"
+    cross_axis_terms: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    cross_axis_covariance: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
     noise_model: Any = None
     notes: tuple = ()
 
@@ -194,8 +206,11 @@ class PairCalibration:
     # ------------------------------------------------------------------ derived
     @property
     def A(self) -> np.ndarray:
-        """``S_1 R_1_2 S_2^-1`` (Eq. 4)."""
-        return (self.scale_1[:, None] * self.R_1_2) / self.scale_2[None, :]
+        """``S_1 R_1_2 S_2^-1`` (Eq. 4), or ``S_1 (I + K) R_1_2 S_2^-1`` for the full linear map."""
+        from .observability import A_of
+
+        return A_of(self.R_1_2, self.scale_1, self.scale_2, self.cross_axis_terms if self.linear_map == "full"
+                    else None)
 
     @property
     def rotation_std_rad(self) -> np.ndarray:

@@ -29,19 +29,38 @@ AXES = "xyz"
 CONFIG_GENERAL, CONFIG_ONE_PAIR, CONFIG_ALL = "general", "one_axis_pair_parallel", "all_axes_parallel"
 
 
-def A_of(R, s1, s2) -> np.ndarray:
-    """``A = S_1 R S_2^-1`` (Eq. 4)."""
+#: Index pairs of the symmetric relative cross-axis terms ``k = (K_xy, K_yz, K_zx)`` (:func:`cross_matrix`).
+CROSS_AXIS_PAIRS = ((0, 1), (1, 2), (2, 0))
+
+
+def cross_matrix(k) -> np.ndarray:
+    """The symmetric, zero-diagonal matrix ``K`` of the relative cross-axis terms ``k = (K_xy, K_yz, K_zx)``."""
+    K = np.zeros((3, 3))
+    for m, (i, j) in enumerate(CROSS_AXIS_PAIRS):
+        K[i, j] = K[j, i] = k[m]
+    return K
+
+
+def A_of(R, s1, s2, k=None) -> np.ndarray:
+    """``A = S_1 R S_2^-1`` (Eq. 4), or the full linear map ``S_1 (I + K) R S_2^-1`` with the symmetric relative
+    cross-axis terms ``k`` (:mod:`~fusion_gyrocal.core.linear_map`)."""
+    if k is not None:
+        R = (np.eye(3) + cross_matrix(k)) @ R
     return (np.asarray(s1)[:, None] * R) / np.asarray(s2)[None, :]
 
 
-def dA_dp(R, s1, s2) -> np.ndarray:
-    """Derivatives (9, 3, 3) of A w.r.t. ``[dtheta, log s_1, log s_2]`` at ``(R, s1, s2)``."""
-    A = A_of(R, s1, s2)
-    D = np.empty((9, 3, 3))
+def dA_dp(R, s1, s2, k=None) -> np.ndarray:
+    """Derivatives (9, 3, 3) of A w.r.t. ``[dtheta, log s_1, log s_2]`` at ``(R, s1, s2)``; (12, 3, 3) with the
+    cross-axis terms ``k`` appended (``A = S_1 (I + K) Exp(dtheta) R S_2^-1``)."""
+    A = A_of(R, s1, s2, k)
+    L = np.eye(3) if k is None else np.eye(3) + cross_matrix(k)
+    D = np.empty((9 if k is None else 12, 3, 3))
     for m in range(3):
         e = np.zeros(3)
         e[m] = 1.0
-        D[m] = (s1[:, None] * (skew(e) @ R)) / s2[None, :]
+        D[m] = (s1[:, None] * (L @ skew(e) @ R)) / s2[None, :]
+        if k is not None:
+            D[9 + m] = (s1[:, None] * (cross_matrix(e) @ R)) / s2[None, :]
     for i in range(3):
         D[3 + i] = 0.0
         D[3 + i][i, :] = A[i, :]
@@ -66,17 +85,19 @@ def signal_scatter(moments: Moments, noise_std) -> tuple[np.ndarray, np.ndarray]
     return out[0], out[1]
 
 
-def fisher_information(R, s1, s2, noise_std, Xi_c) -> np.ndarray:
-    """Fisher information (9, 9) of ``[dtheta, log s_1, log s_2]`` with the bias profiled out.
+def fisher_information(R, s1, s2, noise_std, Xi_c, k=None) -> np.ndarray:
+    """Fisher information (9, 9) of ``[dtheta, log s_1, log s_2]`` with the bias profiled out; (12, 12) with the
+    cross-axis terms ``k`` of the full linear map appended.
 
     Parameters
     ----------
     R, s1, s2 : the calibration at which to evaluate.
     noise_std : (sigma_1, sigma_2) per-sample noise (rad/s).
     Xi_c : (3, 3) centred scatter of gyro 2's signal (see :func:`signal_scatter`).
+    k : (3,) relative cross-axis terms, optional (:func:`cross_matrix`).
     """
-    D = dA_dp(R, s1, s2)
-    W = residual_weight(A_of(R, s1, s2), noise_std)
+    D = dA_dp(R, s1, s2, k)
+    W = residual_weight(A_of(R, s1, s2, k), noise_std)
     WDX = np.einsum("ij,qjk,kl->qil", W, D, Xi_c)
     return np.einsum("pab,qab->pq", D, WDX)  # tr(D_p^T W D_q Xi_c)
 
@@ -192,8 +213,10 @@ def prior_held_covariance(F, groups, s1, s2, prior_std: float) -> np.ndarray:
         The prior's standard deviation of each scale factor.
     """
     s = np.stack([np.asarray(s1, float), np.asarray(s2, float)])
-    P = constrained_inverse(F, PRIOR_GAUGE.constraints(groups, s, 3))
-    N = np.zeros((9, len(groups)))
+    C = PRIOR_GAUGE.constraints(groups, s, 3)
+    C = np.hstack([C, np.zeros((len(C), F.shape[0] - 9))])     # cross-axis terms (full map): not a gauge's
+    P = constrained_inverse(F, C)
+    N = np.zeros((F.shape[0], len(groups)))
     N[3:] = null_directions(groups, 2)
     information = (N[3:] * s.reshape(6, 1) ** 2).sum(axis=0) / prior_std**2
     P = P + (N / information) @ N.T

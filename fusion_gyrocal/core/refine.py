@@ -34,24 +34,25 @@ def residual_scatter(A, Sc):
     return K @ Sc @ K.T
 
 
-def ml_cost(R, s1, s2, moments: Moments, noise_std) -> float:
-    """Negative log-likelihood (times 2, up to a constant) of the calibration given the moments."""
-    A = A_of(R, s1, s2)
+def ml_cost(R, s1, s2, moments: Moments, noise_std, k=None) -> float:
+    """Negative log-likelihood (times 2, up to a constant) of the calibration given the moments (``k``: the
+    cross-axis terms of the full linear map, :mod:`~fusion_gyrocal.core.linear_map`)."""
+    A = A_of(R, s1, s2, k)
     return float(np.trace(residual_weight(A, noise_std) @ residual_scatter(A, moments.scatter)))
 
 
-def ml_gradient(R, s1, s2, moments: Moments, noise_std) -> np.ndarray:
-    """Gradient of :func:`ml_cost` w.r.t. ``[dtheta, log s_1, log s_2]``."""
-    A = A_of(R, s1, s2)
-    D = dA_dp(R, s1, s2)
+def ml_gradient(R, s1, s2, moments: Moments, noise_std, k=None) -> np.ndarray:
+    """Gradient of :func:`ml_cost` w.r.t. ``[dtheta, log s_1, log s_2]`` (and ``k`` when given)."""
+    A = A_of(R, s1, s2, k)
+    D = dA_dp(R, s1, s2, k)
     W = residual_weight(A, noise_std)
     Sc = moments.scatter
     M = residual_scatter(A, Sc)
     S12, S22 = Sc[:3, 3:], Sc[3:, 3:]
     left = S22 @ A.T - S12.T          # dM = D (S22 A^T - S21) + (A S22 - S12) D^T
     WMW = W @ M @ W
-    g = np.empty(9)
-    for p in range(9):
+    g = np.empty(len(D))
+    for p in range(len(D)):
         dM = D[p] @ left
         dM = dM + dM.T
         dAAt = D[p] @ A.T

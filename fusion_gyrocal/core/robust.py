@@ -47,15 +47,16 @@ def centred_scatters(stats: WindowStats) -> np.ndarray:
     return stats.scatter + stats.count[:, None, None] * d[:, :, None] * d[:, None, :]
 
 
-def window_scores(R, s1, s2, noise_std, stats: WindowStats) -> np.ndarray:
-    """Scores ``g_w`` (W, 9): gradient of each window's cost w.r.t. ``[dtheta, log s_1, log s_2]``.
+def window_scores(R, s1, s2, noise_std, stats: WindowStats, k=None) -> np.ndarray:
+    """Scores ``g_w`` (W, 9): gradient of each window's cost w.r.t. ``[dtheta, log s_1, log s_2]`` ((W, 12) with
+    the cross-axis terms ``k`` of the full linear map).
 
     The cost is ``tr(W(A) [I, -A] S [I, -A]^T)`` (:func:`~fusion_gyrocal.core.refine.ml_cost`) with
     ``S`` the window's scatter about the log's mean (about its own mean for bias segments); its
     gradient (:func:`~fusion_gyrocal.core.refine.ml_gradient`) is linear in ``S``.
     """
-    A = A_of(R, s1, s2)
-    D = dA_dp(R, s1, s2)                               # (9, 3, 3)
+    A = A_of(R, s1, s2, k)
+    D = dA_dp(R, s1, s2, k)                            # (9 or 12, 3, 3)
     W = residual_weight(A, noise_std)
     S = centred_scatters(stats)
     S11, S12, S22 = S[:, :3, :3], S[:, :3, 3:], S[:, 3:, 3:]

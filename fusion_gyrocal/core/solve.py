@@ -14,6 +14,7 @@ from ..lie import log, nearest_rotation
 from ..options import Options
 from .direct import decompose, solve_A
 from .gauge import Gauge, constrained_inverse
+from .linear_map import CHI2_999, choose_full_map, prior_information, refine_full
 from .model import BIAS, ROT, PairCalibration, mark_undetermined
 from .moments import Moments, WindowStats, noise_pair
 from .observability import (PRIOR_GAUGE, A_of, check_excitation, check_samples, classify, dA_dp, fisher_information,
@@ -42,9 +43,6 @@ def _skew_compensation(intrinsics):
     U = S / np.diag(S)[None, :]
     return np.linalg.inv(U)
 
-
-#: 99.9 % points of the chi-square distribution with 1..9 degrees of freedom (the cross-axis test).
-CHI2_999 = (10.83, 13.82, 16.27, 18.47, 20.52, 22.46, 24.32, 26.12, 27.88)
 
 #: Largest plausible ratio of the two gyros' rate magnitudes (scale factors of real gyros differ by percent).
 MAX_GAIN_RATIO = 1.5
@@ -175,14 +173,30 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         R, s1, s2, iterations = ref.R, ref.s1, ref.s2, ref.iterations
         if not ref.converged:
             notes.append(f"maximum-likelihood refinement stopped after {iterations} iterations without converging")
+    E, cross_chi2, cross_dof = np.zeros((3, 3)), float("nan"), 0
+    if rigid:
+        E, cross_chi2, cross_dof = cross_axis(A_ls, R, s1, s2, moments, noise, windows)
+    full = rigid and choose_full_map(o.linear_map, method, cross_chi2, cross_dof)
+    k = None
+    if full:   # the full linear map from the rigid estimate (core/linear_map.py)
+        fm = refine_full(moments, R, s1, s2, noise, o.cross_axis_std,
+                         constraints=lambda a, b: gauge.constraints(config.groups, [a, b], 3),
+                         regauge=lambda a, b: tuple(gauge.apply(config.groups, [a, b])))
+        R, s1, s2, k = fm.R, fm.s1, fm.s2, fm.k
+        iterations += fm.iterations
+        if not fm.converged:
+            notes.append(f"the full linear map's refinement stopped after {fm.iterations} iterations without "
+                         "converging")
     if scale_prior_std is not None:
         # the prior holds only what the data leave free, one common factor per group of linked scale factors;
         # its maximum there is the group's unit convention, so the determined ratios stay the data's
         s1, s2 = PRIOR_GAUGE.apply(config.groups, np.stack([s1, s2]))
-    A = A_of(R, s1, s2)
+    A = A_of(R, s1, s2, k)
     bias = moments.mean_1 - A @ moments.mean_2
     _, Xi_c = signal_scatter(moments, noise)
-    F = fisher_information(R, s1, s2, noise, Xi_c)
+    F = fisher_information(R, s1, s2, noise, Xi_c, k)
+    if full:
+        F = F + prior_information(o.cross_axis_std)
     if method == "ml":
         P9 = _ml_covariance(F, s1, s2, config, gauge, scale_prior_std)
     else:
@@ -190,7 +204,7 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
     # lack of fit: the residual's chi-square per degree of freedom against the stated noise
     W = residual_weight(A, noise)
     M = residual_scatter(A, moments.scatter)
-    dof = max(3.0 * moments.dof - 8.0, 1.0)
+    dof = max(3.0 * moments.dof - (11.0 if full else 8.0), 1.0)
     lack_of_fit = float(np.trace(W @ M)) / dof
     if not rigid:
         notes.append(f"NOT RIGID: {100 * unexplained:.1f}% of the motion is unexplained; do not use this estimate")
@@ -201,11 +215,13 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
     robust = windows is not None and rigid and method == "ml" and o.covariance != "model" \
         and windows.n_windows >= MIN_ROBUST_WINDOWS
     if robust:
-        V = score_variance(window_scores(R, s1, s2, noise, windows), windows)
+        V = score_variance(window_scores(R, s1, s2, noise, windows, k), windows)
+        if full:   # the cross-axis prior's part of the scores' variance (what it holds is the model's)
+            V = V + 4.0 * prior_information(o.cross_axis_std)
         # the data's part in the gauge the covariance is expressed in; a prior's part (what the data leave
         # free) is the model's and stays
         held = PRIOR_GAUGE if scale_prior_std is not None else gauge
-        C = held.constraints(config.groups, [s1, s2], 3)
+        C = _padded(held.constraints(config.groups, [s1, s2], 3), len(F))
         P9, inflation, basis, more = choose(P9, P9 + sandwich(F, V, C) - constrained_inverse(F, C), windows,
                                             o.covariance, basis, lack_of_fit)
         notes += more
@@ -219,21 +235,22 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         P9, basis, note = inflated(P9, lack_of_fit, basis, "flex, skew, time offset")
         Sigma_r = Sigma_r * lack_of_fit
         notes.append(note)
-    E, cross_chi2, cross_dof = np.zeros((3, 3)), float("nan"), 0
-    if rigid:
-        E, cross_chi2, cross_dof = cross_axis(A_ls, R, s1, s2, moments, noise, windows)
-        if cross_dof and cross_chi2 > CHI2_999[cross_dof - 1]:
-            off = np.abs(E - np.diag(np.diag(E))).max()
-            notes.append(f"the full linear map fits significantly better than rotation + scale factors (chi2 "
-                         f"{cross_chi2:.3g} for {cross_dof} dof, p < 0.001): relative cross-axis terms up to {off:.2g} "
-                         f"remain (cross_axis). Skew errors of that size that the data cannot see move the rotation by "
-                         f"about {np.rad2deg(off / 2) * 1e3:.3g} mdeg (Appendix D, Eq. 40): compensate the intrinsics "
-                         "(intrinsics_1/2) or pass skew_std to budget for it")
-    cov = pair_covariance(P9, R, s1, s2, A, moments, Sigma_r)
+    if full:
+        notes.append(_full_map_note(k, P9[9:, 9:], cross_chi2, cross_dof, o.cross_axis_std))
+    elif rigid and cross_dof and cross_chi2 > CHI2_999[cross_dof - 1]:
+        off = np.abs(E - np.diag(np.diag(E))).max()
+        notes.append(f"the full linear map fits significantly better than rotation + scale factors (chi2 "
+                     f"{cross_chi2:.3g} for {cross_dof} dof, p < 0.001): relative cross-axis terms up to {off:.2g} "
+                     f"remain (cross_axis). Skew errors of that size that the data cannot see move the rotation by "
+                     f"about {np.rad2deg(off / 2) * 1e3:.3g} mdeg (Appendix D, Eq. 40): use linear_map='auto' or "
+                     "'full', compensate the intrinsics (intrinsics_1/2) or pass skew_std to budget for it")
+    cov = pair_covariance(P9, R, s1, s2, A, moments, Sigma_r, k)
     if scale_prior_std is None:
         mark_undetermined(cov, config.scale_observable)
     sk = np.asarray(o.skew_std, dtype=float)
     skew_cov = 0.25 * (sk[0] ** 2 + sk[1] ** 2) * np.eye(3)  # Appendix D: theta ~ (w_1 - C w_2) / 2
+    if full:   # the antisymmetric cross-axis part, which the convention gives the rotation and no data see
+        skew_cov = skew_cov + o.cross_axis_std ** 2 * np.eye(3)
     cov[ROT, ROT] += skew_cov
     snr = per_axis_snr(moments, noise)
     weak = [f"{'xyz'[i]} ({snr[i]:.3g})" for i in range(3) if snr[i] < o.target_snr]
@@ -258,13 +275,28 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         iterations=iterations, skew_rotation_covariance=skew_cov, bias_segments=moments.segments,
         rigid=rigid, unexplained_fraction=unexplained, covariance_basis=basis, lack_of_fit=lack_of_fit,
         robust_inflation=inflation, cross_axis=E, cross_axis_chi2=cross_chi2, cross_axis_dof=cross_dof,
-        noise_model=noise_model, notes=tuple(notes))
+        linear_map="full" if full else "rigid", cross_axis_terms=np.zeros(3) if k is None else k,
+        cross_axis_covariance=P9[9:, 9:] if full else np.zeros((3, 3)), noise_model=noise_model, notes=tuple(notes))
+
+
+def _padded(C, n):
+    """Gauge constraints on ``[dtheta, log s]`` (k, 9) extended by zeros to ``n`` parameters (the full map's ``k``)."""
+    return np.hstack([C, np.zeros((len(C), n - C.shape[1]))]) if n > C.shape[1] else C
+
+
+def _full_map_note(k, cov_k, chi2, dof, cross_axis_std):
+    sd = np.sqrt(np.clip(np.diag(cov_k), 0.0, None))
+    terms = ", ".join(f"{n} {100 * v:.3g} +- {100 * e:.2g} %" for n, v, e in zip(("xy", "yz", "zx"), k, sd))
+    return (f"full linear map (cross-axis chi2 {chi2:.3g} for {dof} dof): symmetric relative cross-axis terms "
+            f"{terms}; R_1_2 is the rotation under the symmetric convention, repeatable from session to session. "
+            f"The chip-to-chip rotation differs from it by the antisymmetric part, which no data see: budgeted at "
+            f"cross_axis_std {cross_axis_std:g} rad per axis (skew_rotation_covariance, included in the covariance)")
 
 
 def _ml_covariance(F, s1, s2, config, gauge, scale_prior_std):
     if scale_prior_std is not None:
         return prior_held_covariance(F, config.groups, s1, s2, scale_prior_std)
-    return constrained_inverse(F, gauge.constraints(config.groups, [s1, s2], 3))
+    return constrained_inverse(F, _padded(gauge.constraints(config.groups, [s1, s2], 3), len(F)))
 
 
 def _direct_covariance(moments, A_ls, noise, config, gauge):
@@ -290,15 +322,16 @@ def _direct_covariance(moments, A_ls, noise, config, gauge):
     return J @ cov_A @ J.T
 
 
-def pair_covariance(P9, R, s1, s2, A, moments, Sigma_r):
-    """12x12 covariance of ``[dtheta, scale_1, scale_2, bias]`` from that of ``[dtheta, log s]`` and the
-    covariance ``Sigma_r`` of the mean residual (the bias estimate's own noise)."""
-    Jl = np.diag(np.concatenate([np.ones(3), s1, s2]))
-    D = dA_dp(R, s1, s2)
+def pair_covariance(P, R, s1, s2, A, moments, Sigma_r, k=None):
+    """12x12 covariance of ``[dtheta, scale_1, scale_2, bias]`` from that of ``[dtheta, log s]`` (and the
+    cross-axis terms ``k`` of the full map, when given) and the covariance ``Sigma_r`` of the mean residual
+    (the bias estimate's own noise)."""
+    Jl = np.diag(np.concatenate([np.ones(3), s1, s2, np.ones(len(P) - 9)]))
+    D = dA_dp(R, s1, s2, k)
     G = np.einsum("pij,j->ip", D, moments.mean_2)  # d(A m_2)/dp, so db = -G dp
     cov = np.zeros((12, 12))
-    cov[:9, :9] = Jl @ P9 @ Jl.T
-    cov[BIAS, BIAS] = Sigma_r + G @ P9 @ G.T
-    cov[BIAS, :9] = -G @ P9 @ Jl.T
+    cov[:9, :9] = (Jl @ P @ Jl.T)[:9, :9]
+    cov[BIAS, BIAS] = Sigma_r + G @ P @ G.T
+    cov[BIAS, :9] = -(G @ P @ Jl.T)[:, :9]
     cov[:9, BIAS] = cov[BIAS, :9].T
     return cov

@@ -1,0 +1,93 @@
+"""Repeatability on one rigid board: the sensor model against the MIMU sessions (issue 20).
+
+The MIMU board (``../shared/data/mimu_8imu_array``) is one soldered PCB recorded in nine sessions: the rotation
+between two of its IMUs is the same in every session, so the session-to-session differences of an estimate are
+its real error (twice over), and the covariance it reports must explain them.
+
+For 14 pairs (IMU 1 against 2..8 and the neighbouring pairs 2-4, 3-5, 3-7, 5-7, 2-6, 4-8, 6-8), with timestamps
+and the defaults (or ``--linear-map``), this prints per pair the RMS session-to-session rotation difference
+(``sqrt(mean |Log(R_a R_b^T)|^2)`` over the 36 session pairs), the mean reported 1-sigma (per axis, without the skew budget
+``skew_rotation_covariance``: the board's constant cross-axis, which the difference of two sessions cancels), the mean
+``z^2`` of the differences against the sum of the two sessions' rotation covariances (3 dof: 3 is honest), the
+residual's chi2/dof, the robust inflation, how many sessions used the full linear map and its largest
+cross-axis term.
+
+    python benchmarks/sensor_model.py [--linear-map auto|rigid|full] [--pairs 1-2,2-4]
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import sys
+import time
+
+import numpy as np
+
+from fusion_gyrocal import calibrate_pair
+from fusion_gyrocal.evaluate.sim import shared_data_dir
+from fusion_gyrocal.lie import log
+
+DEG = np.pi / 180.0
+PAIRS = ((1, 2), (1, 3), (1, 4), (1, 5), (1, 6), (1, 7), (1, 8),
+         (2, 4), (3, 5), (3, 7), (5, 7), (2, 6), (4, 8), (6, 8))
+
+
+def repeatable(cal):
+    """The rotation covariance without the skew budget (``skew_rotation_covariance``: the board's constant
+    cross-axis, which the difference of two sessions cancels)."""
+    return cal.covariance[:3, :3] - cal.skew_rotation_covariance
+
+
+def session_pairs(cals):
+    """RMS rotation difference (rad) and the z^2 of each session pair against the repeatable rotation covariances."""
+    z2, d2 = [], []
+    for a, b in itertools.combinations(cals, 2):
+        diff = log(a.R_1_2 @ b.R_1_2.T)
+        z2.append(float(diff @ np.linalg.solve(repeatable(a) + repeatable(b), diff)))
+        d2.append(float(diff @ diff))
+    return float(np.sqrt(np.mean(d2))), np.array(z2)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--linear-map", default=None, help="the linear_map option (default: the library's default)")
+    ap.add_argument("--pairs", default=None, help="comma-separated i-j pairs (1-based), default the 14 of issue 20")
+    a = ap.parse_args(argv)
+    d = shared_data_dir() / "mimu_8imu_array" / "npz"
+    if not d.exists():
+        print("MIMU: ../shared/data not present, nothing to measure")
+        return 0
+    from fusion_gyrocal.io import read_npz
+
+    pairs = PAIRS if a.pairs is None else tuple(tuple(int(v) for v in p.split("-")) for p in a.pairs.split(","))
+    keywords = {} if a.linear_map is None else {"linear_map": a.linear_map}
+    sessions = [read_npz(d / f"exp_{e}.npz") for e in range(1, 10)]
+    print(f"MIMU board, 9 sessions, {len(pairs)} pairs, timestamps given, options {keywords or 'defaults'}")
+    print(f"{'pair':>5} {'rms diff mdeg':>14} {'sigma mdeg':>11} {'mean z2':>8} {'max z2':>7} {'chi2/dof':>9} "
+          f"{'inflation':>10} {'full':>6} {'max |K| %':>10}")
+    rms_all, z2_all, t0 = [], [], time.perf_counter()
+    for i, j in pairs:
+        cals = [calibrate_pair(s[i - 1].omega, s[j - 1].omega, t_1=s[i - 1].t, t_2=s[j - 1].t, **keywords)
+                for s in sessions]
+        rms, z2 = session_pairs(cals)
+        sigma = np.mean([np.sqrt(np.trace(repeatable(c)) / 3.0) for c in cals])
+        n_full = sum(getattr(c, "linear_map", "rigid") == "full" for c in cals)
+        model = f"{n_full}/9"
+        K = max(float(np.abs(getattr(c, "cross_axis_terms", np.zeros(3))).max()) for c in cals)
+        rms_all.append(rms)
+        z2_all.append(z2)
+        print(f"{i}-{j:<3} {rms / DEG * 1e3:14.1f} {sigma / DEG * 1e3:11.1f} {z2.mean():8.2f} {z2.max():7.1f} "
+              f"{np.mean([c.lack_of_fit for c in cals]):9.3g} {np.mean([c.robust_inflation for c in cals]):10.3g} "
+              f"{model:>6} {100 * K:10.2f}")
+        sys.stdout.flush()
+    rms_all = np.array(rms_all)
+    print(f"all {len(pairs)} pairs: RMS session-to-session rotation difference "
+          f"{np.sqrt(np.mean(rms_all ** 2)) / DEG * 1e3:.1f} mdeg ({rms_all.min() / DEG * 1e3:.0f}-"
+          f"{rms_all.max() / DEG * 1e3:.0f} per pair); mean z2 {np.concatenate(z2_all).mean():.2f} (3 dof); "
+          f"{time.perf_counter() - t0:.1f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,108 @@
+"""The full linear map: rotation, scale factors and the relative cross-axis terms of real MEMS gyros.
+
+The paper's model ``A = S_1 R S_2^-1`` (Eq. 4) assumes the manufacturer removed each gyro's cross-axis
+sensitivity. Real MEMS gyros keep 1-2 % of it (datasheets): gyro i measures ``S_i (I + K_i) omega_i`` with
+``K_i`` off-diagonal, so, to first order in the ``K_i``,
+
+    A = S_1 (I + K_1) R (I + K_2)^-1 S_2^-1 = S_1 (I + K) R' S_2^-1,
+
+where ``K`` is the symmetric part of the relative cross-axis terms ``K_1 - R K_2 R^T`` (gyro 1's axes) and
+``R' = Exp(a) R`` takes up their antisymmetric part ``a`` as a small rotation. No data separate ``a`` from the
+rotation (Appendix D), so the estimate follows one convention: **the relative cross-axis matrix is symmetric**;
+``R_1_2`` is the rotation under it and ``k = (K_xy, K_yz, K_zx)`` (:func:`~fusion_gyrocal.core.observability.cross_matrix`)
+are the cross-axis terms. It is the stable choice: unique, independent of the order and signs of the axes (a
+triangular convention is not), and with all axes parallel (the usual multi-IMU board) it makes ``A R^T`` a
+symmetric map: ``R_1_2`` is the rotation of the polar decomposition of the relative map, which every session of
+a board repeats whatever its motion.
+
+Parameters ``p = [dtheta (3), log s_1 (3), log s_2 (3), k (3)]``: the nine entries of ``A`` (Eq. 17) determine
+all of them when every axis pair is parallel (three scale ratios, rotation, ``k``), all but two in the general
+configuration (the paper's eight plus one combination of ``k``). A Gaussian prior ``N(0, cross_axis_std^2)`` on
+each ``k`` (:class:`~fusion_gyrocal.options.Options`, a MEMS datasheet's cross-axis figure) holds what the data
+leave, so the covariance of the rotation includes what the data cannot separate. The physical chip-to-chip
+rotation differs from ``R_1_2`` by ``a``, which no data see: with the full map the rotation's covariance carries
+``cross_axis_std^2`` per axis for it (``skew_rotation_covariance``, Appendix D), which the difference of two
+sessions of one board cancels.
+
+:func:`choose_full_map` decides from the data (the cross-axis chi-square of
+:func:`~fusion_gyrocal.core.robust.cross_axis`) whether the full map is used (``linear_map="auto"``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .moments import Moments
+from .observability import fisher_information, signal_scatter
+from .refine import fisher_scoring, ml_cost, ml_gradient, retract
+
+#: 99.9 % points of the chi-square distribution with 1..9 degrees of freedom (the cross-axis test).
+CHI2_999 = (10.83, 13.82, 16.27, 18.47, 20.52, 22.46, 24.32, 26.12, 27.88)
+
+
+def choose_full_map(linear_map: str, method: str, cross_chi2: float, cross_dof: int) -> bool:
+    """Whether the estimate uses the full linear map: ``"full"`` always (``method="ml"``), ``"rigid"`` never,
+    ``"auto"`` when the full map fits significantly better than rotation + scale factors (the cross-axis
+    chi-square beyond its 99.9 % point)."""
+    if method != "ml" or linear_map == "rigid":
+        return False
+    if linear_map == "full":
+        return True
+    return bool(cross_dof) and cross_chi2 > CHI2_999[cross_dof - 1]
+
+
+def prior_information(prior_std: float) -> np.ndarray:
+    """Information (12, 12) of the prior ``N(0, prior_std^2)`` on each cross-axis term (zero elsewhere)."""
+    F = np.zeros((12, 12))
+    F[9:, 9:] = np.eye(3) / prior_std**2
+    return F
+
+
+@dataclass(frozen=True)
+class FullMap:
+    """The maximum a-posteriori full linear map (:func:`refine_full`)."""
+
+    R: np.ndarray
+    s1: np.ndarray
+    s2: np.ndarray
+    k: np.ndarray
+    iterations: int
+    converged: bool
+
+
+def refine_full(moments: Moments, R, s1, s2, noise_std, prior_std: float, *, constraints, regauge,
+                max_iter: int = 50, tol: float = 1e-11) -> FullMap:
+    """Fisher scoring of the full map from the rigid estimate ``(R, s1, s2)`` with ``k = 0``.
+
+    The cost is the errors-in-variables likelihood of :func:`~fusion_gyrocal.core.refine.ml_cost` with
+    ``A = S_1 (I + K) R S_2^-1`` plus the prior ``|k|^2 / prior_std^2``; ``constraints(s1, s2)`` (k, 9) and
+    ``regauge(s1, s2)`` are the gauge's, as in :func:`~fusion_gyrocal.core.refine.refine_ml`.
+    """
+    noise_std = tuple(float(x) for x in noise_std)
+    _, Xi_c = signal_scatter(moments, noise_std)
+    prior = prior_information(prior_std)
+
+    def cost(x):
+        return ml_cost(*x[:3], moments, noise_std, x[3]) + float(x[3] @ x[3]) / prior_std**2
+
+    def gradient(x):
+        g = ml_gradient(*x[:3], moments, noise_std, x[3])
+        g[9:] += 2.0 * x[3] / prior_std**2
+        return g
+
+    def step(x, delta):
+        R, s1, s2 = retract(x[0], x[1], x[2], delta[:9])
+        return (R, *regauge(s1, s2), x[3] + delta[9:])
+
+    def gauge(x):
+        C = constraints(x[1], x[2])
+        return np.hstack([C, np.zeros((len(C), 3))])
+
+    (R, s1, s2, k), it, converged = fisher_scoring(
+        (np.array(R, float), np.array(s1, float), np.array(s2, float), np.zeros(3)),
+        cost=cost, gradient=gradient, information=lambda x: 2.0 * (fisher_information(*x[:3], noise_std, Xi_c, x[3])
+                                                                    + prior),
+        retract=step, constraints=gauge, max_iter=max_iter, tol=tol)
+    return FullMap(R, s1, s2, k, it, converged)
