@@ -248,9 +248,9 @@ class Options(FrozenOptions):
     cross_axis_std: float = _option(
         0.01, _positive, "solve",
         "Std of each gyro's cross-axis sensitivity (a fraction; MEMS datasheets give 1-2 %): the prior of the "
-        "full linear map's relative cross-axis terms where the data do not determine them, and the rotation's "
-        "uncertainty from their antisymmetric part, which no data see (added to ``skew_rotation_covariance`` when "
-        "the full map is used).",
+        "full linear map's relative cross-axis terms where the data do not determine them (the rotation's "
+        "uncertainty from their antisymmetric part, which no data see, is as large as the symmetric part: "
+        ":func:`~fusion_gyrocal.core.linear_map.cross_axis_budget`, in ``skew_rotation_covariance``).",
         "--cross-axis-std", type=float, metavar="FRACTION",
         help="std of each gyro's cross-axis sensitivity for the full map (default 0.01)")
     covariance: str = _option(

@@ -21,7 +21,7 @@ configuration (the paper's eight plus one combination of ``k``). A Gaussian prio
 each ``k`` (:class:`~fusion_gyrocal.options.Options`, a MEMS datasheet's cross-axis figure) holds what the data
 leave, so the covariance of the rotation includes what the data cannot separate. The physical chip-to-chip
 rotation differs from ``R_1_2`` by ``a``, which no data see: with the full map the rotation's covariance carries
-``cross_axis_std^2`` per axis for it (``skew_rotation_covariance``, Appendix D), which the difference of two
+:func:`cross_axis_budget` per axis for it (``skew_rotation_covariance``, Appendix D), which the difference of two
 sessions of one board cancels.
 
 :func:`choose_full_map` decides from the data (the cross-axis chi-square of
@@ -58,6 +58,18 @@ def prior_information(prior_std: float) -> np.ndarray:
     F = np.zeros((12, 12))
     F[9:, 9:] = np.eye(3) / prior_std**2
     return F
+
+
+def cross_axis_budget(k, cov_k) -> float:
+    """Variance per axis of the rotation the convention cannot see: the antisymmetric part of the relative
+    cross-axis terms.
+
+    Each gyro's cross-axis entries are as likely on either side of the diagonal, so the antisymmetric part of
+    ``K_1 - R K_2 R^T`` is as large as its symmetric part ``k``: its variance per axis is the mean posterior
+    second moment of ``k``, ``mean(k_m^2 + Var k_m)``, the data's where they determine ``k`` and the prior's
+    (``cross_axis_std^2``) where they do not.
+    """
+    return float(np.mean(np.asarray(k) ** 2 + np.clip(np.diag(cov_k), 0.0, None)))
 
 
 @dataclass(frozen=True)

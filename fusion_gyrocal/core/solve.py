@@ -14,7 +14,7 @@ from ..lie import log, nearest_rotation
 from ..options import Options
 from .direct import decompose, solve_A
 from .gauge import Gauge, constrained_inverse
-from .linear_map import CHI2_999, choose_full_map, prior_information, refine_full
+from .linear_map import CHI2_999, choose_full_map, cross_axis_budget, prior_information, refine_full
 from .model import BIAS, ROT, PairCalibration, mark_undetermined
 from .moments import Moments, WindowStats, noise_pair
 from .observability import (PRIOR_GAUGE, A_of, check_excitation, check_samples, classify, dA_dp, fisher_information,
@@ -250,7 +250,7 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
     sk = np.asarray(o.skew_std, dtype=float)
     skew_cov = 0.25 * (sk[0] ** 2 + sk[1] ** 2) * np.eye(3)  # Appendix D: theta ~ (w_1 - C w_2) / 2
     if full:   # the antisymmetric cross-axis part, which the convention gives the rotation and no data see
-        skew_cov = skew_cov + o.cross_axis_std ** 2 * np.eye(3)
+        skew_cov = skew_cov + cross_axis_budget(k, P9[9:, 9:]) * np.eye(3)
     cov[ROT, ROT] += skew_cov
     snr = per_axis_snr(moments, noise)
     weak = [f"{'xyz'[i]} ({snr[i]:.3g})" for i in range(3) if snr[i] < o.target_snr]
@@ -290,7 +290,9 @@ def _full_map_note(k, cov_k, chi2, dof, cross_axis_std):
     return (f"full linear map (cross-axis chi2 {chi2:.3g} for {dof} dof): symmetric relative cross-axis terms "
             f"{terms}; R_1_2 is the rotation under the symmetric convention, repeatable from session to session. "
             f"The chip-to-chip rotation differs from it by the antisymmetric part, which no data see: budgeted at "
-            f"cross_axis_std {cross_axis_std:g} rad per axis (skew_rotation_covariance, included in the covariance)")
+            f"{np.rad2deg(np.sqrt(cross_axis_budget(k, cov_k))):.3g} deg per axis, as large as the symmetric part "
+            f"(skew_rotation_covariance, included in the covariance; cross_axis_std {cross_axis_std:g} where the "
+            "data leave the terms free)")
 
 
 def _ml_covariance(F, s1, s2, config, gauge, scale_prior_std):
