@@ -208,12 +208,13 @@ def test_calibrate_pair_bias_window_follows_drifting_bias():
 
 
 def test_calibrate_pair_skew_compensation_and_budget():
+    # the paper's model (Appendix D's budget is for rotation + scale factors; the full map has its own, test_linear_map)
     sim = simulate_pair(rng=9, scale_1=S1, scale_2=S2, skew_std=2e-3, n=20000, bias_walk_std=0.0)
-    raw = calibrate_pair(sim.omega_1, sim.omega_2, noise_std=PAPER_NOISE_STD)
+    raw = calibrate_pair(sim.omega_1, sim.omega_2, noise_std=PAPER_NOISE_STD, linear_map="rigid")
     comp = calibrate_pair(sim.omega_1, sim.omega_2, noise_std=PAPER_NOISE_STD, intrinsics_1=sim.S_1,
                           intrinsics_2=sim.S_2)
     assert rotation_error(comp.R_1_2, sim.R_1_2) < 0.3 * rotation_error(raw.R_1_2, sim.R_1_2)
-    budget = calibrate_pair(sim.omega_1, sim.omega_2, noise_std=PAPER_NOISE_STD, skew_std=2.357e-4)
+    budget = calibrate_pair(sim.omega_1, sim.omega_2, noise_std=PAPER_NOISE_STD, skew_std=2.357e-4, linear_map="rigid")
     np.testing.assert_allclose(np.diag(budget.skew_rotation_covariance), 0.25 * 2 * 2.357e-4**2)
     assert np.all(np.diag(budget.covariance)[ROT] > np.diag(raw.covariance)[ROT])
 

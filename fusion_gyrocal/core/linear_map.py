@@ -1,19 +1,21 @@
 """The full linear map: rotation, scale factors and the relative cross-axis terms of real MEMS gyros.
 
 The paper's model ``A = S_1 R S_2^-1`` (Eq. 4) assumes the manufacturer removed each gyro's cross-axis
-sensitivity. Real MEMS gyros keep 1-2 % of it (datasheets): gyro i measures ``S_i (I + K_i) omega_i`` with
+sensitivity. Real MEMS gyros keep 1-2 % of it (datasheets): gyro i measures ``(I + K_i) S_i omega_i`` with
 ``K_i`` off-diagonal, so, to first order in the ``K_i``,
 
-    A = S_1 (I + K_1) R (I + K_2)^-1 S_2^-1 = S_1 (I + K) R' S_2^-1,
+    A = (I + K_1) S_1 R S_2^-1 (I + K_2)^-1 = (I + K) S_1 R' S_2^-1,
 
-where ``K`` is the symmetric part of the relative cross-axis terms ``K_1 - R K_2 R^T`` (gyro 1's axes) and
-``R' = Exp(a) R`` takes up their antisymmetric part ``a`` as a small rotation. No data separate ``a`` from the
+where ``K`` is the symmetric part of the relative cross-axis terms ``K_1 - A K_2 A^-1`` (gyro 1's axes) and
+``R' = Exp(a) R`` takes up their antisymmetric part ``a`` as a small rotation. ``K`` acts after the scale factors,
+so the scale factors keep the paper's symmetries (Theorem 2, Lemmas 2-3: the common factor of a parallel axis
+pair is still free). No data separate ``a`` from the
 rotation (Appendix D), so the estimate follows one convention: **the relative cross-axis matrix is symmetric**;
 ``R_1_2`` is the rotation under it and ``k = (K_xy, K_yz, K_zx)`` (:func:`~fusion_gyrocal.core.observability.cross_matrix`)
 are the cross-axis terms. It is the stable choice: unique, independent of the order and signs of the axes (a
-triangular convention is not), and with all axes parallel (the usual multi-IMU board) it makes ``A R^T`` a
-symmetric map: ``R_1_2`` is the rotation of the polar decomposition of the relative map, which every session of
-a board repeats whatever its motion.
+triangular convention is not), and with all axes parallel (the usual multi-IMU board) ``R_1_2`` is, up to the
+scale factors, the rotation of the polar decomposition of ``A``, which every session of a board repeats whatever
+its motion.
 
 Parameters ``p = [dtheta (3), log s_1 (3), log s_2 (3), k (3)]``: the nine entries of ``A`` (Eq. 17) determine
 all of them when every axis pair is parallel (three scale ratios, rotation, ``k``), all but two in the general
@@ -89,7 +91,7 @@ def refine_full(moments: Moments, R, s1, s2, noise_std, prior_std: float, *, con
     """Fisher scoring of the full map from the rigid estimate ``(R, s1, s2)`` with ``k = 0``.
 
     The cost is the errors-in-variables likelihood of :func:`~fusion_gyrocal.core.refine.ml_cost` with
-    ``A = S_1 (I + K) R S_2^-1`` plus the prior ``|k|^2 / prior_std^2``; ``constraints(s1, s2)`` (k, 9) and
+    ``A = (I + K) S_1 R S_2^-1`` plus the prior ``|k|^2 / prior_std^2``; ``constraints(s1, s2)`` (k, 9) and
     ``regauge(s1, s2)`` are the gauge's, as in :func:`~fusion_gyrocal.core.refine.refine_ml`.
     """
     noise_std = tuple(float(x) for x in noise_std)

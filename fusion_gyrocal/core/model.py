@@ -146,7 +146,7 @@ class PairCalibration:
     cross_axis_dof : int
     linear_map : {"rigid", "full"}
         The sensor model of the estimate: ``"rigid"`` the paper's ``A = S_1 R S_2^-1`` (Eq. 4), ``"full"`` the
-        full linear map ``A = S_1 (I + K) R S_2^-1`` with symmetric relative cross-axis terms
+        full linear map ``A = (I + K) S_1 R S_2^-1`` with symmetric relative cross-axis terms
         (:mod:`~fusion_gyrocal.core.linear_map`; ``R_1_2`` is the rotation under that convention).
     cross_axis_terms : ndarray (3,)
         The full map's relative cross-axis terms ``(K_xy, K_yz, K_zx)`` (fractions, gyro 1's axes); zeros for
@@ -206,7 +206,7 @@ class PairCalibration:
     # ------------------------------------------------------------------ derived
     @property
     def A(self) -> np.ndarray:
-        """``S_1 R_1_2 S_2^-1`` (Eq. 4), or ``S_1 (I + K) R_1_2 S_2^-1`` for the full linear map."""
+        """``S_1 R_1_2 S_2^-1`` (Eq. 4), or ``(I + K) S_1 R_1_2 S_2^-1`` for the full linear map."""
         from .observability import A_of
 
         return A_of(self.R_1_2, self.scale_1, self.scale_2, self.cross_axis_terms if self.linear_map == "full"

@@ -42,30 +42,30 @@ def cross_matrix(k) -> np.ndarray:
 
 
 def A_of(R, s1, s2, k=None) -> np.ndarray:
-    """``A = S_1 R S_2^-1`` (Eq. 4), or the full linear map ``S_1 (I + K) R S_2^-1`` with the symmetric relative
+    """``A = S_1 R S_2^-1`` (Eq. 4), or the full linear map ``(I + K) S_1 R S_2^-1`` with the symmetric relative
     cross-axis terms ``k`` (:mod:`~fusion_gyrocal.core.linear_map`)."""
-    if k is not None:
-        R = (np.eye(3) + cross_matrix(k)) @ R
-    return (np.asarray(s1)[:, None] * R) / np.asarray(s2)[None, :]
+    A = (np.asarray(s1)[:, None] * R) / np.asarray(s2)[None, :]
+    return A if k is None else (np.eye(3) + cross_matrix(k)) @ A
 
 
 def dA_dp(R, s1, s2, k=None) -> np.ndarray:
     """Derivatives (9, 3, 3) of A w.r.t. ``[dtheta, log s_1, log s_2]`` at ``(R, s1, s2)``; (12, 3, 3) with the
-    cross-axis terms ``k`` appended (``A = S_1 (I + K) Exp(dtheta) R S_2^-1``)."""
-    A = A_of(R, s1, s2, k)
-    L = np.eye(3) if k is None else np.eye(3) + cross_matrix(k)
+    cross-axis terms ``k`` appended (``A = (I + K) S_1 Exp(dtheta) R S_2^-1``)."""
+    B = A_of(R, s1, s2)
     D = np.empty((9 if k is None else 12, 3, 3))
     for m in range(3):
         e = np.zeros(3)
         e[m] = 1.0
-        D[m] = (s1[:, None] * (L @ skew(e) @ R)) / s2[None, :]
+        D[m] = (s1[:, None] * (skew(e) @ R)) / s2[None, :]
         if k is not None:
-            D[9 + m] = (s1[:, None] * (cross_matrix(e) @ R)) / s2[None, :]
+            D[9 + m] = cross_matrix(e) @ B
     for i in range(3):
         D[3 + i] = 0.0
-        D[3 + i][i, :] = A[i, :]
+        D[3 + i][i, :] = B[i, :]
         D[6 + i] = 0.0
-        D[6 + i][:, i] = -A[:, i]
+        D[6 + i][:, i] = -B[:, i]
+    if k is not None:
+        D[:9] = np.einsum("ij,pjk->pik", np.eye(3) + cross_matrix(k), D[:9])
     return D
 
 

@@ -1,0 +1,98 @@
+"""The full linear map (core/linear_map.py): rotation, scale factors and symmetric relative cross-axis terms."""
+
+import numpy as np
+import pytest
+
+from fusion_gyrocal import calibrate_pair
+from fusion_gyrocal.core.linear_map import cross_axis_budget
+from fusion_gyrocal.core.model import PairCalibration
+from fusion_gyrocal.core.observability import A_of, cross_matrix, dA_dp
+from fusion_gyrocal.evaluate.sim import general_rotation, simulate_pair
+from fusion_gyrocal.lie import exp, log
+
+FLIP = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])   # 180 deg about (1, -1, 0): all axes parallel
+NOISE = 2e-3
+
+
+def _pair(rng, R, k=(0.0, 0.0, 0.0), n=20000, scale_1=(1.002, 0.997, 1.004), scale_2=(0.995, 1.003, 1.001)):
+    """A pair whose map is ``(I + K) S_1 R S_2^-1`` exactly (the model's convention), white noise."""
+    sim = simulate_pair(n=n, rms=0.5, R_1_2=R, noise_std=1e-12, bias_walk_std=0.0, rng=rng)
+    w2_true = sim.omega_true_1 @ R                                   # gyro 2's rate in its own frame
+    s1, s2 = np.asarray(scale_1), np.asarray(scale_2)
+    A = A_of(R, s1, s2, np.asarray(k, float))
+    w2 = w2_true * s2 + rng.normal(0.0, NOISE, w2_true.shape)
+    w1 = (w2_true * s2) @ A.T + rng.normal(0.0, NOISE, w2_true.shape)
+    return w1, w2
+
+
+def test_dA_dp_cross_axis_terms_match_numerical_derivatives():
+    rng = np.random.default_rng(3)
+    R, s1, s2, k = general_rotation(rng), rng.uniform(0.98, 1.02, 3), rng.uniform(0.98, 1.02, 3), rng.normal(0, 0.01, 3)
+    D = dA_dp(R, s1, s2, k)
+    h = 1e-7
+    for p in range(12):
+        d = np.zeros(12)
+        d[p] = h
+        A_plus = A_of(exp(d[:3]) @ R, s1 * np.exp(d[3:6]), s2 * np.exp(d[6:9]), k + d[9:])
+        np.testing.assert_allclose((A_plus - A_of(R, s1, s2, k)) / h, D[p], atol=1e-6)
+
+
+def test_calibrate_pair_full_map_recovers_cross_axis_terms_all_axes_parallel():
+    k = np.array([0.008, -0.012, 0.005])
+    w1, w2 = _pair(np.random.default_rng(11), FLIP, k)
+    cal = calibrate_pair(w1, w2)
+    assert cal.linear_map == "full"
+    sd = np.sqrt(np.diag(cal.cross_axis_covariance))
+    assert np.all(np.abs(cal.cross_axis_terms - k) < 4 * sd)
+    assert np.all(sd < 1e-3)                                          # determined by the data, not the prior
+    d = log(cal.R_1_2 @ FLIP.T)
+    repeatable = cal.covariance[:3, :3] - cal.skew_rotation_covariance
+    assert float(d @ np.linalg.solve(repeatable, d)) < 16.27            # 99.9 % of chi2(3)
+    rigid = calibrate_pair(w1, w2, linear_map="rigid")
+    assert np.linalg.norm(log(rigid.R_1_2 @ FLIP.T)) > 5 * np.linalg.norm(d)   # the leak the full map removes
+
+
+def test_calibrate_pair_auto_keeps_the_paper_model_without_cross_axis():
+    R = general_rotation(np.random.default_rng(5))
+    w1, w2 = _pair(np.random.default_rng(12), R)
+    cal = calibrate_pair(w1, w2)
+    assert cal.linear_map == "rigid"
+    assert np.all(cal.cross_axis_terms == 0.0) and np.all(cal.skew_rotation_covariance == 0.0)
+
+
+def test_calibrate_pair_full_map_budget_covers_the_unseen_antisymmetric_part():
+    k = np.array([0.01, 0.0, -0.01])
+    w1, w2 = _pair(np.random.default_rng(13), FLIP, k)
+    cal = calibrate_pair(w1, w2, linear_map="full")
+    budget = cross_axis_budget(cal.cross_axis_terms, cal.cross_axis_covariance)
+    np.testing.assert_allclose(np.diag(cal.skew_rotation_covariance), budget)
+    assert budget == pytest.approx(np.mean(k**2), rel=0.1)
+    assert any("full linear map" in note for note in cal.notes)
+
+
+def test_calibrate_pair_full_map_compensate_and_json_round_trip():
+    k = np.array([0.006, 0.004, -0.009])
+    w1, w2 = _pair(np.random.default_rng(14), FLIP, k, n=8000)
+    cal = calibrate_pair(w1, w2, linear_map="full")
+    np.testing.assert_allclose(cal.A, A_of(cal.R_1_2, cal.scale_1, cal.scale_2, cal.cross_axis_terms))
+    rms_full = np.sqrt(np.mean((w1 - cal.compensate(w2)) ** 2))
+    assert rms_full < 1.2 * np.sqrt(2) * NOISE                        # the map explains all but the noise
+    back = PairCalibration.from_dict(cal.to_dict())
+    assert back.linear_map == "full"
+    np.testing.assert_array_equal(back.cross_axis_terms, cal.cross_axis_terms)
+    np.testing.assert_array_equal(back.A, cal.A)
+
+
+def test_calibrate_pair_linear_map_rejects_unknown_value():
+    from fusion_gyrocal.errors import OptionError
+
+    w1, w2 = _pair(np.random.default_rng(15), FLIP, n=2000)
+    with pytest.raises(OptionError, match="linear_map"):
+        calibrate_pair(w1, w2, linear_map="affine")
+
+
+def test_cross_matrix_is_symmetric_with_zero_diagonal():
+    K = cross_matrix([1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(K, K.T)
+    np.testing.assert_array_equal(np.diag(K), 0.0)
+    assert (K[0, 1], K[1, 2], K[2, 0]) == (1.0, 2.0, 3.0)
