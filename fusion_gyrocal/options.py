@@ -246,13 +246,13 @@ class Options(FrozenOptions):
         "--linear-map", choices=LINEAR_MAPS,
         help="sensor model: auto (cross-axis terms when the data show them, default), rigid (paper), full")
     cross_axis_std: float = _option(
-        0.01, _positive, "solve",
+        0.015, _positive, "solve",
         "Std of each gyro's cross-axis sensitivity (a fraction; MEMS datasheets give 1-2 %): the prior of the "
         "full linear map's relative cross-axis terms where the data do not determine them (the rotation's "
         "uncertainty from their antisymmetric part, which no data see, is as large as the symmetric part: "
         ":func:`~fusion_gyrocal.core.linear_map.cross_axis_budget`, in ``skew_rotation_covariance``).",
         "--cross-axis-std", type=float, metavar="FRACTION",
-        help="std of each gyro's cross-axis sensitivity for the full map (default 0.01)")
+        help="std of each gyro's cross-axis sensitivity for the full map (default 0.015)")
     covariance: str = _option(
         "auto", _choice(COVARIANCES), "solve",
         "Which covariance is reported (``'ml'`` solves of :func:`~fusion_gyrocal.calibrate_pair`). ``'auto'`` "

@@ -64,9 +64,9 @@ def test_calibrate_pair_full_map_budget_covers_the_unseen_antisymmetric_part():
     k = np.array([0.01, 0.0, -0.01])
     w1, w2 = _pair(np.random.default_rng(13), FLIP, k)
     cal = calibrate_pair(w1, w2, linear_map="full")
-    budget = cross_axis_budget(cal.cross_axis_terms, cal.cross_axis_covariance)
+    budget = cross_axis_budget(cal.cross_axis_terms, cal.cross_axis_covariance, 0.015)
     np.testing.assert_allclose(np.diag(cal.skew_rotation_covariance), budget)
-    assert budget == pytest.approx(np.mean(k**2), rel=0.1)
+    assert budget == pytest.approx((3 * 0.015**2 + np.sum(k**2)) / 6, rel=0.1)   # the data's k pooled with the prior
     assert any("full linear map" in note for note in cal.notes)
 
 
@@ -96,3 +96,41 @@ def test_cross_matrix_is_symmetric_with_zero_diagonal():
     np.testing.assert_array_equal(K, K.T)
     np.testing.assert_array_equal(np.diag(K), 0.0)
     assert (K[0, 1], K[1, 2], K[2, 0]) == (1.0, 2.0, 3.0)
+
+
+def test_calibrate_pair_reference_recovers_gyro_2_intrinsics():
+    """Gyro 1's intrinsic matrix known: gyro 2's scale factors and cross-axis terms (upper triangular) and the
+    rotation follow from A, in absolute scale."""
+    from fusion_gyrocal.core.linear_map import UPPER
+
+    rng = np.random.default_rng(21)
+    R = general_rotation(rng)
+    S1 = np.array([[1.01, 0.004, -0.006], [0.0, 0.99, 0.003], [0.0, 0.0, 1.005]])
+    S2 = np.array([[0.98, 0.012, -0.015], [0.0, 1.02, 0.008], [0.0, 0.0, 0.995]])
+    sim = simulate_pair(n=20000, rms=0.5, R_1_2=R, noise_std=1e-12, bias_walk_std=0.0, rng=rng)
+    w1 = sim.omega_true_1 @ S1.T + rng.normal(0, NOISE, (20000, 3)) + 0.01
+    w2 = (sim.omega_true_1 @ R) @ S2.T + rng.normal(0, NOISE, (20000, 3)) - 0.02
+    cal = calibrate_pair(w1, w2, intrinsics_1=S1)
+    assert cal.linear_map == "reference" and cal.scale_observable.all()
+    np.testing.assert_array_equal(cal.scale_1, np.diag(S1))
+    sd = np.sqrt(np.diag(cal.intrinsics_2_covariance))
+    z = [(cal.intrinsics_2[a, b] - S2[a, b]) / sd[p] for p, (a, b) in enumerate(UPPER)]
+    assert np.all(np.abs(z) < 4.0) and np.all(sd < 2e-4)
+    d = log(cal.R_1_2 @ R.T)
+    assert float(d @ np.linalg.solve(cal.covariance[:3, :3], d)) < 16.27
+    np.testing.assert_allclose(cal.scale_2, np.diag(cal.intrinsics_2))
+    assert any("gyro 2's intrinsic matrix" in note for note in cal.notes)
+
+
+def test_calibrate_pair_intrinsics_transform_the_window_statistics_too():
+    """With both intrinsics given the block-robust check sees the same compensated samples as the solve: no
+    spurious inflation on white noise."""
+    rng = np.random.default_rng(22)
+    R = general_rotation(rng)
+    S = [np.array([[1.0, 0.01, 0.0], [0.0, 1.0, -0.01], [0.0, 0.0, 1.0]]),
+         np.array([[1.0, -0.008, 0.012], [0.0, 1.0, 0.005], [0.0, 0.0, 1.0]])]
+    sim = simulate_pair(n=20000, rms=0.5, R_1_2=R, noise_std=1e-12, bias_walk_std=0.0, rng=rng)
+    w = [wt @ M.T + rng.normal(0, NOISE, wt.shape) for wt, M in zip((sim.omega_true_1, sim.omega_true_1 @ R), S)]
+    cal = calibrate_pair(*w, intrinsics_1=S[0], intrinsics_2=S[1], noise_std=NOISE)
+    assert cal.robust_inflation < 3.0
+    assert "not significantly larger" in cal.covariance_basis

@@ -26,6 +26,13 @@ rotation differs from ``R_1_2`` by ``a``, which no data see: with the full map t
 :func:`cross_axis_budget` per axis for it (``skew_rotation_covariance``, Appendix D), which the difference of two
 sessions of one board cancels.
 
+A calibrated reference (``intrinsics_1`` given, ``intrinsics_2`` not): with gyro 1's intrinsic matrix known, the
+nine entries of ``A = D_1 R S_2^-1`` determine the rotation and gyro 2's whole upper-triangular intrinsic matrix
+``S_2`` (its scale factors and cross-axis terms; :func:`decompose_reference`, :func:`refine_reference`), in
+absolute scale: a cheap gyro's intrinsic calibration against a good one, without a rate table. The triangular
+convention is then gyro 2's own (its x axis and xy plane define its frame, as in Kalibr's and imucal's intrinsic
+matrices), and the rotation is the physical one in it.
+
 :func:`choose_full_map` decides from the data (the cross-axis chi-square of
 :func:`~fusion_gyrocal.core.robust.cross_axis`) whether the full map is used (``linear_map="auto"``).
 """
@@ -36,9 +43,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..lie import exp, skew
 from .moments import Moments
-from .observability import fisher_information, signal_scatter
-from .refine import fisher_scoring, ml_cost, ml_gradient, retract
+from .observability import fisher_information, information_of_A, signal_scatter
+from .refine import cost_of_A, fisher_scoring, gradient_of_A, ml_cost, ml_gradient, retract
 
 #: 99.9 % points of the chi-square distribution with 1..9 degrees of freedom (the cross-axis test).
 CHI2_999 = (10.83, 13.82, 16.27, 18.47, 20.52, 22.46, 24.32, 26.12, 27.88)
@@ -62,16 +70,18 @@ def prior_information(prior_std: float) -> np.ndarray:
     return F
 
 
-def cross_axis_budget(k, cov_k) -> float:
+def cross_axis_budget(k, cov_k, prior_std: float) -> float:
     """Variance per axis of the rotation the convention cannot see: the antisymmetric part of the relative
     cross-axis terms.
 
     Each gyro's cross-axis entries are as likely on either side of the diagonal, so the antisymmetric part of
-    ``K_1 - R K_2 R^T`` is as large as its symmetric part ``k``: its variance per axis is the mean posterior
-    second moment of ``k``, ``mean(k_m^2 + Var k_m)``, the data's where they determine ``k`` and the prior's
-    (``cross_axis_std^2``) where they do not.
+    the relative terms is as large as their symmetric part ``k``. Its variance is estimated from the three
+    ``k_m`` (their posterior second moments ``k_m^2 + Var k_m``: the data's where they determine ``k``, the prior's
+    where they do not) pooled with the prior ``prior_std^2`` counted as three terms' worth: a variance from three
+    numbers alone would often be far too small (``E[1 / chi2_3] = 1``), and the rotation's ``z^2`` heavy-tailed.
     """
-    return float(np.mean(np.asarray(k) ** 2 + np.clip(np.diag(cov_k), 0.0, None)))
+    second = np.asarray(k) ** 2 + np.clip(np.diag(cov_k), 0.0, None)
+    return float((3.0 * prior_std**2 + second.sum()) / 6.0)
 
 
 @dataclass(frozen=True)
@@ -120,3 +130,58 @@ def refine_full(moments: Moments, R, s1, s2, noise_std, prior_std: float, *, con
                                                                     + prior),
         retract=step, constraints=gauge, max_iter=max_iter, tol=tol)
     return FullMap(R, s1, s2, k, it, converged)
+
+
+# ---------------------------------------------------------------------------------------- a calibrated reference
+#: The entries of an upper-triangular intrinsic matrix, in the order of its parameters and covariance.
+UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+
+
+def reference_map(R, S2, scale_1) -> np.ndarray:
+    """``A = D_1 R S_2^-1``: gyro 1's skew compensated (``D_1`` its known scale factors), gyro 2's intrinsic matrix
+    ``S_2`` upper triangular (its scale factors on the diagonal, its cross-axis terms above)."""
+    return (np.asarray(scale_1)[:, None] * R) @ np.linalg.inv(S2)
+
+
+def reference_derivatives(R, S2, scale_1) -> np.ndarray:
+    """Derivatives (9, 3, 3) of :func:`reference_map` w.r.t. ``[dtheta (3), S_2's upper entries (6, UPPER)]``."""
+    A = reference_map(R, S2, scale_1)
+    S2_inv = np.linalg.inv(S2)
+    D = np.empty((9, 3, 3))
+    for m in range(3):
+        D[m] = (np.asarray(scale_1)[:, None] * (skew(np.eye(3)[m]) @ R)) @ S2_inv
+    for p, (a, b) in enumerate(UPPER):
+        D[3 + p] = -np.outer(A[:, a], S2_inv[b])          # -A E_ab S_2^-1
+    return D
+
+
+def decompose_reference(A, scale_1) -> tuple[np.ndarray, np.ndarray]:
+    """``(R, S_2)`` from ``A = D_1 R S_2^-1`` (Appendix D's structure): ``D_1^-1 A = R T`` is a QR decomposition
+    with ``T = S_2^-1`` upper triangular with a positive diagonal (unique for ``det(A) > 0``)."""
+    Q, T = np.linalg.qr(np.asarray(A, float) / np.asarray(scale_1)[:, None])
+    sign = np.sign(np.diag(T))
+    return Q * sign[None, :], np.linalg.inv(sign[:, None] * T)
+
+
+def refine_reference(moments: Moments, R, S2, scale_1, noise_std, *, max_iter: int = 50,
+                     tol: float = 1e-11) -> tuple[np.ndarray, np.ndarray, int, bool]:
+    """Maximum-likelihood ``(R, S_2)`` of :func:`reference_map` by Fisher scoring (the likelihood of
+    :func:`~fusion_gyrocal.core.refine.cost_of_A`); no gauge: gyro 1's known scale factors fix the global scale."""
+    noise_std = tuple(float(x) for x in noise_std)
+    _, Xi_c = signal_scatter(moments, noise_std)
+
+    def step(x, delta):
+        S2 = x[1].copy()
+        for p, (a, b) in enumerate(UPPER):
+            S2[a, b] += delta[3 + p]
+        return exp(delta[:3]) @ x[0], S2
+
+    (R, S2), it, converged = fisher_scoring(
+        (np.array(R, float), np.array(S2, float)),
+        cost=lambda x: cost_of_A(reference_map(*x, scale_1), moments, noise_std),
+        gradient=lambda x: gradient_of_A(reference_map(*x, scale_1), reference_derivatives(*x, scale_1), moments,
+                                         noise_std),
+        information=lambda x: 2.0 * information_of_A(reference_map(*x, scale_1), reference_derivatives(*x, scale_1),
+                                                     noise_std, Xi_c),
+        retract=step, max_iter=max_iter, tol=tol)
+    return R, S2, it, converged

@@ -49,7 +49,8 @@ ROT, S1, S2, BIAS = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)
 _ARRAY_SHAPES = {
     "R_1_2": (3, 3), "scale_1": (3,), "scale_2": (3,), "bias": (3,), "scale_observable": (2, 3),
     "covariance": (12, 12), "snr": (3,), "noise_std": (2,), "skew_rotation_covariance": (3, 3),
-    "cross_axis": (3, 3), "cross_axis_terms": (3,), "cross_axis_covariance": (3, 3),
+    "cross_axis": (3, 3), "cross_axis_terms": (3,), "cross_axis_covariance": (3, 3), "intrinsics_2": (3, 3),
+    "intrinsics_2_covariance": (6, 6),
 }
 
 
@@ -144,15 +145,21 @@ class PairCalibration:
     cross_axis_chi2 : float
         Its chi-square with ``cross_axis_dof`` degrees of freedom (NaN when not computed).
     cross_axis_dof : int
-    linear_map : {"rigid", "full"}
+    linear_map : {"rigid", "full", "reference"}
         The sensor model of the estimate: ``"rigid"`` the paper's ``A = S_1 R S_2^-1`` (Eq. 4), ``"full"`` the
         full linear map ``A = (I + K) S_1 R S_2^-1`` with symmetric relative cross-axis terms
-        (:mod:`~fusion_gyrocal.core.linear_map`; ``R_1_2`` is the rotation under that convention).
+        (:mod:`~fusion_gyrocal.core.linear_map`; ``R_1_2`` is the rotation under that convention),
+        ``"reference"`` gyro 2's whole intrinsic matrix against gyro 1's known one (``intrinsics_1``).
     cross_axis_terms : ndarray (3,)
         The full map's relative cross-axis terms ``(K_xy, K_yz, K_zx)`` (fractions, gyro 1's axes); zeros for
         ``"rigid"``.
     cross_axis_covariance : ndarray (3, 3)
         Their covariance (zeros for ``"rigid"``).
+    intrinsics_2 : ndarray (3, 3)
+        For ``"reference"``: gyro 2's intrinsic matrix (upper triangular: scale factors on the diagonal, cross-axis
+        terms above, gyro 2's measured rate ``intrinsics_2 @ omega_2``); zeros otherwise.
+    intrinsics_2_covariance : ndarray (6, 6)
+        Covariance of its upper-triangular entries (in the order xx, xy, xz, yy, yz, zz); zeros otherwise.
     noise_model : NoiseModel or None
         The noise model identified from the pair's residual (:func:`~fusion_gyrocal.core.noise.identify_noise`)
         when ``noise_std`` came from it.
@@ -192,6 +199,8 @@ class PairCalibration:
     linear_map: str = "rigid"
     cross_axis_terms: np.ndarray = field(default_factory=lambda: np.zeros(3))
     cross_axis_covariance: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    intrinsics_2: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    intrinsics_2_covariance: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)))
     noise_model: Any = None
     notes: tuple = ()
 
@@ -209,6 +218,8 @@ class PairCalibration:
         """``S_1 R_1_2 S_2^-1`` (Eq. 4), or ``(I + K) S_1 R_1_2 S_2^-1`` for the full linear map."""
         from .observability import A_of
 
+        if self.linear_map == "reference":
+            return (self.scale_1[:, None] * self.R_1_2) @ np.linalg.inv(self.intrinsics_2)
         return A_of(self.R_1_2, self.scale_1, self.scale_2, self.cross_axis_terms if self.linear_map == "full"
                     else None)
 

@@ -96,8 +96,12 @@ def fisher_information(R, s1, s2, noise_std, Xi_c, k=None) -> np.ndarray:
     Xi_c : (3, 3) centred scatter of gyro 2's signal (see :func:`signal_scatter`).
     k : (3,) relative cross-axis terms, optional (:func:`cross_matrix`).
     """
-    D = dA_dp(R, s1, s2, k)
-    W = residual_weight(A_of(R, s1, s2, k), noise_std)
+    return information_of_A(A_of(R, s1, s2, k), dA_dp(R, s1, s2, k), noise_std, Xi_c)
+
+
+def information_of_A(A, D, noise_std, Xi_c) -> np.ndarray:
+    """:func:`fisher_information` of a map ``A`` whose derivatives w.r.t. its parameters are ``D`` (p, 3, 3)."""
+    W = residual_weight(A, noise_std)
     WDX = np.einsum("ij,qjk,kl->qil", W, D, Xi_c)
     return np.einsum("pab,qab->pq", D, WDX)  # tr(D_p^T W D_q Xi_c)
 

@@ -37,14 +37,21 @@ def residual_scatter(A, Sc):
 def ml_cost(R, s1, s2, moments: Moments, noise_std, k=None) -> float:
     """Negative log-likelihood (times 2, up to a constant) of the calibration given the moments (``k``: the
     cross-axis terms of the full linear map, :mod:`~fusion_gyrocal.core.linear_map`)."""
-    A = A_of(R, s1, s2, k)
-    return float(np.trace(residual_weight(A, noise_std) @ residual_scatter(A, moments.scatter)))
+    return cost_of_A(A_of(R, s1, s2, k), moments, noise_std)
 
 
 def ml_gradient(R, s1, s2, moments: Moments, noise_std, k=None) -> np.ndarray:
     """Gradient of :func:`ml_cost` w.r.t. ``[dtheta, log s_1, log s_2]`` (and ``k`` when given)."""
-    A = A_of(R, s1, s2, k)
-    D = dA_dp(R, s1, s2, k)
+    return gradient_of_A(A_of(R, s1, s2, k), dA_dp(R, s1, s2, k), moments, noise_std)
+
+
+def cost_of_A(A, moments: Moments, noise_std) -> float:
+    """:func:`ml_cost` of a map ``A`` however it is parametrised."""
+    return float(np.trace(residual_weight(A, noise_std) @ residual_scatter(A, moments.scatter)))
+
+
+def gradient_of_A(A, D, moments: Moments, noise_std) -> np.ndarray:
+    """Gradient of :func:`cost_of_A` w.r.t. the parameters whose derivatives of ``A`` are ``D`` (p, 3, 3)."""
     W = residual_weight(A, noise_std)
     Sc = moments.scatter
     M = residual_scatter(A, Sc)

@@ -55,8 +55,11 @@ def window_scores(R, s1, s2, noise_std, stats: WindowStats, k=None) -> np.ndarra
     ``S`` the window's scatter about the log's mean (about its own mean for bias segments); its
     gradient (:func:`~fusion_gyrocal.core.refine.ml_gradient`) is linear in ``S``.
     """
-    A = A_of(R, s1, s2, k)
-    D = dA_dp(R, s1, s2, k)                            # (9 or 12, 3, 3)
+    return scores_of_A(A_of(R, s1, s2, k), dA_dp(R, s1, s2, k), noise_std, stats)
+
+
+def scores_of_A(A, D, noise_std, stats: WindowStats) -> np.ndarray:
+    """:func:`window_scores` of a map ``A`` whose derivatives w.r.t. its parameters are ``D`` (p, 3, 3)."""
     W = residual_weight(A, noise_std)
     S = centred_scatters(stats)
     S11, S12, S22 = S[:, :3, :3], S[:, :3, 3:], S[:, 3:, 3:]

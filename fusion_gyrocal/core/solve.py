@@ -7,6 +7,8 @@ generalised, default) -> covariance from the Fisher information (Appendix B gene
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from ..errors import InputError, NotRigidError, OptionError
@@ -14,14 +16,15 @@ from ..lie import log, nearest_rotation
 from ..options import Options
 from .direct import decompose, solve_A
 from .gauge import Gauge, constrained_inverse
-from .linear_map import CHI2_999, choose_full_map, cross_axis_budget, prior_information, refine_full
+from .linear_map import (CHI2_999, UPPER, choose_full_map, cross_axis_budget, decompose_reference, prior_information,
+                         reference_derivatives, reference_map, refine_full, refine_reference)
 from .model import BIAS, ROT, PairCalibration, mark_undetermined
 from .moments import Moments, WindowStats, noise_pair
-from .observability import (PRIOR_GAUGE, A_of, check_excitation, check_samples, classify, dA_dp, fisher_information,
+from .observability import (PRIOR_GAUGE, A_of, check_excitation, check_samples, classify, dA_dp, information_of_A,
                             per_axis_snr, prior_held_covariance, residual_weight, signal_scatter)
 from .refine import residual_scatter, refine_ml
 from .robust import (MIN_ROBUST_WINDOWS, bias_variance, choose, cross_axis, effective_windows, inflated, larger,
-                     sandwich, score_variance, window_scores)
+                     sandwich, score_variance, scores_of_A)
 
 
 def _residual_noise(moments: Moments, A, ratio: float = 1.0) -> tuple[float, float]:
@@ -75,10 +78,14 @@ def _check_plausible_A(A, moments: Moments | None = None, noise=None) -> None:
                          "with their sensitivity) of both recordings")
 
 
-def _transform(moments: Moments, T1, T2) -> Moments:
+def _transform(moments: Moments, windows: WindowStats | None, T1, T2):
+    """The moments and window statistics of ``[T1 omega_1; T2 omega_2]``."""
     T = np.zeros((6, 6))
     T[:3, :3], T[3:, 3:] = T1, T2
-    return Moments(moments.count, T @ moments.mean, T @ moments.scatter @ T.T, moments.segments)
+    moments = Moments(moments.count, T @ moments.mean, T @ moments.scatter @ T.T, moments.segments)
+    if windows is not None:
+        windows = dataclasses.replace(windows, mean=windows.mean @ T.T, scatter=T @ windows.scatter @ T.T)
+    return moments, windows
 
 
 def solve(moments: Moments, options: Options | None = None, *, noise_ratio: float | None = None,
@@ -132,7 +139,8 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
     method, scale_prior_std, parallel_tol_deg = o.method, o.scale_prior_std, o.parallel_tol_deg
     gauge = Gauge.parse(o.gauge)
     if o.intrinsics_1 is not None or o.intrinsics_2 is not None:
-        moments = _transform(moments, _skew_compensation(o.intrinsics_1), _skew_compensation(o.intrinsics_2))
+        moments, windows = _transform(moments, windows, _skew_compensation(o.intrinsics_1),
+                                      _skew_compensation(o.intrinsics_2))
     noise = None if o.noise_std is None else noise_pair(o.noise_std)
     check_samples(moments)
     A_ls, _ = solve_A(moments)
@@ -174,10 +182,18 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         if not ref.converged:
             notes.append(f"maximum-likelihood refinement stopped after {iterations} iterations without converging")
     E, cross_chi2, cross_dof = np.zeros((3, 3)), float("nan"), 0
-    if rigid:
+    reference = rigid and method == "ml" and o.intrinsics_1 is not None and o.intrinsics_2 is None
+    if rigid and not reference:
         E, cross_chi2, cross_dof = cross_axis(A_ls, R, s1, s2, moments, noise, windows)
-    full = rigid and choose_full_map(o.linear_map, method, cross_chi2, cross_dof)
-    k = None
+    full = rigid and not reference and choose_full_map(o.linear_map, method, cross_chi2, cross_dof)
+    k = S2 = None
+    if reference:   # gyro 1's intrinsics known: gyro 2's whole intrinsic matrix (core/linear_map.py)
+        s1 = np.diag(np.asarray(o.intrinsics_1, dtype=float)).copy()
+        R, S2, it, converged = refine_reference(moments, *decompose_reference(A_ls, s1), s1, noise)
+        s2, iterations = np.diag(S2).copy(), iterations + it
+        config = classify(R, parallel_tol_deg)
+        if not converged:
+            notes.append(f"the refinement of gyro 2's intrinsics stopped after {it} iterations without converging")
     if full:   # the full linear map from the rigid estimate (core/linear_map.py)
         fm = refine_full(moments, R, s1, s2, noise, o.cross_axis_std,
                          constraints=lambda a, b: gauge.constraints(config.groups, [a, b], 3),
@@ -191,20 +207,25 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         # the prior holds only what the data leave free, one common factor per group of linked scale factors;
         # its maximum there is the group's unit convention, so the determined ratios stay the data's
         s1, s2 = PRIOR_GAUGE.apply(config.groups, np.stack([s1, s2]))
-    A = A_of(R, s1, s2, k)
+    if reference:
+        A, D = reference_map(R, S2, s1), reference_derivatives(R, S2, s1)
+    else:
+        A, D = A_of(R, s1, s2, k), dA_dp(R, s1, s2, k)
     bias = moments.mean_1 - A @ moments.mean_2
     _, Xi_c = signal_scatter(moments, noise)
-    F = fisher_information(R, s1, s2, noise, Xi_c, k)
+    F = information_of_A(A, D, noise, Xi_c)
     if full:
         F = F + prior_information(o.cross_axis_std)
-    if method == "ml":
+    if reference:
+        P9 = constrained_inverse(F, np.zeros((0, 9)))
+    elif method == "ml":
         P9 = _ml_covariance(F, s1, s2, config, gauge, scale_prior_std)
     else:
         P9 = _direct_covariance(moments, A_ls, noise, config, gauge)
     # lack of fit: the residual's chi-square per degree of freedom against the stated noise
     W = residual_weight(A, noise)
     M = residual_scatter(A, moments.scatter)
-    dof = max(3.0 * moments.dof - (11.0 if full else 8.0), 1.0)
+    dof = max(3.0 * moments.dof - (8.0 + 3.0 * full + reference), 1.0)
     lack_of_fit = float(np.trace(W @ M)) / dof
     if not rigid:
         notes.append(f"NOT RIGID: {100 * unexplained:.1f}% of the motion is unexplained; do not use this estimate")
@@ -215,13 +236,13 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
     robust = windows is not None and rigid and method == "ml" and o.covariance != "model" \
         and windows.n_windows >= MIN_ROBUST_WINDOWS
     if robust:
-        V = score_variance(window_scores(R, s1, s2, noise, windows, k), windows)
+        V = score_variance(scores_of_A(A, D, noise, windows), windows)
         if full:   # the cross-axis prior's part of the scores' variance (what it holds is the model's)
             V = V + 4.0 * prior_information(o.cross_axis_std)
         # the data's part in the gauge the covariance is expressed in; a prior's part (what the data leave
         # free) is the model's and stays
         held = PRIOR_GAUGE if scale_prior_std is not None else gauge
-        C = _padded(held.constraints(config.groups, [s1, s2], 3), len(F))
+        C = np.zeros((0, 9)) if reference else _padded(held.constraints(config.groups, [s1, s2], 3), len(F))
         P9, inflation, basis, more = choose(P9, P9 + sandwich(F, V, C) - constrained_inverse(F, C), windows,
                                             o.covariance, basis, lack_of_fit)
         notes += more
@@ -244,13 +265,22 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
                      f"remain (cross_axis). Skew errors of that size that the data cannot see move the rotation by "
                      f"about {np.rad2deg(off / 2) * 1e3:.3g} mdeg (Appendix D, Eq. 40): use linear_map='auto' or "
                      "'full', compensate the intrinsics (intrinsics_1/2) or pass skew_std to budget for it")
-    cov = pair_covariance(P9, R, s1, s2, A, moments, Sigma_r, k)
+    if reference:
+        notes.append(_reference_note(S2, P9[3:, 3:]))
+    J = np.zeros((9, len(P9)))          # [dtheta, scale_1, scale_2] from the parameters
+    J[:3, :3] = np.eye(3)
+    if reference:                       # scale_1 known; scale_2 the diagonal of S_2
+        J[6, 3], J[7, 6], J[8, 8] = 1.0, 1.0, 1.0
+    else:                               # log scale factors
+        J[3:9, 3:9] = np.diag(np.concatenate([s1, s2]))
+    cov = pair_covariance(P9, J, D, moments, Sigma_r)
+    observable = np.ones((2, 3), bool) if reference else config.scale_observable
     if scale_prior_std is None:
-        mark_undetermined(cov, config.scale_observable)
+        mark_undetermined(cov, observable)
     sk = np.asarray(o.skew_std, dtype=float)
     skew_cov = 0.25 * (sk[0] ** 2 + sk[1] ** 2) * np.eye(3)  # Appendix D: theta ~ (w_1 - C w_2) / 2
     if full:   # the antisymmetric cross-axis part, which the convention gives the rotation and no data see
-        skew_cov = skew_cov + cross_axis_budget(k, P9[9:, 9:]) * np.eye(3)
+        skew_cov = skew_cov + cross_axis_budget(k, P9[9:, 9:], o.cross_axis_std) * np.eye(3)
     cov[ROT, ROT] += skew_cov
     snr = per_axis_snr(moments, noise)
     weak = [f"{'xyz'[i]} ({snr[i]:.3g})" for i in range(3) if snr[i] < o.target_snr]
@@ -267,16 +297,30 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
     gauge_text = (f"Gaussian prior N(1, {scale_prior_std:g}^2) on the scale factors, acting only on what the data "
                   "leave free: the global scale and the common factor of each parallel axis pair (ratios from the data)"
                   if scale_prior_std is not None else gauge.describe())
+    if reference:
+        gauge_text = "absolute: gyro 1's intrinsic matrix is given (intrinsics_1)"
     return PairCalibration(
         R_1_2=R, scale_1=s1, scale_2=s2, bias=bias, configuration=config.name,
-        scale_observable=config.scale_observable, covariance=cov, gauge=gauge_text, snr=snr,
+        scale_observable=observable, covariance=cov, gauge=gauge_text, snr=snr,
         n_samples=int(moments.count), noise_std=np.array(noise), noise_source=noise_source,
         residual_rms=float(np.sqrt(max(np.trace(M), 0.0) / (3.0 * max(moments.dof, 1.0)))), method=method,
         iterations=iterations, skew_rotation_covariance=skew_cov, bias_segments=moments.segments,
         rigid=rigid, unexplained_fraction=unexplained, covariance_basis=basis, lack_of_fit=lack_of_fit,
         robust_inflation=inflation, cross_axis=E, cross_axis_chi2=cross_chi2, cross_axis_dof=cross_dof,
-        linear_map="full" if full else "rigid", cross_axis_terms=np.zeros(3) if k is None else k,
-        cross_axis_covariance=P9[9:, 9:] if full else np.zeros((3, 3)), noise_model=noise_model, notes=tuple(notes))
+        linear_map="reference" if reference else "full" if full else "rigid",
+        cross_axis_terms=np.zeros(3) if k is None else k,
+        cross_axis_covariance=P9[9:, 9:] if full else np.zeros((3, 3)),
+        intrinsics_2=np.zeros((3, 3)) if S2 is None else S2,
+        intrinsics_2_covariance=P9[3:, 3:] if reference else np.zeros((6, 6)), noise_model=noise_model,
+        notes=tuple(notes))
+
+
+def _reference_note(S2, cov):
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    off = ", ".join(f"{'xyz'[a]}{'xyz'[b]} {100 * S2[a, b] / S2[b, b]:.3g} +- {100 * sd[p] / S2[b, b]:.2g} %"
+                    for p, (a, b) in enumerate(UPPER) if a != b)
+    return ("gyro 2's intrinsic matrix from gyro 1's (the result's intrinsics_2; upper triangular, gyro 2's x axis and xy "
+            f"plane define its frame): scale factors {', '.join(f'{v:.5g}' for v in np.diag(S2))}, cross-axis {off}")
 
 
 def _padded(C, n):
@@ -290,7 +334,7 @@ def _full_map_note(k, cov_k, chi2, dof, cross_axis_std):
     return (f"full linear map (cross-axis chi2 {chi2:.3g} for {dof} dof): symmetric relative cross-axis terms "
             f"{terms}; R_1_2 is the rotation under the symmetric convention, repeatable from session to session. "
             f"The chip-to-chip rotation differs from it by the antisymmetric part, which no data see: budgeted at "
-            f"{np.rad2deg(np.sqrt(cross_axis_budget(k, cov_k))):.3g} deg per axis, as large as the symmetric part "
+            f"{np.rad2deg(np.sqrt(cross_axis_budget(k, cov_k, cross_axis_std))):.3g} deg per axis, as large as the symmetric part "
             f"(skew_rotation_covariance, included in the covariance; cross_axis_std {cross_axis_std:g} where the "
             "data leave the terms free)")
 
@@ -324,16 +368,14 @@ def _direct_covariance(moments, A_ls, noise, config, gauge):
     return J @ cov_A @ J.T
 
 
-def pair_covariance(P, R, s1, s2, A, moments, Sigma_r, k=None):
-    """12x12 covariance of ``[dtheta, scale_1, scale_2, bias]`` from that of ``[dtheta, log s]`` (and the
-    cross-axis terms ``k`` of the full map, when given) and the covariance ``Sigma_r`` of the mean residual
-    (the bias estimate's own noise)."""
-    Jl = np.diag(np.concatenate([np.ones(3), s1, s2, np.ones(len(P) - 9)]))
-    D = dA_dp(R, s1, s2, k)
+def pair_covariance(P, J, D, moments, Sigma_r):
+    """12x12 covariance of ``[dtheta, scale_1, scale_2, bias]`` from the covariance ``P`` of the model's parameters
+    (``J`` (9, p): the derivatives of ``[dtheta, scale_1, scale_2]`` w.r.t. them; ``D`` (p, 3, 3): those of A) and
+    the covariance ``Sigma_r`` of the mean residual (the bias estimate's own noise)."""
     G = np.einsum("pij,j->ip", D, moments.mean_2)  # d(A m_2)/dp, so db = -G dp
     cov = np.zeros((12, 12))
-    cov[:9, :9] = (Jl @ P @ Jl.T)[:9, :9]
+    cov[:9, :9] = J @ P @ J.T
     cov[BIAS, BIAS] = Sigma_r + G @ P @ G.T
-    cov[BIAS, :9] = -(G @ P @ Jl.T)[:, :9]
+    cov[BIAS, :9] = -G @ P @ J.T
     cov[:9, BIAS] = cov[BIAS, :9].T
     return cov
