@@ -240,7 +240,8 @@ class Options(FrozenOptions):
         "auto", _choice(LINEAR_MAPS), "solve",
         "The sensor model (:mod:`~fusion_gyrocal.core.linear_map`). ``'auto'`` (default): the full linear map "
         "(rotation, scale factors and the symmetric relative cross-axis terms) when it fits significantly better "
-        "than rotation + scale factors (the cross-axis chi-square, p < 0.001), else the paper's model; "
+        "than rotation + scale factors (the cross-axis chi-square, p < 0.001) or when the data determine every "
+        "cross-axis term (all axes parallel), else the paper's model; "
         "``'rigid'``: the paper's model ``A = S_1 R S_2^-1`` (Eq. 4) always; ``'full'``: the full map always. "
         "``method='ml'`` only (the direct solution is the paper's).",
         "--linear-map", choices=LINEAR_MAPS,

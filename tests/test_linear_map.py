@@ -52,6 +52,17 @@ def test_calibrate_pair_full_map_recovers_cross_axis_terms_all_axes_parallel():
     assert np.linalg.norm(log(rigid.R_1_2 @ FLIP.T)) > 5 * np.linalg.norm(d)   # the leak the full map removes
 
 
+def test_calibrate_pair_auto_all_axes_parallel_without_cross_axis_budgets_only_their_noise():
+    w1, w2 = _pair(np.random.default_rng(16), FLIP)
+    cal = calibrate_pair(w1, w2)
+    assert cal.linear_map == "full"                                     # the data determine every term
+    budget = cross_axis_budget(cal.cross_axis_terms, cal.cross_axis_covariance, None)
+    np.testing.assert_allclose(np.diag(cal.skew_rotation_covariance), budget)
+    assert np.sqrt(budget) < 5 * np.sqrt(np.max(np.diag(cal.cross_axis_covariance)))
+    d = log(cal.R_1_2 @ FLIP.T)
+    assert float(d @ np.linalg.solve(cal.covariance[:3, :3], d)) < 16.27
+
+
 def test_calibrate_pair_auto_keeps_the_paper_model_without_cross_axis():
     R = general_rotation(np.random.default_rng(5))
     w1, w2 = _pair(np.random.default_rng(12), R)
@@ -64,6 +75,7 @@ def test_calibrate_pair_full_map_budget_covers_the_unseen_antisymmetric_part():
     k = np.array([0.01, 0.0, -0.01])
     w1, w2 = _pair(np.random.default_rng(13), FLIP, k)
     cal = calibrate_pair(w1, w2, linear_map="full")
+    assert cal.cross_axis_chi2 > 100.0                                  # shown by the data: pooled with the prior
     budget = cross_axis_budget(cal.cross_axis_terms, cal.cross_axis_covariance, 0.015)
     np.testing.assert_allclose(np.diag(cal.skew_rotation_covariance), budget)
     assert budget == pytest.approx((3 * 0.015**2 + np.sum(k**2)) / 6, rel=0.1)   # the data's k pooled with the prior

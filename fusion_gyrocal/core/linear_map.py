@@ -52,15 +52,20 @@ from .refine import cost_of_A, fisher_scoring, gradient_of_A, ml_cost, ml_gradie
 CHI2_999 = (10.83, 13.82, 16.27, 18.47, 20.52, 22.46, 24.32, 26.12, 27.88)
 
 
-def choose_full_map(linear_map: str, method: str, cross_chi2: float, cross_dof: int) -> bool:
-    """Whether the estimate uses the full linear map: ``"full"`` always (``method="ml"``), ``"rigid"`` never,
-    ``"auto"`` when the full map fits significantly better than rotation + scale factors (the cross-axis
-    chi-square beyond its 99.9 % point)."""
+def choose_full_map(linear_map: str, method: str, cross_chi2: float, cross_dof: int) -> tuple[bool, bool]:
+    """Whether the estimate uses the full linear map, and whether the data show cross-axis terms (the cross-axis
+    chi-square of :func:`~fusion_gyrocal.core.robust.cross_axis` beyond its 99.9 % point).
+
+    ``"full"`` always (``method="ml"``), ``"rigid"`` never; ``"auto"`` when the data show the terms, or when they
+    determine all three (every axis pair parallel, ``cross_dof == 3``: the usual multi-IMU board). There the
+    full map costs the rotation no precision (the cross-axis terms are the symmetric part of ``A R^T``, the rotation
+    its antisymmetric part) and keeps terms too small to test from leaking into the rotation differently in
+    every session.
+    """
+    shown = bool(cross_dof) and cross_chi2 > CHI2_999[cross_dof - 1]
     if method != "ml" or linear_map == "rigid":
-        return False
-    if linear_map == "full":
-        return True
-    return bool(cross_dof) and cross_chi2 > CHI2_999[cross_dof - 1]
+        return False, shown
+    return linear_map == "full" or shown or cross_dof == 3, shown
 
 
 def prior_information(prior_std: float) -> np.ndarray:
@@ -70,17 +75,21 @@ def prior_information(prior_std: float) -> np.ndarray:
     return F
 
 
-def cross_axis_budget(k, cov_k, prior_std: float) -> float:
+def cross_axis_budget(k, cov_k, prior_std: float | None) -> float:
     """Variance per axis of the rotation the convention cannot see: the antisymmetric part of the relative
     cross-axis terms.
 
     Each gyro's cross-axis entries are as likely on either side of the diagonal, so the antisymmetric part of
     the relative terms is as large as their symmetric part ``k``. Its variance is estimated from the three
     ``k_m`` (their posterior second moments ``k_m^2 + Var k_m``: the data's where they determine ``k``, the prior's
-    where they do not) pooled with the prior ``prior_std^2`` counted as three terms' worth: a variance from three
-    numbers alone would often be far too small (``E[1 / chi2_3] = 1``), and the rotation's ``z^2`` heavy-tailed.
+    where they do not). Where the data show cross-axis terms (``prior_std`` given) they are pooled with the prior
+    ``prior_std^2`` counted as three terms' worth: a variance from three numbers alone would often be far too small
+    (``E[1 / chi2_3] = 1``) and the rotation's ``z^2`` heavy-tailed. Where the data show none (``prior_std`` None),
+    the terms are within their own noise and so is the budget.
     """
     second = np.asarray(k) ** 2 + np.clip(np.diag(cov_k), 0.0, None)
+    if prior_std is None:
+        return float(second.mean())
     return float((3.0 * prior_std**2 + second.sum()) / 6.0)
 
 

@@ -207,7 +207,7 @@ def bias_variance(A, bias, stats: WindowStats, lags: int = LAGS) -> np.ndarray:
 
 
 def cross_axis(A_ls, R, s1, s2, moments, noise_std, windows: WindowStats | None = None,
-               lags: int = LAGS) -> tuple[np.ndarray, float, int]:
+               lags: int = LAGS, n_null: int | None = None) -> tuple[np.ndarray, float, int]:
     """What the full linear map explains beyond rotation + scale factors: the observable relative
     cross-axis terms (Appendix D).
 
@@ -215,7 +215,8 @@ def cross_axis(A_ls, R, s1, s2, moments, noise_std, windows: WindowStats | None 
     their difference, with the directions the rigid model can absorb (rotation, scales: the tangent
     ``dA/dp``) projected out in the metric of ``Cov(vec A)``, is what no rotation and scales explain;
     it is tested by its chi-square (``k = 9 - rank(dA/dp)`` degrees of freedom: 1 in the general
-    configuration, more with parallel axes). ``Cov(vec A)`` is ``W^-1 (x) S22^-1`` under the noise model, or
+    configuration, more with parallel axes; ``n_null``, the configuration's null directions (Theorem 2, Lemmas
+    2-3), fixes the rank where an estimated rotation a hair from axis-parallel would make it numerically full). ``Cov(vec A)`` is ``W^-1 (x) S22^-1`` under the noise model, or
     with ``windows`` the block-robust one from the windows' influence on ``A``
     (``(S12_w - A S22_w) S22^-1``, Newey-West), whichever is larger.
 
@@ -236,6 +237,8 @@ def cross_axis(A_ls, R, s1, s2, moments, noise_std, windows: WindowStats | None 
         V = _newey_west(U.reshape(U.shape[0], 9) - U.reshape(U.shape[0], 9).mean(axis=0), windows, lags)
         cov = larger(cov, V * windows.weight)[0]
     J = dA_dp(R, s1, s2).reshape(9, 9).T                                         # columns: vec(dA/dp_k)
+    if n_null is not None:                                                       # the tangent without the null space
+        J = np.linalg.svd(J)[0][:, :9 - n_null]
     info = np.linalg.pinv(cov, hermitian=True)
     P = J @ np.linalg.pinv(J.T @ info @ J, hermitian=True) @ J.T @ info          # oblique projector on the tangent
     Q = np.eye(9) - P

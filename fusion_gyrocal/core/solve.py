@@ -16,7 +16,7 @@ from ..lie import log, nearest_rotation
 from ..options import Options
 from .direct import decompose, solve_A
 from .gauge import Gauge, constrained_inverse
-from .linear_map import (CHI2_999, UPPER, choose_full_map, cross_axis_budget, decompose_reference, prior_information,
+from .linear_map import (UPPER, choose_full_map, cross_axis_budget, decompose_reference, prior_information,
                          reference_derivatives, reference_map, refine_full, refine_reference)
 from .model import BIAS, ROT, PairCalibration, mark_undetermined
 from .moments import Moments, WindowStats, noise_pair
@@ -184,8 +184,10 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
     E, cross_chi2, cross_dof = np.zeros((3, 3)), float("nan"), 0
     reference = rigid and method == "ml" and o.intrinsics_1 is not None and o.intrinsics_2 is None
     if rigid and not reference:
-        E, cross_chi2, cross_dof = cross_axis(A_ls, R, s1, s2, moments, noise, windows)
-    full = rigid and not reference and choose_full_map(o.linear_map, method, cross_chi2, cross_dof)
+        E, cross_chi2, cross_dof = cross_axis(A_ls, R, s1, s2, moments, noise, windows, n_null=len(config.groups))
+    full, shown = choose_full_map(o.linear_map, method, cross_chi2, cross_dof)
+    full = full and rigid and not reference
+    budget_prior = o.cross_axis_std if shown else None
     k = S2 = None
     if reference:   # gyro 1's intrinsics known: gyro 2's whole intrinsic matrix (core/linear_map.py)
         s1 = np.diag(np.asarray(o.intrinsics_1, dtype=float)).copy()
@@ -257,8 +259,8 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         Sigma_r = Sigma_r * lack_of_fit
         notes.append(note)
     if full:
-        notes.append(_full_map_note(k, P9[9:, 9:], cross_chi2, cross_dof, o.cross_axis_std))
-    elif rigid and cross_dof and cross_chi2 > CHI2_999[cross_dof - 1]:
+        notes.append(_full_map_note(k, P9[9:, 9:], cross_chi2, cross_dof, budget_prior))
+    elif shown and rigid:
         off = np.abs(E - np.diag(np.diag(E))).max()
         notes.append(f"the full linear map fits significantly better than rotation + scale factors (chi2 "
                      f"{cross_chi2:.3g} for {cross_dof} dof, p < 0.001): relative cross-axis terms up to {off:.2g} "
@@ -273,14 +275,14 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         J[6, 3], J[7, 6], J[8, 8] = 1.0, 1.0, 1.0
     else:                               # log scale factors
         J[3:9, 3:9] = np.diag(np.concatenate([s1, s2]))
-    cov = pair_covariance(P9, J, D, moments, Sigma_r)
+    cov = parameter_covariance(P9, J, D, moments, Sigma_r)
     observable = np.ones((2, 3), bool) if reference else config.scale_observable
     if scale_prior_std is None:
         mark_undetermined(cov, observable)
     sk = np.asarray(o.skew_std, dtype=float)
     skew_cov = 0.25 * (sk[0] ** 2 + sk[1] ** 2) * np.eye(3)  # Appendix D: theta ~ (w_1 - C w_2) / 2
     if full:   # the antisymmetric cross-axis part, which the convention gives the rotation and no data see
-        skew_cov = skew_cov + cross_axis_budget(k, P9[9:, 9:], o.cross_axis_std) * np.eye(3)
+        skew_cov = skew_cov + cross_axis_budget(k, P9[9:, 9:], budget_prior) * np.eye(3)
     cov[ROT, ROT] += skew_cov
     snr = per_axis_snr(moments, noise)
     weak = [f"{'xyz'[i]} ({snr[i]:.3g})" for i in range(3) if snr[i] < o.target_snr]
@@ -328,15 +330,15 @@ def _padded(C, n):
     return np.hstack([C, np.zeros((len(C), n - C.shape[1]))]) if n > C.shape[1] else C
 
 
-def _full_map_note(k, cov_k, chi2, dof, cross_axis_std):
+def _full_map_note(k, cov_k, chi2, dof, budget_prior):
     sd = np.sqrt(np.clip(np.diag(cov_k), 0.0, None))
     terms = ", ".join(f"{n} {100 * v:.3g} +- {100 * e:.2g} %" for n, v, e in zip(("xy", "yz", "zx"), k, sd))
+    pooled = "" if budget_prior is None else f", pooled with cross_axis_std {budget_prior:g}"
     return (f"full linear map (cross-axis chi2 {chi2:.3g} for {dof} dof): symmetric relative cross-axis terms "
             f"{terms}; R_1_2 is the rotation under the symmetric convention, repeatable from session to session. "
             f"The chip-to-chip rotation differs from it by the antisymmetric part, which no data see: budgeted at "
-            f"{np.rad2deg(np.sqrt(cross_axis_budget(k, cov_k, cross_axis_std))):.3g} deg per axis, as large as the symmetric part "
-            f"(skew_rotation_covariance, included in the covariance; cross_axis_std {cross_axis_std:g} where the "
-            "data leave the terms free)")
+            f"{np.rad2deg(np.sqrt(cross_axis_budget(k, cov_k, budget_prior))):.3g} deg per axis, as large as the "
+            f"symmetric part{pooled} (skew_rotation_covariance, included in the covariance)")
 
 
 def _ml_covariance(F, s1, s2, config, gauge, scale_prior_std):
@@ -368,7 +370,13 @@ def _direct_covariance(moments, A_ls, noise, config, gauge):
     return J @ cov_A @ J.T
 
 
-def pair_covariance(P, J, D, moments, Sigma_r):
+def pair_covariance(P9, R, s1, s2, A, moments, Sigma_r):
+    """:func:`parameter_covariance` of the paper's model, from the covariance of ``[dtheta, log s_1, log s_2]``."""
+    J = np.diag(np.concatenate([np.ones(3), s1, s2]))
+    return parameter_covariance(P9, J, dA_dp(R, s1, s2), moments, Sigma_r)
+
+
+def parameter_covariance(P, J, D, moments, Sigma_r):
     """12x12 covariance of ``[dtheta, scale_1, scale_2, bias]`` from the covariance ``P`` of the model's parameters
     (``J`` (9, p): the derivatives of ``[dtheta, scale_1, scale_2]`` w.r.t. them; ``D`` (p, 3, 3): those of A) and
     the covariance ``Sigma_r`` of the mean residual (the bias estimate's own noise)."""
