@@ -16,7 +16,7 @@ from fusion_gyrocal.errors import FormatError, InputError, OptionError
 from fusion_gyrocal.io import (ImuStream, detect_format, list_imu_topics, read_bag, read_csv, read_imu,
                                read_json, read_npz, read_xsens, write_csv, write_imu_bag, write_json,
                                write_kalibr_imu_chain, write_npz, write_openvins_imu_chain)
-from fusion_gyrocal.io import readers as readers_mod
+from fusion_gyrocal.io import text as text_mod
 from fusion_gyrocal.io import writers as writers_mod
 from fusion_gyrocal.core.model import PairCalibration
 from fusion_gyrocal.evaluate.sim import DEG, shared_data_dir
@@ -175,7 +175,7 @@ def _read_both_ways(monkeypatch, read, path):
     """``read(path)`` through np.loadtxt only and through pandas (size threshold 0): (result or error) x 2."""
     out = []
     for threshold in (float("inf"), 0):
-        monkeypatch.setattr(readers_mod, "PANDAS_MIN_BYTES", threshold)
+        monkeypatch.setattr(text_mod, "PANDAS_MIN_BYTES", threshold)
         try:
             out.append(read(path))
         except (FormatError, InputError) as exc:
@@ -187,13 +187,13 @@ def test_read_csv_pandas_reads_big_files_exactly_in_one_pass(tmp_path, monkeypat
     pytest.importorskip("pandas")
     s = _stream(np.random.default_rng(60), n=3000)
     p = write_csv(s, tmp_path / "imu.csv")
-    monkeypatch.setattr(readers_mod, "PANDAS_MIN_BYTES", 0)
-    loadtxt = readers_mod._load_columns
-    monkeypatch.setattr(readers_mod, "_load_columns", None)  # float columns must not reach np.loadtxt
+    monkeypatch.setattr(text_mod, "PANDAS_MIN_BYTES", 0)
+    loadtxt = text_mod._load_columns
+    monkeypatch.setattr(text_mod, "_load_columns", None)  # float columns must not reach np.loadtxt
     r = read_csv(p)
     np.testing.assert_array_equal(r.t, s.t)
     np.testing.assert_array_equal(r.omega, s.omega)
-    monkeypatch.setattr(readers_mod, "_load_columns", loadtxt)
+    monkeypatch.setattr(text_mod, "_load_columns", loadtxt)
     ref, fast = _read_both_ways(monkeypatch, read_csv, p)
     np.testing.assert_array_equal(fast.omega, ref.omega)
 
@@ -247,7 +247,7 @@ def test_read_csv_fast_parsers_and_loadtxt_give_identical_arrays(tmp_path, monke
     build, _ = _LAYOUTS[layout]
     p = tmp_path / "imu.csv"
     p.write_bytes(build(rows))
-    monkeypatch.setattr(readers_mod, "PANDAS_MIN_BYTES", float("inf"))
+    monkeypatch.setattr(text_mod, "PANDAS_MIN_BYTES", float("inf"))
     ref = read_csv(p)
     for other in {"pyarrow", "pandas"} - {parser}:   # an import that fails, as when not installed
         monkeypatch.setitem(sys.modules, other, None)
@@ -255,17 +255,17 @@ def test_read_csv_fast_parsers_and_loadtxt_give_identical_arrays(tmp_path, monke
     used = []
 
     def spy(name):
-        fn = getattr(readers_mod, name)
+        fn = getattr(text_mod, name)
 
         def wrapped(*args, **kwargs):
             x = fn(*args, **kwargs)
             used.append(name if x is not None else None)
             return x
-        monkeypatch.setattr(readers_mod, name, wrapped)
+        monkeypatch.setattr(text_mod, name, wrapped)
 
     spy("_pyarrow_floats")
     spy("_pandas_floats")
-    monkeypatch.setattr(readers_mod, "PANDAS_MIN_BYTES", 0)
+    monkeypatch.setattr(text_mod, "PANDAS_MIN_BYTES", 0)
     fast = read_csv(p)
     expected = "loadtxt" if parser == "loadtxt" or (parser == "pyarrow" and _LAYOUTS[layout][1] is None) else parser
     assert [u for u in used if u] == ([] if expected == "loadtxt" else [f"_{expected}_floats"])
