@@ -20,6 +20,7 @@ from fusion_gyrocal.io import text as text_mod
 from fusion_gyrocal.io import writers as writers_mod
 from fusion_gyrocal.core.model import PairCalibration
 from fusion_gyrocal.evaluate.sim import DEG, shared_data_dir
+from fusion_gyrocal.units import RATE_FACTORS, RATE_UNIT_LABELS
 
 DATA = shared_data_dir()
 NO_DATA = "../shared/data not present (real recordings are only in the project checkout)"
@@ -104,6 +105,31 @@ def test_read_csv_counts_without_header_and_explicit_columns(tmp_path):
     np.testing.assert_allclose(r.omega, counts / 16.4 * DEG, rtol=1e-15)
     np.testing.assert_allclose(r.t, np.arange(100) * 4e-3, atol=1e-15)
     assert r.unit_in == "counts"
+
+
+@pytest.mark.parametrize("label, unit", sorted(RATE_UNIT_LABELS.items()))
+def test_read_csv_header_rate_unit_spellings_of_the_unit_table(tmp_path, label, unit):
+    p = tmp_path / "log.csv"
+    p.write_text(f"t,gx [{label}],gy,gz\n0,1,2,3\n0.01,4,5,6\n")
+    sensitivity = 2.0 if unit == "counts" else None
+    r = read_csv(p, sensitivity=sensitivity)
+    assert r.unit_in == unit
+    np.testing.assert_array_equal(r.omega[0], np.array([1.0, 2.0, 3.0]) * (RATE_FACTORS[unit] / (sensitivity or 1.0)))
+
+
+def test_units_table_is_the_one_of_readers_conversion_and_cli():
+    from fusion_gyrocal import units
+    from fusion_gyrocal.cli import recording
+    from fusion_gyrocal.io import readers
+    from fusion_gyrocal.pipeline.streams import to_rad_per_s
+
+    assert readers.RATE_UNITS is recording.RATE_UNITS is units.RATE_UNITS == tuple(units.RATE_FACTORS)
+    assert readers.TIME_UNITS is recording.TIME_UNITS is units.TIME_UNITS
+    for unit, factor in units.RATE_FACTORS.items():
+        sensitivity = 4.0 if unit == "counts" else None
+        assert to_rad_per_s([3.0], unit, sensitivity)[0] == 3.0 * (factor / (sensitivity or 1.0))
+    assert set(units.RATE_UNIT_LABELS.values()) == set(units.RATE_UNITS)
+    assert set(units.TIME_UNIT_LABELS.values()) == set(units.TIME_UNITS)
 
 
 def test_read_csv_counts_without_sensitivity_raises(tmp_path):
