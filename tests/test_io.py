@@ -16,10 +16,11 @@ from fusion_gyrocal.errors import FormatError, InputError, OptionError
 from fusion_gyrocal.io import (ImuStream, detect_format, list_imu_topics, read_bag, read_csv, read_imu,
                                read_json, read_npz, read_xsens, write_csv, write_imu_bag, write_json,
                                write_kalibr_imu_chain, write_npz, write_openvins_imu_chain)
-from fusion_gyrocal.io import readers as readers_mod
+from fusion_gyrocal.io import text as text_mod
 from fusion_gyrocal.io import writers as writers_mod
 from fusion_gyrocal.core.model import PairCalibration
 from fusion_gyrocal.evaluate.sim import DEG, shared_data_dir
+from fusion_gyrocal.units import RATE_FACTORS, RATE_UNIT_LABELS
 
 DATA = shared_data_dir()
 NO_DATA = "../shared/data not present (real recordings are only in the project checkout)"
@@ -106,6 +107,31 @@ def test_read_csv_counts_without_header_and_explicit_columns(tmp_path):
     assert r.unit_in == "counts"
 
 
+@pytest.mark.parametrize("label, unit", sorted(RATE_UNIT_LABELS.items()))
+def test_read_csv_header_rate_unit_spellings_of_the_unit_table(tmp_path, label, unit):
+    p = tmp_path / "log.csv"
+    p.write_text(f"t,gx [{label}],gy,gz\n0,1,2,3\n0.01,4,5,6\n")
+    sensitivity = 2.0 if unit == "counts" else None
+    r = read_csv(p, sensitivity=sensitivity)
+    assert r.unit_in == unit
+    np.testing.assert_array_equal(r.omega[0], np.array([1.0, 2.0, 3.0]) * (RATE_FACTORS[unit] / (sensitivity or 1.0)))
+
+
+def test_units_table_is_the_one_of_readers_conversion_and_cli():
+    from fusion_gyrocal import units
+    from fusion_gyrocal.cli import recording
+    from fusion_gyrocal.io import readers
+    from fusion_gyrocal.pipeline.streams import to_rad_per_s
+
+    assert readers.RATE_UNITS is recording.RATE_UNITS is units.RATE_UNITS == tuple(units.RATE_FACTORS)
+    assert readers.TIME_UNITS is recording.TIME_UNITS is units.TIME_UNITS
+    for unit, factor in units.RATE_FACTORS.items():
+        sensitivity = 4.0 if unit == "counts" else None
+        assert to_rad_per_s([3.0], unit, sensitivity)[0] == 3.0 * (factor / (sensitivity or 1.0))
+    assert set(units.RATE_UNIT_LABELS.values()) == set(units.RATE_UNITS)
+    assert set(units.TIME_UNIT_LABELS.values()) == set(units.TIME_UNITS)
+
+
 def test_read_csv_counts_without_sensitivity_raises(tmp_path):
     p = tmp_path / "raw.csv"
     p.write_text("t,gyro_x,gyro_y,gyro_z\n0,1,2,3\n1,1,2,3\n")
@@ -175,7 +201,7 @@ def _read_both_ways(monkeypatch, read, path):
     """``read(path)`` through np.loadtxt only and through pandas (size threshold 0): (result or error) x 2."""
     out = []
     for threshold in (float("inf"), 0):
-        monkeypatch.setattr(readers_mod, "PANDAS_MIN_BYTES", threshold)
+        monkeypatch.setattr(text_mod, "PANDAS_MIN_BYTES", threshold)
         try:
             out.append(read(path))
         except (FormatError, InputError) as exc:
@@ -187,13 +213,13 @@ def test_read_csv_pandas_reads_big_files_exactly_in_one_pass(tmp_path, monkeypat
     pytest.importorskip("pandas")
     s = _stream(np.random.default_rng(60), n=3000)
     p = write_csv(s, tmp_path / "imu.csv")
-    monkeypatch.setattr(readers_mod, "PANDAS_MIN_BYTES", 0)
-    loadtxt = readers_mod._load_columns
-    monkeypatch.setattr(readers_mod, "_load_columns", None)  # float columns must not reach np.loadtxt
+    monkeypatch.setattr(text_mod, "PANDAS_MIN_BYTES", 0)
+    loadtxt = text_mod._load_columns
+    monkeypatch.setattr(text_mod, "_load_columns", None)  # float columns must not reach np.loadtxt
     r = read_csv(p)
     np.testing.assert_array_equal(r.t, s.t)
     np.testing.assert_array_equal(r.omega, s.omega)
-    monkeypatch.setattr(readers_mod, "_load_columns", loadtxt)
+    monkeypatch.setattr(text_mod, "_load_columns", loadtxt)
     ref, fast = _read_both_ways(monkeypatch, read_csv, p)
     np.testing.assert_array_equal(fast.omega, ref.omega)
 
@@ -247,7 +273,7 @@ def test_read_csv_fast_parsers_and_loadtxt_give_identical_arrays(tmp_path, monke
     build, _ = _LAYOUTS[layout]
     p = tmp_path / "imu.csv"
     p.write_bytes(build(rows))
-    monkeypatch.setattr(readers_mod, "PANDAS_MIN_BYTES", float("inf"))
+    monkeypatch.setattr(text_mod, "PANDAS_MIN_BYTES", float("inf"))
     ref = read_csv(p)
     for other in {"pyarrow", "pandas"} - {parser}:   # an import that fails, as when not installed
         monkeypatch.setitem(sys.modules, other, None)
@@ -255,17 +281,17 @@ def test_read_csv_fast_parsers_and_loadtxt_give_identical_arrays(tmp_path, monke
     used = []
 
     def spy(name):
-        fn = getattr(readers_mod, name)
+        fn = getattr(text_mod, name)
 
         def wrapped(*args, **kwargs):
             x = fn(*args, **kwargs)
             used.append(name if x is not None else None)
             return x
-        monkeypatch.setattr(readers_mod, name, wrapped)
+        monkeypatch.setattr(text_mod, name, wrapped)
 
     spy("_pyarrow_floats")
     spy("_pandas_floats")
-    monkeypatch.setattr(readers_mod, "PANDAS_MIN_BYTES", 0)
+    monkeypatch.setattr(text_mod, "PANDAS_MIN_BYTES", 0)
     fast = read_csv(p)
     expected = "loadtxt" if parser == "loadtxt" or (parser == "pyarrow" and _LAYOUTS[layout][1] is None) else parser
     assert [u for u in used if u] == ([] if expected == "loadtxt" else [f"_{expected}_floats"])

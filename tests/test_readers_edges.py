@@ -11,7 +11,7 @@ import pytest
 
 from fusion_gyrocal.errors import FormatError, GyroCalError, InputError
 from fusion_gyrocal.io import ImuStream, detect_format, read_bag, read_csv, read_imu, write_csv, write_imu_bag
-from fusion_gyrocal.io import readers as readers_mod
+from fusion_gyrocal.io import text as text_mod
 
 EUROC_HEADER = ("#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
                 "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]")
@@ -52,7 +52,7 @@ def test_read_csv_euroc_trailing_junk_is_dropped_with_a_note(tmp_path, monkeypat
     p = tmp_path / "data.csv"
     p.write_text(EUROC_HEADER + "\n" + "\n".join(rows) + "\n" + trailer)
     for threshold in (float("inf"), 0):  # np.loadtxt and pandas
-        monkeypatch.setattr(readers_mod, "PANDAS_MIN_BYTES", threshold)
+        monkeypatch.setattr(text_mod, "PANDAS_MIN_BYTES", threshold)
         s = read_csv(p)
         assert len(s) == 20
         np.testing.assert_array_equal(s.omega, g)

@@ -12,7 +12,7 @@ import pytest
 from fusion_gyrocal.errors import FormatError, InputError, OptionError
 from fusion_gyrocal.evaluate.sim import shared_data_dir
 from fusion_gyrocal.io import detect_format, read_imu, read_xsens
-from fusion_gyrocal.io import readers as readers_mod
+from fusion_gyrocal.io import text as text_mod
 
 EXPORTS = shared_data_dir() / "xsens_mt_exports"
 NO_EXPORTS = "shared/data/xsens_mt_exports not present (real recordings are only in the project checkout)"
@@ -248,7 +248,7 @@ def test_read_xsens_pandas_and_loadtxt_agree_on_every_delimiter(tmp_path, monkey
     p = _export(tmp_path / "x.txt", MT2022_HEADER, cols, rows, delim=delim)
     out = []
     for threshold in (float("inf"), 0):
-        monkeypatch.setattr(readers_mod, "PANDAS_MIN_BYTES", threshold)
+        monkeypatch.setattr(text_mod, "PANDAS_MIN_BYTES", threshold)
         out.append(read_xsens(p))
     for s in out:
         np.testing.assert_array_equal(s.omega, g)

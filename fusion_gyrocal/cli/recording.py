@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..options import add_option_arguments, options_from_args
+from ..units import RATE_UNITS, TIME_UNITS
 
 ALIGNMENT_OPTIONS = ("time_offset_s", "max_offset_s", "rate_hz")
 """The options that act on reading and aligning recordings (``--offset``, ``--max-offset``, ``--rate``)."""
@@ -30,9 +31,6 @@ READER_OPTIONS = {"csv": {"columns", "unit", "sensitivity", "time_column", "time
                   "euroc": {"columns", "unit", "sensitivity", "time_column", "time_unit"},
                   "xsens": {"unit", "rate_hz"}, "npz": {"imu", "unit"}, "bag": {"topic"}}
 """The keywords of :func:`fusion_gyrocal.io.read_imu` that each detected format accepts."""
-
-RATE_UNITS = ("rad/s", "deg/s", "counts")
-TIME_UNITS = ("s", "ms", "us", "ns")
 
 # reader keyword -> (per-gyro flag stem, flag for every gyro, separator of its per-gyro list)
 _READER_FLAGS = {
@@ -123,7 +121,7 @@ def _convert(key: str, text: str, flag: str):
     if key == "unit" and text not in RATE_UNITS:
         raise OptionError(f"{flag}: expected one of {RATE_UNITS}, got {text!r}")
     if key == "time_unit" and text not in TIME_UNITS:
-        raise OptionError(f"{flag}: expected one of {TIME_UNITS}, got {text!r}")
+        raise OptionError(f"{flag}: expected one of {tuple(TIME_UNITS)}, got {text!r}")
     if key in ("imu", "sensitivity", "rate_hz"):
         try:
             value = int(text) if key == "imu" else float(text)

@@ -6,6 +6,10 @@ the reader dropped or chose): :func:`read_imu` (any format, picked from suffix a
 every version and delimiter; ``rate_hz`` for exports that state none), :func:`read_npz` (generic and
 the MIMU array layout), :func:`read_bag` / :func:`list_imu_topics` (ROS1 and ROS2, via ``rosbags``).
 Every failure to read a file is a :class:`~fusion_gyrocal.errors.FormatError` naming the file.
+One module per format (:mod:`~fusion_gyrocal.io.csv`, :mod:`~fusion_gyrocal.io.xsens`,
+:mod:`~fusion_gyrocal.io.npz`, :mod:`~fusion_gyrocal.io.bags`), the text parsing they share in
+:mod:`~fusion_gyrocal.io.text`, the stream type in :mod:`~fusion_gyrocal.io.stream`, the choice of
+reader in :mod:`~fusion_gyrocal.io.readers`.
 
 Writers are atomic (temp file, fsync, ``os.replace``): :func:`write_json` / :func:`read_json` for
 :class:`~fusion_gyrocal.core.model.PairCalibration` and :class:`~fusion_gyrocal.core.array.ArrayCalibration`,
@@ -14,9 +18,13 @@ Writers are atomic (temp file, fsync, ``os.replace``): :func:`write_json` / :fun
 :func:`write_csv`, :func:`write_npz`, :func:`write_imu_bag`.
 """
 
-from .readers import ImuStream, detect_format, read_csv, read_imu, read_npz, read_xsens
+from .csv import read_csv
+from .npz import read_npz
+from .readers import detect_format, read_imu
+from .stream import ImuStream
 from .writers import (ImuNoise, read_json, write_csv, write_json, write_kalibr_imu_chain, write_kalibr_imu_configs,
                       write_npz, write_openvins_imu_chain)
+from .xsens import read_xsens
 
 __all__ = [
     "ImuStream", "ImuNoise",

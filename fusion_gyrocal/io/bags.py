@@ -22,7 +22,7 @@ from typing import Mapping
 import numpy as np
 
 from ..errors import FormatError, GyroCalError, InputError
-from .readers import ImuStream, _int_time_to_seconds
+from .stream import ImuStream, int_time_to_seconds
 from .writers import _fsync_dir
 
 IMU_MSGTYPE = "sensor_msgs/msg/Imu"
@@ -166,7 +166,7 @@ def read_bag(path, topic: str | None = None, *, name: str | None = None) -> ImuS
     order = np.argsort(stamp_ns, kind="stable")
     if (np.diff(order) != 1).any():
         stamp_ns, omega = stamp_ns[order], omega[order]
-    t = _int_time_to_seconds(stamp_ns, 9)
+    t = int_time_to_seconds(stamp_ns, 9)
     return ImuStream(t, omega, name=name or topic, source=f"{p}:{topic}", unit_in="rad/s")
 
 

@@ -6,14 +6,14 @@ import numpy as np
 
 from ..core.moments import as_rates, finite_rows
 from ..errors import InputError, OptionError
+from ..units import DEG, RATE_FACTORS, RATE_UNITS, TIME_UNITS  # noqa: F401  (DEG: also this module's name)
 
-DEG = np.pi / 180.0
-UNITS = ("rad/s", "deg/s", "counts")
+UNITS = RATE_UNITS             # the rate units of to_rad_per_s (fusion_gyrocal.units.RATE_UNITS)
 DEFAULT_GAP_PERIODS = 2.5      # default max_gap_s in nominal sample periods
 MIN_RATE_HZ, MAX_RATE_HZ = 1.0, 1e5   # plausible median sample rates of a gyro (s timestamps)
 CORRUPT_JUMP_STEPS = 1000.0    # a step this many median steps long ...
 CORRUPT_SPAN_FACTOR = 10.0     # ... that stretches the span beyond this many times N median steps is corrupt
-_TIME_UNITS = (("ms", 1e-3), ("us", 1e-6), ("ns", 1e-9))
+_TIME_UNITS = tuple((u, 10.0 ** -d) for u, d in TIME_UNITS.items() if d)   # ms, us, ns: unit in s
 
 
 def _freeze(obj, names, dtype=None) -> None:
@@ -129,17 +129,18 @@ def to_rad_per_s(x, unit: str, sensitivity: float | None = None) -> np.ndarray:
     arr = np.asarray(x)
     if arr.dtype.kind not in "fiu":
         raise InputError(f"x: expected numeric angular rates, got dtype {arr.dtype}")
-    if unit not in UNITS:
-        raise OptionError(f"unit: expected one of {UNITS}, got {unit!r}")
+    if unit not in RATE_UNITS:
+        raise OptionError(f"unit: expected one of {RATE_UNITS}, got {unit!r}")
+    factor = RATE_FACTORS[unit]
     if unit == "counts":
         if sensitivity is None or not np.isfinite(sensitivity) or not sensitivity > 0:
             raise OptionError("sensitivity: expected a positive LSB per deg/s (e.g. 16.4) to convert counts, "
                              f"got {sensitivity!r}")
-        return arr.astype(np.float64) * (DEG / float(sensitivity))
+        return arr.astype(np.float64) * (factor / float(sensitivity))
     if sensitivity is not None:
         raise OptionError(f"sensitivity: only used with unit='counts', got {sensitivity!r} with unit={unit!r}")
-    if unit == "deg/s":
-        return arr.astype(np.float64) * DEG
+    if factor != 1.0:
+        return arr.astype(np.float64) * factor
     return np.array(arr, dtype=np.float64)
 
 
