@@ -23,7 +23,7 @@ import numpy as np
 
 from ..errors import FormatError, GyroCalError, InputError
 from .stream import ImuStream, int_time_to_seconds
-from .writers import _fsync_dir
+from .writers import fsync_dir
 
 IMU_MSGTYPE = "sensor_msgs/msg/Imu"
 _IMU_TYPES = (IMU_MSGTYPE, "sensor_msgs/Imu")
@@ -290,7 +290,7 @@ def write_imu_bag(path, streams: Mapping[str, ImuStream], *, version: int = 1,
             if old.exists():
                 os.replace(old, path)  # put the old bag back
             raise
-        _fsync_dir(path.parent)
+        fsync_dir(path.parent)
     except BaseException as exc:
         from rosbags.rosbag1 import WriterError as W1
         from rosbags.rosbag2 import WriterError as W2
@@ -321,4 +321,4 @@ def _fsync_tree(p: Path) -> None:
         finally:
             os.close(fd)
     if p.is_dir():
-        _fsync_dir(p)
+        fsync_dir(p)

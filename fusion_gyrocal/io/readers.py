@@ -35,8 +35,6 @@ from .xsens import XSENS_FINE_TICKS_PER_S, looks_like_xsens, read_xsens
 __all__ = ["ImuStream", "FORMATS", "detect_format", "read_imu", "read_csv", "read_xsens", "read_npz",
            "RATE_UNITS", "TIME_UNITS", "PLAUSIBLE_RATE_HZ", "PANDAS_MIN_BYTES", "XSENS_FINE_TICKS_PER_S"]
 
-_path = input_path   # the name fusion_gyrocal.io.writers imports it by
-
 FORMATS = ("auto", "csv", "euroc", "xsens", "npz", "bag")
 
 

@@ -59,7 +59,7 @@ from ..core.array import ARRAY_KIND, ArrayCalibration
 from ..core.model import PairCalibration
 from ..errors import FormatError, InputError
 from ..lie import canonical_rotvec, log
-from .readers import ImuStream, _path
+from .stream import ImuStream, input_path
 
 # Placeholder noise figures (the ADIS16448 values of OpenVINS' EuRoC kalibr_imu_chain.yaml), written
 # only where nothing better is known, and always flagged as placeholders in the file.
@@ -113,7 +113,8 @@ def _umask() -> int:
     return 0o022
 
 
-def _fsync_dir(d: Path) -> None:
+def fsync_dir(d: Path) -> None:
+    """Flush folder ``d``'s entries to disk (a rename into it survives a crash); errors are ignored."""
     try:
         fd = os.open(d, os.O_RDONLY)
     except OSError:
@@ -170,7 +171,7 @@ def atomic_write(path, data: bytes | str) -> Path:
         if isinstance(exc, OSError):
             raise FormatError(f"{path}: could not write: {os_reason(exc)}") from exc
         raise
-    _fsync_dir(folder)
+    fsync_dir(folder)
     return path
 
 
@@ -204,7 +205,7 @@ def read_json(path):
     FormatError
         When the file is not JSON, has another ``format_version`` or lacks required fields.
     """
-    p = _path(path)   # exists and is a regular file (a FIFO would block)
+    p = input_path(path)   # exists and is a regular file (a FIFO would block)
     try:
         with open(p, "r", encoding="utf-8") as f:
             d = json.load(f)
