@@ -221,8 +221,8 @@ def prior_held_covariance(F, groups, s1, s2, prior_std: float) -> np.ndarray:
     C = np.hstack([C, np.zeros((len(C), F.shape[0] - 9))])     # cross-axis terms (full map): not a gauge's
     P = constrained_inverse(F, C)
     N = np.zeros((F.shape[0], len(groups)))
-    N[3:] = null_directions(groups, 2)
-    information = (N[3:] * s.reshape(6, 1) ** 2).sum(axis=0) / prior_std**2
+    N[3:9] = null_directions(groups, 2)
+    information = (N[3:9] * s.reshape(6, 1) ** 2).sum(axis=0) / prior_std**2
     P = P + (N / information) @ N.T
     return 0.5 * (P + P.T)
 
