@@ -4,7 +4,8 @@ All eight gyros are axis-parallel (top side: identity, bottom side: a 180 degree
 fully degenerate case (Lemma 2): only the rotations and the per-axis scale ratios
 ``scale_1[i] / scale_k[perm(i)]`` are determined. For every session this script calibrates the
 whole array jointly (:func:`fusion_gyrocal.core.array.calibrate_array`) and every gyro against IMU 1
-pairwise (:func:`fusion_gyrocal.solve` on the same moments), and prints
+pairwise (:func:`fusion_gyrocal.solve` on the same moments, with the joint solver's model: rotation and scale
+factors, ``linear_map="rigid"``), and prints
 
 * each gyro's deviation from its nominal rotation (degrees),
 * the per-axis ratios, their mean over axes, and the "gain" table of SOURCE.md,
@@ -74,7 +75,7 @@ def main(argv=None) -> dict:
         for k in range(1, 8):
             nominal = C_BOTTOM if k % 2 == 1 else np.eye(3)
             dj, rj = summarise(cal.R_ref_k[k], cal.scale[0], cal.scale[k], nominal)
-            pc = solve(cal.moments.pair(0, k))
+            pc = solve(cal.moments.pair(0, k), linear_map="rigid")   # the joint solver's model: like for like
             dp, rp = summarise(pc.R_1_2, pc.scale_1, pc.scale_2, nominal)
             for name, d, r in (("joint", dj, rj), ("pairwise", dp, rp)):
                 res[name][0][-1].append(d)

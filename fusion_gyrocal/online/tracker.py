@@ -95,7 +95,7 @@ def _batch(w1, w2, noise_std, gauge, misfit=None) -> PairCalibration:
 
     if misfit is not None and noise_std is not None:
         noise_std = _effective_noise(noise_std, w1, inflation(misfit, w1))
-    return calibrate_pair(w1, w2, noise_std=noise_std, gauge=gauge)
+    return calibrate_pair(w1, w2, noise_std=noise_std, gauge=gauge, linear_map="rigid")   # the filter's model
 
 
 def _effective_noise(noise_std, w1, g) -> tuple[float, float]:
