@@ -67,6 +67,7 @@ BAD_VALUES = {
     "min_kept_energy": [-0.1, 2.0],
     "max_rate": [0, -1.0],
     "max_plausible_rate": [0, -1.0, math.nan, None],
+    "gyros": [1, 0, 2.5, True, None],
 }
 
 

@@ -53,7 +53,7 @@ def run(args) -> int:
 
     options = options_from_args(args)
     if args.chunked:  # refused before a cluster starts (run_fleet applies the same rule)
-        options.require_stage("solve", "--chunked")
+        options.require("moments", "--chunked")
     cluster = client = None
     try:
         if args.scheduler or args.workers > 0:
