@@ -383,6 +383,17 @@ class Options(FrozenOptions):
         if self.scale_prior_std is not None and self.method != "ml":
             raise OptionError("scale_prior_std: expected method='ml' (the direct solution has no prior)")
 
+    @classmethod
+    def of(cls, options=None, **changes):
+        """``options`` (default: the defaults) with ``changes`` applied (each a field name, checked again).
+
+        ``gyros`` among the changes is applied first (:meth:`for_gyros`), so that the per-gyro values among
+        them are checked against it: ``Options.of(options, gyros=3, noise_std=[a, b, c])``.
+        """
+        if "gyros" in changes:
+            options = super().of(options).for_gyros(changes.pop("gyros"))
+        return super().of(options, **changes)
+
     def refused(self, consumer: str) -> list:
         """The options set away from their default that do not apply to ``consumer`` (sorted names)."""
         accepted = applying_to(consumer)
@@ -426,7 +437,7 @@ class Options(FrozenOptions):
         if given:
             raise OptionError(f"{', '.join(given)}: given for {self.gyros} gyros, expected values for {n} gyros "
                               f"(Options(gyros={n}, ...) or the values as keywords)")
-        return self.replace(gyros=n, **{name: _FIELDS[name].default for name in PER_GYRO})
+        return dataclasses.replace(self, gyros=n, **{name: _FIELDS[name].default for name in PER_GYRO})
 
     def to_dict(self) -> dict:
         """The non-default options as plain values (for logs and JSON)."""
