@@ -28,7 +28,9 @@ gyro to the reference. The covariance is the inverse Fisher information in the g
 
 The one O(N) pass over the samples is :meth:`ArrayMoments.from_samples`: the
 :class:`~fusion_gyrocal.core.moments.Moments` of every pair of gyros, from which the stacked scatter is
-assembled.
+assembled. The result, :class:`~fusion_gyrocal.core.array_result.ArrayCalibration`, is in
+:mod:`~fusion_gyrocal.core.array_result`; the covariance reported follows the pair solver's policy
+(:func:`~fusion_gyrocal.core.robust.reported_covariance`).
 """
 
 from __future__ import annotations

@@ -161,7 +161,7 @@ def calibrate_device(path, options: Options | None = None, **keywords) -> PairCa
     GyroCalError
         Anything :func:`fusion_gyrocal.calibrate_pair` raises.
     """
-    options = Options.of(options, **keywords)
+    options = Options.of(options, **keywords).require("pair", "calibrate_device")
     path = Path(path).expanduser()
     if not path.exists():
         raise FormatError(f"{path}: no such device file or folder")
