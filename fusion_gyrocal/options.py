@@ -195,8 +195,9 @@ def _option(default, check, applies_to, doc, flag=None, **cli):
     ``cli`` holds the argparse keywords of the flag; ``cli["to_option"]``, when given, maps the parsed
     flag value to the option value (``context`` gives the recording's sample rate).
     """
-    unknown = set(applies_to) - set(CONSUMERS)
-    assert not unknown, unknown
+    unknown = sorted(set(applies_to) - set(CONSUMERS))
+    if unknown:
+        raise OptionError(f"applies_to: expected some of {sorted(CONSUMERS)}, got {unknown}")
     return field(default=default, metadata=dict(check=check, applies_to=frozenset(applies_to), doc=doc, flag=flag,
                                                 cli=cli))
 
@@ -301,8 +302,8 @@ class Options(FrozenOptions):
     # --- the pipeline (samples -> moments)
     time_offset_s: float | None = _option(
         None, _optional(_finite), _RECORDING,
-        "Known time offset (s), ADDED to gyro 2's timestamps to put them on gyro 1's clock; default: "
-        "estimated (timestamped input only).",
+        "Known time offset (s), ADDED to gyro 2's timestamps (N gyros: to every other gyro's) to put them on "
+        "gyro 1's clock; default: estimated (timestamped input only).",
         "--offset", type=float, help="known time offset (s) added to gyro 2's timestamps; default: estimated")
     max_offset_s: float = _option(
         1.0, _positive, _RECORDING, "Search range (s) of the time-offset estimate.",
@@ -471,9 +472,10 @@ def _defaults(gyros: int) -> dict:
 
 
 def _numpydoc() -> str:
-    lines = ["Options of the solver and the pipeline (frozen; change with :meth:`replace`).", "",
+    lines = ["Options of every estimator and the command line (frozen; change with :meth:`replace`).", "",
              "Every field is checked and normalised on construction (a bad value raises",
-             ":class:`~fusion_gyrocal.errors.OptionError`); per-gyro values become a tuple of two.", "",
+             ":class:`~fusion_gyrocal.errors.OptionError`); per-gyro values become a tuple of ``gyros`` (two by",
+             "default).", "",
              "Parameters", "----------"]
     for f in dataclasses.fields(Options):
         flag = f" Command line: ``{f.metadata['flag']}``." if f.metadata["flag"] else ""
