@@ -20,7 +20,8 @@ from .pipeline.pipeline import calibrate_pair
 __version__ = "0.1.0"
 
 _LAZY = {
-    "calibrate_array": "core.array", "ArrayCalibration": "core.array",
+    "calibrate_array": "core.array", "ArrayCalibration": "core.array_result",
+    "calibrate_streams": "pipeline.array",
     "StreamingCalibrator": "online.stream",
     "GyroPairTracker": "online.tracker", "TrackerConfig": "online.config",
     "calibrate_pair_graph": "graph", "GyroPairGraph": "graph",

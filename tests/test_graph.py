@@ -389,3 +389,23 @@ def test_gyro_pair_graph_add_window_rejects_pooled_moments(constant_bias_case):
     pooled = Moments.pool_all(window_moments(sim.omega_1, sim.omega_2, 1000))
     with pytest.raises(InputError, match="one bias segment"):
         GyroPairGraph(ml).add_window(pooled)
+
+
+def test_calibrate_pair_graph_options_and_keywords_agree(constant_bias_case):
+    from fusion_gyrocal import Options
+
+    sim, _ = constant_bias_case
+    a = calibrate_pair_graph(sim.omega_1, sim.omega_2, Options(noise_std=NOISE, gauge="fixed"), window=1000)
+    b = calibrate_pair_graph(sim.omega_1, sim.omega_2, noise_std=NOISE, gauge="fixed", window=1000)
+    np.testing.assert_array_equal(a.R_1_2, b.R_1_2)
+    np.testing.assert_array_equal(a.covariance, b.covariance)
+
+
+@pytest.mark.parametrize("keywords, refused", [({"method": "direct"}, "method"), ({"bias_window": 100}, "bias_window"),
+                                               ({"time_offset_s": 0.01}, "time_offset_s")])
+def test_calibrate_pair_graph_refuses_an_option_it_does_not_apply(keywords, refused):
+    from fusion_gyrocal import OptionError
+
+    sim = simulate_pair(n=600, rng=11)
+    with pytest.raises(OptionError, match=rf"^calibrate_pair_graph: .* cannot apply \['{refused}'\]"):
+        calibrate_pair_graph(sim.omega_1, sim.omega_2, window=100, **keywords)

@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from fusion_gyrocal import (ConfigurationError, ExcitationError, InputError, Moments, NotRigidError, OptionError,
-                            solve)
+                            Options, calibrate_streams, solve)
 from fusion_gyrocal.core.array import (ArrayCalibration, ArrayMoments, _retract, calibrate_array, joint_cost,
                                   joint_gradient, solve_array)
 from fusion_gyrocal.core.refine import ml_cost
@@ -401,3 +401,61 @@ def test_array_calibration_from_dict_wrong_version_or_kind_raises_format_error()
         ArrayCalibration.from_dict({k: v for k, v in d.items() if k != "kind"})
     with pytest.raises(FormatError, match=r"expected the fields \['scale'\]"):
         ArrayCalibration.from_dict({k: v for k, v in d.items() if k != "scale"})
+
+
+# ------------------------------------------------------------------------------------------- timestamped streams
+def _streams(seed, offsets, rates, duration=30.0):
+    """Gyro k's own timestamps and rates: its sample at its time t is the motion at t + offsets[k] (gyro 1's clock)."""
+    rng = np.random.default_rng(seed)
+    motion = HumanMotion(0.8, rng=rng)
+    R = _rotations(rng, len(offsets))
+    ts, ws = [], []
+    for k, (off, rate) in enumerate(zip(offsets, rates)):
+        t = 5.0 + np.arange(0, duration, 1 / rate)
+        ts.append(t)
+        ws.append(motion(t + off) @ R[k] * SCALES[k] + rng.normal(0, PAPER_NOISE_STD, (t.size, 3)))
+    return ts, ws, R
+
+
+def test_calibrate_streams_offsets_and_rates_recover_the_truth():
+    offsets = [0.0, 0.031, -0.052]
+    ts, ws, R = _streams(40, offsets, [200.0, 100.0, 150.0])
+    cal = calibrate_streams(ts, ws)
+    assert cal.n_gyros == 3 and cal.time_offset_source == ("reference", "estimated", "estimated")
+    np.testing.assert_allclose(cal.time_offset_s, offsets, atol=1e-3)
+    for k in (1, 2):
+        assert rotation_error(cal.R_ref_k[k], R[k]) < 0.05 * DEG
+    np.testing.assert_allclose(cal.scale / cal.scale[0, 0], SCALES[:3] / SCALES[0, 0], atol=2e-3)
+
+
+def test_calibrate_streams_options_and_keywords_agree_with_given_offsets():
+    ts, ws, _ = _streams(41, [0.0, 0.02, 0.02], [100.0, 125.0, 100.0], duration=20.0)
+    keywords = dict(time_offset_s=0.02, noise_std=[PAPER_NOISE_STD] * 3, max_rate=3.0, saturation_limit=30.0)
+    a = calibrate_streams(ts, ws, **keywords)
+    b = calibrate_streams(ts, ws, Options(gyros=3, **keywords))
+    np.testing.assert_array_equal(a.R_ref_k, b.R_ref_k)
+    assert a.time_offset_source == ("reference", "given", "given")
+    np.testing.assert_allclose(a.time_offset_s, [0.0, 0.02, 0.02])
+
+
+@pytest.mark.parametrize("keywords, match", [
+    ({"method": "direct"}, r"^calibrate_streams: calibrates N timestamped gyros jointly and cannot apply \['method'\]"),
+    ({"max_plausible_rate": 200.0}, r"cannot apply \['max_plausible_rate'\]; expected only its options"),
+    ({"noise_std": [1e-3, 1e-3]}, r"^noise_std: expected one value or one per gyro \(3\), got 2 values"),
+])
+def test_calibrate_streams_refused_option_raises_option_error(keywords, match):
+    ts, ws, _ = _streams(42, [0.0, 0.0, 0.0], [100.0] * 3, duration=5.0)
+    with pytest.raises(OptionError, match=match):
+        calibrate_streams(ts, ws, **keywords)
+
+
+def test_calibrate_array_refuses_an_option_it_does_not_apply():
+    R = _rotations(43, 3)
+    w, _ = _simulate(44, R, SCALES[:3], PAPER_NOISE_STD, n=500)
+    with pytest.raises(OptionError, match=r"^calibrate_array: .* cannot apply \['rate_hz', 'time_offset_s'\]"):
+        calibrate_array(w, Options(time_offset_s=0.1, rate_hz=50.0))
+    with pytest.raises(OptionError, match=r"^noise_std: given for 2 gyros, expected values for 3 gyros"):
+        calibrate_array(w, Options(noise_std=1e-3))
+    a = calibrate_array(w, Options(gyros=3, noise_std=PAPER_NOISE_STD, gauge="fixed"))
+    b = calibrate_array(w, noise_std=PAPER_NOISE_STD, gauge="fixed")
+    np.testing.assert_array_equal(a.R_ref_k, b.R_ref_k)

@@ -71,6 +71,7 @@ BAD_VALUES = {
     "min_kept_energy": [-0.1, 2.0],
     "max_rate": [0, -1.0],
     "max_plausible_rate": [0, -1.0, math.nan, None],
+    "gyros": [1, 0, 2.5, True, None],
 }
 
 
@@ -234,3 +235,50 @@ def test_options_reach_solve_unchanged_from_the_fleet(solve_spy, recording, tmp_
     df = run_fleet([tmp_path / "log.parquet"], chunked=True, options=opts)  # the chunked path solves from moments
     assert df["ok"].tolist() == [True]
     _assert_reached(solve_spy, opts)
+
+
+# ------------------------------------------------------------------------------------------ what applies where
+def test_options_require_refuses_what_the_consumer_does_not_apply():
+    from fusion_gyrocal.options import CONSUMERS, applying_to
+
+    for consumer in CONSUMERS:
+        accepted = set(applying_to(consumer))
+        for name, (_, keywords) in FLAG_EXAMPLES.items():
+            o = Options(**keywords)
+            if set(o.to_dict()) <= accepted:
+                assert o.require(consumer) is o
+            else:
+                with pytest.raises(OptionError, match=rf"^who: {CONSUMERS[consumer]} and cannot apply \[.*'{name}'"):
+                    o.require(consumer, "who")
+    assert Options().require("moments") == Options()
+
+
+def test_options_applies_to_moments_is_what_solve_reads():
+    from fusion_gyrocal.options import applying_to
+
+    assert set(applying_to("moments")) == {"method", "noise_std", "gauge", "scale_prior_std", "parallel_tol_deg",
+                                           "intrinsics_1", "intrinsics_2", "skew_std", "linear_map", "cross_axis_std",
+                                           "covariance", "min_snr", "max_unexplained", "on_not_rigid", "target_snr"}
+    assert set(applying_to("pair")) == set(NAMES) - {"gyros"}
+    assert set(applying_to("array")) < set(applying_to("streams"))
+
+
+def test_options_gyros_takes_one_or_n_per_gyro_values():
+    o = Options(gyros=3, noise_std=[1e-3, 2e-3, 3e-3], saturation_limit=30.0)
+    assert o.noise_std == (1e-3, 2e-3, 3e-3) and o.saturation_limit == (30.0,) * 3 and o.skew_std == (0.0,) * 3
+    assert o.to_dict() == {"noise_std": (1e-3, 2e-3, 3e-3), "saturation_limit": (30.0,) * 3, "gyros": 3}
+    assert Options.of(None, gyros=4, noise_std=1e-3).noise_std == (1e-3,) * 4
+    assert Options(gauge="fixed").for_gyros(3) == Options(gauge="fixed", gyros=3)
+    with pytest.raises(OptionError, match=r"^noise_std: expected one value or one per gyro \(3\), got 2 values"):
+        Options(gyros=3, noise_std=[1e-3, 2e-3])
+    with pytest.raises(OptionError, match=r"^noise_std: given for 2 gyros, expected values for 3 gyros"):
+        Options(noise_std=1e-3).for_gyros(3)
+    with pytest.raises(OptionError, match=r"^pair: calibrates two gyros from samples and cannot apply \['gyros'\]"):
+        Options(gyros=3).replace(noise_std=1e-3).require("pair")
+
+
+def test_add_option_arguments_consumer_selects_its_flags():
+    args = _parse([], consumer="recordings")
+    assert sorted(vars(args)) == sorted(f"option_{n}" for n in ("time_offset_s", "max_offset_s", "rate_hz",
+                                                                 "saturation_limit", "max_rate"))
+    assert sorted(vars(_parse([], consumer="pair"))) == sorted(f"option_{n}" for n in FLAGS)

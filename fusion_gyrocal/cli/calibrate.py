@@ -4,7 +4,7 @@ Two gyros go through the pair pipeline (:func:`~fusion_gyrocal.pipeline.pipeline
 offset, flex gate, rigidity verdict, every option). Below the table one line says what the uncertainty rests
 on (:func:`~fusion_gyrocal.io.report.uncertainty_basis`); the Kalibr and OpenVINS files carry the gyro noise
 identified from the pair's residual, with where it came from. More than two, or two with ``--array``, are calibrated
-jointly (:func:`~fusion_gyrocal.core.array.calibrate_array`, see :mod:`fusion_gyrocal.cli.array`).
+jointly (:func:`~fusion_gyrocal.pipeline.array.calibrate_streams`, see :mod:`fusion_gyrocal.cli.array`).
 """
 
 from __future__ import annotations
@@ -74,9 +74,9 @@ def run(args) -> int:
         streams = read_sources(sources, lambda: progress.advance(task))
         progress.update(task, description="aligning and solving")
         if joint:
-            from .array import calibrate_streams
+            from .array import calibrate_recordings
 
-            cal, notes = calibrate_streams(streams, args)
+            cal, notes = calibrate_recordings(streams, args)
         else:
             from ..options import options_from_args
             from ..pipeline.pipeline import run_pipeline

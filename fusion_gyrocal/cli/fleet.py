@@ -41,7 +41,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--scheduler", help="address of a running Dask scheduler (e.g. tcp://10.0.0.5:8786)")
     p.add_argument("--chunked", action="store_true",
                    help="huge Parquet logs: reduce each device's row-group statistics across the workers, then solve")
-    add_option_arguments(p, exclude=FLEET_EXCLUDED_OPTIONS)
+    add_option_arguments(p, consumer="pair", exclude=FLEET_EXCLUDED_OPTIONS)
     p.set_defaults(func=run)
     return p
 
@@ -53,7 +53,7 @@ def run(args) -> int:
 
     options = options_from_args(args)
     if args.chunked:  # refused before a cluster starts (run_fleet applies the same rule)
-        options.require_stage("solve", "--chunked")
+        options.require("moments", "--chunked")
     cluster = client = None
     try:
         if args.scheduler or args.workers > 0:

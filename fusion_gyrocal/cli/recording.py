@@ -15,17 +15,15 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..options import add_option_arguments, options_from_args
+from ..options import TIMESTAMP_OPTIONS, add_option_arguments, applying_to, options_from_args
 from ..units import RATE_UNITS, TIME_UNITS
 
-ALIGNMENT_OPTIONS = ("time_offset_s", "max_offset_s", "rate_hz")
+ALIGNMENT_OPTIONS = TIMESTAMP_OPTIONS
 """The options that act on reading and aligning recordings (``--offset``, ``--max-offset``, ``--rate``)."""
 
-MASK_OPTIONS = ("saturation_limit", "max_rate")
-"""The options that mask samples of recordings (``--saturation-limit``, ``--max-rate``)."""
-
-RECORDING_OPTIONS = ALIGNMENT_OPTIONS + MASK_OPTIONS
-"""Every option that acts on recordings before a solve: what ``compare`` takes for its recording pair."""
+RECORDING_OPTIONS = applying_to("recordings")
+"""Every option that acts on recordings before a solve (``applies_to`` ``"recordings"``): what ``compare`` takes
+for its recording pair (the alignment options and the masks ``--saturation-limit``, ``--max-rate``)."""
 
 READER_OPTIONS = {"csv": {"columns", "unit", "sensitivity", "time_column", "time_unit"},
                   "euroc": {"columns", "unit", "sensitivity", "time_column", "time_unit"},

@@ -17,7 +17,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     add_recording_args(p)
     p.add_argument("--out", default="gyrocal_report", help="output folder (default gyrocal_report)")
     p.add_argument("--track", action="store_true", help="also track drift with the EKF and plot it")
-    add_option_arguments(p)
+    add_option_arguments(p, consumer="pair")
     p.set_defaults(func=run)
     return p
 

@@ -28,28 +28,30 @@ gyro to the reference. The covariance is the inverse Fisher information in the g
 
 The one O(N) pass over the samples is :meth:`ArrayMoments.from_samples`: the
 :class:`~fusion_gyrocal.core.moments.Moments` of every pair of gyros, from which the stacked scatter is
-assembled.
+assembled. The result, :class:`~fusion_gyrocal.core.array_result.ArrayCalibration`, is in
+:mod:`~fusion_gyrocal.core.array_result`; the covariance reported follows the pair solver's policy
+(:func:`~fusion_gyrocal.core.robust.reported_covariance`).
 """
 
 from __future__ import annotations
 
 import itertools
-from dataclasses import MISSING, dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Iterable, Sequence
 
 import numpy as np
 
-from .robust import MIN_ROBUST_WINDOWS
-from .solve import pair_covariance, solve
-from ..errors import ConfigurationError, FormatError, GyroCalError, InputError, OptionError
+from ..errors import GyroCalError, InputError, OptionError
+from ..lie import exp, skew
+from ..options import Options
+from .array_result import ARRAY_FORMAT_VERSION, ARRAY_KIND, ArrayCalibration  # noqa: F401 (their home before)
 from .gauge import Gauge, constrained_inverse
-from .model import PairCalibration, from_json_list, to_json_list, to_json_number, mark_undetermined
 from .moments import (Moments, WindowStats, as_rates, finite_rows, stacked_window_stats, window_moments,
                       window_samples)
-from .observability import A_of, classify, dA_dp, per_axis_snr, residual_weight
-from ..lie import exp, skew
+from .observability import A_of, classify, dA_dp
 from .refine import fisher_scoring, residual_scatter
-
+from .robust import reported_covariance, sandwich, score_variance
+from .solve import solve
 
 
 # ---------------------------------------------------------------------------------------- statistics
@@ -236,269 +238,6 @@ def _checked_rates(omegas, mask):
             raise InputError(f"gyro {k}: expected finite rates, got a non-finite value at sample {idx[0]} "
                              f"({idx.size} such sample(s)); mask or drop those samples first")
     return rates, mask
-
-
-# ---------------------------------------------------------------------------------------- result
-ARRAY_KIND = "array_calibration"
-#: Format of :meth:`ArrayCalibration.to_dict` (``kind`` tells it from a pair's JSON).
-ARRAY_FORMAT_VERSION = "1.0"
-_ARRAY_FIELDS = ("R_ref_k", "scale", "bias", "scale_observable", "covariance", "snr", "noise_std", "residual_rms",
-                 "time_offset_s", "time_offset_std_s")
-
-
-def _json_ready(v):
-    """Nested tuples as lists (for JSON)."""
-    return [_json_ready(x) for x in v] if isinstance(v, (tuple, list)) else v
-
-
-@dataclass(frozen=True)
-class ArrayCalibration:
-    """Joint calibration of N rigidly mounted gyroscopes (indices from 0).
-
-    Attributes
-    ----------
-    R_ref_k : ndarray (N, 3, 3)
-        ``R_ref_k[k]`` maps gyro k's frame into the reference gyro's frame
-        (``omega_ref = R_ref_k[k] @ omega_k``); ``R_ref_k[reference]`` is the identity.
-    scale : ndarray (N, 3)
-        Scale factors of every gyro in the gauge named by ``gauge``.
-    bias : ndarray (N, 3)
-        Combined bias of every gyro against the reference, ``b_ref - A_ref_k b_k`` (Eq. 5) in rad/s
-        (the individual biases are not observable: a common rate offset is indistinguishable from
-        them); ``bias[reference]`` is zero.
-    reference : int
-        Index of the reference gyro.
-    scale_observable : ndarray (N, 3) of bool
-        Scale factors determined up to the one global scale (Theorem 2). Where False, only ratios
-        inside its group of linked axes (``scale_groups``) are determined (Lemmas 2-3).
-    scale_groups : tuple of tuple of (gyro, axis)
-        Scale factors whose ratios the data determine; each group has one undetermined common factor.
-    configurations : tuple of tuple of str, (N, N)
-        Configuration class (Lemmas 2-4) of every pair; ``""`` on the diagonal.
-    covariance : ndarray (9N, 9N)
-        Covariance of ``[dtheta_0..dtheta_{N-1}, scale_0..scale_{N-1}, bias_0..bias_{N-1}]`` (3 entries
-        each) with ``R_ref_k_true = Exp(dtheta_k) @ R_ref_k[k]``, in the gauge. For scale factors whose
-        ``scale_observable`` is False the marginal variances belong to the gauge convention; only
-        ratios within a group are meaningful (:meth:`scale_ratio`). The reference's rotation and bias
-        blocks are zero (its scale factors have a variance unless the gauge fixes them).
-    gauge : str
-        How the global scale (one factor per group) was fixed.
-    snr : ndarray (3,)
-        Per-axis SNR of the common angular rate (reference frame) against the reference gyro's noise.
-    n_samples : int
-    noise_std : ndarray (N,)
-        White-noise std per sample of every gyro (rad/s) used for the weights and the covariance.
-    noise_source : str
-    residual_rms : ndarray (N,)
-        RMS per axis of every gyro's residual against the fitted common rate (rad/s).
-    iterations : int
-    bias_segments : int
-    notes : tuple of str
-    moments : ArrayMoments
-        The statistics the calibration was computed from (used by :meth:`pair`).
-    time_offset_s : ndarray (N,)
-        Seconds ADDED to gyro k's timestamps to put them on the reference gyro's clock (0 for the
-        reference and for sample-aligned input).
-    time_offset_std_s : ndarray (N,)
-        Standard deviation of ``time_offset_s`` (0 where it was given, not estimated).
-    covariance_basis : str
-        What ``covariance`` rests on (see :attr:`PairCalibration.covariance_basis`).
-    robust_inflation : float
-        Largest ratio of the block-robust variance to the noise model's (NaN when not computed).
-    time_offset_source : tuple of str (N,)
-        Where each offset came from: ``"reference"``, ``"estimated"`` (rate-norm correlation refined by
-        the rigid-model misfit, :func:`~fusion_gyrocal.pipeline.alignment.align_streams`), ``"given"``,
-        ``"one clock"`` (recordings with identical timestamps) or ``"sample-aligned"`` (input without
-        timestamps).
-    """
-
-    R_ref_k: np.ndarray
-    scale: np.ndarray
-    bias: np.ndarray
-    reference: int
-    scale_observable: np.ndarray
-    scale_groups: tuple
-    configurations: tuple
-    covariance: np.ndarray
-    gauge: str
-    snr: np.ndarray
-    n_samples: int
-    noise_std: np.ndarray
-    noise_source: str
-    residual_rms: np.ndarray
-    iterations: int
-    bias_segments: int
-    notes: tuple
-    moments: ArrayMoments = field(repr=False)
-    time_offset_s: np.ndarray | None = None
-    time_offset_std_s: np.ndarray | None = None
-    time_offset_source: tuple | None = None
-    covariance_basis: str = "noise model"
-    robust_inflation: float = float("nan")
-
-    def __post_init__(self):
-        n = np.asarray(self.scale).shape[0]
-        if self.time_offset_s is None:
-            object.__setattr__(self, "time_offset_s", np.zeros(n))
-        if self.time_offset_std_s is None:
-            object.__setattr__(self, "time_offset_std_s", np.zeros(n))
-        if self.time_offset_source is None:
-            object.__setattr__(self, "time_offset_source", tuple(
-                "reference" if k == self.reference else "sample-aligned" for k in range(n)))
-        if len(self.time_offset_source) != n:
-            raise InputError(f"time_offset_source: expected {n} entries, got {len(self.time_offset_source)}")
-        shapes = {"R_ref_k": (n, 3, 3), "scale": (n, 3), "bias": (n, 3), "scale_observable": (n, 3),
-                  "covariance": (9 * n, 9 * n), "snr": (3,), "noise_std": (n,), "residual_rms": (n,),
-                  "time_offset_s": (n,), "time_offset_std_s": (n,)}
-        for name, shape in shapes.items():
-            arr = np.array(getattr(self, name), dtype=bool if name == "scale_observable" else np.float64)
-            if arr.shape != shape:
-                raise InputError(f"{name}: expected shape {shape}, got {arr.shape}")
-            arr.flags.writeable = False
-            object.__setattr__(self, name, arr)
-        object.__setattr__(self, "notes", tuple(self.notes))
-        object.__setattr__(self, "time_offset_source", tuple(str(x) for x in self.time_offset_source))
-
-    @property
-    def n_gyros(self) -> int:
-        return self.scale.shape[0]
-
-    @property
-    def rotation_std_rad(self) -> np.ndarray:
-        """(N, 3) 1-sigma rotation uncertainty per axis of the reference frame (rad)."""
-        return np.sqrt(np.clip(np.diag(self.covariance)[:3 * self.n_gyros], 0, None)).reshape(-1, 3)
-
-    def scale_ratio(self, i: int, axis_i: int, j: int, axis_j: int) -> tuple[float, float]:
-        """``scale[i, axis_i] / scale[j, axis_j]`` and its 1-sigma uncertainty.
-
-        Gauge-invariant (and reported) only for two scale factors in the same group of linked
-        axes; for all-axes-parallel gyros (Lemma 2) that is ``axis_j = perm(axis_i)``.
-
-        Raises
-        ------
-        ConfigurationError
-            If the two scale factors are in different groups (their ratio is not determined).
-        """
-        a, b = (i, axis_i), (j, axis_j)
-        if not any(a in g and b in g for g in self.scale_groups):
-            raise ConfigurationError(f"scale_ratio: scale[{i}, {axis_i}] and scale[{j}, {axis_j}] are in different "
-                                     "groups of linked axes; the data do not determine their ratio")
-        r = self.scale[i, axis_i] / self.scale[j, axis_j]
-        ka, kb = 3 * self.n_gyros + 3 * i + axis_i, 3 * self.n_gyros + 3 * j + axis_j
-        C = self.covariance
-        var_log = (C[ka, ka] / self.scale[i, axis_i] ** 2 + C[kb, kb] / self.scale[j, axis_j] ** 2
-                   - 2 * C[ka, kb] / (self.scale[i, axis_i] * self.scale[j, axis_j]))
-        return float(r), float(r * np.sqrt(max(var_log, 0.0)))
-
-    def pair(self, i: int, j: int) -> PairCalibration:
-        """The joint estimate seen as the calibration of the pair (gyro i as "gyro 1", gyro j as "gyro 2").
-
-        ``R_1_2 = R_ref_k[i]^T R_ref_k[j]`` (so loops close exactly), scale factors of the two gyros
-        in the array's gauge, bias ``mean_i - A mean_j`` (Eq. 12), and the 12x12 covariance derived
-        from the joint one (undetermined scale factors: infinite variance, as in
-        :class:`PairCalibration`).
-        """
-        m = self.moments.pair(i, j)  # checks the indices
-        n = self.n_gyros
-        Ri, Rj = self.R_ref_k[i], self.R_ref_k[j]
-        R = Ri.T @ Rj
-        s1, s2 = self.scale[i], self.scale[j]
-        A = A_of(R, s1, s2)
-        noise = (float(self.noise_std[i]), float(self.noise_std[j]))
-        # [dtheta_ij, log s_i, log s_j] = J [dtheta_all, log s_all]; dtheta_ij = R_i^T (dtheta_j - dtheta_i)
-        J = np.zeros((9, 6 * n))
-        J[0:3, 3 * i:3 * i + 3] = -Ri.T
-        J[0:3, 3 * j:3 * j + 3] += Ri.T
-        J[3:6, 3 * n + 3 * i:3 * n + 3 * i + 3] = np.eye(3)
-        J[6:9, 3 * n + 3 * j:3 * n + 3 * j + 3] = np.eye(3)
-        P9 = J @ _log_parameter_covariance(self) @ J.T
-        cov = pair_covariance(P9, R, s1, s2, A, m, np.linalg.inv(residual_weight(A, noise)) / m.count)
-        obs = np.stack([self.scale_observable[i], self.scale_observable[j]])
-        mark_undetermined(cov, obs)
-        M = residual_scatter(A, m.scatter)
-        return PairCalibration(
-            R_1_2=R, scale_1=s1, scale_2=s2, bias=m.mean_1 - A @ m.mean_2,
-            configuration=self.configurations[i][j], scale_observable=obs, covariance=cov,
-            gauge=self.gauge, snr=per_axis_snr(m, noise), n_samples=int(m.count), noise_std=np.array(noise),
-            noise_source=self.noise_source, covariance_basis=self.covariance_basis,
-            robust_inflation=self.robust_inflation,
-            residual_rms=float(np.sqrt(max(np.trace(M), 0.0) / (3.0 * max(m.dof, 1.0)))),
-            method="ml_array", iterations=self.iterations, bias_segments=m.segments,
-            time_offset_s=float(self.time_offset_s[j] - self.time_offset_s[i]),
-            time_offset_std_s=float(np.hypot(self.time_offset_std_s[i], self.time_offset_std_s[j])),
-            notes=(f"view of the joint calibration of {n} gyros (gyro {i} as gyro 1, gyro {j} as gyro 2)",)
-            + self.notes)
-
-    # ------------------------------------------------------------------ serialisation
-    def to_dict(self) -> dict:
-        """JSON-ready dictionary with ``kind`` and ``format_version`` (:data:`ARRAY_FORMAT_VERSION`).
-
-        Non-finite numbers become ``"NaN"``, ``"Infinity"``, ``"-Infinity"`` as in
-        :meth:`PairCalibration.to_dict`; the moments are kept, so :meth:`pair` works on a loaded result.
-        """
-        out = {"kind": ARRAY_KIND, "format_version": ARRAY_FORMAT_VERSION, "units": {"rate": "rad/s", "time": "s"},
-               "convention": "omega_ref = R_ref_k[k] @ omega_k; omega_k_meas = diag(scale[k]) omega_k + b_k; "
-                             "time_offset_s[k] is added to gyro k's timestamps",
-               "covariance_order": "[dtheta_0..dtheta_N-1, scale_0..scale_N-1, bias_0..bias_N-1], 3 entries each"}
-        for f in fields(self):
-            v = getattr(self, f.name)
-            if f.name == "moments":
-                v = {"n_gyros": v.n_gyros, "pairs": [m.to_dict() for m in v.pairs]}
-            elif isinstance(v, np.ndarray):
-                v = to_json_list(v)
-            elif isinstance(v, (float, np.floating)):
-                v = to_json_number(float(v))
-            elif isinstance(v, (int, np.integer)):
-                v = int(v)
-            elif isinstance(v, tuple):
-                v = _json_ready(v)
-            out[f.name] = v
-        return out
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "ArrayCalibration":
-        """Rebuild a result written by :meth:`to_dict`.
-
-        Raises
-        ------
-        FormatError
-            Another ``kind`` or ``format_version``, a missing field, or values of the wrong shape.
-        """
-        if d.get("kind") != ARRAY_KIND:
-            raise FormatError(f"array calibration: expected kind {ARRAY_KIND!r}, got {d.get('kind')!r}")
-        if d.get("format_version") != ARRAY_FORMAT_VERSION:
-            raise FormatError(f"array calibration: expected format_version {ARRAY_FORMAT_VERSION!r}, "
-                              f"got {d.get('format_version')!r}")
-        missing = [f.name for f in fields(cls) if f.default is MISSING and f.name not in d]
-        if missing:
-            raise FormatError(f"array calibration: expected the fields {missing}, got none of them")
-        kw = {}
-        for f in fields(cls):
-            if f.name not in d:
-                continue
-            v = d[f.name]
-            if f.name == "moments":
-                v = ArrayMoments(int(v["n_gyros"]), tuple(Moments.from_dict(m) for m in v["pairs"]))
-            elif f.name in _ARRAY_FIELDS:
-                v = from_json_list(v, bool if f.name == "scale_observable" else np.float64)
-            elif f.name == "scale_groups":
-                v = tuple(tuple((int(g), int(a)) for g, a in group) for group in v)
-            elif f.name == "configurations":
-                v = tuple(tuple(str(c) for c in row) for row in v)
-            elif f.name in ("notes", "time_offset_source"):
-                v = tuple(v)
-            kw[f.name] = v
-        try:
-            return cls(**kw)
-        except InputError as exc:
-            raise FormatError(f"array calibration: {exc}") from None
-
-
-def _log_parameter_covariance(cal: ArrayCalibration) -> np.ndarray:
-    """(6N, 6N) covariance of ``[dtheta_all, log scale_all]`` from the stored one."""
-    n = cal.n_gyros
-    d = np.concatenate([np.ones(3 * n), 1.0 / cal.scale.ravel()])
-    return cal.covariance[:6 * n, :6 * n] * np.outer(d, d)
 
 
 def _H_of(R, s):
@@ -697,17 +436,6 @@ def _noise_from_pairs(moments: ArrayMoments, R, s):
     return np.sqrt(np.maximum(v, floor))
 
 
-def _noise_vector(noise_std, n):
-    if noise_std is None:
-        return None
-    arr = np.broadcast_to(np.asarray(noise_std, dtype=float), (n,)).copy() if np.ndim(noise_std) == 0 \
-        else np.asarray(noise_std, dtype=float)
-    if arr.shape != (n,) or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
-        raise OptionError(f"noise_std: expected positive rad/s per sample (one value or one per gyro, {n}), "
-                         f"got {noise_std}")
-    return arr
-
-
 def _refine(R, s, moments_scatter, dof, noise, constraints, regauge, max_iter, tol=1e-11):
     """Joint maximum likelihood by :func:`~fusion_gyrocal.core.refine.fisher_scoring` in the gauge's tangent space."""
     def step(x, delta):
@@ -723,40 +451,47 @@ def _refine(R, s, moments_scatter, dof, noise, constraints, regauge, max_iter, t
 
 
 # ---------------------------------------------------------------------------------------- public solvers
-def solve_array(moments: ArrayMoments, *, reference: int = 0, noise_std=None, gauge: str = "unit_prior",
-                parallel_tol_deg: float = 5.0, min_snr: float = 10.0, max_iter: int = 50,
-                windows: WindowStats | None = None, covariance: str = "auto",
-                noise_source: str | None = None) -> ArrayCalibration:
+def solve_array(moments: ArrayMoments, options: Options | None = None, *, reference: int = 0, max_iter: int = 50,
+                windows: WindowStats | None = None, noise_source: str | None = None, **keywords) -> ArrayCalibration:
     """Jointly calibrate N gyros from their pairwise sufficient statistics (maximum likelihood).
 
     Parameters
     ----------
     moments : ArrayMoments
         Statistics of N sample-aligned gyros (pooled per segment for piecewise-constant biases).
+    options : Options, optional
+        The options (:class:`~fusion_gyrocal.options.Options`, for ``gyros=N``); those that do not apply to the
+        joint calibration are refused (:meth:`~fusion_gyrocal.options.Options.require`), those that act on samples
+        (``bias_window``, ``noise_model``) play no part here. The ones used:
+
+        ``noise_std``
+            White-noise std per sample of every gyro (rad/s), one value or N. Default: from the pairwise
+            residuals (three-cornered hat for N >= 3; equal split for N = 2, where only the sum is observable).
+        ``gauge``
+            ``"unit_prior"``: the x-axis scale factors of all gyros as close to 1 as their determined ratios
+            allow (Eq. 32-34 generalised); ``"fixed"``: ``scale[reference][0] == 1``; or a
+            :class:`~fusion_gyrocal.core.gauge.Gauge` (gyros counted from 0). Groups of linked axes that hold no
+            gauge member follow the unit prior over their own members.
+        ``parallel_tol_deg``
+            Axes closer than this to (anti)parallel are treated as parallel (see :func:`classify`).
+        ``min_snr``
+            Smallest SNR of any principal motion direction accepted for every gyro pair with the reference
+            (Lemma 1).
+        ``covariance``
+            What is reported with ``windows`` (``"auto"``, ``"model"``, ``"robust"``).
     reference : int
         Index of the reference gyro (its frame is the array frame, ``R_ref_k[reference] = I``).
-    noise_std : float or array_like (N,), optional
-        White-noise std per sample of every gyro (rad/s). Default: from the pairwise residuals
-        (three-cornered hat for N >= 3; equal split for N = 2, where only the sum is observable).
-    gauge : {"unit_prior", "fixed"} or Gauge
-        ``"unit_prior"``: the x-axis scale factors of all gyros as close to 1 as their determined
-        ratios allow (Eq. 32-34 generalised); ``"fixed"``: ``scale[reference][0] == 1``; or a
-        :class:`~fusion_gyrocal.core.gauge.Gauge` (gyros counted from 0). Groups of linked axes that
-        hold no gauge member follow the unit prior over their own members.
-    parallel_tol_deg : float
-        Axes closer than this to (anti)parallel are treated as parallel (see :func:`classify`).
-    min_snr : float
-        Smallest SNR of any principal motion direction accepted for every gyro pair with the
-        reference (Lemma 1).
     max_iter : int
         Fisher-scoring iterations at most (per noise update).
     windows : WindowStats, optional
         Per-window statistics of the stacked gyros (:func:`~fusion_gyrocal.core.moments.stacked_window_stats`):
         with them the covariance is also computed block-robustly (:mod:`~fusion_gyrocal.core.robust`) and
-        ``covariance`` chooses what is reported (``"auto"``, ``"model"``, ``"robust"``, as
-        :class:`~fusion_gyrocal.options.Options`).
+        ``covariance`` chooses what is reported (:func:`~fusion_gyrocal.core.robust.reported_covariance`, the
+        pair solver's policy).
     noise_source : str, optional
         Where a given ``noise_std`` came from (default ``"user"``).
+    **keywords
+        Fields of :class:`~fusion_gyrocal.options.Options`, applied on top of ``options``.
 
     Returns
     -------
@@ -765,22 +500,26 @@ def solve_array(moments: ArrayMoments, *, reference: int = 0, noise_std=None, ga
     Raises
     ------
     InputError
-        Fewer than 4 samples, reference out of range, bad ``noise_std`` or ``gauge``.
+        Fewer than 4 samples.
+    OptionError
+        Reference out of range, bad ``noise_std`` or ``gauge``, an option the joint calibration does not apply.
     ExcitationError
         Motion that does not determine every gyro's rotation (Lemma 1).
     """
     if not isinstance(moments, ArrayMoments):
         raise InputError(f"moments: expected ArrayMoments, got {type(moments).__name__}")
     n = moments.n_gyros
+    o = Options.of(options, gyros=n, **keywords).require("array", "solve_array")
     if not (isinstance(reference, (int, np.integer)) and 0 <= reference < n):
         raise OptionError(f"reference: expected a gyro index in [0, {n}), got {reference!r}")
     reference = int(reference)
     if moments.count < 4:
         raise InputError(f"expected at least 4 samples (Lemma 1), got {int(moments.count)}")
-    gauge = Gauge.parse(gauge, n, reference)
-    user_noise = _noise_vector(noise_std, n)
+    gauge = Gauge.parse(o.gauge, n, reference)
+    user_noise = None if o.noise_std is None else np.asarray(o.noise_std, dtype=float)
+    parallel_tol_deg = o.parallel_tol_deg
 
-    R, s = _seed(moments, reference, user_noise, parallel_tol_deg, min_snr)
+    R, s = _seed(moments, reference, user_noise, parallel_tol_deg, o.min_snr)
     groups, configs = _scale_groups(R, n, parallel_tol_deg)
     s = gauge.apply(groups, s)
     Sc, dof = moments.scatter, moments.dof
@@ -822,16 +561,11 @@ def solve_array(moments: ArrayMoments, *, reference: int = 0, noise_std=None, ga
     cost = joint_cost(R, s, Sc, noise)
     chi2_dof = max(3.0 * (n - 1) * dof - (6 * n - len(C)), 1.0)
     ratio = cost / chi2_dof
-    basis, inflation = "noise model (inverse Fisher information, Appendix B)", float("nan")
-    if windows is not None and covariance != "model" and windows.n_windows >= MIN_ROBUST_WINDOWS:
-        from .robust import choose, sandwich, score_variance
-        P_rob = sandwich(F, score_variance(_window_scores(R, s, noise, windows), windows), C)
-        P, inflation, basis, more = choose(P, P_rob, windows, covariance, basis, ratio)
-        notes += more
-    elif user_noise is not None and ratio > 1.5:
-        from .robust import inflated
-        P, basis, note = inflated(P, ratio, basis, "flex, skew, timing")
-        notes.append(note)
+    P, inflation, basis, more, _ = reported_covariance(
+        P, lambda: sandwich(F, score_variance(_window_scores(R, s, noise, windows), windows), C), windows,
+        o.covariance, "noise model (inverse Fisher information, Appendix B)", ratio, user_noise=user_noise is not None,
+        what="flex, skew, timing")
+    notes += more
 
     # biases against the reference (Eq. 5, 12) and the full covariance
     means = moments.mean.reshape(n, 3)
@@ -880,38 +614,43 @@ def solve_array(moments: ArrayMoments, *, reference: int = 0, noise_std=None, ga
         covariance_basis=basis, robust_inflation=inflation)
 
 
-def calibrate_array(omegas, *, reference: int = 0, noise_std=None, gauge: str = "unit_prior", mask=None,
-                    bias_window: int | None = None, parallel_tol_deg: float = 5.0, min_snr: float = 10.0,
-                    rate_hz: float | None = None, noise_model: str = "identify", covariance: str = "auto"
-                    ) -> ArrayCalibration:
+def calibrate_array(omegas, options: Options | None = None, *, reference: int = 0, mask=None,
+                    rate_hz: float | None = None, **keywords) -> ArrayCalibration:
     """Jointly calibrate N rigidly mounted gyroscopes from sample-aligned angular rates.
 
     Parameters
     ----------
     omegas : array_like (n_samples, N, 3) or sequence of N arrays (n_samples, 3)
         Measured rates (rad/s) of every gyro at the same instants.
+    options : Options, optional
+        :class:`~fusion_gyrocal.options.Options` (``gyros`` is set to N; per-gyro values given in ``options``
+        must be for N gyros). An option that does not apply to the joint calibration (``applies_to`` without
+        ``"array"``: ``method``, ``scale_prior_std``, the time alignment, ...) set away from its default is
+        refused. The ones used:
+
+        ``noise_std``
+            White-noise std per sample (rad/s), one value or one per gyro (N); estimated when omitted.
+        ``gauge``, ``parallel_tol_deg``, ``min_snr``, ``covariance``
+            See :func:`solve_array`.
+        ``bias_window``
+            Model every bias as piecewise constant over windows of this many samples.
+        ``noise_model``
+            Where the noise comes from without ``noise_std``: ``"identify"``, each gyro's white noise identified
+            from its pair with the reference (:func:`~fusion_gyrocal.core.noise.identify_noise`: the pair's
+            residual, split by steady stretches or third differences), or ``"residual"``, the pairwise
+            least-squares residuals (three-cornered hat), which also carry every model error.
+        ``flex_rejection``
+            Accepted and without effect: the joint calibration has no flex gate (Eq. 42 is per pair).
     reference : int
         Index of the reference gyro.
-    noise_std : float or array_like (N,), optional
-        White-noise std per sample (rad/s); estimated from the residuals when omitted.
-    gauge : {"unit_prior", "fixed"}
-        Global-scale gauge (see :func:`solve_array`).
     mask : array_like of bool (n_samples,), optional
         Samples to use (e.g. False where any gyro saturates).
-    bias_window : int, optional
-        Model every bias as piecewise constant over windows of this many samples.
-    parallel_tol_deg, min_snr
-        See :func:`solve_array`.
     rate_hz : float, optional
         Sample rate (Hz): windows of about a second for the noise model and the block-robust covariance
         (:func:`~fusion_gyrocal.core.moments.window_samples`; per sample without it).
-    noise_model : {"identify", "residual"}
-        Where the noise comes from without ``noise_std``: each gyro's white noise identified from its
-        pair with the reference (:func:`~fusion_gyrocal.core.noise.identify_noise`: the pair's residual,
-        split by steady stretches or third differences), or the pairwise least-squares residuals
-        (three-cornered hat), which also carry every model error.
-    covariance : {"auto", "model", "robust"}
-        As :class:`~fusion_gyrocal.options.Options`' ``covariance``.
+    **keywords
+        Fields of :class:`~fusion_gyrocal.options.Options` (``noise_std``, ``gauge``, ``bias_window``, ...),
+        applied on top of ``options``.
 
     Returns
     -------
@@ -930,23 +669,20 @@ def calibrate_array(omegas, *, reference: int = 0, noise_std=None, gauge: str = 
     >>> bool(np.allclose(cal.R_ref_k, R, atol=1e-3))
     True
     """
-    if noise_model not in ("identify", "residual"):
-        raise OptionError(f"noise_model: expected 'identify' or 'residual', got {noise_model!r}")
-    if covariance not in ("auto", "model", "robust"):
-        raise OptionError(f"covariance: expected 'auto', 'model' or 'robust', got {covariance!r}")
     rates, mask = _checked_rates(omegas, mask)
-    if bias_window is None:
+    o = Options.of(options, gyros=len(rates), **keywords).require("array", "calibrate_array")
+    if o.bias_window is None:
         moments = ArrayMoments.from_samples(rates, mask=mask)
     else:
-        moments = ArrayMoments.from_windows(rates, int(bias_window), mask=mask)
-    window = int(bias_window) if bias_window is not None else window_samples(rate_hz)
-    windows = stacked_window_stats(rates, window, mask=mask, pooled=bias_window is not None)
+        moments = ArrayMoments.from_windows(rates, o.bias_window, mask=mask)
+    window = o.bias_window if o.bias_window is not None else window_samples(rate_hz)
+    windows = stacked_window_stats(rates, window, mask=mask, pooled=o.bias_window is not None)
     source = None
-    if noise_std is None and noise_model == "identify":
+    if o.noise_std is None and o.noise_model == "identify":
         noise_std, source = _identified_noise(rates, moments, reference, mask, rate_hz)
-    return solve_array(moments, reference=reference, noise_std=noise_std, gauge=gauge,
-                       parallel_tol_deg=parallel_tol_deg, min_snr=min_snr, windows=windows, covariance=covariance,
-                       noise_source=source)
+        if noise_std is not None:
+            o = o.replace(noise_std=noise_std)
+    return solve_array(moments, o, reference=reference, windows=windows, noise_source=source)
 
 
 def _identified_noise(rates, moments: ArrayMoments, reference: int, mask, rate_hz):

@@ -247,3 +247,46 @@ def cross_axis(A_ls, R, s1, s2, moments, noise_std, windows: WindowStats | None 
     dof = 9 - int(np.linalg.matrix_rank(J, tol=1e-9 * np.abs(J).max()))
     E = (d.reshape(3, 3) / s1[:, None]) * s2[None, :] @ R.T
     return E, chi2, dof
+
+
+def reported_covariance(P_model, robust, windows: WindowStats | None, covariance: str, basis: str,
+                        lack_of_fit: float, *, user_noise: bool, what: str):
+    """The covariance a solve reports, and why: one policy for the pair and the array.
+
+    The block-robust check (:func:`choose`) when the solve has one (``robust`` not None), per-window statistics
+    are given, ``covariance`` is not ``"model"`` and there are at least :data:`MIN_ROBUST_WINDOWS` windows;
+    otherwise the noise model's covariance, inflated by the residual's chi2/dof (:func:`inflated`) when a
+    user's noise explains less than the residual (``lack_of_fit > 1.5``).
+
+    Parameters
+    ----------
+    P_model : ndarray
+        The noise model's covariance (inverse Fisher information in the gauge).
+    robust : callable or None
+        ``robust()`` gives the block-robust covariance (computed only when used); None when the solve has none.
+    windows : WindowStats or None
+    covariance : {"auto", "model", "robust"}
+        As :class:`~fusion_gyrocal.options.Options`' ``covariance``. A caller that cannot honour ``"robust"``
+        (``kind`` not ``"robust"``) decides whether to refuse.
+    basis : str
+        What ``P_model`` rests on (the ``covariance_basis`` text).
+    lack_of_fit : float
+        The residual's chi-square per degree of freedom against the noise used.
+    user_noise : bool
+        The noise was given, not estimated from the residual.
+    what : str
+        The usual causes of a lack of fit, for the note.
+
+    Returns
+    -------
+    (P, inflation, basis, notes, kind)
+        The covariance, the largest robust-to-model variance ratio (NaN without the check), its basis text,
+        the notes, and ``kind``: ``"robust"`` (checked by :func:`choose`), ``"inflated"`` or ``"model"``.
+    """
+    if robust is not None and windows is not None and covariance != "model" and windows.n_windows >= MIN_ROBUST_WINDOWS:
+        P, inflation, basis, notes = choose(P_model, robust(), windows, covariance, basis, lack_of_fit)
+        return P, inflation, basis, notes, "robust"
+    if user_noise and lack_of_fit > 1.5:
+        P, basis, note = inflated(P_model, lack_of_fit, basis, what)
+        return P, float("nan"), basis, [note], "inflated"
+    return P_model, float("nan"), basis, [], "model"

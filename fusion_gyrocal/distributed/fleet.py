@@ -161,7 +161,7 @@ def calibrate_device(path, options: Options | None = None, **keywords) -> PairCa
     GyroCalError
         Anything :func:`fusion_gyrocal.calibrate_pair` raises.
     """
-    options = Options.of(options, **keywords)
+    options = Options.of(options, **keywords).require("pair", "calibrate_device")
     path = Path(path).expanduser()
     if not path.exists():
         raise FormatError(f"{path}: no such device file or folder")
@@ -255,7 +255,7 @@ def run_fleet(devices, *, client=None, output=None, chunked: bool = False, split
         when stderr is a terminal). One tick per device: no cost to throughput.
     options : Options, optional
         Passed unchanged to :func:`fusion_gyrocal.calibrate_pair` on every device (to
-        :func:`fusion_gyrocal.solve` when ``chunked``, which refuses pipeline options).
+        :func:`fusion_gyrocal.solve` when ``chunked``, which refuses options that do not act on moments).
     **keywords
         Fields of :class:`~fusion_gyrocal.options.Options`, e.g. ``method="direct"``, ``noise_std=1e-3``.
 
@@ -273,11 +273,10 @@ def run_fleet(devices, *, client=None, output=None, chunked: bool = False, split
     InputError
         When no device is found.
     OptionError
-        For an option the pipeline does not have (or, ``chunked``, a pipeline option).
+        For an option the pipeline does not have (or, ``chunked``, one that does not act on moments).
     """
-    options = Options.of(options, **keywords)
-    if chunked:
-        options.require_stage("solve", "run_fleet(chunked=True)")
+    options = Options.of(options, **keywords).require(*(("moments", "run_fleet(chunked=True)") if chunked
+                                                        else ("pair", "run_fleet")))
     paths = find_devices([devices] if isinstance(devices, (str, Path)) else devices)
     if chunked:
         rows = _run_chunked(paths, client, split_every, options)
@@ -427,7 +426,7 @@ def calibrate_log(path, *, client=None, split_every: int = 8, options: Options |
                   **keywords) -> PairCalibration:
     """Calibrate a pair from a huge Parquet log: :func:`log_moments` across workers, then :func:`fusion_gyrocal.solve`
     with ``options`` (solve options only; keywords are fields of :class:`~fusion_gyrocal.options.Options`)."""
-    options = Options.of(options, **keywords).require_stage("solve", "calibrate_log")
+    options = Options.of(options, **keywords).require("moments", "calibrate_log")
     return solve(log_moments(path, client=client, split_every=split_every), options)
 
 

@@ -42,6 +42,7 @@ from ..core.moments import Moments, as_rate_pair, noise_pair, window_moments
 from ..core.observability import A_of, per_axis_snr, seed_configuration
 from ..core.solve import solve
 from ..errors import ConfigurationError, InputError, OptionError
+from ..options import Options
 from .factors import WindowStatistics, gauge_factor, gyro_pair_factor, rotation_increment_factor
 from .preintegration import (PreintegratedRotations, RotationIncrements, fit_global_scale_and_bias,
                              preintegrate_rotations)
@@ -614,24 +615,33 @@ def _project_gauge(C, gauge: Gauge, groups, s1, s2) -> np.ndarray:
     return 0.5 * (out + out.T)
 
 
-def calibrate_pair_graph(omega_1, omega_2, *, noise_std=None, window: int = 1000, bias_walk_std: float | None = None,
-                         gauge="unit_prior", rotation_increments: RotationIncrements | None = None,
+def calibrate_pair_graph(omega_1, omega_2, options: Options | None = None, *, window: int = 1000,
+                         bias_walk_std: float | None = None, rotation_increments: RotationIncrements | None = None,
                          rate_hz: float | None = None, solver: str = "lm", seed: PairCalibration | None = None,
-                         mask=None, parallel_tol_deg: float | None = None) -> PairCalibration:
+                         mask=None, **keywords) -> PairCalibration:
     """Calibrate a sample-aligned gyro pair with the factor graph (windows of ``window`` samples).
 
     Parameters
     ----------
     omega_1, omega_2 : array_like (N, 3)
         Measured rates (rad/s) at the same instants.
-    noise_std : float or (float, float), optional
-        Per-sample white noise of gyro 1 and 2 (rad/s); default: the seed's.
+    options : Options, optional
+        :class:`~fusion_gyrocal.options.Options`; an option that does not apply to the graph (``applies_to``
+        without ``"graph"``) set away from its default is refused. The ones used:
+
+        ``noise_std``
+            Per-sample white noise of gyro 1 and 2 (rad/s); default: the seed's.
+        ``gauge``
+            Gauge of the relative scale factors (ignored when ``rotation_increments`` fix the global scale).
+        ``parallel_tol_deg``
+            Near-parallel tolerance of the configuration class (Lemmas 2-3), as in :func:`fusion_gyrocal.solve`;
+            left at its default: the solver's for the direct seed, the seed's own class for a given ``seed``.
     window : int
         Samples per window factor (and per bias segment when ``bias_walk_std`` is set).
     bias_walk_std : float, optional
-        See :class:`GyroPairGraph` (``None``: one constant bias).
-    gauge : str or Gauge
-        Gauge of the relative scale factors (ignored when ``rotation_increments`` fix the global scale).
+        The graph's own bias model, see :class:`GyroPairGraph` (``None``: one constant bias; ``inf``: free
+        segments). Not the option of the same name (a random walk per gyro for the pair pipeline's filter),
+        which the graph refuses.
     rotation_increments : RotationIncrements, optional
         External orientation increments on gyro 1's sample grid; adds the global-scale variable.
     rate_hz : float, optional
@@ -642,9 +652,9 @@ def calibrate_pair_graph(omega_1, omega_2, *, noise_std=None, window: int = 1000
         Initial values; default the direct solution ``solve(moments, method="direct")``.
     mask : array_like of bool (N,), optional
         Samples to use.
-    parallel_tol_deg : float, optional
-        Near-parallel tolerance of the configuration class (Lemmas 2-3), as in :func:`fusion_gyrocal.solve`
-        (default: the solver's for the direct seed, the seed's own class for a given ``seed``).
+    **keywords
+        Fields of :class:`~fusion_gyrocal.options.Options` (``noise_std``, ``gauge``, ``parallel_tol_deg``),
+        applied on top of ``options``.
 
     Returns
     -------
@@ -661,6 +671,9 @@ def calibrate_pair_graph(omega_1, omega_2, *, noise_std=None, window: int = 1000
     >>> cal.method, cal.bias_segments
     ('graph_lm', 1)
     """
+    o = Options.of(options, **keywords).require("graph", "calibrate_pair_graph")
+    noise_std, gauge = o.noise_std, o.gauge
+    parallel_tol_deg = o.parallel_tol_deg if "parallel_tol_deg" in o.to_dict() else None
     if solver not in ("lm", "isam2"):
         raise OptionError(f"solver: expected 'lm' or 'isam2', got {solver!r}")
     if rotation_increments is not None and rate_hz is None:
@@ -672,8 +685,7 @@ def calibrate_pair_graph(omega_1, omega_2, *, noise_std=None, window: int = 1000
     if seed is None:
         parts = [m for _, m in windows]
         total = Moments.pool_all(parts) if bias_walk_std is not None else Moments.merge_all(parts)
-        tolerance = {} if parallel_tol_deg is None else {"parallel_tol_deg": parallel_tol_deg}
-        seed = solve(total, noise_std=noise_std, method="direct", gauge=gauge, **tolerance)
+        seed = solve(total, o, method="direct")
     glob = rotation_increments is not None
     g = GyroPairGraph(seed, noise_std=noise_std, bias_walk_std=bias_walk_std, gauge=gauge, global_scale=glob,
                       parallel_tol_deg=parallel_tol_deg,

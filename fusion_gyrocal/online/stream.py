@@ -49,7 +49,8 @@ class StreamingCalibrator:
         Bins of the sliding window (memory and resolution of its edge: ``window_s / n_bins``).
     options : Options, optional
         Solve options passed to :func:`fusion_gyrocal.solve` (:class:`~fusion_gyrocal.options.Options`);
-        pipeline options (time alignment, bias model, flex gate) act on samples and are refused here.
+        options that act on samples (time alignment, bias model, flex gate: not ``applies_to`` ``"moments"``)
+        are refused here (:meth:`~fusion_gyrocal.options.Options.require`).
     **keywords
         Fields of :class:`~fusion_gyrocal.options.Options` (``noise_std``, ``method``, ``gauge``,
         ``min_snr``, ...), applied on top of ``options``.
@@ -77,7 +78,7 @@ class StreamingCalibrator:
             raise OptionError(f"rate_hz: expected a positive sample rate in Hz, got {rate_hz}")
         if int(n_bins) < 2:
             raise OptionError(f"n_bins: expected at least 2 bins, got {n_bins}")
-        self.options = Options.of(options, **keywords).require_stage("solve", "StreamingCalibrator")
+        self.options = Options.of(options, **keywords).require("moments", "StreamingCalibrator")
         self.forgetting = None if forgetting is None else float(forgetting)
         self.window_s = None if window_s is None else float(window_s)
         self.rate_hz = None if rate_hz is None else float(rate_hz)

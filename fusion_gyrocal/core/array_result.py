@@ -1,0 +1,287 @@
+"""The joint calibration of N gyros as a result: :class:`ArrayCalibration` (and its JSON).
+
+What :func:`~fusion_gyrocal.core.array.solve_array` returns: the rotations, scale factors and biases of
+every gyro against the reference gyro, their covariance in the gauge, and the moments they came from,
+so that any pair can be viewed as a :class:`~fusion_gyrocal.core.model.PairCalibration`
+(:meth:`ArrayCalibration.pair`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import MISSING, dataclass, field, fields
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..errors import ConfigurationError, FormatError, InputError
+from .model import PairCalibration, from_json_list, mark_undetermined, to_json_list, to_json_number
+from .moments import Moments
+from .observability import A_of, per_axis_snr, residual_weight
+from .refine import residual_scatter
+from .solve import pair_covariance
+
+if TYPE_CHECKING:
+    from .array import ArrayMoments
+
+ARRAY_KIND = "array_calibration"
+#: Format of :meth:`ArrayCalibration.to_dict` (``kind`` tells it from a pair's JSON).
+ARRAY_FORMAT_VERSION = "1.0"
+_ARRAY_FIELDS = ("R_ref_k", "scale", "bias", "scale_observable", "covariance", "snr", "noise_std", "residual_rms",
+                 "time_offset_s", "time_offset_std_s")
+
+
+def _json_ready(v):
+    """Nested tuples as lists (for JSON)."""
+    return [_json_ready(x) for x in v] if isinstance(v, (tuple, list)) else v
+
+
+@dataclass(frozen=True)
+class ArrayCalibration:
+    """Joint calibration of N rigidly mounted gyroscopes (indices from 0).
+
+    Attributes
+    ----------
+    R_ref_k : ndarray (N, 3, 3)
+        ``R_ref_k[k]`` maps gyro k's frame into the reference gyro's frame
+        (``omega_ref = R_ref_k[k] @ omega_k``); ``R_ref_k[reference]`` is the identity.
+    scale : ndarray (N, 3)
+        Scale factors of every gyro in the gauge named by ``gauge``.
+    bias : ndarray (N, 3)
+        Combined bias of every gyro against the reference, ``b_ref - A_ref_k b_k`` (Eq. 5) in rad/s
+        (the individual biases are not observable: a common rate offset is indistinguishable from
+        them); ``bias[reference]`` is zero.
+    reference : int
+        Index of the reference gyro.
+    scale_observable : ndarray (N, 3) of bool
+        Scale factors determined up to the one global scale (Theorem 2). Where False, only ratios
+        inside its group of linked axes (``scale_groups``) are determined (Lemmas 2-3).
+    scale_groups : tuple of tuple of (gyro, axis)
+        Scale factors whose ratios the data determine; each group has one undetermined common factor.
+    configurations : tuple of tuple of str, (N, N)
+        Configuration class (Lemmas 2-4) of every pair; ``""`` on the diagonal.
+    covariance : ndarray (9N, 9N)
+        Covariance of ``[dtheta_0..dtheta_{N-1}, scale_0..scale_{N-1}, bias_0..bias_{N-1}]`` (3 entries
+        each) with ``R_ref_k_true = Exp(dtheta_k) @ R_ref_k[k]``, in the gauge. For scale factors whose
+        ``scale_observable`` is False the marginal variances belong to the gauge convention; only
+        ratios within a group are meaningful (:meth:`scale_ratio`). The reference's rotation and bias
+        blocks are zero (its scale factors have a variance unless the gauge fixes them).
+    gauge : str
+        How the global scale (one factor per group) was fixed.
+    snr : ndarray (3,)
+        Per-axis SNR of the common angular rate (reference frame) against the reference gyro's noise.
+    n_samples : int
+    noise_std : ndarray (N,)
+        White-noise std per sample of every gyro (rad/s) used for the weights and the covariance.
+    noise_source : str
+    residual_rms : ndarray (N,)
+        RMS per axis of every gyro's residual against the fitted common rate (rad/s).
+    iterations : int
+    bias_segments : int
+    notes : tuple of str
+    moments : ArrayMoments
+        The statistics the calibration was computed from (used by :meth:`pair`).
+    time_offset_s : ndarray (N,)
+        Seconds ADDED to gyro k's timestamps to put them on the reference gyro's clock (0 for the
+        reference and for sample-aligned input).
+    time_offset_std_s : ndarray (N,)
+        Standard deviation of ``time_offset_s`` (0 where it was given, not estimated).
+    covariance_basis : str
+        What ``covariance`` rests on (see :attr:`PairCalibration.covariance_basis`).
+    robust_inflation : float
+        Largest ratio of the block-robust variance to the noise model's (NaN when not computed).
+    time_offset_source : tuple of str (N,)
+        Where each offset came from: ``"reference"``, ``"estimated"`` (rate-norm correlation refined by
+        the rigid-model misfit, :func:`~fusion_gyrocal.pipeline.alignment.align_streams`), ``"given"``,
+        ``"one clock"`` (recordings with identical timestamps) or ``"sample-aligned"`` (input without
+        timestamps).
+    """
+
+    R_ref_k: np.ndarray
+    scale: np.ndarray
+    bias: np.ndarray
+    reference: int
+    scale_observable: np.ndarray
+    scale_groups: tuple
+    configurations: tuple
+    covariance: np.ndarray
+    gauge: str
+    snr: np.ndarray
+    n_samples: int
+    noise_std: np.ndarray
+    noise_source: str
+    residual_rms: np.ndarray
+    iterations: int
+    bias_segments: int
+    notes: tuple
+    moments: ArrayMoments = field(repr=False)
+    time_offset_s: np.ndarray | None = None
+    time_offset_std_s: np.ndarray | None = None
+    time_offset_source: tuple | None = None
+    covariance_basis: str = "noise model"
+    robust_inflation: float = float("nan")
+
+    def __post_init__(self):
+        n = np.asarray(self.scale).shape[0]
+        if self.time_offset_s is None:
+            object.__setattr__(self, "time_offset_s", np.zeros(n))
+        if self.time_offset_std_s is None:
+            object.__setattr__(self, "time_offset_std_s", np.zeros(n))
+        if self.time_offset_source is None:
+            object.__setattr__(self, "time_offset_source", tuple(
+                "reference" if k == self.reference else "sample-aligned" for k in range(n)))
+        if len(self.time_offset_source) != n:
+            raise InputError(f"time_offset_source: expected {n} entries, got {len(self.time_offset_source)}")
+        shapes = {"R_ref_k": (n, 3, 3), "scale": (n, 3), "bias": (n, 3), "scale_observable": (n, 3),
+                  "covariance": (9 * n, 9 * n), "snr": (3,), "noise_std": (n,), "residual_rms": (n,),
+                  "time_offset_s": (n,), "time_offset_std_s": (n,)}
+        for name, shape in shapes.items():
+            arr = np.array(getattr(self, name), dtype=bool if name == "scale_observable" else np.float64)
+            if arr.shape != shape:
+                raise InputError(f"{name}: expected shape {shape}, got {arr.shape}")
+            arr.flags.writeable = False
+            object.__setattr__(self, name, arr)
+        object.__setattr__(self, "notes", tuple(self.notes))
+        object.__setattr__(self, "time_offset_source", tuple(str(x) for x in self.time_offset_source))
+
+    @property
+    def n_gyros(self) -> int:
+        return self.scale.shape[0]
+
+    @property
+    def rotation_std_rad(self) -> np.ndarray:
+        """(N, 3) 1-sigma rotation uncertainty per axis of the reference frame (rad)."""
+        return np.sqrt(np.clip(np.diag(self.covariance)[:3 * self.n_gyros], 0, None)).reshape(-1, 3)
+
+    def scale_ratio(self, i: int, axis_i: int, j: int, axis_j: int) -> tuple[float, float]:
+        """``scale[i, axis_i] / scale[j, axis_j]`` and its 1-sigma uncertainty.
+
+        Gauge-invariant (and reported) only for two scale factors in the same group of linked
+        axes; for all-axes-parallel gyros (Lemma 2) that is ``axis_j = perm(axis_i)``.
+
+        Raises
+        ------
+        ConfigurationError
+            If the two scale factors are in different groups (their ratio is not determined).
+        """
+        a, b = (i, axis_i), (j, axis_j)
+        if not any(a in g and b in g for g in self.scale_groups):
+            raise ConfigurationError(f"scale_ratio: scale[{i}, {axis_i}] and scale[{j}, {axis_j}] are in different "
+                                     "groups of linked axes; the data do not determine their ratio")
+        r = self.scale[i, axis_i] / self.scale[j, axis_j]
+        ka, kb = 3 * self.n_gyros + 3 * i + axis_i, 3 * self.n_gyros + 3 * j + axis_j
+        C = self.covariance
+        var_log = (C[ka, ka] / self.scale[i, axis_i] ** 2 + C[kb, kb] / self.scale[j, axis_j] ** 2
+                   - 2 * C[ka, kb] / (self.scale[i, axis_i] * self.scale[j, axis_j]))
+        return float(r), float(r * np.sqrt(max(var_log, 0.0)))
+
+    def pair(self, i: int, j: int) -> PairCalibration:
+        """The joint estimate seen as the calibration of the pair (gyro i as "gyro 1", gyro j as "gyro 2").
+
+        ``R_1_2 = R_ref_k[i]^T R_ref_k[j]`` (so loops close exactly), scale factors of the two gyros
+        in the array's gauge, bias ``mean_i - A mean_j`` (Eq. 12), and the 12x12 covariance derived
+        from the joint one (undetermined scale factors: infinite variance, as in
+        :class:`PairCalibration`).
+        """
+        m = self.moments.pair(i, j)  # checks the indices
+        n = self.n_gyros
+        Ri, Rj = self.R_ref_k[i], self.R_ref_k[j]
+        R = Ri.T @ Rj
+        s1, s2 = self.scale[i], self.scale[j]
+        A = A_of(R, s1, s2)
+        noise = (float(self.noise_std[i]), float(self.noise_std[j]))
+        # [dtheta_ij, log s_i, log s_j] = J [dtheta_all, log s_all]; dtheta_ij = R_i^T (dtheta_j - dtheta_i)
+        J = np.zeros((9, 6 * n))
+        J[0:3, 3 * i:3 * i + 3] = -Ri.T
+        J[0:3, 3 * j:3 * j + 3] += Ri.T
+        J[3:6, 3 * n + 3 * i:3 * n + 3 * i + 3] = np.eye(3)
+        J[6:9, 3 * n + 3 * j:3 * n + 3 * j + 3] = np.eye(3)
+        P9 = J @ _log_parameter_covariance(self) @ J.T
+        cov = pair_covariance(P9, R, s1, s2, A, m, np.linalg.inv(residual_weight(A, noise)) / m.count)
+        obs = np.stack([self.scale_observable[i], self.scale_observable[j]])
+        mark_undetermined(cov, obs)
+        M = residual_scatter(A, m.scatter)
+        return PairCalibration(
+            R_1_2=R, scale_1=s1, scale_2=s2, bias=m.mean_1 - A @ m.mean_2,
+            configuration=self.configurations[i][j], scale_observable=obs, covariance=cov,
+            gauge=self.gauge, snr=per_axis_snr(m, noise), n_samples=int(m.count), noise_std=np.array(noise),
+            noise_source=self.noise_source, covariance_basis=self.covariance_basis,
+            robust_inflation=self.robust_inflation,
+            residual_rms=float(np.sqrt(max(np.trace(M), 0.0) / (3.0 * max(m.dof, 1.0)))),
+            method="ml_array", iterations=self.iterations, bias_segments=m.segments,
+            time_offset_s=float(self.time_offset_s[j] - self.time_offset_s[i]),
+            time_offset_std_s=float(np.hypot(self.time_offset_std_s[i], self.time_offset_std_s[j])),
+            notes=(f"view of the joint calibration of {n} gyros (gyro {i} as gyro 1, gyro {j} as gyro 2)",)
+            + self.notes)
+
+    # ------------------------------------------------------------------ serialisation
+    def to_dict(self) -> dict:
+        """JSON-ready dictionary with ``kind`` and ``format_version`` (:data:`ARRAY_FORMAT_VERSION`).
+
+        Non-finite numbers become ``"NaN"``, ``"Infinity"``, ``"-Infinity"`` as in
+        :meth:`PairCalibration.to_dict`; the moments are kept, so :meth:`pair` works on a loaded result.
+        """
+        out = {"kind": ARRAY_KIND, "format_version": ARRAY_FORMAT_VERSION, "units": {"rate": "rad/s", "time": "s"},
+               "convention": "omega_ref = R_ref_k[k] @ omega_k; omega_k_meas = diag(scale[k]) omega_k + b_k; "
+                             "time_offset_s[k] is added to gyro k's timestamps",
+               "covariance_order": "[dtheta_0..dtheta_N-1, scale_0..scale_N-1, bias_0..bias_N-1], 3 entries each"}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if f.name == "moments":
+                v = {"n_gyros": v.n_gyros, "pairs": [m.to_dict() for m in v.pairs]}
+            elif isinstance(v, np.ndarray):
+                v = to_json_list(v)
+            elif isinstance(v, (float, np.floating)):
+                v = to_json_number(float(v))
+            elif isinstance(v, (int, np.integer)):
+                v = int(v)
+            elif isinstance(v, tuple):
+                v = _json_ready(v)
+            out[f.name] = v
+        return out
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ArrayCalibration":
+        """Rebuild a result written by :meth:`to_dict`.
+
+        Raises
+        ------
+        FormatError
+            Another ``kind`` or ``format_version``, a missing field, or values of the wrong shape.
+        """
+        if d.get("kind") != ARRAY_KIND:
+            raise FormatError(f"array calibration: expected kind {ARRAY_KIND!r}, got {d.get('kind')!r}")
+        if d.get("format_version") != ARRAY_FORMAT_VERSION:
+            raise FormatError(f"array calibration: expected format_version {ARRAY_FORMAT_VERSION!r}, "
+                              f"got {d.get('format_version')!r}")
+        missing = [f.name for f in fields(cls) if f.default is MISSING and f.name not in d]
+        if missing:
+            raise FormatError(f"array calibration: expected the fields {missing}, got none of them")
+        kw = {}
+        for f in fields(cls):
+            if f.name not in d:
+                continue
+            v = d[f.name]
+            if f.name == "moments":
+                from .array import ArrayMoments
+
+                v = ArrayMoments(int(v["n_gyros"]), tuple(Moments.from_dict(m) for m in v["pairs"]))
+            elif f.name in _ARRAY_FIELDS:
+                v = from_json_list(v, bool if f.name == "scale_observable" else np.float64)
+            elif f.name == "scale_groups":
+                v = tuple(tuple((int(g), int(a)) for g, a in group) for group in v)
+            elif f.name == "configurations":
+                v = tuple(tuple(str(c) for c in row) for row in v)
+            elif f.name in ("notes", "time_offset_source"):
+                v = tuple(v)
+            kw[f.name] = v
+        try:
+            return cls(**kw)
+        except InputError as exc:
+            raise FormatError(f"array calibration: {exc}") from None
+
+
+def _log_parameter_covariance(cal: ArrayCalibration) -> np.ndarray:
+    """(6N, 6N) covariance of ``[dtheta_all, log scale_all]`` from the stored one."""
+    n = cal.n_gyros
+    d = np.concatenate([np.ones(3 * n), 1.0 / cal.scale.ravel()])
+    return cal.covariance[:6 * n, :6 * n] * np.outer(d, d)
