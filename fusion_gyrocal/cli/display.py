@@ -6,6 +6,12 @@ Rotations are printed as canonical rotation vectors (:func:`fusion_gyrocal.lie.c
 from __future__ import annotations
 
 
+MODELS = {"rigid": "rotation + scale factors (Eq. 4)",
+          "full": "full linear map, symmetric cross-axis convention (R_1_2 repeatable; the skew budget is in its +-)",
+          "reference": "gyro 2's intrinsic matrix against gyro 1's given one"}
+"""The sensor model of a pair's result (``PairCalibration.linear_map``), as the summary names it."""
+
+
 def console():
     """A rich console, 110 columns wide unless the terminal is a wide one."""
     from rich.console import Console
@@ -41,11 +47,24 @@ def summary_table(cal, truth=None):
             tv = canonical_rotvec(truth[key]) if key == "rotvec" else truth[key]
             tv = tv if conv is None else conv(tv)
             t.add_row("  truth", *[f.format(x) for x in tv], style="dim")
+    if cal.linear_map == "full":      # the full linear map's symmetric relative cross-axis terms
+        sd = np.sqrt(np.clip(np.diag(cal.cross_axis_covariance), 0.0, None))
+        t.add_row("cross-axis K xy, yz, zx (%)", *[f"{100 * v:.3f} +- {100 * e:.3f}"
+                                                   for v, e in zip(cal.cross_axis_terms, sd)])
+    elif cal.linear_map == "reference":   # gyro 2's intrinsic matrix, row by row
+        from ..core.linear_map import UPPER
+
+        sd = np.zeros((3, 3))
+        for p, (a, b) in enumerate(UPPER):
+            sd[a, b] = np.sqrt(max(cal.intrinsics_2_covariance[p, p], 0.0))
+        for a in range(3):
+            t.add_row(f"intrinsics_2 row {'xyz'[a]}", *[f"{cal.intrinsics_2[a, b]:.5f} +- {sd[a, b]:.5f}" if b >= a
+                                                         else "0" for b in range(3)])
     t.add_row("per-axis SNR", *[f"{x:.0f}" for x in cal.snr])
     t.caption = (f"time offset {cal.time_offset_s * 1e3:+.4f} +- {cal.time_offset_std_s * 1e3:.4f} ms"
                  + (f" (truth {truth['time_offset_s'] * 1e3:+.4f} ms)" if truth is not None else "")
                  + f"; gauge: {cal.gauge}; unexplained {100 * cal.unexplained_fraction:.3g}%, "
-                   f"rejected {100 * cal.rejected_fraction:.2f}%")
+                   f"rejected {100 * cal.rejected_fraction:.2f}%; model: {MODELS[cal.linear_map]}")
     return t
 
 
