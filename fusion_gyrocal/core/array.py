@@ -39,7 +39,7 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from .robust import MIN_ROBUST_WINDOWS
+from .robust import MIN_ROBUST_WINDOWS, CovarianceBasis
 from .solve import pair_covariance, solve
 from ..errors import ConfigurationError, FormatError, GyroCalError, InputError, OptionError
 from .gauge import Gauge, constrained_inverse
@@ -303,6 +303,8 @@ class ArrayCalibration:
         Standard deviation of ``time_offset_s`` (0 where it was given, not estimated).
     covariance_basis : str
         What ``covariance`` rests on (see :attr:`PairCalibration.covariance_basis`).
+    covariance_kind : CovarianceBasis
+        Which of those it is (:class:`~fusion_gyrocal.core.robust.CovarianceBasis`).
     robust_inflation : float
         Largest ratio of the block-robust variance to the noise model's (NaN when not computed).
     time_offset_source : tuple of str (N,)
@@ -334,6 +336,7 @@ class ArrayCalibration:
     time_offset_std_s: np.ndarray | None = None
     time_offset_source: tuple | None = None
     covariance_basis: str = "noise model"
+    covariance_kind: CovarianceBasis = CovarianceBasis.MODEL
     robust_inflation: float = float("nan")
 
     def __post_init__(self):
@@ -358,6 +361,7 @@ class ArrayCalibration:
             object.__setattr__(self, name, arr)
         object.__setattr__(self, "notes", tuple(self.notes))
         object.__setattr__(self, "time_offset_source", tuple(str(x) for x in self.time_offset_source))
+        object.__setattr__(self, "covariance_kind", CovarianceBasis(self.covariance_kind))
 
     @property
     def n_gyros(self) -> int:
@@ -421,7 +425,7 @@ class ArrayCalibration:
             configuration=self.configurations[i][j], scale_observable=obs, covariance=cov,
             gauge=self.gauge, snr=per_axis_snr(m, noise), n_samples=int(m.count), noise_std=np.array(noise),
             noise_source=self.noise_source, covariance_basis=self.covariance_basis,
-            robust_inflation=self.robust_inflation,
+            covariance_kind=self.covariance_kind, robust_inflation=self.robust_inflation,
             residual_rms=float(np.sqrt(max(np.trace(M), 0.0) / (3.0 * max(m.dof, 1.0)))),
             method="ml_array", iterations=self.iterations, bias_segments=m.segments,
             time_offset_s=float(self.time_offset_s[j] - self.time_offset_s[i]),
@@ -452,6 +456,8 @@ class ArrayCalibration:
                 v = int(v)
             elif isinstance(v, tuple):
                 v = _json_ready(v)
+            elif isinstance(v, CovarianceBasis):
+                v = v.value
             out[f.name] = v
         return out
 
@@ -487,7 +493,11 @@ class ArrayCalibration:
                 v = tuple(tuple(str(c) for c in row) for row in v)
             elif f.name in ("notes", "time_offset_source"):
                 v = tuple(v)
+            elif f.name == "covariance_kind":
+                v = CovarianceBasis(v)
             kw[f.name] = v
+        if "covariance_kind" not in d and "covariance_basis" in d:   # written before the kind was stored
+            kw["covariance_kind"] = CovarianceBasis.from_text(d["covariance_basis"])
         try:
             return cls(**kw)
         except InputError as exc:
@@ -823,14 +833,15 @@ def solve_array(moments: ArrayMoments, *, reference: int = 0, noise_std=None, ga
     chi2_dof = max(3.0 * (n - 1) * dof - (6 * n - len(C)), 1.0)
     ratio = cost / chi2_dof
     basis, inflation = "noise model (inverse Fisher information, Appendix B)", float("nan")
+    basis_kind = CovarianceBasis.MODEL
     if windows is not None and covariance != "model" and windows.n_windows >= MIN_ROBUST_WINDOWS:
         from .robust import choose, sandwich, score_variance
         P_rob = sandwich(F, score_variance(_window_scores(R, s, noise, windows), windows), C)
-        P, inflation, basis, more = choose(P, P_rob, windows, covariance, basis, ratio)
+        P, inflation, basis_kind, basis, more = choose(P, P_rob, windows, covariance, basis, ratio)
         notes += more
     elif user_noise is not None and ratio > 1.5:
         from .robust import inflated
-        P, basis, note = inflated(P, ratio, basis, "flex, skew, timing")
+        P, basis_kind, basis, note = inflated(P, ratio, basis, "flex, skew, timing")
         notes.append(note)
 
     # biases against the reference (Eq. 5, 12) and the full covariance
@@ -877,7 +888,7 @@ def solve_array(moments: ArrayMoments, *, reference: int = 0, noise_std=None, ga
         configurations=configs, covariance=cov, gauge=_describe(gauge, n, len(groups)), snr=snr,
         n_samples=int(moments.count), noise_std=noise, noise_source=noise_source, residual_rms=residual_rms,
         iterations=total_it, bias_segments=moments.segments, notes=tuple(notes), moments=moments,
-        covariance_basis=basis, robust_inflation=inflation)
+        covariance_basis=basis, covariance_kind=basis_kind, robust_inflation=inflation)
 
 
 def calibrate_array(omegas, *, reference: int = 0, noise_std=None, gauge: str = "unit_prior", mask=None,

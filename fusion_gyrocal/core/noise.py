@@ -9,8 +9,8 @@ about its mean, and any model error. Three questions are answered from it, each 
   window's mean squared rate, ``var = sigma_0^2 + c_1 |omega|^2 + c_2 |omega|^4`` (non-negative
   least squares). A significant rate term that explains more than a tenth of the variance is model
   error (a rate-dependent scale or cross-axis error, timing, flex), not sensor noise: the result says
-  so (``kind = "not white noise: rate-dependent misfit"``) and the noise is then taken from the
-  windows where the fitted misfit is negligible.
+  so (:attr:`NoiseKind.RATE_MISFIT`, ``kind = "not white noise: rate-dependent misfit"``) and the noise
+  is then taken from the windows where the fitted misfit is negligible.
 * **How much white noise, how much bias drift?** The overlapping Allan deviation of the residual
   (the residual as a rate signal; checked against allantools in the tests) is fitted with the standard terms of a gyro (IEEE Std
   952): ``AVAR(tau) = N^2 / tau + (2 ln 2 / pi) B^2 + K^2 tau / 3`` with white rate noise ``N``
@@ -35,6 +35,7 @@ loses nothing and keeps every sample). :attr:`NoiseModel.calibrate_keywords` giv
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
+from enum import Enum
 
 import numpy as np
 
@@ -99,6 +100,46 @@ def difference_noise_std(omega, mask=None, *, max_samples: int = NOISE_SPLIT_SAM
 
 
 
+class NoiseKind(str, Enum):
+    """What the residual of a pair is (:attr:`NoiseModel.noise_kind`); :attr:`text` is the sentence reports show.
+
+    The members' values are what :meth:`NoiseModel.to_dict` writes as ``noise_kind``; decisions test the member,
+    never the sentence.
+    """
+
+    WHITE = "white"
+    WHITE_WALK = "white_walk"
+    COLOURED = "coloured"
+    RATE_MISFIT = "rate_misfit"
+
+    @property
+    def text(self) -> str:
+        """The sentence for reports and the ``kind`` of the JSON (``"white noise"``, ...)."""
+        return _KIND_TEXT[self]
+
+    @property
+    def is_white(self) -> bool:
+        """White noise, with or without a bias random walk."""
+        return self in (NoiseKind.WHITE, NoiseKind.WHITE_WALK)
+
+    @classmethod
+    def from_text(cls, text: str) -> "NoiseKind":
+        """The kind a file of format 1.0-1.2 names by its sentence only (:data:`LEGACY_KIND_TEXTS`)."""
+        try:
+            return LEGACY_KIND_TEXTS[text]
+        except KeyError:
+            raise ValueError(f"kind: expected one of {sorted(LEGACY_KIND_TEXTS)}, got {text!r}") from None
+
+
+_KIND_TEXT = {NoiseKind.WHITE: "white noise", NoiseKind.WHITE_WALK: "white noise + bias random walk",
+              NoiseKind.COLOURED: "coloured noise", NoiseKind.RATE_MISFIT: "not white noise: rate-dependent misfit"}
+#: The sentences calibrations of format 1.0-1.2 stored as the noise model's ``kind`` (and nothing else): read
+#: back by :meth:`NoiseKind.from_text` whatever :attr:`NoiseKind.text` says today.
+LEGACY_KIND_TEXTS = {"white noise": NoiseKind.WHITE, "white noise + bias random walk": NoiseKind.WHITE_WALK,
+                     "coloured noise": NoiseKind.COLOURED,
+                     "not white noise: rate-dependent misfit": NoiseKind.RATE_MISFIT}
+
+
 @dataclass(frozen=True)
 class Resampling:
     """How each stream of an aligned pair reached the grid (:func:`~fusion_gyrocal.pipeline.resample.noise_factors`).
@@ -159,9 +200,9 @@ class NoiseModel:
         scale error).
     misfit_share : float
         Share of the residual variance that the rate terms explain.
-    kind : str
-        ``"white noise"``, ``"white noise + bias random walk"``, ``"coloured noise"`` or
-        ``"not white noise: rate-dependent misfit"``.
+    noise_kind : NoiseKind
+        White noise, white noise and a bias random walk, coloured noise or a rate-dependent misfit;
+        :attr:`kind` is its sentence.
     taus : ndarray (T,)
         Averaging times of the Allan curve (s).
     adev : ndarray (T, 3)
@@ -199,7 +240,7 @@ class NoiseModel:
     white_std_at_rest: float
     misfit_gain: tuple
     misfit_share: float
-    kind: str
+    noise_kind: NoiseKind
     taus: np.ndarray
     adev: np.ndarray
     adev_fit: np.ndarray
@@ -210,10 +251,24 @@ class NoiseModel:
     rates_hz: tuple | None = None
     densities: tuple | None = None
 
+    def __post_init__(self):
+        object.__setattr__(self, "noise_kind", NoiseKind(self.noise_kind))   # a member, also when given its value
+
+    @property
+    def kind(self) -> str:
+        """The sentence of :attr:`noise_kind`: ``"white noise"``, ``"white noise + bias random walk"``,
+        ``"coloured noise"`` or ``"not white noise: rate-dependent misfit"``."""
+        return self.noise_kind.text
+
     @property
     def is_white(self) -> bool:
         """True when the residual is white noise (with or without a bias random walk)."""
-        return self.kind.startswith("white")
+        return self.noise_kind.is_white
+
+    @property
+    def is_misfit(self) -> bool:
+        """True when the residual is a rate-dependent misfit (model error, not sensor noise)."""
+        return self.noise_kind is NoiseKind.RATE_MISFIT
 
     @property
     def noise_density(self) -> tuple:
@@ -244,7 +299,8 @@ class NoiseModel:
         return out
 
     def to_dict(self) -> dict:
-        """JSON-ready dictionary (non-finite numbers as ``"NaN"``/``"Infinity"`` strings, as the calibration's)."""
+        """JSON-ready dictionary (non-finite numbers as ``"NaN"``/``"Infinity"`` strings, as the calibration's);
+        the kind as its sentence (``kind``) and its member's value (``noise_kind``)."""
         from .model import to_json_list, to_json_number
 
         def enc(v):
@@ -255,11 +311,19 @@ class NoiseModel:
             if isinstance(v, float):
                 return to_json_number(v)
             return v
-        return {f.name: enc(getattr(self, f.name)) for f in fields(self)}
+        out = {}
+        for f in fields(self):
+            if f.name == "noise_kind":
+                out["kind"] = self.kind
+                out["noise_kind"] = self.noise_kind.value
+            else:
+                out[f.name] = enc(getattr(self, f.name))
+        return out
 
     @classmethod
     def from_dict(cls, d: dict) -> "NoiseModel":
-        """Inverse of :meth:`to_dict`."""
+        """Inverse of :meth:`to_dict`; a model of format 1.0-1.2 (its ``kind`` sentence only) gets the kind that
+        sentence names (:meth:`NoiseKind.from_text`)."""
         from ..errors import FormatError
         from .model import NON_FINITE, from_json_list
 
@@ -278,6 +342,8 @@ class NoiseModel:
                          "white_std_at_rest", "misfit_share"):
                 kw[name] = num(kw[name])
             kw["notes"] = tuple(kw.get("notes", ()))
+            text = kw.pop("kind")
+            kw["noise_kind"] = NoiseKind(kw["noise_kind"]) if "noise_kind" in kw else NoiseKind.from_text(text)
             return cls(**kw)
         except (KeyError, TypeError, ValueError) as exc:
             raise FormatError(f"calibration: expected a noise_model with the fields of NoiseModel, got {exc}") from None
@@ -801,15 +867,15 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0,
     q_each = q_r / np.sqrt(1.0 + a)
     bias_walk = (float(q_each), float(q_each)) if walk else None
 
-    kind = ("not white noise: rate-dependent misfit" if misfit else "coloured noise" if coloured
-            else "white noise + bias random walk" if walk else "white noise")
+    kind = (NoiseKind.RATE_MISFIT if misfit else NoiseKind.COLOURED if coloured
+            else NoiseKind.WHITE_WALK if walk else NoiseKind.WHITE)
     return NoiseModel(
         rate_hz=float(rate_hz), noise_std=noise_std, noise_std_uncertainty=(float(sd1), float(sd2)),
         bias_walk_std=bias_walk, bias_model="random walk" if walk else "constant",
         residual_noise_std=sigma_r, residual_noise_std_uncertainty=sigma_r_sd,
         residual_walk_std=q_r, residual_walk_std_uncertainty=q_r_sd,
         bias_instability=B, bias_instability_uncertainty=B_sd,
-        white_std_at_rest=float(np.sqrt(v0)), misfit_gain=(gain_a, gain_b), misfit_share=share, kind=kind,
+        white_std_at_rest=float(np.sqrt(v0)), misfit_gain=(gain_a, gain_b), misfit_share=share, noise_kind=kind,
         taus=taus, adev=adev, adev_fit=np.sqrt(np.maximum(
             np.column_stack([1.0 / taus, np.full_like(taus, FLICKER), taus / 3.0]) @ c, 0.0)),
         fit_taus=tau_fit, sources=sources, notes=tuple(notes),

@@ -19,8 +19,8 @@ from .moments import Moments, WindowStats, noise_pair
 from .observability import (PRIOR_GAUGE, A_of, check_excitation, check_samples, classify, dA_dp, fisher_information,
                             per_axis_snr, prior_held_covariance, residual_weight, signal_scatter)
 from .refine import residual_scatter, refine_ml
-from .robust import (MIN_ROBUST_WINDOWS, bias_variance, choose, cross_axis, effective_windows, inflated, larger,
-                     sandwich, score_variance, window_scores)
+from .robust import (MIN_ROBUST_WINDOWS, CovarianceBasis, bias_variance, choose, cross_axis, effective_windows,
+                     inflated, larger, sandwich, score_variance, window_scores)
 
 
 def _residual_noise(moments: Moments, A, ratio: float = 1.0) -> tuple[float, float]:
@@ -198,6 +198,7 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
     inflation = float("nan")
     basis = "noise model (inverse Fisher information, Appendix B)" if method == "ml" else \
         "noise model (first-order propagation of Cov(A))"
+    basis_kind = CovarianceBasis.MODEL
     robust = windows is not None and rigid and method == "ml" and o.covariance != "model" \
         and windows.n_windows >= MIN_ROBUST_WINDOWS
     if robust:
@@ -206,7 +207,7 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         # free) is the model's and stays
         held = PRIOR_GAUGE if scale_prior_std is not None else gauge
         C = held.constraints(config.groups, [s1, s2], 3)
-        P9, inflation, basis, more = choose(P9, P9 + sandwich(F, V, C) - constrained_inverse(F, C), windows,
+        P9, inflation, basis_kind, basis, more = choose(P9, P9 + sandwich(F, V, C) - constrained_inverse(F, C), windows,
                                             o.covariance, basis, lack_of_fit)
         notes += more
         if not windows.pooled and moments.segments == 1:
@@ -216,7 +217,7 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         raise OptionError("covariance='robust': expected per-window statistics (windows=...) of an 'ml' solve of a "
                           f"rigid pair with at least {MIN_ROBUST_WINDOWS} windows; calibrate_pair computes them")
     elif noise_source == "user" and lack_of_fit > 1.5:
-        P9, basis, note = inflated(P9, lack_of_fit, basis, "flex, skew, time offset")
+        P9, basis_kind, basis, note = inflated(P9, lack_of_fit, basis, "flex, skew, time offset")
         Sigma_r = Sigma_r * lack_of_fit
         notes.append(note)
     E, cross_chi2, cross_dof = np.zeros((3, 3)), float("nan"), 0
@@ -256,7 +257,8 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         n_samples=int(moments.count), noise_std=np.array(noise), noise_source=noise_source,
         residual_rms=float(np.sqrt(max(np.trace(M), 0.0) / (3.0 * max(moments.dof, 1.0)))), method=method,
         iterations=iterations, skew_rotation_covariance=skew_cov, bias_segments=moments.segments,
-        rigid=rigid, unexplained_fraction=unexplained, covariance_basis=basis, lack_of_fit=lack_of_fit,
+        rigid=rigid, unexplained_fraction=unexplained, covariance_basis=basis, covariance_kind=basis_kind,
+        lack_of_fit=lack_of_fit,
         robust_inflation=inflation, cross_axis=E, cross_axis_chi2=cross_chi2, cross_axis_dof=cross_dof,
         noise_model=noise_model, notes=tuple(notes))
 
