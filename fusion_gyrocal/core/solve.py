@@ -84,7 +84,7 @@ def _transform(moments: Moments, T1, T2) -> Moments:
 
 
 def solve(moments: Moments, options: Options | None = None, *, noise_ratio: float | None = None,
-          windows: WindowStats | None = None, noise_model=None, **keywords) -> PairCalibration:
+          windows: WindowStats | None = None, noise_model=None, noise=None, **keywords) -> PairCalibration:
     """Calibrate a pair from its sufficient statistics.
 
     Pipeline: direct least squares for A (Eq. 17) -> rigidity test -> excitation test (Lemma 1) ->
@@ -111,8 +111,11 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         reported, inflated by the residual's chi-square per degree of freedom when a user's
         ``noise_std`` explains less than the residual.
     noise_model : NoiseModel, optional
-        The identified noise model behind ``options.noise_std`` (:func:`~fusion_gyrocal.core.noise.identify_noise`),
-        carried into the result.
+        The identified noise model behind ``noise`` (:func:`~fusion_gyrocal.core.noise.identify_noise`), carried
+        into the result.
+    noise : float or (float, float), optional
+        The white noise per sample (rad/s) the moments are weighed with when the caller derived it (identified:
+        ``noise_model``'s, or that of a random-walk bias's innovations); default ``options.noise_std``, the user's.
     **keywords
         Fields of :class:`~fusion_gyrocal.options.Options` (``method``, ``noise_std``, ``gauge``, ...),
         applied on top of ``options``.
@@ -135,7 +138,8 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
     gauge = Gauge.parse(o.gauge)
     if o.intrinsics_1 is not None or o.intrinsics_2 is not None:
         moments = _transform(moments, _skew_compensation(o.intrinsics_1), _skew_compensation(o.intrinsics_2))
-    noise = None if o.noise_std is None else noise_pair(o.noise_std)
+    noise = noise_pair(noise) if noise is not None else None if o.noise_std is None else noise_pair(o.noise_std)
+    user_noise = noise is not None and noise_model is None
     check_samples(moments)
     A_ls, _ = solve_A(moments)
     unexplained = float(np.trace(residual_scatter(A_ls, moments.scatter)) / np.trace(moments.S11))
@@ -216,7 +220,7 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
     elif o.covariance == "robust":
         raise OptionError("covariance='robust': expected per-window statistics (windows=...) of an 'ml' solve of a "
                           f"rigid pair with at least {MIN_ROBUST_WINDOWS} windows; calibrate_pair computes them")
-    elif noise_source == "user" and lack_of_fit > 1.5:
+    elif user_noise and lack_of_fit > 1.5:
         P9, basis_kind, basis, note = inflated(P9, lack_of_fit, basis, "flex, skew, time offset")
         Sigma_r = Sigma_r * lack_of_fit
         notes.append(note)
