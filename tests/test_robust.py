@@ -259,3 +259,12 @@ def test_covariance_basis_reworded_text_changes_no_report_decision():
         reworded = dataclasses.replace(cal, covariance_kind=kind, covariance_basis="a reworded sentence")
         assert says in uncertainty_basis(reworded)
     assert CovarianceBasis.MODEL.describe("noise model (x)", "3 windows", 2.0) == "noise model (x)"
+
+
+def test_pair_calibration_from_dict_unknown_covariance_kind_is_a_format_error():
+    from fusion_gyrocal.errors import FormatError
+
+    sim = simulate_pair(n=6000, rng=7)
+    d = calibrate_pair(sim.omega_1, sim.omega_2).to_dict() | {"covariance_kind": "guessed"}
+    with pytest.raises(FormatError, match="covariance_kind"):
+        PairCalibration.from_dict(d)

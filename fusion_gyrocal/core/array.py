@@ -494,7 +494,7 @@ class ArrayCalibration:
             elif f.name in ("notes", "time_offset_source"):
                 v = tuple(v)
             elif f.name == "covariance_kind":
-                v = CovarianceBasis(v)
+                v = CovarianceBasis.read(v, "array calibration")
             kw[f.name] = v
         if "covariance_kind" not in d and "covariance_basis" in d:   # written before the kind was stored
             kw["covariance_kind"] = CovarianceBasis.from_text(d["covariance_basis"])

@@ -275,7 +275,7 @@ class PairCalibration:
             elif f.name in _ARRAY_SHAPES:
                 v = from_json_list(v, bool if f.name == "scale_observable" else np.float64, legacy)
             elif f.name == "covariance_kind":
-                v = CovarianceBasis(v)
+                v = CovarianceBasis.read(v)
             elif f.name != "rigid" and (v is None or isinstance(v, str) and v in NON_FINITE):
                 v = float("nan") if v is None else NON_FINITE[v]
             kwargs[f.name] = v

@@ -176,6 +176,15 @@ class CovarianceBasis(str, Enum):
         return model_basis
 
     @classmethod
+    def read(cls, value, what: str = "calibration") -> "CovarianceBasis":
+        """The member a file's ``covariance_kind`` names (:class:`~fusion_gyrocal.errors.FormatError` otherwise)."""
+        try:
+            return cls(value)
+        except ValueError:
+            from ..errors import FormatError
+            raise FormatError(f"{what}: expected covariance_kind one of {[k.value for k in cls]}, got {value!r}") from None
+
+    @classmethod
     def from_text(cls, basis: str) -> "CovarianceBasis":
         """The basis a ``covariance_basis`` sentence of a file of format 1.0-1.2 names (those files store the
         sentence only), read by the beginnings and ends those versions wrote."""

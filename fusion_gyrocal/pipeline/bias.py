@@ -18,7 +18,7 @@ from enum import Enum
 
 import numpy as np
 
-from ..core.moments import (Moments, random_walk_bias_moments, random_walk_gain, window_moments, window_stats)
+from ..core.moments import Moments, random_walk_bias_moments, random_walk_gain, window_moments, window_stats
 
 
 class BiasKind(str, Enum):
@@ -52,8 +52,8 @@ class BiasModel:
     @classmethod
     def of(cls, options, noise_std=None, noise_model=None) -> "BiasModel":
         """The model of a run: the user's ``bias_walk_std`` (with ``noise_std``, the white noise the run uses) or
-        ``bias_window``; else the random walk of the identified ``noise_model`` (:class:`~fusion_gyrocal.core.noise.NoiseModel`)
-        when it chose one; else constant."""
+        ``bias_window``; else the random walk of the identified ``noise_model``
+        (:class:`~fusion_gyrocal.core.noise.NoiseModel`) when it chose one; else constant."""
         walk = options.bias_walk_std
         if walk is None and noise_model is not None and options.bias_window is None:
             walk = noise_model.bias_walk_std
