@@ -20,7 +20,7 @@ from ..core.solve import solve
 from ..errors import InputError, NotRigidError, OptionError
 from ..options import TIMESTAMP_OPTIONS, Options
 from .bias import BiasModel
-from .flex import GLITCH_FACTOR, gross_outliers, subsample_rate_norms
+from .flex import GLITCH_FACTOR, gate, gross_outliers, subsample_rate_norms
 from .streams import grid_rate
 
 PLAUSIBILITY_QUANTILE = 0.99  # of the rate norm: isolated glitches do not decide the unit
@@ -246,8 +246,7 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
     rejected = 0.0
     corr = float("nan")
     if o.flex_rejection is not False and cal.rigid:
-        from . import flex
-        cal, mask, rejected, corr = flex.gate(w1, w2, mask, cal, mom, bias, lambda use: solve_on(use)[0], o)
+        cal, mask, rejected, corr = gate(w1, w2, mask, cal, mom, bias, lambda use: solve_on(use)[0], o)
     cal = _replace(cal, time_offset_s=offset, time_offset_std_s=offset_std, rejected_fraction=rejected,
                    rate_residual_correlation=corr)
     return PipelineRun(cal, t_grid, np.asarray(w1), np.asarray(w2), valid_in, mask, pair)
