@@ -944,7 +944,7 @@ def test_run_misfit_overestimated_at_unseen_rates_is_learnt_down():
     n0 = int(60 * RATE)
     cal = calibrate_pair(w1[:n0], w2[:n0])
     nm = dataclasses.replace(identify_noise(w1[:n0], w2[:n0], cal.A, cal.bias, rate_hz=RATE),
-                             kind="not white noise: rate-dependent misfit", misfit_gain=(0.0, 0.02))
+                             noise_kind="rate_misfit", misfit_gain=(0.0, 0.02))
     sigma, err = {}, {}
     for name in ("released", "held", "white"):
         if name == "released":

@@ -235,3 +235,63 @@ def test_noise_factors_decimation_aliases_and_interpolation_smooths():
     assert density == pytest.approx(2.0, rel=0.05) and white_from == 1                    # aliased: twice the density
     variance, diff3, density, white_from = noise_factors(np.arange(50_000) / 100.0, np.arange(80_000) / 200.0 + 0.1)
     assert variance < 0.95 and diff3 < 0.1 and density == pytest.approx(1.0, rel=0.05) and white_from > 4
+
+
+# ------------------------------------------------------------------------------------------- the kind as a type
+def _kinds():
+    """One identified model of every kind but coloured (white, white + walk, misfit), from seeded simulations."""
+    sim = simulate_pair(n=20000, bias_walk_std=0.0, rng=11)
+    walk = simulate_pair(n=60000, bias_walk_std=100 * PAPER_BIAS_WALK_STD, rng=0)
+    w2_true = sim.omega_true_1 @ sim.R_1_2
+    w2 = sim.omega_2 + 0.002 * np.linalg.norm(w2_true, axis=1)[:, None] * w2_true
+    return [_identify(sim.omega_1, sim.omega_2), _identify(walk.omega_1, walk.omega_2), _identify(sim.omega_1, w2)]
+
+
+def test_noise_model_from_dict_legacy_text_only_keeps_the_kind():
+    import dataclasses
+    import json
+
+    from fusion_gyrocal.core.noise import NoiseKind
+
+    models = _kinds()
+    assert [nm.noise_kind for nm in models] == [NoiseKind.WHITE, NoiseKind.WHITE_WALK, NoiseKind.RATE_MISFIT]
+    for nm in models + [dataclasses.replace(models[0], noise_kind=NoiseKind.COLOURED)]:
+        d = json.loads(json.dumps(nm.to_dict(), allow_nan=False))
+        assert d["kind"] == nm.kind and d["noise_kind"] == nm.noise_kind.value
+        legacy = {k: v for k, v in d.items() if k != "noise_kind"}   # format 1.0-1.2: the sentence only
+        for back in (NoiseModel.from_dict(d), NoiseModel.from_dict(legacy)):
+            assert back.noise_kind is nm.noise_kind and back.kind == nm.kind
+            assert (back.is_white, back.is_misfit) == (nm.is_white, nm.is_misfit)
+            assert back.to_dict() == d
+
+
+def test_noise_model_from_dict_unknown_kind_text_is_a_format_error():
+    from fusion_gyrocal.errors import FormatError
+
+    d = {k: v for k, v in _kinds()[0].to_dict().items() if k != "noise_kind"}
+    d["kind"] = "pink noise"
+    with pytest.raises(FormatError, match="noise_model"):
+        NoiseModel.from_dict(d)
+
+
+def test_noise_kind_reworded_text_changes_no_decision(monkeypatch):
+    """The sentences are only rendered: rewording them changes no test of the kind, no report wording that
+    depends on it, and files written before (the old sentences) still load."""
+    import dataclasses
+
+    from fusion_gyrocal import calibrate_pair
+    from fusion_gyrocal.core import noise
+    from fusion_gyrocal.core.noise import NoiseKind
+    from fusion_gyrocal.io.report import uncertainty_basis
+
+    models = _kinds()
+    before = [(nm.is_white, nm.is_misfit, nm.to_dict()) for nm in models]
+    sim = simulate_pair(n=6000, rng=3)
+    misfit_cal = dataclasses.replace(calibrate_pair(sim.omega_1, sim.omega_2), noise_model=models[2])
+    line = uncertainty_basis(misfit_cal)
+    monkeypatch.setattr(noise, "_KIND_TEXT", {k: f"reworded {k.value}" for k in NoiseKind})
+    for nm, (white, misfit, d) in zip(models, before):
+        assert nm.kind == f"reworded {nm.noise_kind.value}"
+        assert (nm.is_white, nm.is_misfit) == (white, misfit)
+        assert NoiseModel.from_dict({k: v for k, v in d.items() if k != "noise_kind"}).noise_kind is nm.noise_kind
+    assert uncertainty_basis(misfit_cal) == line    # "residual is rate-dependent misfit": from the kind

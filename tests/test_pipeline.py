@@ -166,3 +166,56 @@ def test_calibrate_pair_saturation_limit_masks_sample_aligned_input():
     assert cal.n_samples == 4000 - int(clipped.any(axis=1).sum())
     ref = calibrate_pair(sim.omega_1, sim.omega_2, mask=~clipped.any(axis=1))
     np.testing.assert_allclose(cal.R_1_2, ref.R_1_2, atol=1e-12)
+
+
+def test_bias_model_of_options_and_identified_noise():
+    from fusion_gyrocal.core.moments import Moments, random_walk_gain, window_moments
+    from fusion_gyrocal.options import Options
+    from fusion_gyrocal.pipeline.bias import BiasKind, BiasModel
+
+    class Identified:   # what BiasModel.of reads of a NoiseModel
+        bias_walk_std = (1e-5, 1e-5)
+
+    noise = (2e-3, 3e-3)
+    constant = BiasModel.of(Options(), noise)
+    assert constant.kind is BiasKind.CONSTANT and constant.gate_window is None and constant.solve_noise(noise) == noise
+    walk = BiasModel.of(Options(), noise, Identified())
+    gain, scale = random_walk_gain(Identified.bias_walk_std, noise)
+    assert walk == BiasModel(BiasKind.RANDOM_WALK, Identified.bias_walk_std, noise)
+    assert walk.gate_window == max(20, int(round(1.0 / gain)))
+    assert walk.solve_noise(noise) == tuple(np.asarray(noise) * scale) and walk.solve_noise(None) is None
+    user = BiasModel.of(Options(noise_std=1e-3, bias_walk_std=2e-5), (1e-3, 1e-3), Identified())
+    assert user.walk_std == (2e-5, 2e-5)                 # the user's walk wins over the identified one
+    piecewise = BiasModel.of(Options(bias_window=500), noise, Identified())
+    assert piecewise == BiasModel(BiasKind.PIECEWISE, window=500) and piecewise.gate_window == 500
+    sim = simulate_pair(n=4000, rng=2)
+    m, windows = piecewise.moments(sim.omega_1, sim.omega_2, None)
+    assert windows is None and m.segments == Moments.pool_all(window_moments(sim.omega_1, sim.omega_2, 500)).segments
+    assert piecewise.moments(sim.omega_1, sim.omega_2, None, window=100)[1].pooled
+
+
+def test_solve_noise_argument_weighs_like_the_option_and_leaves_options_alone():
+    from fusion_gyrocal.core.moments import Moments
+    from fusion_gyrocal.core.solve import solve
+    from fusion_gyrocal.options import Options
+
+    sim = simulate_pair(n=6000, rng=5)
+    m = Moments.from_samples(sim.omega_1, sim.omega_2)
+    o = Options()
+    given = solve(m, o, noise=(2e-3, 3e-3))
+    option = solve(m, o, noise_std=(2e-3, 3e-3))
+    assert o.noise_std is None
+    np.testing.assert_array_equal(given.covariance, option.covariance)
+    np.testing.assert_array_equal(given.noise_std, option.noise_std)
+    assert given.noise_source == option.noise_source == "user"
+
+
+def test_flex_imports_nothing_from_the_pipeline_module():
+    import ast
+    import inspect
+
+    from fusion_gyrocal.pipeline import flex
+
+    tree = ast.parse(inspect.getsource(flex))
+    modules = {node.module for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)}
+    assert "pipeline" not in modules and not any(m and m.endswith("pipeline.pipeline") for m in modules)

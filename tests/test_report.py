@@ -167,6 +167,8 @@ def test_summary_markdown_lists_the_noise_model_and_the_uncertainty_basis(run):
 def test_uncertainty_basis_names_noise_source_and_covariance():
     import dataclasses
 
+    from fusion_gyrocal.core.noise import NoiseKind
+    from fusion_gyrocal.core.robust import CovarianceBasis
     from fusion_gyrocal.io.report import uncertainty_basis
 
     sim = simulate_pair(rng=8, n=6000)
@@ -177,10 +179,10 @@ def test_uncertainty_basis_names_noise_source_and_covariance():
     assert f"residual chi2/dof {cal.lack_of_fit:.3g}" in line
     # a misfit raised to the block-robust covariance: the worst direction's std ratio is named
     bad = dataclasses.replace(cal, robust_inflation=39.69, lack_of_fit=210.0,
-                              noise_model=dataclasses.replace(cal.noise_model,
-                                                              kind="not white noise: rate-dependent misfit"),
+                              noise_model=dataclasses.replace(cal.noise_model, noise_kind=NoiseKind.RATE_MISFIT),
                               covariance_basis="noise model raised to the block-robust sandwich (9 windows of 9 "
-                                               "samples) where that is significantly larger")
+                                               "samples) where that is significantly larger",
+                              covariance_kind=CovarianceBasis.RAISED)
     assert uncertainty_basis(bad).endswith("residual is rate-dependent misfit), raised to the block-robust covariance "
                                            "where larger (std x6.3 in the worst direction; residual chi2/dof 210)")
     user = run_pipeline(sim.omega_1, sim.omega_2, noise_std=0.002, covariance="model").calibration

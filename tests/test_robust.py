@@ -196,18 +196,80 @@ def test_streaming_calibrator_sliding_window_bins_give_the_robust_covariance():
     assert "not significantly larger" in bases[1]
 
 
-def test_basis_kind_reads_back_every_text_choose_and_inflated_write():
+def test_covariance_basis_from_text_reads_back_every_text_choose_and_inflated_write():
     from fusion_gyrocal.core.moments import WindowStats
-    from fusion_gyrocal.core.robust import basis_kind, choose, inflated
+    from fusion_gyrocal.core.robust import CovarianceBasis, choose, inflated
+
+    def basis_kind(text):
+        return CovarianceBasis.from_text(text)
 
     rng = np.random.default_rng(4)
     W = 200
     stats = WindowStats(np.full(W, 100.0), np.zeros((W, 6)), np.zeros((W, 6, 6)), np.zeros(W, int), 100)
     P = np.eye(3)
     model = "noise model (inverse Fisher information, Appendix B)"
-    assert basis_kind(choose(P, 0.5 * P, stats, "robust", model, 1.0)[2]) == "robust"
-    assert basis_kind(choose(P, 50.0 * P, stats, "auto", model, 1.0)[2]) == "raised"
+    assert basis_kind(choose(P, 0.5 * P, stats, "robust", model, 1.0)[3]) == "robust"
+    assert basis_kind(choose(P, 50.0 * P, stats, "auto", model, 1.0)[3]) == "raised"
     small = P + 0.01 * np.diag(rng.random(3))
-    assert basis_kind(choose(P, small, stats, "auto", model, 1.0)[2]) == "checked"
-    assert basis_kind(inflated(P, 2.5, model, "flex")[1]) == "inflated"
+    assert basis_kind(choose(P, small, stats, "auto", model, 1.0)[3]) == "checked"
+    assert basis_kind(inflated(P, 2.5, model, "flex")[2]) == "inflated"
     assert basis_kind(model) == "model"
+
+
+def test_pair_calibration_from_dict_legacy_basis_text_keeps_the_kind():
+    from fusion_gyrocal.core.robust import CovarianceBasis
+
+    sim = simulate_pair(n=6000, rng=7)
+    for options, kind in (({}, CovarianceBasis.CHECKED), ({"covariance": "robust"}, CovarianceBasis.ROBUST),
+                          ({"covariance": "model"}, CovarianceBasis.MODEL),
+                          ({"covariance": "model", "noise_std": 0.3 * PAPER_NOISE_STD}, CovarianceBasis.INFLATED)):
+        cal = calibrate_pair(sim.omega_1, sim.omega_2, **options)
+        assert cal.covariance_kind is kind
+        d = json.loads(json.dumps(cal.to_dict(), allow_nan=False))
+        assert d["covariance_kind"] == kind.value and d["covariance_basis"] == cal.covariance_basis
+        for version in ("1.1", "1.2"):   # written before the kind was stored: the sentence only
+            legacy = {k: v for k, v in d.items() if k != "covariance_kind"} | {"format_version": version}
+            assert PairCalibration.from_dict(legacy).covariance_kind is kind
+        assert PairCalibration.from_dict(d).covariance_kind is kind
+
+
+def test_array_calibration_from_dict_legacy_basis_text_keeps_the_kind():
+    from fusion_gyrocal.core.array import ArrayCalibration, calibrate_array
+    from fusion_gyrocal.core.robust import CovarianceBasis
+    from fusion_gyrocal.evaluate.sim import HumanMotion, random_rotation
+
+    rng = np.random.default_rng(0)
+    omega = HumanMotion(rng=rng)(np.arange(8000) / 100.0)
+    omegas = [omega @ R + rng.normal(0, 1e-3, omega.shape) for R in [np.eye(3), random_rotation(rng)]]
+    cal = calibrate_array(omegas, rate_hz=100.0, noise_std=3e-4)
+    assert cal.covariance_kind is CovarianceBasis.RAISED and cal.pair(0, 1).covariance_kind is CovarianceBasis.RAISED
+    d = json.loads(json.dumps(cal.to_dict(), allow_nan=False))
+    legacy = {k: v for k, v in d.items() if k != "covariance_kind"}
+    for back in (ArrayCalibration.from_dict(d), ArrayCalibration.from_dict(legacy)):
+        assert back.covariance_kind is CovarianceBasis.RAISED and back.covariance_basis == cal.covariance_basis
+
+
+def test_covariance_basis_reworded_text_changes_no_report_decision():
+    import dataclasses
+
+    from fusion_gyrocal.core.robust import CovarianceBasis
+    from fusion_gyrocal.io.report import uncertainty_basis
+
+    sim = simulate_pair(n=6000, rng=7)
+    cal = calibrate_pair(sim.omega_1, sim.omega_2)
+    for kind, says in ((CovarianceBasis.RAISED, "raised to the block-robust covariance where larger"),
+                       (CovarianceBasis.ROBUST, "block-robust covariance as asked"),
+                       (CovarianceBasis.CHECKED, "the block-robust check agrees"),
+                       (CovarianceBasis.INFLATED, "inflated by the residual's chi2/dof (see the note)")):
+        reworded = dataclasses.replace(cal, covariance_kind=kind, covariance_basis="a reworded sentence")
+        assert says in uncertainty_basis(reworded)
+    assert CovarianceBasis.MODEL.describe("noise model (x)", "3 windows", 2.0) == "noise model (x)"
+
+
+def test_pair_calibration_from_dict_unknown_covariance_kind_is_a_format_error():
+    from fusion_gyrocal.errors import FormatError
+
+    sim = simulate_pair(n=6000, rng=7)
+    d = calibrate_pair(sim.omega_1, sim.omega_2).to_dict() | {"covariance_kind": "guessed"}
+    with pytest.raises(FormatError, match="covariance_kind"):
+        PairCalibration.from_dict(d)

@@ -10,6 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from fusion_gyrocal import FormatError, InputError, PairCalibration
 from fusion_gyrocal.core.array import calibrate_array
+from fusion_gyrocal.core.noise import NoiseKind
 from fusion_gyrocal.evaluate.sim import DEG, HumanMotion, random_rotation
 from fusion_gyrocal.io.writers import (ImuNoise, write_kalibr_imu_chain, write_kalibr_imu_configs,
                                        write_openvins_imu_chain)
@@ -279,7 +280,7 @@ def test_write_kalibr_imu_configs_constant_bias_walk_term_split_or_placeholder(w
 
 def test_write_kalibr_imu_configs_misfit_writes_the_sensor_noise_not_the_residual(walking_pair, tmp_path):
     cal, density, _ = walking_pair
-    nm = dataclasses.replace(cal.noise_model, kind="not white noise: rate-dependent misfit", misfit_share=0.9)
+    nm = dataclasses.replace(cal.noise_model, noise_kind=NoiseKind.RATE_MISFIT, misfit_share=0.9)
     bad = dataclasses.replace(cal, noise_model=nm, residual_rms=30 * cal.residual_rms)
     for i, p in enumerate(write_kalibr_imu_configs(bad, tmp_path / "m")):
         got, text = kalibr_imu_parameters(p), p.read_text()

@@ -561,7 +561,7 @@ def solve_array(moments: ArrayMoments, options: Options | None = None, *, refere
     cost = joint_cost(R, s, Sc, noise)
     chi2_dof = max(3.0 * (n - 1) * dof - (6 * n - len(C)), 1.0)
     ratio = cost / chi2_dof
-    P, inflation, basis, more, _ = reported_covariance(
+    P, inflation, basis_kind, basis, more = reported_covariance(
         P, lambda: sandwich(F, score_variance(_window_scores(R, s, noise, windows), windows), C), windows,
         o.covariance, "noise model (inverse Fisher information, Appendix B)", ratio, user_noise=user_noise is not None,
         what="flex, skew, timing")
@@ -611,7 +611,7 @@ def solve_array(moments: ArrayMoments, options: Options | None = None, *, refere
         configurations=configs, covariance=cov, gauge=_describe(gauge, n, len(groups)), snr=snr,
         n_samples=int(moments.count), noise_std=noise, noise_source=noise_source, residual_rms=residual_rms,
         iterations=total_it, bias_segments=moments.segments, notes=tuple(notes), moments=moments,
-        covariance_basis=basis, robust_inflation=inflation)
+        covariance_basis=basis, covariance_kind=basis_kind, robust_inflation=inflation)
 
 
 def calibrate_array(omegas, options: Options | None = None, *, reference: int = 0, mask=None,

@@ -18,6 +18,7 @@ from .model import PairCalibration, from_json_list, mark_undetermined, to_json_l
 from .moments import Moments
 from .observability import A_of, per_axis_snr, residual_weight
 from .refine import residual_scatter
+from .robust import CovarianceBasis
 from .solve import pair_covariance
 
 if TYPE_CHECKING:
@@ -87,6 +88,8 @@ class ArrayCalibration:
         Standard deviation of ``time_offset_s`` (0 where it was given, not estimated).
     covariance_basis : str
         What ``covariance`` rests on (see :attr:`PairCalibration.covariance_basis`).
+    covariance_kind : CovarianceBasis
+        Which of those it is (:class:`~fusion_gyrocal.core.robust.CovarianceBasis`).
     robust_inflation : float
         Largest ratio of the block-robust variance to the noise model's (NaN when not computed).
     time_offset_source : tuple of str (N,)
@@ -118,6 +121,7 @@ class ArrayCalibration:
     time_offset_std_s: np.ndarray | None = None
     time_offset_source: tuple | None = None
     covariance_basis: str = "noise model"
+    covariance_kind: CovarianceBasis = CovarianceBasis.MODEL
     robust_inflation: float = float("nan")
 
     def __post_init__(self):
@@ -142,6 +146,7 @@ class ArrayCalibration:
             object.__setattr__(self, name, arr)
         object.__setattr__(self, "notes", tuple(self.notes))
         object.__setattr__(self, "time_offset_source", tuple(str(x) for x in self.time_offset_source))
+        object.__setattr__(self, "covariance_kind", CovarianceBasis(self.covariance_kind))
 
     @property
     def n_gyros(self) -> int:
@@ -205,7 +210,7 @@ class ArrayCalibration:
             configuration=self.configurations[i][j], scale_observable=obs, covariance=cov,
             gauge=self.gauge, snr=per_axis_snr(m, noise), n_samples=int(m.count), noise_std=np.array(noise),
             noise_source=self.noise_source, covariance_basis=self.covariance_basis,
-            robust_inflation=self.robust_inflation,
+            covariance_kind=self.covariance_kind, robust_inflation=self.robust_inflation,
             residual_rms=float(np.sqrt(max(np.trace(M), 0.0) / (3.0 * max(m.dof, 1.0)))),
             method="ml_array", iterations=self.iterations, bias_segments=m.segments,
             time_offset_s=float(self.time_offset_s[j] - self.time_offset_s[i]),
@@ -236,6 +241,8 @@ class ArrayCalibration:
                 v = int(v)
             elif isinstance(v, tuple):
                 v = _json_ready(v)
+            elif isinstance(v, CovarianceBasis):
+                v = v.value
             out[f.name] = v
         return out
 
@@ -273,7 +280,11 @@ class ArrayCalibration:
                 v = tuple(tuple(str(c) for c in row) for row in v)
             elif f.name in ("notes", "time_offset_source"):
                 v = tuple(v)
+            elif f.name == "covariance_kind":
+                v = CovarianceBasis.read(v, "array calibration")
             kw[f.name] = v
+        if "covariance_kind" not in d and "covariance_basis" in d:   # written before the kind was stored
+            kw["covariance_kind"] = CovarianceBasis.from_text(d["covariance_basis"])
         try:
             return cls(**kw)
         except InputError as exc:

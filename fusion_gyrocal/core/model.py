@@ -24,12 +24,14 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field, fields
+from enum import Enum
 from typing import Any
 
 import numpy as np
 
 from ..errors import FormatError, InputError
 from ..lie import canonical_rotvec, log
+from .robust import CovarianceBasis
 
 FORMAT_VERSION = "1.3"
 #: Versions :meth:`PairCalibration.from_dict` reads: 1.0 wrote every non-finite number as ``null``
@@ -131,7 +133,10 @@ class PairCalibration:
         Fraction of samples rejected by flex/outlier gating.
     covariance_basis : str
         What ``covariance`` rests on: the noise model's inverse Fisher information, the block-robust
-        sandwich (:mod:`~fusion_gyrocal.core.robust`), or the larger of the two in every direction.
+        sandwich (:mod:`~fusion_gyrocal.core.robust`), or the larger of the two in every direction: the sentence
+        of ``covariance_kind``.
+    covariance_kind : CovarianceBasis
+        Which of those it is (:class:`~fusion_gyrocal.core.robust.CovarianceBasis`).
     lack_of_fit : float
         Chi-square of the residual per degree of freedom against the noise model (1 when the model
         explains the residual; rate-dependent misfit, coloured noise or flex make it larger).
@@ -191,6 +196,7 @@ class PairCalibration:
     rate_residual_correlation: float = float("nan")
     rejected_fraction: float = 0.0
     covariance_basis: str = "noise model"
+    covariance_kind: CovarianceBasis = CovarianceBasis.MODEL
     lack_of_fit: float = float("nan")
     robust_inflation: float = float("nan")
     cross_axis: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
@@ -211,6 +217,7 @@ class PairCalibration:
         if self.configuration not in CONFIGURATIONS:
             raise InputError(f"configuration: expected one of {CONFIGURATIONS}, got {self.configuration!r}")
         object.__setattr__(self, "notes", tuple(self.notes))
+        object.__setattr__(self, "covariance_kind", CovarianceBasis(self.covariance_kind))
 
     # ------------------------------------------------------------------ derived
     @property
@@ -264,6 +271,8 @@ class PairCalibration:
                 v = list(v)
             elif f.name == "noise_model" and v is not None:
                 v = v.to_dict()
+            elif isinstance(v, Enum):
+                v = v.value
             out[f.name] = v
         return out
 
@@ -272,6 +281,9 @@ class PairCalibration:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "PairCalibration":
+        """Inverse of :meth:`to_dict`, for every version of :data:`READABLE_VERSIONS`; a file with the
+        ``covariance_basis`` sentence only (1.0-1.2) gets the basis it names
+        (:meth:`~fusion_gyrocal.core.robust.CovarianceBasis.from_text`)."""
         version = d.get("format_version")
         if version not in READABLE_VERSIONS:
             raise FormatError(f"calibration: expected format_version {FORMAT_VERSION!r} (or an earlier "
@@ -288,9 +300,13 @@ class PairCalibration:
                     v = NoiseModel.from_dict(v)
             elif f.name in _ARRAY_SHAPES:
                 v = from_json_list(v, bool if f.name == "scale_observable" else np.float64, legacy)
+            elif f.name == "covariance_kind":
+                v = CovarianceBasis.read(v)
             elif f.name != "rigid" and (v is None or isinstance(v, str) and v in NON_FINITE):
                 v = float("nan") if v is None else NON_FINITE[v]
             kwargs[f.name] = v
+        if "covariance_kind" not in d and "covariance_basis" in d:   # written before the kind was stored
+            kwargs["covariance_kind"] = CovarianceBasis.from_text(d["covariance_basis"])
         return cls(**kwargs)
 
 

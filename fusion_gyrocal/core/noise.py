@@ -9,8 +9,8 @@ about its mean, and any model error. Three questions are answered from it, each 
   window's mean squared rate, ``var = sigma_0^2 + c_1 |omega|^2 + c_2 |omega|^4`` (non-negative
   least squares). A significant rate term that explains more than a tenth of the variance is model
   error (a rate-dependent scale or cross-axis error, timing, flex), not sensor noise: the result says
-  so (``kind = "not white noise: rate-dependent misfit"``) and the noise is then taken from the
-  windows where the fitted misfit is negligible.
+  so (:attr:`NoiseKind.RATE_MISFIT`, ``kind = "not white noise: rate-dependent misfit"``) and the noise
+  is then taken from the windows where the fitted misfit is negligible.
 * **How much white noise, how much bias drift?** The overlapping Allan deviation of the residual
   (the residual as a rate signal; checked against allantools in the tests) is fitted with the standard terms of a gyro (IEEE Std
   952): ``AVAR(tau) = N^2 / tau + (2 ln 2 / pi) B^2 + K^2 tau / 3`` with white rate noise ``N``
@@ -35,6 +35,8 @@ loses nothing and keeps every sample). :attr:`NoiseModel.calibrate_keywords` giv
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
+from enum import Enum
+from typing import NamedTuple
 
 import numpy as np
 
@@ -99,6 +101,46 @@ def difference_noise_std(omega, mask=None, *, max_samples: int = NOISE_SPLIT_SAM
 
 
 
+class NoiseKind(str, Enum):
+    """What the residual of a pair is (:attr:`NoiseModel.noise_kind`); :attr:`text` is the sentence reports show.
+
+    The members' values are what :meth:`NoiseModel.to_dict` writes as ``noise_kind``; decisions test the member,
+    never the sentence.
+    """
+
+    WHITE = "white"
+    WHITE_WALK = "white_walk"
+    COLOURED = "coloured"
+    RATE_MISFIT = "rate_misfit"
+
+    @property
+    def text(self) -> str:
+        """The sentence for reports and the ``kind`` of the JSON (``"white noise"``, ...)."""
+        return _KIND_TEXT[self]
+
+    @property
+    def is_white(self) -> bool:
+        """White noise, with or without a bias random walk."""
+        return self in (NoiseKind.WHITE, NoiseKind.WHITE_WALK)
+
+    @classmethod
+    def from_text(cls, text: str) -> "NoiseKind":
+        """The kind a file of format 1.0-1.2 names by its sentence only (:data:`LEGACY_KIND_TEXTS`)."""
+        try:
+            return LEGACY_KIND_TEXTS[text]
+        except KeyError:
+            raise ValueError(f"kind: expected one of {sorted(LEGACY_KIND_TEXTS)}, got {text!r}") from None
+
+
+_KIND_TEXT = {NoiseKind.WHITE: "white noise", NoiseKind.WHITE_WALK: "white noise + bias random walk",
+              NoiseKind.COLOURED: "coloured noise", NoiseKind.RATE_MISFIT: "not white noise: rate-dependent misfit"}
+#: The sentences calibrations of format 1.0-1.2 stored as the noise model's ``kind`` (and nothing else): read
+#: back by :meth:`NoiseKind.from_text` whatever :attr:`NoiseKind.text` says today.
+LEGACY_KIND_TEXTS = {"white noise": NoiseKind.WHITE, "white noise + bias random walk": NoiseKind.WHITE_WALK,
+                     "coloured noise": NoiseKind.COLOURED,
+                     "not white noise: rate-dependent misfit": NoiseKind.RATE_MISFIT}
+
+
 @dataclass(frozen=True)
 class Resampling:
     """How each stream of an aligned pair reached the grid (:func:`~fusion_gyrocal.pipeline.resample.noise_factors`).
@@ -159,9 +201,9 @@ class NoiseModel:
         scale error).
     misfit_share : float
         Share of the residual variance that the rate terms explain.
-    kind : str
-        ``"white noise"``, ``"white noise + bias random walk"``, ``"coloured noise"`` or
-        ``"not white noise: rate-dependent misfit"``.
+    noise_kind : NoiseKind
+        White noise, white noise and a bias random walk, coloured noise or a rate-dependent misfit;
+        :attr:`kind` is its sentence.
     taus : ndarray (T,)
         Averaging times of the Allan curve (s).
     adev : ndarray (T, 3)
@@ -199,7 +241,7 @@ class NoiseModel:
     white_std_at_rest: float
     misfit_gain: tuple
     misfit_share: float
-    kind: str
+    noise_kind: NoiseKind
     taus: np.ndarray
     adev: np.ndarray
     adev_fit: np.ndarray
@@ -210,10 +252,24 @@ class NoiseModel:
     rates_hz: tuple | None = None
     densities: tuple | None = None
 
+    def __post_init__(self):
+        object.__setattr__(self, "noise_kind", NoiseKind(self.noise_kind))   # a member, also when given its value
+
+    @property
+    def kind(self) -> str:
+        """The sentence of :attr:`noise_kind`: ``"white noise"``, ``"white noise + bias random walk"``,
+        ``"coloured noise"`` or ``"not white noise: rate-dependent misfit"``."""
+        return self.noise_kind.text
+
     @property
     def is_white(self) -> bool:
         """True when the residual is white noise (with or without a bias random walk)."""
-        return self.kind.startswith("white")
+        return self.noise_kind.is_white
+
+    @property
+    def is_misfit(self) -> bool:
+        """True when the residual is a rate-dependent misfit (model error, not sensor noise)."""
+        return self.noise_kind is NoiseKind.RATE_MISFIT
 
     @property
     def noise_density(self) -> tuple:
@@ -244,7 +300,8 @@ class NoiseModel:
         return out
 
     def to_dict(self) -> dict:
-        """JSON-ready dictionary (non-finite numbers as ``"NaN"``/``"Infinity"`` strings, as the calibration's)."""
+        """JSON-ready dictionary (non-finite numbers as ``"NaN"``/``"Infinity"`` strings, as the calibration's);
+        the kind as its sentence (``kind``) and its member's value (``noise_kind``)."""
         from .model import to_json_list, to_json_number
 
         def enc(v):
@@ -255,11 +312,19 @@ class NoiseModel:
             if isinstance(v, float):
                 return to_json_number(v)
             return v
-        return {f.name: enc(getattr(self, f.name)) for f in fields(self)}
+        out = {}
+        for f in fields(self):
+            if f.name == "noise_kind":
+                out["kind"] = self.kind
+                out["noise_kind"] = self.noise_kind.value
+            else:
+                out[f.name] = enc(getattr(self, f.name))
+        return out
 
     @classmethod
     def from_dict(cls, d: dict) -> "NoiseModel":
-        """Inverse of :meth:`to_dict`."""
+        """Inverse of :meth:`to_dict`; a model of format 1.0-1.2 (its ``kind`` sentence only) gets the kind that
+        sentence names (:meth:`NoiseKind.from_text`)."""
         from ..errors import FormatError
         from .model import NON_FINITE, from_json_list
 
@@ -278,6 +343,8 @@ class NoiseModel:
                          "white_std_at_rest", "misfit_share"):
                 kw[name] = num(kw[name])
             kw["notes"] = tuple(kw.get("notes", ()))
+            text = kw.pop("kind")
+            kw["noise_kind"] = NoiseKind(kw["noise_kind"]) if "noise_kind" in kw else NoiseKind.from_text(text)
             return cls(**kw)
         except (KeyError, TypeError, ValueError) as exc:
             raise FormatError(f"calibration: expected a noise_model with the fields of NoiseModel, got {exc}") from None
@@ -640,7 +707,12 @@ def _join(a, spans, dtype) -> np.ndarray:
 
 def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0,
               resampling: Resampling | None = None) -> NoiseModel:
-    """:func:`identify_noise` on float64 rates; ``stride`` log samples per sample given (joined stretches)."""
+    """:func:`identify_noise` on float64 rates; ``stride`` log samples per sample given (joined stretches).
+
+    The steps, in order: the residual and its windows; 1. the rate-dependent misfit (:func:`_misfit_test`);
+    2. the Allan fit of the residual (:func:`_allan_fit`); 3. the bias model (:func:`_bias_choice`); 4. the
+    split between the gyros (:func:`_split`, or :func:`_own_noise` when every window carries the misfit).
+    """
     A = np.asarray(A, dtype=float).reshape(3, 3)
     bias = np.asarray(bias, dtype=float).reshape(3)
     n = w1.shape[0]
@@ -661,8 +733,50 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0,
         raise InputError(f"omega_1/omega_2: expected at least 16 windows of {w} samples, half of them valid "
                          f"({window_s:g} s) to identify the noise, got {win.start.size}")
     notes, sources = [], {}
+    mis = _misfit_test(win, valid, rate_hz, sources, notes)
+    fit = _allan_fit(r, None if everything and not mis.flagged else mis.use, rate_hz, stride, resampling,
+                     mis.flagged, sources, notes)
+    walk = _bias_choice(fit, stride, rate_hz, sources, notes)
+    rs = resampling or Resampling((rate_hz, rate_hz))
+    noise_std, noise_sd, dens_sq = _split(win, w1, w2, A, rate_hz, rs, fit, sources,
+                                          resampling is not None)
+    if mis.few_quiet:  # misfit in every window: even the quietest carry it; each stream's own high frequencies do not
+        noise_std, noise_sd, dens_sq = _own_noise(w1, w2, valid, rs, sources, (noise_std, noise_sd, dens_sq))
+    a = float(np.sum(A * A) / 3.0)
+    q_each = fit.q_r / np.sqrt(1.0 + a)
+    bias_walk = (float(q_each), float(q_each)) if walk else None
 
-    # 1. rate-dependent misfit (heteroscedastic regression)
+    kind = (NoiseKind.RATE_MISFIT if mis.flagged else NoiseKind.COLOURED if fit.coloured
+            else NoiseKind.WHITE_WALK if walk else NoiseKind.WHITE)
+    return NoiseModel(
+        rate_hz=float(rate_hz), noise_std=noise_std, noise_std_uncertainty=(float(noise_sd[0]), float(noise_sd[1])),
+        bias_walk_std=bias_walk, bias_model="random walk" if walk else "constant",
+        residual_noise_std=fit.sigma_r, residual_noise_std_uncertainty=fit.sigma_r_sd,
+        residual_walk_std=fit.q_r, residual_walk_std_uncertainty=fit.q_r_sd,
+        bias_instability=fit.B, bias_instability_uncertainty=fit.B_sd,
+        white_std_at_rest=float(np.sqrt(mis.v0)), misfit_gain=mis.gain, misfit_share=mis.share, noise_kind=kind,
+        taus=fit.taus, adev=fit.adev, adev_fit=np.sqrt(np.maximum(
+            np.column_stack([1.0 / fit.taus, np.full_like(fit.taus, FLICKER), fit.taus / 3.0]) @ fit.coef, 0.0)),
+        fit_taus=fit.tau_fit, sources=sources, notes=tuple(notes),
+        rates_hz=None if resampling is None else tuple(float(f) for f in rs.rates_hz),
+        densities=None if resampling is None else tuple(float(np.sqrt(d)) for d in dens_sq))
+
+
+class _Misfit(NamedTuple):
+    """The rate-dependent misfit test (:func:`_misfit_test`)."""
+
+    v0: float             # white variance at zero rate (the regression's intercept)
+    gain: tuple           # (a, b) of the misfit
+    share: float          # share of the residual variance the rate explains
+    flagged: bool         # a significant misfit: the noise comes from the quiet windows
+    few_quiet: bool       # fewer than 16 quiet windows (the lowest-misfit sixteen taken)
+    use: np.ndarray       # the samples the Allan fit uses (the valid ones, or those of the quiet windows)
+
+
+def _misfit_test(win: _Windows, valid, rate_hz, sources: dict, notes: list) -> _Misfit:
+    """Step 1 of :func:`_identify`: is the residual's variance growing with the rate (heteroscedastic
+    regression, :func:`_misfit_fit`)? Adds ``sources["misfit"]`` and, when it is, a note."""
+    n, w = valid.shape[0], win.length
     (v0, gain_a, gain_b), pred, drop = _misfit_fit(win)
     excess = pred - v0
     share = float(excess.mean() / pred.mean()) if pred.mean() > 0 else 0.0
@@ -683,7 +797,6 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0,
         use = np.zeros(n, bool)
         use[:w * (n // w)].reshape(-1, w)[win.start[quiet] // w] = True
         use &= valid
-        everything = False
         sources["misfit"] = (f"residual variance grows with the rate: {100 * share:.0f}% of it is explained by "
                              f"|omega| (a gain error {gain_a:+.3g} {gain_b:+.3g}/(rad/s) |omega|); the noise "
                              f"is from the {int(quiet.sum())} windows of {w / rate_hz:g} s where the misfit is below "
@@ -693,9 +806,38 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0,
     else:
         sources["misfit"] = (f"no significant rate-dependent misfit ({100 * share:.1f}% of the residual variance "
                              "explained by the rate)")
+    return _Misfit(v0, (gain_a, gain_b), share, misfit, few_quiet, use)
 
-    # 2. Allan deviation of the residual (on the samples kept) and its fit
-    if everything:
+
+class _AllanFit(NamedTuple):
+    """The residual's Allan deviation and its fit (:func:`_allan_fit`), with the residual's levels."""
+
+    taus: np.ndarray
+    adev: np.ndarray
+    coef: np.ndarray      # (N^2, B^2, K^2)
+    sd: np.ndarray        # their standard uncertainties
+    tau_fit: tuple
+    coloured: bool
+    idx: np.ndarray | None   # the samples fitted (None: all of them)
+    span: int                # samples from the first to the last fitted one
+    kept: int                # samples fitted
+    R_r: float               # white variance per sample of the residual, and its standard uncertainty
+    R_sd: float
+    sigma_r: float
+    sigma_r_sd: float
+    q2: float                # walk step variance per sample of the residual
+    q_r: float
+    q_r_sd: float
+    B: float
+    B_sd: float
+
+
+def _allan_fit(r, use, rate_hz, stride, resampling, misfit: bool, sources: dict, notes: list) -> _AllanFit:
+    """Step 2 of :func:`_identify`: the Allan deviation of the residual ``r`` on the samples ``use`` (None: all)
+    fitted with white noise, bias instability and random walk (:func:`_fit_allan`). Adds ``sources["noise"]``
+    and, for coloured noise, a note."""
+    n = r.shape[0]
+    if use is None:
         idx, y, span = None, r, n
         kept = n
     else:
@@ -732,10 +874,18 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0,
     if coloured:
         notes.append(f"the residual is coloured below tau = {tau_fit[0]:.3g} s (its Allan deviation there is not "
                      "that of white noise): noise_std is the white level of the longer taus, where the motion is")
+    return _AllanFit(taus, adev, c, sd, tau_fit, coloured, idx, span, kept, R_r, R_sd, sigma_r, sigma_r_sd, q2, q_r,
+                     q_r_sd, B, B_sd)
 
-    # 3. bias model
-    z = Ksq / sd[2] if Ksq > 0 and sd[2] > 0 else 0.0
-    settle = np.sqrt(R_r / q2) if q2 > 0 else np.inf  # samples: Kalman time constant of the walk
+
+def _bias_choice(fit: _AllanFit, stride, rate_hz, sources: dict, notes: list) -> bool:
+    """Step 3 of :func:`_identify`: a random-walk bias (True) when the fit's walk term is significant
+    (:data:`WALK_Z`) and its Kalman filter settles within :data:`SETTLE_FRACTION` of the log, else constant.
+    Adds ``sources["bias"]`` and, for a flicker floor, a note."""
+    span = fit.span
+    Ksq, Bsq = fit.coef[2], fit.coef[1]
+    z = Ksq / fit.sd[2] if Ksq > 0 and fit.sd[2] > 0 else 0.0
+    settle = np.sqrt(fit.R_r / fit.q2) if fit.q2 > 0 else np.inf  # samples: Kalman time constant of the walk
     walk = bool(z >= WALK_Z and settle <= SETTLE_FRACTION * span * stride)
     if walk:
         sources["bias"] = (f"random walk: the Allan fit's K term (slope +1/2) is {z:.1f} sigma, and the Kalman "
@@ -750,14 +900,19 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0,
     else:
         sources["bias"] = "constant: no random-walk term in the residual's Allan deviation"
     if Bsq > 0:
-        notes.append(f"the residual has a bias-instability (flicker) floor B = {B:.3g} rad/s, which neither bias model "
-                     "describes exactly")
+        notes.append(f"the residual has a bias-instability (flicker) floor B = {fit.B:.3g} rad/s, which neither bias "
+                     "model describes exactly")
+    return walk
 
-    # 4. split between the gyros, by their own densities N_i: on the grid (Resampling) a stream's noise per
-    #    sample is kv_i f_i N_i^2 and its low-frequency density g_i N_i^2, so the Allan fit's white level is
-    #    Nsq = g_1 N_1^2 + a g_2 N_2^2
+
+def _split(win: _Windows, w1, w2, A, rate_hz, rs: Resampling, fit: _AllanFit, sources: dict, resampled: bool):
+    """Step 4 of :func:`_identify`: the residual's white level split between the gyros by their own densities
+    ``N_i``: on the grid (:class:`Resampling`) a stream's noise per sample is ``kv_i f_i N_i^2`` and its
+    low-frequency density ``g_i N_i^2``, so the Allan fit's white level is ``Nsq = g_1 N_1^2 + a g_2 N_2^2``.
+    The ratio comes from the steady stretches (:func:`_steady_split`), else each stream's third differences,
+    else equal densities. Adds ``sources["split"]``; returns ``(noise_std, (sd_1, sd_2), densities^2)``."""
+    Nsq, R_r, R_sd, idx, kept = fit.coef[0], fit.R_r, fit.R_sd, fit.idx, fit.kept
     a = float(np.sum(A * A) / 3.0)  # Var(A n_2) per axis = sigma_2^2 |A|_F^2 / 3
-    rs = resampling or Resampling((rate_hz, rate_hz))
     kv, kd, fr, g = rs.variance, rs.diff3, rs.rates_hz, rs.density
     split = _steady_split(win, rate_hz)
     if split is not None:
@@ -775,7 +930,7 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0,
         else:
             grid2, rho2_relvar = kv[0] * fr[0] / (kv[1] * fr[1]), 0.0
             sources["split"] = "equal densities (no steady stretch, third differences unusable)"
-    if resampling is not None:
+    if resampled:
         sources["split"] += (f"; each stream's grid noise referred to its own rate ({fr[0]:.6g} / {fr[1]:.6g} Hz; "
                              f"interpolation keeps {kv[0]:.3g} / {kv[1]:.3g} of the variance)")
     rho2 = grid2 * (kv[1] * fr[1]) / (kv[0] * fr[0])         # N_1^2 / N_2^2
@@ -786,32 +941,22 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0,
     f1, f2 = a * g[1] / (g[0] * rho2 + a * g[1]), g[0] * rho2 / (g[0] * rho2 + a * g[1])
     sd1 = np.sqrt(s1_sq) * 0.5 * np.sqrt(rel_R + f1 ** 2 * rho2_relvar)
     sd2 = np.sqrt(s2_sq) * 0.5 * np.sqrt(rel_R + f2 ** 2 * rho2_relvar)
-    noise_std = (float(np.sqrt(s1_sq)), float(np.sqrt(s2_sq)))
-    if few_quiet:  # misfit in every window: even the quietest carry it; each stream's own high frequencies do not
-        head = np.flatnonzero(valid)[:200_000]
-        d1, d2 = difference_noise_std(w1[head]), difference_noise_std(w2[head])
-        if d1 > 0 and d2 > 0:
-            rel = 1.3 / np.sqrt(head.size)   # MAD of third differences
-            own = (d1 / np.sqrt(kd[0]), d2 / np.sqrt(kd[1]))      # each sensor's noise per own sample
-            noise_std = (float(own[0] * np.sqrt(kv[0])), float(own[1] * np.sqrt(kv[1])))
-            dens_sq = (own[0] ** 2 / fr[0], own[1] ** 2 / fr[1])
-            sd1, sd2 = noise_std[0] * rel, noise_std[1] * rel
-            sources["noise"] = ("third differences of each stream: the residual carries the rate-dependent misfit "
-                                "in every window, so its Allan deviation is no noise figure")
-    q_each = q_r / np.sqrt(1.0 + a)
-    bias_walk = (float(q_each), float(q_each)) if walk else None
+    return (float(np.sqrt(s1_sq)), float(np.sqrt(s2_sq))), (sd1, sd2), dens_sq
 
-    kind = ("not white noise: rate-dependent misfit" if misfit else "coloured noise" if coloured
-            else "white noise + bias random walk" if walk else "white noise")
-    return NoiseModel(
-        rate_hz=float(rate_hz), noise_std=noise_std, noise_std_uncertainty=(float(sd1), float(sd2)),
-        bias_walk_std=bias_walk, bias_model="random walk" if walk else "constant",
-        residual_noise_std=sigma_r, residual_noise_std_uncertainty=sigma_r_sd,
-        residual_walk_std=q_r, residual_walk_std_uncertainty=q_r_sd,
-        bias_instability=B, bias_instability_uncertainty=B_sd,
-        white_std_at_rest=float(np.sqrt(v0)), misfit_gain=(gain_a, gain_b), misfit_share=share, kind=kind,
-        taus=taus, adev=adev, adev_fit=np.sqrt(np.maximum(
-            np.column_stack([1.0 / taus, np.full_like(taus, FLICKER), taus / 3.0]) @ c, 0.0)),
-        fit_taus=tau_fit, sources=sources, notes=tuple(notes),
-        rates_hz=None if resampling is None else tuple(float(f) for f in fr),
-        densities=None if resampling is None else tuple(float(np.sqrt(d)) for d in dens_sq))
+
+def _own_noise(w1, w2, valid, rs: Resampling, sources: dict, split):
+    """Each stream's white noise from its own third differences, for a residual that carries the misfit in every
+    window (its Allan deviation is then no noise figure); ``split`` (:func:`_split`'s) when they are unusable.
+    Replaces ``sources["noise"]`` when they are used."""
+    kv, kd, fr = rs.variance, rs.diff3, rs.rates_hz
+    head = np.flatnonzero(valid)[:200_000]
+    d1, d2 = difference_noise_std(w1[head]), difference_noise_std(w2[head])
+    if not (d1 > 0 and d2 > 0):
+        return split
+    rel = 1.3 / np.sqrt(head.size)   # MAD of third differences
+    own = (d1 / np.sqrt(kd[0]), d2 / np.sqrt(kd[1]))      # each sensor's noise per own sample
+    noise_std = (float(own[0] * np.sqrt(kv[0])), float(own[1] * np.sqrt(kv[1])))
+    dens_sq = (own[0] ** 2 / fr[0], own[1] ** 2 / fr[1])
+    sources["noise"] = ("third differences of each stream: the residual carries the rate-dependent misfit "
+                        "in every window, so its Allan deviation is no noise figure")
+    return noise_std, (noise_std[0] * rel, noise_std[1] * rel), dens_sq

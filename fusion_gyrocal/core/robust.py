@@ -23,10 +23,13 @@ holds (the directions the data leave free) keeps the prior's variance.
 
 ``covariance="auto"`` (:class:`~fusion_gyrocal.options.Options`) reports the larger of the two in
 every direction (:func:`larger`): the model's where the model explains the scatter, the robust one
-where it does not; the variance ratio in the worst direction is reported as ``robust_inflation``.
+where it does not; the variance ratio in the worst direction is reported as ``robust_inflation``, and what
+was reported as a :class:`CovarianceBasis`.
 """
 
 from __future__ import annotations
+
+from enum import Enum
 
 import numpy as np
 
@@ -148,37 +151,70 @@ def larger(P_model, P_robust, n_effective: float | None = None, rtol: float = 1e
     return 0.5 * (P + P.T), float(mu.max())
 
 
-# the covariance_basis texts: written here and read back by basis_kind (one place for both)
-_RAISED = "noise model raised to the block-robust sandwich"
-_ROBUST = "block-robust (sandwich"
-_CHECKED = "is not significantly larger"
-_INFLATED = ", inflated by the residual's chi2/dof"
+class CovarianceBasis(str, Enum):
+    """What a reported covariance rests on (``covariance_kind`` of the results); :meth:`describe` gives the
+    ``covariance_basis`` sentence. Decisions test the member, never the sentence.
 
+    ``MODEL``: the noise model alone (no block-robust check); ``CHECKED``: the noise model, the block-robust check
+    agrees; ``RAISED``: the noise model raised to the block-robust covariance where that is larger; ``ROBUST``: the
+    block-robust covariance (asked for); ``INFLATED``: the noise model inflated by the residual's chi2/dof.
+    """
 
-def basis_kind(basis: str) -> str:
-    """What a ``covariance_basis`` text (:func:`choose`, :func:`inflated`) says was reported: "raised" (the noise
-    model raised to the block-robust covariance where larger), "robust" (asked for), "checked" (the noise model;
-    the block-robust check agrees), "inflated" (by the residual's chi2/dof) or "model" (no check)."""
-    if basis.startswith(_RAISED):
-        return "raised"
-    if basis.startswith(_ROBUST):
-        return "robust"
-    if basis.endswith(_CHECKED):
-        return "checked"
-    return "inflated" if _INFLATED in basis else "model"
+    MODEL = "model"
+    CHECKED = "checked"
+    RAISED = "raised"
+    ROBUST = "robust"
+    INFLATED = "inflated"
+
+    def describe(self, model_basis: str, where: str = "", lack_of_fit: float = float("nan")) -> str:
+        """The ``covariance_basis`` sentence: ``model_basis`` names the noise model's covariance, ``where`` the
+        windows of the block-robust one, ``lack_of_fit`` the residual's chi2/dof that inflated it."""
+        if self is CovarianceBasis.ROBUST:
+            return f"block-robust (sandwich over {where})"
+        if self is CovarianceBasis.RAISED:
+            return f"noise model raised to the block-robust sandwich ({where}) where that is significantly larger"
+        if self is CovarianceBasis.CHECKED:
+            return f"{model_basis}; the block-robust sandwich ({where}) is not significantly larger"
+        if self is CovarianceBasis.INFLATED:
+            return f"{model_basis}, inflated by the residual's chi2/dof {lack_of_fit:.3g}"
+        return model_basis
+
+    @classmethod
+    def read(cls, value, what: str = "calibration") -> "CovarianceBasis":
+        """The member a file's ``covariance_kind`` names (:class:`~fusion_gyrocal.errors.FormatError` otherwise)."""
+        try:
+            return cls(value)
+        except ValueError:
+            from ..errors import FormatError
+            raise FormatError(f"{what}: expected covariance_kind one of {[k.value for k in cls]}, got {value!r}") from None
+
+    @classmethod
+    def from_text(cls, basis: str) -> "CovarianceBasis":
+        """The basis a ``covariance_basis`` sentence of a file of format 1.0-1.2 names (those files store the
+        sentence only), read by the beginnings and ends those versions wrote."""
+        if basis.startswith("noise model raised to the block-robust sandwich"):
+            return cls.RAISED
+        if basis.startswith("block-robust (sandwich"):
+            return cls.ROBUST
+        if basis.endswith("is not significantly larger"):
+            return cls.CHECKED
+        return cls.INFLATED if ", inflated by the residual's chi2/dof" in basis else cls.MODEL
 
 
 def inflated(P, lack_of_fit: float, basis: str, what: str):
     """The covariance ``P`` inflated by the residual's chi-square per dof (a user's noise that the residual
-    exceeds, with no block-robust check), its basis text and note; ``what`` lists the usual causes."""
-    return (P * lack_of_fit, basis + f"{_INFLATED} {lack_of_fit:.3g}",
+    exceeds, with no block-robust check), :attr:`CovarianceBasis.INFLATED`, its basis text and note; ``what``
+    lists the usual causes."""
+    kind = CovarianceBasis.INFLATED
+    return (P * lack_of_fit, kind, kind.describe(basis, lack_of_fit=lack_of_fit),
             f"residuals are {np.sqrt(lack_of_fit):.2f}x larger than noise_std explains ({what} or a wrong noise_std?); "
             f"covariance inflated by {lack_of_fit:.2f}")
 
 
 def choose(P_model, P_robust, windows: WindowStats, covariance: str, model_basis: str, lack_of_fit: float):
     """What is reported for ``covariance`` ("auto", "robust"; "model" never gets here): the covariance, the
-    largest variance ratio, the ``covariance_basis`` text and the notes (one place for the pair and the array)."""
+    largest variance ratio, the :class:`CovarianceBasis`, its ``covariance_basis`` text and the notes (one place
+    for the pair and the array)."""
     where = f"{windows.n_windows} windows of {windows.window} samples"
     P_max, inflation = larger(P_model, P_robust, effective_windows(windows))
     notes = []
@@ -187,10 +223,12 @@ def choose(P_model, P_robust, windows: WindowStats, covariance: str, model_basis
                      f"(residual chi2/dof {lack_of_fit:.3g}: rate-dependent scale or cross-axis error, coloured noise, "
                      "timing, flex); the covariance is the block-robust one in those directions")
     if covariance == "robust":
-        return P_robust, inflation, f"{_ROBUST} over {where})", notes
-    if P_max is not P_model:
-        return P_max, inflation, f"{_RAISED} ({where}) where that is significantly larger", notes
-    return P_model, inflation, f"{model_basis}; the block-robust sandwich ({where}) {_CHECKED}", notes
+        P, kind = P_robust, CovarianceBasis.ROBUST
+    elif P_max is not P_model:
+        P, kind = P_max, CovarianceBasis.RAISED
+    else:
+        P, kind = P_model, CovarianceBasis.CHECKED
+    return P, inflation, kind, kind.describe(model_basis, where), notes
 
 
 def bias_variance(A, bias, stats: WindowStats, lags: int = LAGS) -> np.ndarray:
@@ -267,7 +305,7 @@ def reported_covariance(P_model, robust, windows: WindowStats | None, covariance
     windows : WindowStats or None
     covariance : {"auto", "model", "robust"}
         As :class:`~fusion_gyrocal.options.Options`' ``covariance``. A caller that cannot honour ``"robust"``
-        (``kind`` not ``"robust"``) decides whether to refuse.
+        (the check did not run) decides whether to refuse.
     basis : str
         What ``P_model`` rests on (the ``covariance_basis`` text).
     lack_of_fit : float
@@ -279,14 +317,14 @@ def reported_covariance(P_model, robust, windows: WindowStats | None, covariance
 
     Returns
     -------
-    (P, inflation, basis, notes, kind)
-        The covariance, the largest robust-to-model variance ratio (NaN without the check), its basis text,
-        the notes, and ``kind``: ``"robust"`` (checked by :func:`choose`), ``"inflated"`` or ``"model"``.
+    (P, inflation, kind, basis, notes)
+        The covariance, the largest robust-to-model variance ratio (NaN without the check), what it rests on
+        (:class:`CovarianceBasis`: ``MODEL`` when neither the check nor the inflation applied), its basis text and
+        the notes.
     """
     if robust is not None and windows is not None and covariance != "model" and windows.n_windows >= MIN_ROBUST_WINDOWS:
-        P, inflation, basis, notes = choose(P_model, robust(), windows, covariance, basis, lack_of_fit)
-        return P, inflation, basis, notes, "robust"
+        return choose(P_model, robust(), windows, covariance, basis, lack_of_fit)
     if user_noise and lack_of_fit > 1.5:
-        P, basis, note = inflated(P_model, lack_of_fit, basis, what)
-        return P, float("nan"), basis, [note], "inflated"
-    return P_model, float("nan"), basis, [], "model"
+        P, kind, basis, note = inflated(P_model, lack_of_fit, basis, what)
+        return P, float("nan"), kind, basis, [note]
+    return P_model, float("nan"), CovarianceBasis.MODEL, basis, []

@@ -23,8 +23,8 @@ from .moments import Moments, WindowStats, noise_pair
 from .observability import (PRIOR_GAUGE, A_of, check_excitation, check_samples, classify, dA_dp, information_of_A,
                             per_axis_snr, prior_held_covariance, residual_weight, signal_scatter)
 from .refine import residual_scatter, refine_ml
-from .robust import (MIN_ROBUST_WINDOWS, bias_variance, choose, cross_axis, effective_windows, inflated, larger,
-                     sandwich, score_variance, scores_of_A)
+from .robust import (MIN_ROBUST_WINDOWS, CovarianceBasis, bias_variance, cross_axis, effective_windows, larger,
+                     reported_covariance, sandwich, score_variance, scores_of_A)
 
 
 def _residual_noise(moments: Moments, A, ratio: float = 1.0) -> tuple[float, float]:
@@ -89,7 +89,7 @@ def _transform(moments: Moments, windows: WindowStats | None, T1, T2):
 
 
 def solve(moments: Moments, options: Options | None = None, *, noise_ratio: float | None = None,
-          windows: WindowStats | None = None, noise_model=None, **keywords) -> PairCalibration:
+          windows: WindowStats | None = None, noise_model=None, noise=None, **keywords) -> PairCalibration:
     """Calibrate a pair from its sufficient statistics.
 
     Pipeline: direct least squares for A (Eq. 17) -> rigidity test -> excitation test (Lemma 1) ->
@@ -116,8 +116,11 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         reported, inflated by the residual's chi-square per degree of freedom when a user's
         ``noise_std`` explains less than the residual.
     noise_model : NoiseModel, optional
-        The identified noise model behind ``options.noise_std`` (:func:`~fusion_gyrocal.core.noise.identify_noise`),
-        carried into the result.
+        The identified noise model behind ``noise`` (:func:`~fusion_gyrocal.core.noise.identify_noise`), carried
+        into the result.
+    noise : float or (float, float), optional
+        The white noise per sample (rad/s) the moments are weighed with when the caller derived it (identified:
+        ``noise_model``'s, or that of a random-walk bias's innovations); default ``options.noise_std``, the user's.
     **keywords
         Fields of :class:`~fusion_gyrocal.options.Options` (``method``, ``noise_std``, ``gauge``, ...),
         applied on top of ``options``.
@@ -141,7 +144,8 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
     if o.intrinsics_1 is not None or o.intrinsics_2 is not None:
         moments, windows = _transform(moments, windows, _skew_compensation(o.intrinsics_1),
                                       _skew_compensation(o.intrinsics_2))
-    noise = None if o.noise_std is None else noise_pair(o.noise_std)
+    noise = noise_pair(noise) if noise is not None else None if o.noise_std is None else noise_pair(o.noise_std)
+    user_noise = noise is not None and noise_model is None
     check_samples(moments)
     A_ls, _ = solve_A(moments)
     unexplained = float(np.trace(residual_scatter(A_ls, moments.scatter)) / np.trace(moments.S11))
@@ -232,32 +236,31 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
     if not rigid:
         notes.append(f"NOT RIGID: {100 * unexplained:.1f}% of the motion is unexplained; do not use this estimate")
     Sigma_r = np.linalg.inv(W) / moments.count      # covariance of the mean residual under the noise model
-    inflation = float("nan")
     basis = "noise model (inverse Fisher information, Appendix B)" if method == "ml" else \
         "noise model (first-order propagation of Cov(A))"
-    robust = windows is not None and rigid and method == "ml" and o.covariance != "model" \
-        and windows.n_windows >= MIN_ROBUST_WINDOWS
-    if robust:
-        V = score_variance(scores_of_A(A, D, noise, windows), windows)
-        if full:   # the cross-axis prior's part of the scores' variance (what it holds is the model's)
-            V = V + 4.0 * prior_information(o.cross_axis_std)
-        # the data's part in the gauge the covariance is expressed in; a prior's part (what the data leave
-        # free) is the model's and stays
-        held = PRIOR_GAUGE if scale_prior_std is not None else gauge
-        C = np.zeros((0, 9)) if reference else _padded(held.constraints(config.groups, [s1, s2], 3), len(F))
-        P9, inflation, basis, more = choose(P9, P9 + sandwich(F, V, C) - constrained_inverse(F, C), windows,
-                                            o.covariance, basis, lack_of_fit)
-        notes += more
+    robust = None
+    if rigid and method == "ml" and windows is not None:
+        def robust():
+            V = score_variance(scores_of_A(A, D, noise, windows), windows)
+            if full:   # the cross-axis prior's part of the scores' variance (what it holds is the model's)
+                V = V + 4.0 * prior_information(o.cross_axis_std)
+            # the data's part in the gauge the covariance is expressed in; a prior's part (what the data leave
+            # free) is the model's and stays
+            held = PRIOR_GAUGE if scale_prior_std is not None else gauge
+            C = np.zeros((0, 9)) if reference else _padded(held.constraints(config.groups, [s1, s2], 3), len(F))
+            return P9 + sandwich(F, V, C) - constrained_inverse(F, C)
+    P9, inflation, basis_kind, basis, more = reported_covariance(
+        P9, robust, windows, o.covariance, basis, lack_of_fit, user_noise=user_noise, what="flex, skew, time offset")
+    notes += more
+    if basis_kind in (CovarianceBasis.CHECKED, CovarianceBasis.RAISED, CovarianceBasis.ROBUST):
         if not windows.pooled and moments.segments == 1:
             Sigma_b = bias_variance(A, bias, windows)
             Sigma_r = Sigma_b if o.covariance == "robust" else larger(Sigma_r, Sigma_b, effective_windows(windows))[0]
     elif o.covariance == "robust":
         raise OptionError("covariance='robust': expected per-window statistics (windows=...) of an 'ml' solve of a "
                           f"rigid pair with at least {MIN_ROBUST_WINDOWS} windows; calibrate_pair computes them")
-    elif noise_source == "user" and lack_of_fit > 1.5:
-        P9, basis, note = inflated(P9, lack_of_fit, basis, "flex, skew, time offset")
+    elif basis_kind is CovarianceBasis.INFLATED:
         Sigma_r = Sigma_r * lack_of_fit
-        notes.append(note)
     if full:
         notes.append(_full_map_note(k, P9[9:, 9:], cross_chi2, cross_dof, budget_prior))
     elif shown and rigid:
@@ -307,7 +310,8 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         n_samples=int(moments.count), noise_std=np.array(noise), noise_source=noise_source,
         residual_rms=float(np.sqrt(max(np.trace(M), 0.0) / (3.0 * max(moments.dof, 1.0)))), method=method,
         iterations=iterations, skew_rotation_covariance=skew_cov, bias_segments=moments.segments,
-        rigid=rigid, unexplained_fraction=unexplained, covariance_basis=basis, lack_of_fit=lack_of_fit,
+        rigid=rigid, unexplained_fraction=unexplained, covariance_basis=basis, covariance_kind=basis_kind,
+        lack_of_fit=lack_of_fit,
         robust_inflation=inflation, cross_axis=E, cross_axis_chi2=cross_chi2, cross_axis_dof=cross_dof,
         linear_map="reference" if reference else "full" if full else "rigid",
         cross_axis_terms=np.zeros(3) if k is None else k,

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..pipeline.pipeline import PipelineRun
 from ..core.model import PairCalibration
-from ..core.robust import basis_kind
+from ..core.robust import CovarianceBasis
 
 
 def _figure(nrows=1, ncols=1, **kw):
@@ -162,7 +162,7 @@ def allan_deviation(run: PipelineRun):
     ax.set_xlabel(f"averaging time tau ({unit})")
     ax.set_ylabel("Allan deviation of the residual (deg/s)")
     walk = "no random-walk term in the fit" if k_sq == 0 else "random-walk term in the fit"
-    where = "samples kept (quiet windows)" if nm.kind.startswith("not white noise") else "valid samples"
+    where = "samples kept (quiet windows)" if nm.is_misfit else "valid samples"
     ax.set_title(f"Allan deviation of the pair's residual: {nm.kind}\n"
                  f"on the {where}; {walk}; bias model {nm.bias_model}", fontsize=10)
     ax.grid(True, which="both", alpha=0.3)
@@ -182,7 +182,7 @@ def uncertainty_basis(cal) -> str:
     nm = cal.noise_model if pair else None
     if nm is not None:
         bias = "bias random walk" if nm.bias_walk_std is not None else "bias constant"
-        kind = "rate-dependent misfit" if nm.kind.startswith("not white noise") else nm.kind
+        kind = "rate-dependent misfit" if nm.is_misfit else nm.kind
         noise = f"noise model identified from the residual (white {white} deg/s, {bias}; residual is {kind})"
     elif cal.noise_source == "user":
         noise = f"the given noise (white {white} deg/s)"
@@ -196,14 +196,14 @@ def uncertainty_basis(cal) -> str:
     chi = f"residual chi2/dof {lack:.3g}" if np.isfinite(lack) else "no residual chi2"
     worst = (f"std x{np.sqrt(cal.robust_inflation):.3g} in the worst direction"
              if np.isfinite(cal.robust_inflation) else "")
-    kind = basis_kind(cal.covariance_basis)
-    if kind == "raised":
+    kind = cal.covariance_kind
+    if kind is CovarianceBasis.RAISED:
         cov = f"raised to the block-robust covariance where larger ({worst}; {chi})"
-    elif kind == "robust":
+    elif kind is CovarianceBasis.ROBUST:
         cov = f"block-robust covariance as asked ({worst} against the noise model; {chi})"
-    elif kind == "checked":
+    elif kind is CovarianceBasis.CHECKED:
         cov = f"covariance from the noise model; the block-robust check agrees ({worst}; {chi})"
-    elif kind == "inflated":
+    elif kind is CovarianceBasis.INFLATED:
         cov = "covariance from the noise model inflated by the residual's chi2/dof (see the note)"
     else:
         cov = f"covariance from the {cal.covariance_basis} alone, no block-robust check ({chi})"

@@ -389,7 +389,7 @@ def _identified(cal: PairCalibration, rates) -> tuple[tuple, tuple]:
     per_sample = not nm.rate_known
     fs = [float(r) for r in rates] if per_sample else list(nm.sensor_rates)    # each IMU's own rate
     fq = fs if per_sample else [float(nm.rate_hz)] * 2                        # the rate of the walk's steps
-    misfit = nm.kind.startswith("not white noise")
+    misfit = nm.is_misfit
     if nm.bias_walk_std is not None:
         q = nm.bias_walk_std
         share = [qi / nm.residual_walk_std if nm.residual_walk_std > 0 else np.nan for qi in q]

@@ -114,7 +114,7 @@ def _effective_noise(noise_std, w1, g) -> tuple[float, float]:
 def _misfit_gain(noise_model) -> tuple[float, float]:
     """``(a, b)`` of a :class:`~fusion_gyrocal.core.noise.NoiseModel`'s misfit when it flags one (its residual is
     not white noise), else ``(0, 0)``: an insignificant fit is noise of the fit, not a model."""
-    if noise_model is None or noise_model.is_white or not noise_model.kind.endswith("misfit"):
+    if noise_model is None or noise_model.is_white or not noise_model.is_misfit:
         return 0.0, 0.0
     a, b = noise_model.misfit_gain
     return float(a), float(b)

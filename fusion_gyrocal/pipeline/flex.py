@@ -24,7 +24,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..core.moments import row_norms, row_sumsq
+from ..core.moments import finite_rows, row_norms, row_sumsq
 
 CHI2_3_MEDIAN = 2.365973884375338   # median of chi-square with 3 dof
 CHI2_3_GATE = 14.156413609126677    # chi2.ppf(0.9973, 3): the 3-sigma false-alarm rate in 3-D
@@ -33,6 +33,7 @@ MAX_FLEX_SHARE = 0.15               # share of the rate-dependent excess along t
 CHI2_3_BEND = 33.23982506341531    # chi2.isf(norm.sf(5), 3): a bend at 5 sigma in one rate bin
 MEDIAN_REL_SE = 1.124               # std of the median of m chi-square(3) samples: ~ 1.124 / sqrt(m) x the median
 SUBSAMPLE_POINTS = 30_000           # samples on which the gate decides
+GLITCH_FACTOR = 10.0                # a gross outlier: this many times the 99th percentile of the log
 
 
 def block_ranges(n: int, window: int | None, *, max_points: int | None = None, block: int = 4096):
@@ -313,7 +314,41 @@ def spearman(x: np.ndarray, y: np.ndarray, y_order: np.ndarray | None = None) ->
     return float(np.corrcoef(rx, ry)[0, 1])
 
 
-def gate(w1, w2, mask, cal, mom, moments_of, solve_on, options, gate_window):
+def subsample_rate_norms(w1, w2, mask, max_points: int | None = 30_000):
+    """Rate norms ``(n1, n2)`` of the usable samples of a bounded subsample of the log (about 30k samples)."""
+    g1, g2, gm = gather(block_ranges(len(w1), None, max_points=max_points), w1, w2, mask)
+    g1, g2 = np.asarray(g1, dtype=np.float64), np.asarray(g2, dtype=np.float64)
+    with np.errstate(over="ignore", invalid="ignore"):   # beyond ~1e154 the norms are inf: refused by check_rate_units
+        n1, n2 = row_norms(g1), row_norms(g2)
+    ok = finite_rows(g1) & finite_rows(g2)
+    if gm is not None:
+        ok &= gm
+    return (n1, n2) if ok.all() else (n1[ok], n2[ok])
+
+
+def gross_outliers(w1, w2, mask=None, chunk: int = 65536) -> np.ndarray:
+    """Samples whose rate norm (of either gyro, or their difference) is :data:`GLITCH_FACTOR` times the
+    99th percentile of the log's (a comms glitch), as a bool mask of shape (N,).
+
+    The levels come from a bounded subsample; the pass over the log is chunked. A rigid pair has
+    equal rate norms up to scale factors and bias, so a glitch in one stream shows in the difference.
+    """
+    n1, n2 = subsample_rate_norms(w1, w2, mask)
+    if n1.size == 0:
+        return np.zeros(len(w1), bool)
+    lim_rate = GLITCH_FACTOR * float(np.quantile(np.maximum(n1, n2), 0.99))
+    lim_diff = GLITCH_FACTOR * float(np.quantile(np.abs(n1 - n2), 0.99))
+    out = np.zeros(len(w1), bool)
+    for s in range(0, len(w1), chunk):
+        a, b = (row_norms(w[s:s + chunk]) for w in (w1, w2))
+        with np.errstate(invalid="ignore"):
+            out[s:s + chunk] = (np.maximum(a, b) > lim_rate) | (np.abs(a - b) > lim_diff)
+    if mask is not None:
+        out &= mask
+    return out
+
+
+def gate(w1, w2, mask, cal, mom, bias, solve_on, options):
     """The flex and outlier gate (Section VI.C, Eq. 42): the samples to keep and the pair solved on them.
 
     1. On a subsample (about 30k samples, :func:`block_ranges`), the residuals of the least-squares A
@@ -322,7 +357,7 @@ def gate(w1, w2, mask, cal, mom, moments_of, solve_on, options, gate_window):
        the excess along the rate, and still do once the 3-sigma outliers of the subsample are set aside
        and A fitted again (a few spikes tilt A, which also makes the residual grow with the rate), it
        is a rate-dependent misfit, not flex: only gross outliers
-       (:func:`~fusion_gyrocal.pipeline.pipeline.gross_outliers`, comms glitches) are removed, the
+       (:func:`gross_outliers`, comms glitches) are removed, the
        fast motion is kept and a note says so.
     2. Otherwise, the 3-sigma gate in 3-D, iterated with the neighbours of each outlier
        (``flex_margin``), when more than 1% of the subsample is beyond it (``flex_rejection="auto"``)
@@ -341,14 +376,14 @@ def gate(w1, w2, mask, cal, mom, moments_of, solve_on, options, gate_window):
         The pair solved on ``mask`` (from ``mom``).
     mom : Moments
         The moments of ``mask``.
-    moments_of : callable
-        ``moments_of(mask) -> Moments`` with the run's bias model.
+    bias : BiasModel
+        The run's bias model (:class:`~fusion_gyrocal.pipeline.bias.BiasModel`): the moments of the kept samples,
+        and the residual windows the bias is removed over (``gate_window``; None: one bias).
     solve_on : callable
-        ``solve_on(mask) -> PairCalibration``: the pair solved on those samples with the run's options.
+        ``solve_on(mask) -> PairCalibration``: the pair solved on those samples with the run's options, noise and
+        bias model.
     options : Options
         ``flex_rejection``, ``flex_margin``, ``min_kept_energy``.
-    gate_window : int or None
-        Residual windows of the bias model (the bias is removed per window), or None (constant bias).
 
     Returns
     -------
@@ -359,7 +394,7 @@ def gate(w1, w2, mask, cal, mom, moments_of, solve_on, options, gate_window):
     """
     from ..core.direct import solve_A
 
-    o = options
+    o, gate_window = options, bias.gate_window
     n, n_used, keep = len(w1), cal.n_samples, mask
     mom0, notes = mom, []
     sub = block_ranges(n, gate_window, max_points=SUBSAMPLE_POINTS)
@@ -381,11 +416,10 @@ def gate(w1, w2, mask, cal, mom, moments_of, solve_on, options, gate_window):
         grows = rate_dependence(g1, g2, A_c, b_c, clean, gate_window, whole,
                                 robust_whitener(g1, g2, A_c, b_c, clean, gate_window, whole), order=ranks.of(clean))
     if grows is not None and not grows.is_flex:
-        from .pipeline import gross_outliers
         glitch = gross_outliers(w1, w2, mask)
         if glitch.any():
             keep = ~glitch if keep is None else (keep & ~glitch)
-            mom = moments_of(keep)
+            mom = bias.moments(w1, w2, keep)[0]
         notes.append(f"the residual grows with the rate (to {grows.level:.3g}x the noise level in the fastest "
                      f"twentieth) with {100 * grows.along_rate:.0f}% of its excess along the rate, which a bend of the "
                      "mounting (a rotation: residual across the rate) cannot give: a rate-dependent misfit of the "
@@ -403,7 +437,7 @@ def gate(w1, w2, mask, cal, mom, moments_of, solve_on, options, gate_window):
                 gated = np.ones(n, bool) if keep is None else keep.copy()
                 gated[dilate(out, o.flex_margin, n)] = False  # the outliers and their neighbours
                 keep = gated
-                mom = moments_of(keep)
+                mom = bias.moments(w1, w2, keep)[0]
                 A_ls, b_ls = solve_A(mom)
                 L = robust_whitener(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole)
         # a bend shows as a residual growing with the rate; without that growth there is no rate to cut above
@@ -411,7 +445,7 @@ def gate(w1, w2, mask, cal, mom, moments_of, solve_on, options, gate_window):
         if cut is not None:
             fast = above_rate(w1, cut, n)
             keep = ~fast if keep is None else (keep & ~fast)
-            mom = moments_of(keep)
+            mom = bias.moments(w1, w2, keep)[0]
     rejected = 0.0
     kept_energy = float(np.trace(mom.S11) / np.trace(mom0.S11)) if keep is not mask else 1.0
     if keep is not mask and kept_energy >= o.min_kept_energy:

@@ -14,16 +14,16 @@ import numpy as np
 
 from ..core.direct import solve_A
 from ..core.model import PairCalibration
-from ..core.moments import (Moments, as_rate_pair, finite_rows, row_norms, window_moments, window_samples,
-                            window_stats)
+from ..core.moments import Moments, as_rate_pair, window_samples
 from ..core.noise import difference_noise_std
 from ..core.solve import solve
 from ..errors import InputError, NotRigidError, OptionError
 from ..options import TIMESTAMP_OPTIONS, Options
+from .bias import BiasModel
+from .flex import GLITCH_FACTOR, gate, gross_outliers, subsample_rate_norms
 from .streams import grid_rate
 
 PLAUSIBILITY_QUANTILE = 0.99  # of the rate norm: isolated glitches do not decide the unit
-GLITCH_FACTOR = 10.0         # a gross outlier: this many times the 99th percentile of the log
 MAX_GLITCH_FRACTION = 0.01   # more "outliers" than this are the motion itself, not glitches
 
 
@@ -158,19 +158,6 @@ def prepare_samples(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options:
     return w1, w2, mask, pair
 
 
-def _rate_norms(w1, w2, mask, max_points: int | None = 30_000):
-    """Rate norms ``(n1, n2)`` of the usable samples of a bounded subsample of the log (about 30k samples)."""
-    from .flex import block_ranges, gather
-    g1, g2, gm = gather(block_ranges(len(w1), None, max_points=max_points), w1, w2, mask)
-    g1, g2 = np.asarray(g1, dtype=np.float64), np.asarray(g2, dtype=np.float64)
-    with np.errstate(over="ignore", invalid="ignore"):   # beyond ~1e154 the norms are inf: refused by check_rate_units
-        n1, n2 = row_norms(g1), row_norms(g2)
-    ok = finite_rows(g1) & finite_rows(g2)
-    if gm is not None:
-        ok &= gm
-    return (n1, n2) if ok.all() else (n1[ok], n2[ok])
-
-
 def check_rate_units(w1, w2, mask=None, *, limit: float = 100.0) -> None:
     """Refuse rates no gyro measures in rad/s: the 99th percentile of both streams' rate norms above
     ``limit`` (the option ``max_plausible_rate``; on a bounded subsample, so a few glitches do not decide).
@@ -185,7 +172,8 @@ def check_rate_units(w1, w2, mask=None, *, limit: float = 100.0) -> None:
         Naming the rate level and the unit the values look like (deg/s, or counts).
     """
     levels = []
-    for name, flag, n, w in zip(("omega_1", "omega_2"), ("--unit1", "--unit2"), _rate_norms(w1, w2, mask), (w1, w2)):
+    norms = subsample_rate_norms(w1, w2, mask)
+    for name, flag, n, w in zip(("omega_1", "omega_2"), ("--unit1", "--unit2"), norms, (w1, w2)):
         if n.size == 0:
             return
         with np.errstate(invalid="ignore"):
@@ -203,28 +191,6 @@ def check_rate_units(w1, w2, mask=None, *, limit: float = 100.0) -> None:
                          f"percentile; they look like {looks} (--unit1/--unit2)")
 
 
-def gross_outliers(w1, w2, mask=None, chunk: int = 65536) -> np.ndarray:
-    """Samples whose rate norm (of either gyro, or their difference) is :data:`GLITCH_FACTOR` times the
-    99th percentile of the log's (a comms glitch), as a bool mask of shape (N,).
-
-    The levels come from a bounded subsample; the pass over the log is chunked. A rigid pair has
-    equal rate norms up to scale factors and bias, so a glitch in one stream shows in the difference.
-    """
-    n1, n2 = _rate_norms(w1, w2, mask)
-    if n1.size == 0:
-        return np.zeros(len(w1), bool)
-    lim_rate = GLITCH_FACTOR * float(np.quantile(np.maximum(n1, n2), 0.99))
-    lim_diff = GLITCH_FACTOR * float(np.quantile(np.abs(n1 - n2), 0.99))
-    out = np.zeros(len(w1), bool)
-    for s in range(0, len(w1), chunk):
-        a, b = (row_norms(w[s:s + chunk]) for w in (w1, w2))
-        with np.errstate(invalid="ignore"):
-            out[s:s + chunk] = (np.maximum(a, b) > lim_rate) | (np.abs(a - b) > lim_diff)
-    if mask is not None:
-        out &= mask
-    return out
-
-
 def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Options | None = None,
                  **keywords) -> PipelineRun:
     """:func:`calibrate_pair` returning its intermediate products too (same parameters)."""
@@ -236,42 +202,23 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
     rate_hz = None if t_grid is None else grid_rate(t_grid)
     window = window_samples(rate_hz)   # about 1 s
     noise_model, noise_ratio = None, None
-    base, base_mask = None, mask        # the moments of every usable sample, computed once
-    if o.noise_std is None and o.noise_model == "identify":
+    noise_std, base = o.noise_std, None       # the white noise the run uses; the moments of every usable sample
+    if noise_std is None and o.noise_model == "identify":
         base = Moments.from_samples(w1, w2, mask=mask)
         noise_model = _identify(w1, w2, mask, rate_hz, base, _resampling(t_1, t_2, pair, o))
         if noise_model is not None:
-            walk = noise_model.bias_walk_std if o.bias_window is None else None
-            o = o.replace(noise_std=noise_model.noise_std, bias_walk_std=walk)
-    if o.noise_std is None:  # split the residual variance by each stream's high-frequency noise
+            noise_std = noise_model.noise_std
+    if noise_std is None:  # split the residual variance by each stream's high-frequency noise
         d1, d2 = (difference_noise_std(w, mask) for w in (w1, w2))  # a bounded subsample of the log
         noise_ratio = d1 / d2 if d1 > 0 and d2 > 0 else None
-    solve_options = o
-    bias_walk_std, bias_window = o.bias_walk_std, o.bias_window
-    if bias_walk_std is not None:
-        from ..core.moments import random_walk_bias_moments, random_walk_gain
-        gain, noise_scale = random_walk_gain(bias_walk_std, o.noise_std)
-        solve_options = o.replace(noise_std=tuple(np.asarray(o.noise_std, float) * noise_scale))
-        gate_window = max(20, int(round(1.0 / gain)))  # residual windows of the filter's time constant
-    else:
-        gate_window = bias_window
-
-    def moments_of(use, with_windows: bool = False):
-        """The moments of the samples ``use`` for the bias model, and (``with_windows``) their
-        per-window statistics for the block-robust covariance (None otherwise)."""
-        if bias_walk_std is not None:
-            out = random_walk_bias_moments(w1, w2, bias_walk_std, o.noise_std, mask=use,
-                                           window=window if with_windows else None)
-            return out[0], (out[2] if with_windows else None)
-        if bias_window is None:
-            m = base if (base is not None and use is base_mask) else Moments.from_samples(w1, w2, mask=use)
-            return m, (window_stats(w1, w2, window, mask=use) if with_windows else None)
-        m = Moments.pool_all(window_moments(w1, w2, int(bias_window), mask=use))
-        return m, (window_stats(w1, w2, int(bias_window), mask=use, pooled=True) if with_windows else None)
+    bias = BiasModel.of(o, noise_std, noise_model)
+    solve_noise = bias.solve_noise(noise_std)
+    base_mask = mask
 
     def solve_on(use):
-        m, windows = moments_of(use, True)
-        return solve(m, solve_options, noise_ratio=noise_ratio, windows=windows, noise_model=noise_model), m
+        """The pair solved on the samples ``use`` with the run's bias model and noise, and its moments."""
+        m, windows = bias.moments(w1, w2, use, window, base if use is base_mask else None)
+        return solve(m, o, noise=solve_noise, noise_ratio=noise_ratio, windows=windows, noise_model=noise_model), m
 
     valid_in = mask
 
@@ -299,9 +246,7 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
     rejected = 0.0
     corr = float("nan")
     if o.flex_rejection is not False and cal.rigid:
-        from . import flex
-        cal, mask, rejected, corr = flex.gate(w1, w2, mask, cal, mom, lambda use: moments_of(use)[0],
-                                              lambda use: solve_on(use)[0], o, gate_window)
+        cal, mask, rejected, corr = gate(w1, w2, mask, cal, mom, bias, lambda use: solve_on(use)[0], o)
     cal = _replace(cal, time_offset_s=offset, time_offset_std_s=offset_std, rejected_fraction=rejected,
                    rate_residual_correlation=corr)
     return PipelineRun(cal, t_grid, np.asarray(w1), np.asarray(w2), valid_in, mask, pair)
