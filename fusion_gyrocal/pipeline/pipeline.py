@@ -194,7 +194,7 @@ def check_rate_units(w1, w2, mask=None, *, limit: float = 100.0) -> None:
 def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Options | None = None,
                  **keywords) -> PipelineRun:
     """:func:`calibrate_pair` returning its intermediate products too (same parameters)."""
-    o = Options.of(options, **keywords)
+    o = Options.of(options, **keywords).require("pair", "calibrate_pair")
     w1, w2, mask, pair = prepare_samples(omega_1, omega_2, t_1=t_1, t_2=t_2, mask=mask, options=o)
     t_grid = None if pair is None else pair.t
     offset = 0.0 if pair is None else pair.time_offset_s
