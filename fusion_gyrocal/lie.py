@@ -82,7 +82,7 @@ def log(R) -> np.ndarray:
     """``Log(R)``: the rotation vector (rad) of rotation matrices; (..., 3, 3) -> (..., 3), angle in [0, pi].
 
     Below 60 degrees the axial vector's arcsine is exact and cheap; larger angles go through the unit
-    quaternion (:func:`_log_by_quaternion`), accurate up to and at pi.
+    quaternion (scipy's ``Rotation``, imported only then), accurate up to and at pi.
     """
     R = np.asarray(R, dtype=float)
     if R.shape == (3, 3):     # one matrix (the trackers' per-sample path): scalar arithmetic
@@ -98,37 +98,10 @@ def log(R) -> np.ndarray:
     out = v * np.where(s < 1e-12, 1.0, np.arcsin(np.clip(s, 0.0, 1.0)) / np.where(s < 1e-12, 1.0, s))[..., None]
     large = cos <= 0.5
     if np.any(large):
-        out[large] = _log_by_quaternion(R[large].reshape(-1, 3, 3))
+        from scipy.spatial.transform import Rotation
+
+        out[large] = Rotation.from_matrix(R[large].reshape(-1, 3, 3)).as_rotvec()
     return out
-
-
-def _log_by_quaternion(R: np.ndarray) -> np.ndarray:
-    """Rotation vectors of (M, 3, 3) rotation matrices through their unit quaternions, accurate up to and at pi.
-
-    The quaternion is taken from the largest of ``1 + trace`` and ``1 + 2 R_ii - trace`` (Shepperd's choice:
-    no division by a small number), signed with ``w >= 0``; the angle is ``2 atan2(|v|, w)``. (scipy's
-    Rotation does the same, but importing it costs the command line ~0.2 s.)
-    """
-    r = R.reshape(-1, 9)
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = r.T
-    tr = r00 + r11 + r22
-    k = np.argmax(np.stack([tr, r00, r11, r22], axis=-1), axis=-1)
-    q = np.empty((r.shape[0], 4))   # (w, x, y, z)
-    sums = {0: (r21 - r12, r02 - r20, r10 - r01), 1: (r21 - r12, r01 + r10, r02 + r20),
-            2: (r02 - r20, r01 + r10, r12 + r21), 3: (r10 - r01, r02 + r20, r12 + r21)}
-    others = {0: (1, 2, 3), 1: (0, 2, 3), 2: (0, 1, 3), 3: (0, 1, 2)}
-    for c in range(4):
-        sel = k == c
-        if not sel.any():
-            continue
-        big = 0.5 * np.sqrt(np.maximum(1.0 + (tr if c == 0 else 2.0 * r[:, 4 * (c - 1)] - tr)[sel], 0.0))
-        q[sel, c] = big
-        for j, num in zip(others[c], sums[c]):
-            q[sel, j] = num[sel] / (4.0 * big)
-    q[q[:, 0] < 0] *= -1.0
-    vn = np.linalg.norm(q[:, 1:], axis=1)
-    angle = 2.0 * np.arctan2(vn, q[:, 0])
-    return q[:, 1:] * np.where(vn > 0, angle / np.where(vn > 0, vn, 1.0), 2.0)[:, None]
 
 
 HALF_TURN_BAND = np.deg2rad(1.0)

@@ -12,7 +12,7 @@ from fusion_gyrocal.errors import InputError, OptionError, TimeAlignmentError
 from fusion_gyrocal.core.model import ROT
 from fusion_gyrocal.core.moments import Moments
 from fusion_gyrocal.pipeline.alignment import AlignedPair, TimeOffset, align_streams, estimate_time_offset
-from fusion_gyrocal.pipeline.resample import resample, solve_tridiagonal
+from fusion_gyrocal.pipeline.resample import resample
 from fusion_gyrocal.pipeline.selection import excitation_report, informative_mask
 from fusion_gyrocal.pipeline.streams import check_timestamps, saturation_mask, to_rad_per_s, valid_mask
 from fusion_gyrocal.evaluate.sim import (DEG, PAPER_NOISE_STD, HumanMotion, random_rotation, rotation_error, shared_data_dir,
@@ -511,15 +511,3 @@ def test_align_streams_long_record_memory_is_bounded():
     assert abs(pair.time_offset_s - 0.02) <= 5 * pair.time_offset.std_s
     # the aligned output is 57 bytes a sample; everything else is blocks of bounded size
     assert peak / n <= 57 + 80 + 64e6 / n
-
-
-def test_solve_tridiagonal_matches_dense_solve_for_every_size():
-    # cyclic reduction on the spline systems' shape: diagonally dominant rows, odd and even sizes, k columns
-    rng = np.random.default_rng(5)
-    for m in (1, 2, 3, 4, 7, 8, 33, 1000, 1025):
-        lower, upper = rng.uniform(0.2, 1.0, m), rng.uniform(0.2, 1.0, m)
-        diag = lower + upper + rng.uniform(0.1, 1.0, m)
-        rhs = rng.normal(size=(m, 3))
-        dense = np.diag(diag) + np.diag(lower[1:], -1) + np.diag(upper[:-1], 1)
-        np.testing.assert_allclose(solve_tridiagonal(lower, diag, upper, rhs), np.linalg.solve(dense, rhs),
-                                   rtol=1e-12, atol=1e-13)

@@ -244,73 +244,17 @@ def _parabolic_peak(r, i) -> float:
     return float(np.clip(0.5 * (r[i - 1] - r[i + 1]) / den, -0.5, 0.5)) if den < 0 else 0.0
 
 
-_GOLDEN = 0.5 * (3.0 - 5.0 ** 0.5)   # the golden-section fraction of a bracket
-
-
-def _minimize_bounded(f, lo: float, hi: float, x0: float, xatol: float, max_iter: int = 100):
-    """``(x, f(x))`` minimising a smooth 1-D ``f`` on ``[lo, hi]`` from ``x0``: Brent's method.
-
-    Successive parabolic interpolation through the three best points, with a golden-section step
-    whenever the parabola's vertex leaves the bracket or would not shrink it fast enough; stops when
-    the bracket around the best point is within ``xatol`` on both sides. Started at the caller's best
-    guess ``x0`` (the correlation peak), a smooth misfit takes 6-10 evaluations. (In place of
-    ``scipy.optimize.minimize_scalar``, whose import alone costs the command line about 0.15 s.)
-    """
-    a, b = float(lo), float(hi)
-    x = w = v = min(max(float(x0), a), b)
-    fx = fw = fv = f(x)
-    step = prev = 0.0               # the last step and the one before it
-    tol = 0.5 * xatol
-    for _ in range(max_iter):
-        mid = 0.5 * (a + b)
-        if abs(x - mid) <= 2.0 * tol - 0.5 * (b - a):
-            break
-        golden = True
-        if abs(prev) > tol:         # try the vertex of the parabola through (v, w, x)
-            r = (x - w) * (fx - fv)
-            q = (x - v) * (fx - fw)
-            p = (x - v) * q - (x - w) * r
-            q = 2.0 * (q - r)
-            if q > 0.0:
-                p = -p
-            q = abs(q)
-            if abs(p) < abs(0.5 * q * prev) and q * (a - x) < p < q * (b - x):
-                prev, step = step, p / q
-                if (x + step) - a < 2.0 * tol or b - (x + step) < 2.0 * tol:
-                    step = tol if x < mid else -tol
-                golden = False
-        if golden:
-            prev = (b - x) if x < mid else (a - x)
-            step = _GOLDEN * prev
-        u = x + (step if abs(step) >= tol else np.copysign(tol, step))
-        fu = f(u)
-        if fu <= fx:
-            if u < x:
-                b = x
-            else:
-                a = x
-            v, fv, w, fw, x, fx = w, fw, x, fx, u, fu
-        else:
-            if u < x:
-                a = u
-            else:
-                b = u
-            if fu <= fw or w == x:
-                v, fv, w, fw = w, fw, u, fu
-            elif fu <= fv or v == x or v == w:
-                v, fv = u, fu
-    return x, fx
-
-
 def _refine(spl2: _RunSplines, x1, y1, tau0: float, h: float):
     """Offset minimising the profiled rigid-model misfit near ``tau0`` (Brent, bracket +-1.5 steps).
 
     ``(x1, y1)`` are the evaluation instants on gyro 1's clock and gyro 1's rates there.
     Returns ``(tau, x_used, y_used, rss / n)``. The instants used are those whose whole
     bracket maps inside one run of gyro 2, so the set is fixed and the cost smooth; the
-    bracket moves if the minimum lands on its edge. Brent's method (:func:`_minimize_bounded`)
-    starts at ``tau0``.
+    bracket moves if the minimum lands on its edge. Brent's bounded method
+    (``scipy.optimize.minimize_scalar``, imported here: off the command line's start-up).
     """
+    from scipy.optimize import minimize_scalar
+
     tau, half = tau0, 1.5 * h
     for _ in range(6):
         lo, hi = tau - half, tau + half
@@ -318,7 +262,9 @@ def _refine(spl2: _RunSplines, x1, y1, tau0: float, h: float):
         if xe.size < 16:
             raise TimeAlignmentError(f"only {xe.size} gyro-1 instants overlap valid gyro-2 data near the "
                                      f"offset {tau0:+.4f} s; need at least 16")
-        tau, fun = _minimize_bounded(cost, lo, hi, tau, 1e-9 * max(1.0, abs(tau)) + 1e-4 * h)
+        res = minimize_scalar(cost, bounds=(lo, hi), method="bounded",
+                              options={"xatol": 1e-9 * max(1.0, abs(tau)) + 1e-4 * h})
+        tau, fun = float(res.x), res.fun
         if min(tau - lo, hi - tau) >= 0.05 * half:
             return tau, xe, ye, float(fun) / xe.size
     raise TimeAlignmentError(f"the sub-sample refinement did not settle near the correlation peak "

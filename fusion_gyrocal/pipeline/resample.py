@@ -27,57 +27,15 @@ def _runs(t: np.ndarray, valid: np.ndarray, max_gap_s: float) -> list[np.ndarray
     return [idx[a:b] for a, b in zip(np.r_[0, cut], np.r_[cut, idx.size]) if b - a >= 2]
 
 
-def solve_tridiagonal(lower: np.ndarray, diag: np.ndarray, upper: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """``x`` (m, k) with ``lower[i] x[i-1] + diag[i] x[i] + upper[i] x[i+1] = rhs[i]`` (``lower[0]``, ``upper[-1]``
-    ignored), by cyclic reduction.
-
-    Each level eliminates the even-numbered unknowns from the odd-numbered rows, halving the system, so
-    the whole solve is ~log2(m) vectorised numpy steps (a Thomas sweep is a Python loop per row; scipy's
-    banded solver would cost the command line ~0.25 s of import). Without pivoting, so for well-conditioned
-    systems like the splines' (diagonally dominant rows but the not-a-knot ends): ``tests/test_preprocess.py``
-    compares it with a dense solve, and :func:`resample` with scipy's ``CubicSpline``.
-    """
-    a = np.asarray(lower, dtype=np.float64).copy()
-    a[:1] = 0.0
-    c = np.asarray(upper, dtype=np.float64).copy()
-    c[-1:] = 0.0
-    b = np.asarray(diag, dtype=np.float64)
-    d = np.asarray(rhs, dtype=np.float64)
-    levels = []
-    while b.size > 1:
-        ae, be, ce, de = a[0::2], b[0::2], c[0::2], d[0::2]
-        ao, bo, co, do = a[1::2], b[1::2], c[1::2], d[1::2]
-        n_od, nxt = bo.size, min(bo.size, be.size - 1)      # odd rows; those with a following even row
-        alpha = -ao / be[:n_od]
-        gamma = np.zeros(n_od)
-        gamma[:nxt] = -co[:nxt] / be[1:nxt + 1]
-        new_b = bo + alpha * ce[:n_od]
-        new_b[:nxt] += gamma[:nxt] * ae[1:nxt + 1]
-        new_c = np.zeros(n_od)
-        new_c[:nxt] = gamma[:nxt] * ce[1:nxt + 1]
-        new_d = do + alpha[:, None] * de[:n_od]
-        new_d[:nxt] += gamma[:nxt, None] * de[1:nxt + 1]
-        levels.append((ae, be, ce, de))
-        a, b, c, d = alpha * ae[:n_od], new_b, new_c, new_d
-    x = d / b[:, None]
-    for ae, be, ce, de in reversed(levels):   # even rows from the odd unknowns
-        ne, n_od = be.size, x.shape[0]
-        xe = de.copy()
-        xe[1:] -= ae[1:, None] * x[:ne - 1]
-        xe[:n_od] -= ce[:n_od, None] * x
-        xe /= be[:, None]
-        full = np.empty((ne + n_od,) + x.shape[1:])
-        full[0::2], full[1::2] = xe, x
-        x = full
-    return x
-
-
 def _spline_slopes(x: np.ndarray, Y: np.ndarray, first: np.ndarray, last: np.ndarray) -> np.ndarray:
     """Knot slopes of the not-a-knot cubic spline of each run ``first[k]..last[k]`` of ``(x, Y)``.
 
     The same equations as scipy's ``CubicSpline`` (tridiagonal continuity of the second
-    derivative, not-a-knot end rows in their tridiagonal form), with no coupling between runs.
+    derivative, not-a-knot end rows in their tridiagonal form), with no coupling between runs, solved by
+    ``scipy.linalg.solve_banded`` (imported here: off the command line's start-up).
     """
+    from scipy.linalg import solve_banded
+
     m = x.size
     dx = np.diff(x)
     slope = np.diff(Y, axis=0) / dx[:, None]
@@ -120,8 +78,7 @@ def _spline_slopes(x: np.ndarray, Y: np.ndarray, first: np.ndarray, last: np.nda
         ab[0, fixed[fixed < m - 1] + 1] = 0.0
         ab[2, fixed[fixed > 0] - 1] = 0.0
         rhs[fixed] = np.asarray(values)
-    # banded storage to the three diagonals of each row: lower[i] = a[i, i-1], upper[i] = a[i, i+1]
-    return solve_tridiagonal(np.r_[0.0, ab[2, :-1]], ab[1], np.r_[ab[0, 1:], 0.0], rhs)
+    return solve_banded((1, 1), ab, rhs, check_finite=False)
 
 
 def _hermite_coefficients(x: np.ndarray, Y: np.ndarray, S: np.ndarray) -> np.ndarray:
