@@ -55,6 +55,7 @@ GAUGES = ("unit_prior", "fixed")
 COVARIANCES = ("auto", "model", "robust")
 NOISE_MODELS = ("identify", "residual")
 LINEAR_MAPS = ("auto", "rigid", "full")
+TIMING_MODELS = ("auto", "off")
 
 
 # ------------------------------------------------------------------------------------------ checks
@@ -358,6 +359,14 @@ class Options(FrozenOptions):
         "from it; ``'residual'``: the least-squares residual's variance as white noise, constant bias.",
         "--noise-model", choices=NOISE_MODELS,
         help="noise when --noise-std is not given: identify (Allan fit of the residual, default) or residual")
+    timing_model: str = _option(
+        "auto", _choice(TIMING_MODELS), {"pair"},
+        "Inter-sensor timing beyond the constant offset (:mod:`~fusion_gyrocal.pipeline.timing`). ``'auto'`` "
+        "(default): the delay of gyro 2's samples that follows the beat of each chip's sampling clock against the "
+        "read-out, found in the residual along the rate's derivative, compensated when it explains far more than "
+        "noise would, and the pair calibrated again; ``'off'``: one constant offset only.",
+        "--timing-model", choices=TIMING_MODELS,
+        help="delay beyond the constant offset: auto (beat tones of the chips' clocks, default) or off")
     flex_rejection: object = _option(
         "auto", _flex, {"pair"} | _JOINT,
         "The paper's flex rejection (Section VI.C, Eq. 42): ``'auto'`` gates when more than 1% of the samples "

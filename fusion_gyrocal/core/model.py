@@ -165,6 +165,14 @@ class PairCalibration:
         terms above, gyro 2's measured rate ``intrinsics_2 @ omega_2``); zeros otherwise.
     intrinsics_2_covariance : ndarray (6, 6)
         Covariance of its upper-triangular entries (in the order xx, xy, xz, yy, yz, zz); zeros otherwise.
+    timing_tones_hz : tuple of float
+        Beat tones of gyro 2's delay against gyro 1's beyond the constant offset
+        (:mod:`~fusion_gyrocal.pipeline.timing`; Hz, cycles per sample without timestamps), empty when the residual
+        shows none; gyro 2's samples were moved to the instants they describe before the solve.
+    timing_delay_std_s : float
+        Standard deviation of that delay (s; samples without timestamps).
+    timing_explained : float
+        Fraction of the residual's energy it explained.
     noise_model : NoiseModel or None
         The noise model identified from the pair's residual (:func:`~fusion_gyrocal.core.noise.identify_noise`)
         when ``noise_std`` came from it.
@@ -207,6 +215,9 @@ class PairCalibration:
     cross_axis_covariance: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
     intrinsics_2: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
     intrinsics_2_covariance: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)))
+    timing_tones_hz: tuple = ()
+    timing_delay_std_s: float = 0.0
+    timing_explained: float = 0.0
     noise_model: Any = None
     notes: tuple = ()
 
@@ -217,6 +228,7 @@ class PairCalibration:
         if self.configuration not in CONFIGURATIONS:
             raise InputError(f"configuration: expected one of {CONFIGURATIONS}, got {self.configuration!r}")
         object.__setattr__(self, "notes", tuple(self.notes))
+        object.__setattr__(self, "timing_tones_hz", tuple(float(f) for f in self.timing_tones_hz))
         object.__setattr__(self, "covariance_kind", CovarianceBasis(self.covariance_kind))
 
     # ------------------------------------------------------------------ derived

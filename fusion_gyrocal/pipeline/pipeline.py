@@ -196,6 +196,35 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
     """:func:`calibrate_pair` returning its intermediate products too (same parameters)."""
     o = Options.of(options, **keywords).require("pair", "calibrate_pair")
     w1, w2, mask, pair = prepare_samples(omega_1, omega_2, t_1=t_1, t_2=t_2, mask=mask, options=o)
+    run = _calibrate(w1, w2, mask, pair, _resampling(t_1, t_2, pair, o), o)
+    if o.timing_model == "auto" and run.calibration.rigid:
+        run = _with_timing(run, mask, pair, _resampling(t_1, t_2, pair, o), o)
+    return run
+
+
+def _with_timing(run: PipelineRun, mask, pair, resampling, o: Options) -> PipelineRun:
+    """The run again on gyro 2's samples moved to the instants they describe, when the residual shows a delay
+    that follows beat tones (:mod:`~fusion_gyrocal.pipeline.timing`); the run as it is otherwise."""
+    from .timing import estimate_timing
+
+    t = run.t if run.t is not None else np.arange(len(run.omega_1), dtype=float)
+    model = estimate_timing(t, run.omega_1, run.omega_2, run.calibration.A, run.calibration.bias, run.used)
+    if not model.significant:
+        return run
+    again = _calibrate(run.omega_1, model.compensate(t, run.omega_2), mask, pair, resampling, o)
+    unit = ("Hz", "ms", 1e3) if run.t is not None else ("cycles/sample", "samples", 1.0)
+    tones = ", ".join(f"{f:.4g}" for f in model.tones_hz)
+    note = (f"inter-sensor timing: gyro 2's delay against gyro 1 follows beat tone(s) at {tones} {unit[0]} (each "
+            f"chip's sampling clock against the read-out), std {model.delay_std * unit[2]:.3g} {unit[1]}, "
+            f"{100 * model.explained:.0f}% of the residual's energy; gyro 2's samples were moved to the instants they "
+            "describe and the pair calibrated again (timing_model='off' keeps one constant offset)")
+    new = _replace(again.calibration, timing_tones_hz=model.tones_hz, timing_delay_std_s=model.delay_std,
+                   timing_explained=model.explained, notes=again.calibration.notes + (note,))
+    return PipelineRun(new, again.t, again.omega_1, again.omega_2, again.valid, again.used, again.aligned)
+
+
+def _calibrate(w1, w2, mask, pair, resampling, o: Options) -> PipelineRun:
+    """The calibration of prepared samples: the noise model, the bias model, the solve, the flex gate."""
     t_grid = None if pair is None else pair.t
     offset = 0.0 if pair is None else pair.time_offset_s
     offset_std = pair.time_offset.std_s if pair is not None and pair.time_offset is not None else 0.0
@@ -205,7 +234,7 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
     noise_std, base = o.noise_std, None       # the white noise the run uses; the moments of every usable sample
     if noise_std is None and o.noise_model == "identify":
         base = Moments.from_samples(w1, w2, mask=mask)
-        noise_model = _identify(w1, w2, mask, rate_hz, base, _resampling(t_1, t_2, pair, o))
+        noise_model = _identify(w1, w2, mask, rate_hz, base, resampling)
         if noise_model is not None:
             noise_std = noise_model.noise_std
     if noise_std is None:  # split the residual variance by each stream's high-frequency noise

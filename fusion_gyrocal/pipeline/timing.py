@@ -1,0 +1,171 @@
+"""Inter-sensor timing beyond one constant offset: a delay that follows the beat of each chip's sampling clock.
+
+A MEMS gyro samples on its own clock and the read-out takes its latest sample, so the delay between the instant
+a sample describes and the read-out instant drifts as a sawtooth whose period is the beat between the two clocks
+(the same for every session of a board, shifting slowly with temperature). With one constant offset removed
+(:mod:`~fusion_gyrocal.pipeline.alignment`), the remaining delay ``delta(t)`` of gyro 2 against gyro 1 leaves the
+residual
+
+    r_k = omega_1 - A omega_2 - b  ~  u_k delta(t_k) + noise,     u_k = A d(omega_2)/dt (t_k)
+
+(first order in the delay): it lies along the rate's derivative and follows the beat tones. :func:`estimate_timing`
+finds up to :data:`MAX_TONES` tones (one per chip against the read-out), each with :data:`HARMONICS` harmonics
+for the sawtooth's shape, by least squares of ``r_k . u_k`` on ``|u_k|^2 delta(t_k)`` (frequencies from the
+periodogram of ``r_k . u_k``, refined on a fine grid), and keeps them only where they explain far more than the
+noise would over a search of every frequency. :meth:`TimingModel.compensate` moves gyro 2's samples to the
+instants they describe (``omega_2 + d(omega_2)/dt delta``), after which the pair is calibrated again.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Tones searched (one per chip against the read-out clock).
+MAX_TONES = 2
+#: Harmonics of each tone (a sawtooth's shape).
+HARMONICS = 3
+#: Zero padding of the periodogram (frequency resolution of the search, before refinement).
+PADDING = 16
+#: How far the refinement searches around a periodogram peak, in resolution cells (1 / the log's duration).
+REFINE_CELLS = 3.0
+#: Samples the search looks at (a longer log: its most excited stretch of this many).
+MAX_SAMPLES = 2**17
+#: A tone is kept when it explains this many times what the largest of the searched frequencies would under noise.
+SIGNIFICANCE = 4.0
+
+
+@dataclass(frozen=True)
+class TimingModel:
+    """The delay of gyro 2's samples against gyro 1's beyond the constant offset (:func:`estimate_timing`).
+
+    Attributes
+    ----------
+    tones_hz : tuple of float
+        Beat frequencies found (Hz; cycles per sample for input without timestamps); empty when none is
+        significant.
+    coefficients : ndarray
+        ``[mean, (cos, sin) per harmonic per tone]`` of the delay (s; samples without timestamps).
+    harmonics : int
+    explained : float
+        Fraction of the residual's energy the delay explains.
+    delay_std : float
+        Standard deviation of the modelled delay over the samples used (s; samples without timestamps).
+    """
+
+    tones_hz: tuple
+    coefficients: np.ndarray
+    harmonics: int
+    explained: float
+    delay_std: float
+
+    @property
+    def significant(self) -> bool:
+        return len(self.tones_hz) > 0
+
+    def delay(self, t) -> np.ndarray:
+        """The modelled delay at the instants ``t``."""
+        return _design(np.asarray(t, dtype=float), self.tones_hz, self.harmonics) @ self.coefficients
+
+    def compensate(self, t, omega_2) -> np.ndarray:
+        """Gyro 2's rates moved to the instants they describe: ``omega_2 + d(omega_2)/dt * delay(t)``."""
+        w2 = np.asarray(omega_2, dtype=float)
+        d = np.gradient(w2, t, axis=0)
+        d[~np.isfinite(d)] = 0.0          # beside a gap (NaN where a sample is invalid): left as it is
+        return w2 + d * self.delay(t)[:, None]
+
+
+NONE = TimingModel((), np.zeros(1), HARMONICS, 0.0, 0.0)
+
+
+def _excited_stretch(w2, ok) -> int:
+    """Start of the stretch of :data:`MAX_SAMPLES` samples (from block starts) with the most motion of gyro 2."""
+    step = MAX_SAMPLES // 4
+    starts = np.arange(0, len(w2) - MAX_SAMPLES + 1, step)
+    sub = np.where(ok[::16, None], w2[::16], 0.0)
+    energy = np.cumsum(np.concatenate([[0.0], np.nan_to_num(np.einsum("ij,ij->i", sub, sub))]))
+    width = MAX_SAMPLES // 16
+    return int(starts[int(np.argmax([energy[min(s // 16 + width, len(sub))] - energy[s // 16] for s in starts]))])
+
+
+def _design(t, tones, harmonics) -> np.ndarray:
+    cols = [np.ones_like(t)]
+    for f in tones:
+        for h in range(1, harmonics + 1):
+            phase = 2.0 * np.pi * h * f * t
+            cols += [np.cos(phase), np.sin(phase)]
+    return np.stack(cols, axis=1)
+
+
+def _fit(t, ru, uu, tones, harmonics):
+    """Least squares of ``sum |r - u delta|^2`` over the delay's coefficients: ``(coefficients, explained energy)``."""
+    X = _design(t, tones, harmonics)
+    G = (X * uu[:, None]).T @ X
+    h = X.T @ ru
+    c = np.linalg.lstsq(G, h, rcond=None)[0]
+    return c, float(h @ c)
+
+
+def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int = MAX_TONES,
+                    harmonics: int = HARMONICS) -> TimingModel:
+    """The delay of gyro 2 against gyro 1 that the residual of ``(A, bias)`` shows (:class:`TimingModel`).
+
+    Parameters
+    ----------
+    t : array_like (N,)
+        The samples' instants on one uniform grid (s), or the sample index for input without timestamps.
+    omega_1, omega_2 : array_like (N, 3)
+        Sample-aligned rates (rad/s).
+    A, bias : the calibration's map and combined bias (``omega_1 ~ A omega_2 + bias``).
+    mask : array_like of bool (N,), optional
+        Samples to use (their neighbours must be valid too, for the derivative).
+    """
+    t = np.asarray(t, dtype=float)
+    w1, w2 = np.asarray(omega_1, dtype=float), np.asarray(omega_2, dtype=float)
+    ok = np.ones(len(t), bool) if mask is None else np.asarray(mask, bool).copy()
+    if len(t) > MAX_SAMPLES:          # the most excited stretch of a long log (the tones are stationary)
+        lo = _excited_stretch(w2, ok)
+        t, w1, w2, ok = t[lo:lo + MAX_SAMPLES], w1[lo:lo + MAX_SAMPLES], w2[lo:lo + MAX_SAMPLES], ok[lo:lo + MAX_SAMPLES]
+    ok[1:] &= ok[:-1].copy()
+    ok[:-1] &= ok[1:].copy()
+    if np.count_nonzero(ok) < 100 * (1 + 2 * harmonics * max_tones):
+        return NONE
+    u = np.gradient(w2, t, axis=0) @ np.asarray(A).T
+    r = w1 - w2 @ np.asarray(A).T - bias
+    tt, ru, uu = t[ok], np.einsum("ij,ij->i", r, u)[ok], np.einsum("ij,ij->i", u, u)[ok]
+    energy = float(np.einsum("ij,ij->", r[ok], r[ok]))
+    keep = uu > 0
+    if not keep.any() or energy <= 0:
+        return NONE
+    sigma2 = float(np.median(ru[keep] ** 2 / uu[keep])) / 0.455        # the residual along u, robustly (chi2_1)
+    dt = float(np.median(np.diff(t)))
+    n_freq = len(t) / 2.0                                               # independent frequencies searched
+    tones, explained = [], 0.0
+    for _ in range(max_tones):
+        c, _ = _fit(tt, ru, uu, tones, harmonics)
+        x = np.zeros(len(t))
+        x[ok] = ru - uu * (_design(tt, tones, harmonics) @ c)
+        power = np.abs(np.fft.rfft(x, PADDING * len(t))) ** 2
+        freq = np.fft.rfftfreq(PADDING * len(t), dt)
+        allowed = freq > 2.0 / (len(t) * dt)                            # at least two periods in the log
+        for f in tones:                                                 # not a harmonic of a tone found
+            for h in range(1, harmonics + 1):
+                allowed &= np.abs(freq - h * f) > 2.0 / (len(t) * dt)
+        if not allowed.any():
+            break
+        peak = freq[allowed][np.argmax(power[allowed])]
+        span = REFINE_CELLS / (len(t) * dt)
+        grid = np.linspace(peak - span, peak + span, 41)
+        gains = [_fit(tt, ru, uu, tones + [f], harmonics)[1] for f in grid]
+        best = float(grid[int(np.argmax(gains))])
+        gain = max(gains) - explained
+        if gain / sigma2 < SIGNIFICANCE * (1 + 2 * harmonics + 2.0 * np.log(n_freq)):
+            break
+        tones.append(best)
+        explained = max(gains)
+    if not tones:
+        return NONE
+    c, explained = _fit(tt, ru, uu, tones, harmonics)
+    delay = _design(tt, tones, harmonics) @ c
+    return TimingModel(tuple(tones), c, harmonics, explained / energy, float(delay.std()))
