@@ -139,7 +139,7 @@ def _z_at_alarm(tr, batch) -> tuple[float, float, float]:
     confirmed; a private field, for this diagnostic only) against the batch."""
     from fusion_gyrocal.lie import log
 
-    R0, P0 = tr._alarm.state[0], tr._alarm.state[4]
+    R0, P0 = tr.state_at_alarm[0], tr.state_at_alarm[4]
     d = np.linalg.norm(log(R0 @ batch.R_1_2.T))
     se, sb = np.sqrt(np.trace(P0[:3, :3])), np.sqrt(np.trace(np.asarray(batch.covariance)[:3, :3]))
     return tr.open_alarm[0], d / DEG * 1e3, d / np.hypot(se, sb)

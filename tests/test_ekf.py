@@ -14,7 +14,8 @@ from fusion_gyrocal import PairCalibration, calibrate_pair
 from fusion_gyrocal.errors import InputError, OptionError
 from fusion_gyrocal.evaluate.sim import (DEG, HumanMotion, general_rotation, rotation_error, scale_error, shared_data_dir,
                                          simulate_drifting_pair)
-from fusion_gyrocal.online.tracker import DriftNoise, GyroPairTracker, TrackerConfig, _misfit_gain, plot_history
+from fusion_gyrocal.online.seed import misfit_gain
+from fusion_gyrocal.online.tracker import DriftNoise, GyroPairTracker, TrackerConfig, plot_history
 
 RATE = 100.0
 NOISE = 0.1 * DEG          # the paper's white noise per sample (rad/s)
@@ -97,7 +98,7 @@ def test_update_block_equals_stacked_update():
     K = P0 @ Hs.T @ np.linalg.inv(S)
     P1 = (np.eye(12) - K @ Hs) @ P0
     # plus the errors-in-variables correction of the information vector (ErrorStateEKF.update_block)
-    G = tr._filter.generators()
+    G = tr.filter.generators()
     x = K @ r + P1 @ (B * tr.noise_std[1] ** 2 * np.einsum("mai,am->i", G[:3], np.linalg.inv(Rk) @ A))
     used = tr.update_block(tb, w1b, w2b)
     assert used == B
@@ -115,7 +116,7 @@ def test_GyroPairTracker_config_assignment_raises():
     rng = np.random.default_rng(20)
     t, w1, w2, _ = scenario(rng, 12.0)
     tr = GyroPairTracker.from_samples(t[:1000], w1[:1000], w2[:1000], cusum_threshold=30.0)
-    assert tr.config.cusum_threshold == tr.cusum_threshold == 30.0
+    assert tr.config.cusum_threshold == 30.0
     P0 = tr.error_covariance
     with pytest.raises(AttributeError, match="frozen.*reconfigured"):
         tr.drift = DriftNoise(1e-2, 1e-2, 1e-2)
@@ -125,7 +126,7 @@ def test_GyroPairTracker_config_assignment_raises():
         tr.config.drift = DriftNoise(1e-2, 1e-2, 1e-2)          # the configuration itself is frozen
     with pytest.raises(AttributeError):
         tr.cusum_treshold = 5.0                                # a misspelt option is no new attribute either
-    assert tr.drift == DriftNoise() and tr.config.cusum_threshold == 30.0
+    assert tr.config.drift == DriftNoise() and tr.config.cusum_threshold == 30.0
     tr.predict(t[999] + 100.0)
     drift = DriftNoise()
     np.testing.assert_allclose(np.diag(tr.error_covariance - P0)[9:], drift.bias**2 * 100.0, rtol=1e-9)
@@ -138,7 +139,7 @@ def test_reconfigured_drift_reaches_covariance():
     tr.run(t[1000:1500], w1[1000:1500], w2[1000:1500])
     big = DriftNoise(rotation=1e-3, log_scale=1e-3, bias=1e-3)
     same, new = tr.reconfigured(), tr.reconfigured(drift=big)
-    assert new.drift == big and tr.drift == same.drift == DriftNoise()     # the original is unchanged
+    assert new.config.drift == big and tr.config.drift == same.config.drift == DriftNoise()     # the original is unchanged
     np.testing.assert_array_equal(new.error_covariance, tr.error_covariance)   # continues from the state
     np.testing.assert_array_equal(new.R_1_2, tr.R_1_2)
     assert len(new.history()) == len(tr.history()) and new.n_samples == tr.n_samples == 500
@@ -571,7 +572,7 @@ def test_linearise_one_equals_block_linearisation():
     rng = np.random.default_rng(31)
     t, w1, w2, _ = scenario(rng, 20.0)
     tr = GyroPairTracker.from_samples(t[:1000], w1[:1000], w2[:1000])
-    f = tr._filter
+    f = tr.filter
     for k in (1000, 1500, 1999):
         H, r = f.linearise(w1[k:k + 1], w2[k:k + 1])
         d2 = f.innovation_d2(H, r)
@@ -671,7 +672,7 @@ def test_update_block_with_misfit_equals_stacked_update():
     rng = np.random.default_rng(41)
     t, w1, w2, _ = scenario(rng, 20.0)
     tr = GyroPairTracker(calibrate_pair(w1[:1000], w2[:1000]), t0=t[999], drift=DriftNoise.constant())
-    f = tr._filter
+    f = tr.filter
     f.misfit = (0.01, 0.005)
     f.relinearise()
     B = 60
@@ -718,7 +719,7 @@ def test_run_rate_dependent_scale_no_alarm_and_within_3sigma():
     assert err < 3.0 * sigma, (err / DEG, sigma / DEG)
     # the same seed with white measurement noise (the seed's residual std, no misfit) raises step alarms
     seed = calibrate_pair(w1[:n0], w2[:n0])
-    assert GyroPairTracker(seed, t0=t[n0 - 1]).misfit_gain == _misfit_gain(seed.noise_model) != (0.0, 0.0)
+    assert GyroPairTracker(seed, t0=t[n0 - 1]).misfit_gain == misfit_gain(seed.noise_model) != (0.0, 0.0)
     white = GyroPairTracker(seed, t0=t[n0 - 1], seed_span_s=t[n0 - 1], noise_model=None)
     assert white.misfit_gain == (0.0, 0.0)
     assert white.run(t[n0:], w1[n0:], w2[n0:]).reseeds
@@ -763,7 +764,7 @@ def test_run_mimu_board_at_most_one_reseed_and_within_3sigma_of_batch(session, i
     assert sum(ev.accepted for ev in h.reseeds) <= 1
     assert tr.open_alarm is None and "suspected" not in " ".join(tr.calibration.notes)
     assert d < 3.0 * sigma, (d / DEG, sigma / DEG)
-    ns = tr._noise_scale
+    ns = tr.noise_scale
     if tr.misfit_gain != (0.0, 0.0):
         fast = (ns.floor < 1.0) & (ns.count >= 1000)
         assert fast.any() and np.all(ns.scale[fast] < 1.0), (ns.scale, ns.count)
@@ -776,7 +777,7 @@ def test_run_mimu_board_rigid_at_most_one_alarm(session, imu):
     at most one step alarm over the session (13-14 without the adaptation, all rejected)."""
     tr, h, _ = _mimu_run(session, imu)
     assert len(h.reseeds) <= 1, [(ev.t_detected, ev.reason) for ev in h.reseeds]
-    assert tr.reconfigured(noise_memory=0).noise_memory == 0
+    assert tr.reconfigured(noise_memory=0).config.noise_memory == 0
 
 
 def test_run_noise_scale_learns_underestimated_noise():
@@ -791,7 +792,7 @@ def test_run_noise_scale_learns_underestimated_noise():
         tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0], noise_std=NOISE / 3, noise_memory=memory)
         alarms[memory] = len(tr.run(t[n0:], w1[n0:], w2[n0:]).reseeds)
         if memory:
-            ns = tr._noise_scale
+            ns = tr.noise_scale
             scales = ns.scale[ns.count >= 2000]
     assert alarms[0] >= 1 and alarms[2000] == 0, alarms
     assert scales.size >= 2 and np.all((scales > 7.0) & (scales < 10.0)), scales
@@ -879,7 +880,7 @@ _PINNED_RUNS = {
 
 
 def _pinned_state(tr, h):
-    ns = tr._noise_scale
+    ns = tr.noise_scale
     return np.concatenate([tr.R_1_2.ravel(), tr.scale_1, tr.scale_2, tr.bias, np.diag(tr.error_covariance), ns.scale,
                            ns.spread, [ns.correlation, np.nansum(h.nis), h.n_rejected, len(h.reseeds)]])
 
@@ -958,7 +959,7 @@ def test_run_misfit_overestimated_at_unseen_rates_is_learnt_down():
         sigma[name] = np.sqrt(np.trace(tr.error_covariance[:3, :3]))
         err[name] = rotation_error(tr.R_1_2, R0)
         if name == "released":
-            ns = tr._noise_scale
+            ns = tr.noise_scale
             fast = ns.count[ns.floor < 1.0] >= 1000
             assert fast.any() and np.all(ns.scale[ns.floor < 1.0][fast] < 0.05), (ns.scale, ns.count)
     assert err["released"] < 3.0 * sigma["released"], (err, sigma)

@@ -57,6 +57,20 @@ MISFIT_FLOOR = 1e-9                         # smallest factor of an unseen bin's
                                             # noise is the floor of each sample's covariance)
 
 
+def covariance_factors(g, lam):
+    """The measurement covariance's factors (B,) of a block, ``max(lambda_j g_k, 1)`` (never below the white
+    noise), from the misfit's :meth:`~.ekf.ErrorStateEKF.inflation` ``g`` (None: white) and the adapted
+    ``lam`` (:meth:`NoiseScale.factors`), and ``held``: ``max(lambda_j g_k, 1) / (lambda_j g_k)`` (None when no
+    sample is held; the argument of :meth:`NoiseScale.learn`)."""
+    if g is None:
+        return lam, None              # white noise: lam >= 1
+    g = g * lam
+    if g.min() >= 1.0:
+        return g, None
+    gs = np.maximum(g, 1.0)
+    return gs, gs / g
+
+
 class NoiseScale:
     """Running factor of the modelled measurement covariance per ``|omega_1|`` bin (module docstring).
 

@@ -1,4 +1,5 @@
-"""Screening the tracker's innovations: the gate (flex spikes), the CUSUM (step changes), recent samples.
+"""Screening the tracker's innovations: the gate (flex spikes), the CUSUM (step changes), recent samples,
+and the blocks a run is cut into.
 
 Each works on a block of per-sample normalised innovations ``d^2 = r^T S^-1 r`` (chi-square(3) when
 the filter is consistent); a block of one sample is the per-sample mode, so both modes share them.
@@ -166,3 +167,21 @@ class SampleRing:
         if data.shape[0]:
             new.push(data[:, 0], data[:, 1:4], data[:, 4:7])
         return new
+
+
+def block_spans(t, size: int, max_gap_s: float | None) -> list[tuple[int, int]]:
+    """``(start, end)`` of blocks of about ``size`` samples that never straddle a gap (a short tail joins
+    the block before it); a step larger than ``max_gap_s`` (default 5 median intervals) is a gap."""
+    if max_gap_s is None:
+        max_gap_s = 5.0 * float(np.median(np.diff(t))) if t.shape[0] > 1 else np.inf
+    bounds = np.concatenate([[0], np.flatnonzero(np.diff(t) > max_gap_s) + 1, [t.shape[0]]])
+    spans = []
+    for lo, hi in zip(bounds[:-1].tolist(), bounds[1:].tolist()):
+        for s in range(lo, hi, size):
+            e = min(s + size, hi)
+            if hi - e < size // 2 and e < hi:   # fold a short tail into this block
+                e = hi
+            spans.append((s, e))
+            if e == hi:
+                break
+    return spans

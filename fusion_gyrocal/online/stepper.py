@@ -1,0 +1,195 @@
+"""The tracker's state and its one update path: predict, screen, ONE filter update, record.
+
+:class:`Stepper` holds everything a :class:`~.tracker.GyroPairTracker` updates (the filter, the gate, the
+CUSUM, the adapted noise, the buffer of recent samples, the history, the open alarm) and runs one block of
+samples through it (:meth:`Stepper.step`); a block of one sample is the per-sample mode. An alarm is handed to
+its :class:`~.reseed.Reseeder` (alarm -> re-seed -> replay).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ..core.model import PairCalibration
+from .adapt import NoiseScale, covariance_factors
+from .history import HistoryRecorder
+from .hold import ScaleHold
+from .ekf import ErrorStateEKF
+from .reseed import Reseeder
+from .seed import seed_filter
+from .steps import Cusum, InnovationGate, SampleRing, block_spans
+
+
+class Stepper:
+    """A tracker's state and its update path (see the module docstring).
+
+    Parameters
+    ----------
+    calibration : PairCalibration
+        The seed.
+    t0, span_s : float
+        Time of the seed and duration of its data (:func:`~.seed.seed_filter`).
+    config : TrackerConfig
+    noise_std : (float, float)
+        White noise per sample of each gyro (rad/s).
+    misfit : (float, float)
+        Gains of the rate-dependent misfit (``(0, 0)``: white noise).
+    model_error : float
+        Variance factor of a re-seed batch covariance (:func:`~.seed.model_error`).
+    """
+
+    __slots__ = ("config", "noise_std", "misfit", "model_error", "configuration", "filter", "gate", "cusum",
+                 "noise_scale", "ring", "recorder", "reseeder", "replaying", "n_samples", "n_rejected")
+
+    def __init__(self, calibration: PairCalibration, t0: float, span_s: float, config, noise_std, misfit,
+                 model_error: float):
+        self.config, self.noise_std, self.misfit, self.model_error = config, noise_std, misfit, model_error
+        self.filter = None
+        self.seed(calibration, t0, span_s)
+        self.gate = InnovationGate(config.gate, config.gate_neighbours)
+        self.cusum = Cusum(config.cusum_drift, config.cusum_threshold, config.gate, t0)
+        self.noise_scale = NoiseScale(config.noise_memory, config.gate) if config.noise_memory else None
+        self.ring = SampleRing(config.buffer_samples)
+        self.recorder = HistoryRecorder(config.history_max_rows)
+        self.reseeder = Reseeder()
+        self.replaying = False
+        self.n_samples = self.n_rejected = 0
+
+    def seed(self, cal: PairCalibration, t: float, span_s: float = 0.0) -> None:
+        """Start the filter from a calibration at time ``t`` (construction, re-seed)."""
+        self.configuration, self.filter = seed_filter(
+            cal, t, self.config, self.noise_std, self.misfit, span_s=span_s,
+            previous=None if self.filter is None else self.filter.hold)
+
+    def learn_noise(self, t, w1, w2) -> None:
+        """Start the adapted measurement noise (:class:`~.adapt.NoiseScale`) on the seed window: its blocks'
+        innovations at the seed estimate, without updating the filter (the seed has used them)."""
+        ns, f = self.noise_scale, self.filter
+        if ns is None:
+            return
+        for s, e in block_spans(t, self.config.block_size, None):
+            H, r = f.linearise(w1[s:e], w2[s:e])
+            bins = ns.bins(w1[s:e])
+            g, held = covariance_factors(f.inflation(w1[s:e]), ns.factors(bins))
+            ns.learn(bins, f.innovation_d2(H, r, g), held)
+        if self.misfit != (0.0, 0.0):
+            ns.release_unseen()        # the misfit extrapolated beyond the seed's rates: free to fall below 1
+
+    def reconfigured(self, config) -> "Stepper":
+        """A copy with another configuration that continues from the current state (the estimate, covariance,
+        time, counters, history, buffered samples, CUSUM and an open alarm); a new gauge or scale prior
+        re-expresses the estimate and the covariance in the new hold."""
+        new = object.__new__(Stepper)
+        new.config, new.noise_std, new.misfit, new.model_error = config, self.noise_std, self.misfit, self.model_error
+        new.configuration = self.configuration
+        f, alarm = self.filter, self.reseeder.alarm and dataclasses.replace(self.reseeder.alarm)
+        if config.gauge == self.config.gauge and config.scale_prior_std == self.config.scale_prior_std:
+            new.filter = f.copy(drift=config.drift, step_prior=config.step_prior)
+        else:
+            hold = ScaleHold(self.configuration, config.gauge, config.scale_prior_std, f.s1, f.s2, previous=f.hold)
+            new.filter = ErrorStateEKF(hold, config.drift, config.step_prior, self.noise_std, f.R, f.s1, f.s2, f.b,
+                                       f.kf.P, f.t, misfit=self.misfit)
+            if alarm is not None:
+                R0, s10, s20, b0, P0, t0 = alarm.state
+                alarm.state = (R0, *hold.express(s10, s20), b0, new.filter.project(P0), t0)
+        new.gate = InnovationGate(config.gate, config.gate_neighbours, self.gate.pending)
+        new.cusum = Cusum(config.cusum_drift, config.cusum_threshold, config.gate, self.cusum.zero_t)
+        new.cusum.level = self.cusum.level
+        new.noise_scale = None if not config.noise_memory else (
+            self.noise_scale.copy() if self.noise_scale is not None and config.noise_memory ==
+            self.noise_scale.memory else NoiseScale(config.noise_memory, config.gate))
+        new.ring = self.ring.resized(config.buffer_samples)
+        new.recorder = self.recorder.copy(config.history_max_rows)
+        new.reseeder, new.replaying = Reseeder(alarm, self.reseeder.events), False
+        new.n_samples, new.n_rejected = self.n_samples, self.n_rejected
+        return new
+
+    def step(self, t, w1, w2, mode: str) -> int:
+        """The one update path: predict, gate, CUSUM, ONE filter update, record, maybe re-seed."""
+        f = self.filter
+        B = t.shape[0]
+        if B == 1:
+            return self.step_one(float(t[0]), w1[0], w2[0], mode)
+        t_mid = float(t.sum()) / B                                 # the block's mean time
+        f.predict_to(t_mid)
+        if not self.replaying:
+            self.ring.push(t, w1, w2)
+            self.n_samples += B
+        H, r = f.linearise(w1, w2)
+        g = f.inflation(w1)
+        ns = self.noise_scale
+        bins = held = None
+        if ns is not None:
+            bins = ns.bins(w1)
+            g, held = covariance_factors(g, ns.factors(bins))
+        d2 = f.innovation_d2(H, r, g)
+        alarm = None
+        if self.reseeder.alarm is None and not self.replaying:
+            screened = None if ns is None else ns.mature(bins)
+            if screened is None or screened.any():
+                ts, d2s = (t, d2) if screened is None else (t[screened], ns.screened(bins, d2)[screened])
+                alarm = self.cusum.scan(ts, d2s)
+                if alarm is not None:
+                    alarm = (float(ts[alarm[0]]), alarm[1])
+        if alarm is not None:
+            self.reseeder.raise_alarm(self, *alarm)
+            d2 = f.innovation_d2(H, r, g)              # covariance opened by the step prior
+        elif ns is not None and self.reseeder.alarm is None:
+            ns.learn(bins, d2, held)                   # never while a step is suspected
+        keep = self.gate.keep(d2, fresh=alarm is not None)
+        n_used = int(np.count_nonzero(keep))
+        self.n_rejected += B - n_used
+        nis = np.nan
+        if n_used == 1:
+            k = int(np.argmax(keep))
+            f.update_one(H[k], r[k], 1.0 if g is None else float(g[k]))
+            nis = d2[k] / 3.0
+        elif n_used > 1:
+            if ns is not None and ns.correlation != 1.0:
+                g = g * ns.correlation             # correlated errors: each sample is worth less
+            nis = f.update_block(w1, w2, keep, g) / (3.0 * n_used)
+            if ns is not None and self.reseeder.alarm is None:
+                ns.learn_block(*f.score)
+        if not self.replaying:
+            self.recorder.add(t_mid, f.R, f.s1, f.s2, f.b, f.kf.P, nis, n_used, mode)
+            if self.reseeder.alarm is not None:
+                self.reseeder.maybe_reseed(self)
+        return n_used
+
+    def step_one(self, t: float, w1, w2, mode: str) -> int:
+        """:meth:`step` for a block of one sample, in scalar form (the per-sample hot path): the same
+        predict, gate, CUSUM, filterpy update and record, without the block machinery."""
+        f = self.filter
+        f.predict_to(t)
+        if not self.replaying:
+            self.ring.push_one(t, w1, w2)
+            self.n_samples += 1
+        ns = self.noise_scale
+        if ns is None:
+            lam = 1.0
+        else:
+            j, lam, mature = ns.bin_one(w1)
+        H, r, S, d2, g = f.linearise_one(w1, w2, lam)
+        alarm = None
+        if self.reseeder.alarm is None and not self.replaying:
+            if ns is None:
+                alarm = self.cusum.scan_one(t, d2)
+            elif mature:
+                alarm = self.cusum.scan_one(t, ns.screened_one(j, d2))
+        if alarm is not None:
+            self.reseeder.raise_alarm(self, t, alarm[1])
+            H, r, S, d2, g = f.linearise_one(w1, w2, lam)    # covariance opened by the step prior
+        elif ns is not None and self.reseeder.alarm is None:
+            ns.learn_one(j, d2, 1.0 if g >= 1.0 else 1.0 / g)   # (a sample held at the white noise: 1 / g)
+        used = self.gate.keep_one(d2, fresh=alarm is not None)
+        if used:
+            f.update_one(H, r, g if g > 1.0 else 1.0)
+        else:
+            self.n_rejected += 1
+        if not self.replaying:
+            self.recorder.add(t, f.R, f.s1, f.s2, f.b, f.kf.P, d2 / 3.0 if used else np.nan, int(used), mode)
+            if self.reseeder.alarm is not None:
+                self.reseeder.maybe_reseed(self)
+        return int(used)
