@@ -568,35 +568,54 @@ def test_example_track_drift_runs(tmp_path, capsys):
 
 
 # ---------------------------------------------------------------------------- per-sample hot path, history bound
-def test_linearise_one_equals_block_linearisation():
+def test_innovations_block_of_one_equals_vectorised():
+    """A block of one sample (scalar arithmetic) gives what the vectorised path gives for that sample in a block."""
     rng = np.random.default_rng(31)
     t, w1, w2, _ = scenario(rng, 20.0)
     tr = GyroPairTracker.from_samples(t[:1000], w1[:1000], w2[:1000])
     f = tr.filter
     for k in (1000, 1500, 1999):
-        H, r = f.linearise(w1[k:k + 1], w2[k:k + 1])
-        d2 = f.innovation_d2(H, r)
-        H1, r1, S1, d21, g1 = f.linearise_one(w1[k], w2[k])
-        np.testing.assert_allclose(H1, H[0], rtol=1e-14, atol=1e-15)
-        np.testing.assert_allclose(r1, r[0], rtol=1e-14, atol=1e-17)
-        assert d21 == pytest.approx(float(d2[0]), rel=1e-10)
+        H, r, d2, g, _ = f.innovations(w1[k - 1:k + 1], w2[k - 1:k + 1])
+        H1, r1, d21, g1, held = f.innovations(w1[k:k + 1], w2[k:k + 1])
+        assert H1.shape == (1, 3, 12) and r1.shape == (1, 3) and g is None and g1 == [1.0] and held is None
+        np.testing.assert_allclose(H1[0], H[1], rtol=1e-14, atol=1e-15)
+        np.testing.assert_allclose(r1[0], (w1[k:k + 1] - w2[k:k + 1] @ f.A.T - f.b)[0], rtol=1e-14, atol=1e-17)
+        np.testing.assert_allclose(r1[0], r[1], rtol=1e-12, atol=1e-15)         # (a 2-row product rounds differently)
+        assert d21[0] == pytest.approx(d2[1], rel=1e-10)
 
 
-def test_gate_and_cusum_one_sample_equal_block_of_one():
-    from fusion_gyrocal.online.steps import Cusum, InnovationGate
+def _reference_keep(gate, d2, fresh):
+    """The gate's rule as a vectorised mask (neighbours dropped on both sides, the drops owed carried over)."""
+    B = d2.shape[0]
+    if fresh:
+        gate.pending = 0
+    bad = ~(d2 <= gate.limit)
+    carry = max(gate.pending - B, 0)
+    if bad.any():
+        carry = max(carry, gate.neighbours - (B - 1 - int(np.flatnonzero(bad)[-1])))
+        for _ in range(gate.neighbours):
+            bad[1:] |= bad[:-1].copy()
+            bad[:-1] |= bad[1:].copy()
+    bad[:gate.pending] = True
+    gate.pending = carry
+    return ~bad
+
+
+def test_InnovationGate_keep_drops_neighbours_within_and_across_blocks():
+    from fusion_gyrocal.online.steps import InnovationGate
 
     rng = np.random.default_rng(32)
-    d2 = rng.chisquare(3, 3000) * np.where(rng.random(3000) < 0.05, 8.0, 1.0)   # spikes and steps
-    d2[1000:1200] *= 4.0
+    d2 = rng.chisquare(3, 3000) * np.where(rng.random(3000) < 0.05, 8.0, 1.0)   # spikes
     d2[rng.integers(0, 3000, 10)] = np.nan
     for neighbours in (0, 1, 3):
-        ga, gb = InnovationGate(11.3, neighbours), InnovationGate(11.3, neighbours)
-        ca, cb = Cusum(0.5, 25.0, 11.3, 0.0), Cusum(0.5, 25.0, 11.3, 0.0)
-        for k, x in enumerate(d2):
-            fresh = k % 500 == 0
-            assert ga.keep_one(float(x), fresh=fresh) == bool(gb.keep(d2[k:k + 1], fresh=fresh)[0])
-            assert ca.scan_one(float(k), float(x)) == cb.scan(np.array([float(k)]), d2[k:k + 1])
-            assert (ga.pending, ca.level, ca.zero_t) == (gb.pending, cb.level, cb.zero_t)
+        gate, ref = InnovationGate(11.3, neighbours), InnovationGate(11.3, neighbours)
+        lo = 0
+        while lo < d2.size:
+            B = int(rng.choice([1, 1, 2, 5, 50]))
+            blk, fresh = d2[lo:lo + B], rng.random() < 0.05
+            assert gate.keep(blk.tolist(), fresh=fresh) == _reference_keep(ref, blk, fresh).tolist()
+            assert gate.pending == ref.pending
+            lo += B
 
 
 def test_run_history_max_rows_bounds_rows_and_keeps_them_spread():
@@ -690,7 +709,7 @@ def test_update_block_with_misfit_equals_stacked_update():
     K = P0 @ Hs.T @ np.linalg.inv(S)
     P1 = (np.eye(12) - K @ Hs) @ P0
     np.testing.assert_allclose(f.kf.P, 0.5 * (P1 + P1.T), rtol=1e-6, atol=1e-14)
-    H1, r1, S1, d2, g1 = f.linearise_one(w1b[0], w2b[0])       # the per-sample path: the same factor
+    g1 = f.innovations(w1b[:1], w2b[:1])[3][0]                # a block of one (scalar arithmetic): the same factor
     assert g1 == pytest.approx(float(f.inflation(w1b[:1])[0]), rel=1e-12)
 
 
@@ -920,7 +939,7 @@ def test_noise_scale_release_unseen_lets_only_unseen_bins_fall_below_one():
     ns.learn(np.full(50, 7), d2)                                        # a fresh bin: the block's mean at once
     assert ns.scale[7] == pytest.approx(d2.mean() / 3.0, rel=1e-12)
     for x in d2:
-        one.learn_one(7, float(x))                                      # per sample (d2 not recomputed here)
+        one.learn([7], [float(x)])                                      # per sample (d2 not recomputed here)
     assert MISFIT_FLOOR <= one.scale[7] < 1e-3
     ns.learn(np.zeros(50, int), rng.chisquare(3, 50) * 1e-3)
     assert ns.scale[0] == 1.0                                           # a filled bin never drops below 1

@@ -80,6 +80,26 @@ def log_covariance(cal: PairCalibration, prior_std: float) -> np.ndarray:
     return P
 
 
+def seed_noise(calibration: PairCalibration, noise_model):
+    """``(noise_model, noise_std, misfit)`` of a tracker seeded by ``calibration`` with ``noise_model`` (a
+    :class:`~fusion_gyrocal.core.noise.NoiseModel`, None, or ``"seed"``: the calibration's own): the model, the white
+    noise per sample of each gyro (the model's when it flags a misfit, else the calibration's) and the misfit's
+    gains (:func:`misfit_gain`)."""
+    from ..core.noise import NoiseModel
+
+    if isinstance(noise_model, str) and noise_model == "seed":
+        noise_model = calibration.noise_model if isinstance(calibration.noise_model, NoiseModel) else None
+    if noise_model is not None and not isinstance(noise_model, NoiseModel):
+        raise InputError(f"noise_model: expected a NoiseModel (fusion_gyrocal.core.noise.identify_noise), None "
+                         f"or 'seed', got {noise_model!r}")
+    misfit = misfit_gain(noise_model)
+    noise = np.asarray(calibration.noise_std if misfit == (0.0, 0.0) else noise_model.noise_std, dtype=float)
+    what = "calibration.noise_std" if misfit == (0.0, 0.0) else "noise_model.noise_std"
+    if not (np.isfinite(noise).all() and (noise > 0).all()):
+        raise InputError(f"{what}: expected two positive rad/s values, got {noise}")
+    return noise_model, (float(noise[0]), float(noise[1])), misfit
+
+
 def seed_filter(cal: PairCalibration, t: float, config, noise_std, misfit, *, span_s: float = 0.0,
                 previous: ScaleHold | None = None):
     """``(configuration, filter)``: the seed's :class:`~fusion_gyrocal.core.observability.Configuration` and the

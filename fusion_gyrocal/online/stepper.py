@@ -13,7 +13,7 @@ import dataclasses
 import numpy as np
 
 from ..core.model import PairCalibration
-from .adapt import NoiseScale, covariance_factors
+from .adapt import NoiseScale
 from .history import HistoryRecorder
 from .hold import ScaleHold
 from .ekf import ErrorStateEKF
@@ -70,10 +70,9 @@ class Stepper:
         if ns is None:
             return
         for s, e in block_spans(t, self.config.block_size, None):
-            H, r = f.linearise(w1[s:e], w2[s:e])
-            bins = ns.bins(w1[s:e])
-            g, held = covariance_factors(f.inflation(w1[s:e]), ns.factors(bins))
-            ns.learn(bins, f.innovation_d2(H, r, g), held)
+            bins, lam = ns.factors(w1[s:e])
+            _, _, d2, _, held = f.innovations(w1[s:e], w2[s:e], lam)
+            ns.learn(bins, d2, held)
         if self.misfit != (0.0, 0.0):
             ns.release_unseen()        # the misfit extrapolated beyond the seed's rates: free to fall below 1
 
@@ -107,89 +106,44 @@ class Stepper:
         return new
 
     def step(self, t, w1, w2, mode: str) -> int:
-        """The one update path: predict, gate, CUSUM, ONE filter update, record, maybe re-seed."""
-        f = self.filter
+        """The one update path of a block (``t`` (B,), ``w1``/``w2`` (B, 3)); a block of one sample is the
+        per-sample mode: predict, gate, CUSUM, ONE filter update, record, maybe re-seed. Returns the samples
+        used."""
+        f, ns, rs = self.filter, self.noise_scale, self.reseeder
         B = t.shape[0]
-        if B == 1:
-            return self.step_one(float(t[0]), w1[0], w2[0], mode)
-        t_mid = float(t.sum()) / B                                 # the block's mean time
+        t_mid = float(t[0]) if B == 1 else float(t.sum()) / B       # the block's mean time
         f.predict_to(t_mid)
         if not self.replaying:
             self.ring.push(t, w1, w2)
             self.n_samples += B
-        H, r = f.linearise(w1, w2)
-        g = f.inflation(w1)
-        ns = self.noise_scale
-        bins = held = None
+        bins = lam = None
         if ns is not None:
-            bins = ns.bins(w1)
-            g, held = covariance_factors(g, ns.factors(bins))
-        d2 = f.innovation_d2(H, r, g)
+            bins, lam = ns.factors(w1)
+        H, r, d2, g, held = f.innovations(w1, w2, lam)
         alarm = None
-        if self.reseeder.alarm is None and not self.replaying:
-            screened = None if ns is None else ns.mature(bins)
-            if screened is None or screened.any():
-                ts, d2s = (t, d2) if screened is None else (t[screened], ns.screened(bins, d2)[screened])
-                alarm = self.cusum.scan(ts, d2s)
-                if alarm is not None:
-                    alarm = (float(ts[alarm[0]]), alarm[1])
+        if rs.alarm is None and not self.replaying:
+            alarm = self.cusum.scan(t, d2) if ns is None else self.cusum.scan(*ns.screened(bins, t, d2))
         if alarm is not None:
-            self.reseeder.raise_alarm(self, *alarm)
-            d2 = f.innovation_d2(H, r, g)              # covariance opened by the step prior
-        elif ns is not None and self.reseeder.alarm is None:
-            ns.learn(bins, d2, held)                   # never while a step is suspected
+            rs.raise_alarm(self, *alarm)
+            H, r, d2, g, held = f.innovations(w1, w2, lam)         # covariance opened by the step prior
+        elif ns is not None and rs.alarm is None:
+            ns.learn(bins, d2, held)                               # never while a step is suspected
         keep = self.gate.keep(d2, fresh=alarm is not None)
-        n_used = int(np.count_nonzero(keep))
+        n_used = keep.count(True)
         self.n_rejected += B - n_used
         nis = np.nan
         if n_used == 1:
-            k = int(np.argmax(keep))
+            k = keep.index(True)
             f.update_one(H[k], r[k], 1.0 if g is None else float(g[k]))
             nis = d2[k] / 3.0
         elif n_used > 1:
             if ns is not None and ns.correlation != 1.0:
                 g = g * ns.correlation             # correlated errors: each sample is worth less
-            nis = f.update_block(w1, w2, keep, g) / (3.0 * n_used)
-            if ns is not None and self.reseeder.alarm is None:
+            nis = f.update_block(w1, w2, np.array(keep), g) / (3.0 * n_used)
+            if ns is not None and rs.alarm is None:
                 ns.learn_block(*f.score)
         if not self.replaying:
             self.recorder.add(t_mid, f.R, f.s1, f.s2, f.b, f.kf.P, nis, n_used, mode)
-            if self.reseeder.alarm is not None:
-                self.reseeder.maybe_reseed(self)
+            if rs.alarm is not None:
+                rs.maybe_reseed(self)
         return n_used
-
-    def step_one(self, t: float, w1, w2, mode: str) -> int:
-        """:meth:`step` for a block of one sample, in scalar form (the per-sample hot path): the same
-        predict, gate, CUSUM, filterpy update and record, without the block machinery."""
-        f = self.filter
-        f.predict_to(t)
-        if not self.replaying:
-            self.ring.push_one(t, w1, w2)
-            self.n_samples += 1
-        ns = self.noise_scale
-        if ns is None:
-            lam = 1.0
-        else:
-            j, lam, mature = ns.bin_one(w1)
-        H, r, S, d2, g = f.linearise_one(w1, w2, lam)
-        alarm = None
-        if self.reseeder.alarm is None and not self.replaying:
-            if ns is None:
-                alarm = self.cusum.scan_one(t, d2)
-            elif mature:
-                alarm = self.cusum.scan_one(t, ns.screened_one(j, d2))
-        if alarm is not None:
-            self.reseeder.raise_alarm(self, t, alarm[1])
-            H, r, S, d2, g = f.linearise_one(w1, w2, lam)    # covariance opened by the step prior
-        elif ns is not None and self.reseeder.alarm is None:
-            ns.learn_one(j, d2, 1.0 if g >= 1.0 else 1.0 / g)   # (a sample held at the white noise: 1 / g)
-        used = self.gate.keep_one(d2, fresh=alarm is not None)
-        if used:
-            f.update_one(H, r, g if g > 1.0 else 1.0)
-        else:
-            self.n_rejected += 1
-        if not self.replaying:
-            self.recorder.add(t, f.R, f.s1, f.s2, f.b, f.kf.P, d2 / 3.0 if used else np.nan, int(used), mode)
-            if self.reseeder.alarm is not None:
-                self.reseeder.maybe_reseed(self)
-        return int(used)

@@ -23,35 +23,27 @@ class InnovationGate:
     def __init__(self, limit: float, neighbours: int, pending: int = 0):
         self.limit, self.neighbours, self.pending = float(limit), int(neighbours), int(pending)
 
-    def keep(self, d2: np.ndarray, *, fresh: bool = False) -> np.ndarray:
-        """Boolean mask of the samples to use; ``fresh`` forgets the drops owed by earlier blocks."""
-        B = d2.shape[0]
+    def keep(self, d2, *, fresh: bool = False) -> list[bool]:
+        """Which samples of a block to use (a list of B bools) from their ``d2`` (a sequence of B floats);
+        ``fresh`` forgets the drops owed by earlier blocks. A plain loop: a block of one sample (the per-sample
+        mode) costs a few Python operations, a block of a hundred about what a vectorised mask does."""
         if fresh:
             self.pending = 0
-        bad = ~(d2 <= self.limit)          # NaN is gated too
-        carry = max(self.pending - B, 0)
-        if bad.any():
-            carry = max(carry, self.neighbours - (B - 1 - int(np.flatnonzero(bad)[-1])))
-            for _ in range(self.neighbours):
-                bad[1:] |= bad[:-1].copy()
-                bad[:-1] |= bad[1:].copy()
-        if self.pending:
-            bad[:self.pending] = True
+        B, n, limit, pending = len(d2), self.neighbours, self.limit, self.pending
+        keep = [True] * B
+        last = -1                          # the last gated sample
+        for k, x in enumerate(d2):
+            if not x <= limit:             # NaN is gated too
+                last = k
+                lo = k - n if k > n else 0
+                keep[lo:k + n + 1] = [False] * (min(k + n + 1, B) - lo)
+        carry = pending - B if pending > B else 0
+        if last >= 0 and n - (B - 1 - last) > carry:
+            carry = n - (B - 1 - last)
+        if pending:
+            keep[:pending] = [False] * min(pending, B)
         self.pending = carry
-        return ~bad
-
-
-    def keep_one(self, d2: float, *, fresh: bool = False) -> bool:
-        """:meth:`keep` for a block of one sample (scalar; the per-sample hot path)."""
-        if fresh:
-            self.pending = 0
-        if not d2 <= self.limit:           # NaN is gated too
-            self.pending = self.neighbours
-            return False
-        if self.pending:
-            self.pending -= 1
-            return False
-        return True
+        return keep
 
 
 class Cusum:
@@ -72,33 +64,21 @@ class Cusum:
         """Start again from zero at time ``t``."""
         self.level, self.zero_t = 0.0, float(t)
 
-    def scan(self, t: np.ndarray, d2: np.ndarray):
-        """Run over a block; ``(index, onset time)`` of the first alarm (the level then restarts), else None."""
+    def scan(self, t, d2):
+        """Run over a block (times ``t``, ``d2`` a sequence of floats); ``(t_detected, onset)`` of the first alarm
+        (the level then restarts), else None."""
         level, clip, shift, threshold = self.level, self.clip, 1.0 + self.allowance, self.threshold
         zero = -1
-        for k, x in enumerate(d2.tolist()):
+        for k, x in enumerate(d2):
             level += (x if x <= clip else clip) / 3.0 - shift      # NaN counts as the clip
             if level <= 0.0:
                 level, zero = 0.0, k
             elif level > threshold:
                 onset = float(t[zero]) if zero >= 0 else self.zero_t
                 self.level = 0.0
-                return k, onset
+                return float(t[k]), onset
         if zero >= 0:
             self.zero_t = float(t[zero])
-        self.level = level
-        return None
-
-
-    def scan_one(self, t: float, d2: float):
-        """:meth:`scan` for a block of one sample: ``(0, onset time)`` on an alarm, else None."""
-        level = self.level + ((d2 if d2 <= self.clip else self.clip) / 3.0 - (1.0 + self.allowance))
-        if level <= 0.0:
-            self.level, self.zero_t = 0.0, t
-            return None
-        if level > self.threshold:
-            self.level = 0.0
-            return 0, self.zero_t
         self.level = level
         return None
 
@@ -116,32 +96,19 @@ class SampleRing:
 
     def push(self, t, w1, w2) -> None:
         """Append sample rows (``t`` (m,), ``w1``/``w2`` (m, 3)); the oldest are overwritten."""
-        m = t.shape[0]
-        rows = np.empty((m, 7))
-        rows[:, 0], rows[:, 1:4], rows[:, 4:7] = t, w1, w2
-        if m >= self.cap:
-            self.buf[:] = rows[-self.cap:]
-            self.head, self.n = 0, self.cap
-            return
-        end = self.head + m
-        if end <= self.cap:
-            self.buf[self.head:end] = rows
+        m, cap, head = t.shape[0], self.cap, self.head
+        if m >= cap:
+            t, w1, w2, m, head = t[-cap:], w1[-cap:], w2[-cap:], cap, 0
+        end = head + m
+        if end <= cap:
+            rows = self.buf[head:end]
+            rows[:, 0], rows[:, 1:4], rows[:, 4:7] = t, w1, w2
         else:
-            k = self.cap - self.head
-            self.buf[self.head:] = rows[:k]
-            self.buf[: m - k] = rows[k:]
-        self.head = end % self.cap
-        self.n = min(self.cap, self.n + m)
-
-    def push_one(self, t: float, w1, w2) -> None:
-        """Append one sample row (the per-sample hot path of :meth:`push`)."""
-        row = self.buf[self.head]
-        row[0] = t
-        row[1:4] = w1
-        row[4:7] = w2
-        self.head = (self.head + 1) % self.cap
-        if self.n < self.cap:
-            self.n += 1
+            k = cap - head
+            self.buf[head:, 0], self.buf[head:, 1:4], self.buf[head:, 4:7] = t[:k], w1[:k], w2[:k]
+            self.buf[:m - k, 0], self.buf[:m - k, 1:4], self.buf[:m - k, 4:7] = t[k:], w1[k:], w2[k:]
+        self.head = end % cap
+        self.n = min(cap, self.n + m)
 
     def rows(self) -> np.ndarray:
         """Every stored row, oldest first (a copy)."""

@@ -73,7 +73,7 @@ from .figures import plot_history, track_figure_for_report
 from .history import PairTruth, ReseedEvent, TrackHistory
 from .hold import DIM
 from .reseed import observable_chi2
-from .seed import misfit_gain, model_error, seed_from_samples
+from .seed import model_error, seed_from_samples, seed_noise
 from .stepper import Stepper
 from .steps import block_spans
 
@@ -81,6 +81,30 @@ __all__ = ["DriftNoise", "GyroPairTracker", "PairTruth", "ReseedEvent", "StepPri
            "TrackerConfig", "plot_history", "track_figure_for_report"]
 
 _CONFIG_FIELDS = frozenset(f.name for f in dataclasses.fields(TrackerConfig))
+
+
+def _finite_rates(t, omega_1, omega_2, where: str):
+    """``omega_1``, ``omega_2`` as float (N, 3) arrays of finite rates, one row per time of ``t``."""
+    w1 = np.asarray(as_rates("omega_1", omega_1, length=t.shape[0]), dtype=float)
+    w2 = np.asarray(as_rates("omega_2", omega_2, length=t.shape[0]), dtype=float)
+    if not (np.isfinite(w1).all() and np.isfinite(w2).all()):
+        bad = int(np.flatnonzero(~(np.isfinite(w1).all(1) & np.isfinite(w2).all(1)))[0])
+        raise InputError(f"omega_1/omega_2: expected finite rates, got a non-finite value at sample {bad}{where}; "
+                         "mask or drop it first")
+    return w1, w2
+
+
+def _truth_columns(tracker, rows: PairTruth, nees_rows) -> tuple:
+    """``(nees, truth)`` columns of a tracker's history whose last ``len(rows)`` rows are the updates a run with
+    the truth ``rows`` (one per update) made: scales in the tracker's gauge, NaN in the earlier rows."""
+    scales = np.array([np.concatenate(tracker.express_in_gauge(a, b)) for a, b in zip(rows.scale_1, rows.scale_2)])
+    n0 = len(tracker._track.recorder) - len(rows)
+
+    def pad(x):
+        return np.concatenate([np.full((n0,) + x.shape[1:], np.nan), x])
+
+    scales = pad(scales.reshape(-1, 6))
+    return pad(np.array(nees_rows)), (pad(rows.R_1_2), scales[:, :3], scales[:, 3:], pad(rows.bias))
 
 
 class GyroPairTracker:
@@ -143,21 +167,12 @@ class GyroPairTracker:
                  noise_model: NoiseModel | None | str = "seed", config: TrackerConfig | None = None, **options):
         if not isinstance(calibration, PairCalibration):
             raise InputError(f"calibration: expected a PairCalibration, got {type(calibration).__name__}")
-        if isinstance(noise_model, str) and noise_model == "seed":
-            noise_model = calibration.noise_model if isinstance(calibration.noise_model, NoiseModel) else None
-        if noise_model is not None and not isinstance(noise_model, NoiseModel):
-            raise InputError(f"noise_model: expected a NoiseModel (fusion_gyrocal.core.noise.identify_noise), None "
-                             f"or 'seed', got {noise_model!r}")
         config = TrackerConfig.of(config, **options)
-        misfit = misfit_gain(noise_model)
-        noise = np.asarray(calibration.noise_std if misfit == (0.0, 0.0) else noise_model.noise_std, dtype=float)
-        what = "calibration.noise_std" if misfit == (0.0, 0.0) else "noise_model.noise_std"
-        if not (np.isfinite(noise).all() and (noise > 0).all()):
-            raise InputError(f"{what}: expected two positive rad/s values, got {noise}")
+        noise_model, noise_std, misfit = seed_noise(calibration, noise_model)
         self._noise_model = noise_model
         self._time_offset_s = float(calibration.time_offset_s)
-        self._track = Stepper(calibration, float(t0), float(seed_span_s), config, (float(noise[0]), float(noise[1])),
-                              misfit, model_error(calibration))
+        self._track = Stepper(calibration, float(t0), float(seed_span_s), config, noise_std, misfit,
+                              model_error(calibration))
 
     def __setattr__(self, name, value):
         if name in _CONFIG_FIELDS:
@@ -171,16 +186,13 @@ class GyroPairTracker:
                      config: TrackerConfig | None = None, **options) -> "GyroPairTracker":
         """Seed a tracker from sample-aligned data with :func:`fusion_gyrocal.calibrate_pair`.
 
-        The batch solve applies the paper's flex rejection and the tracker's gauge (``gauge``, else
-        the configuration's); ``noise_std`` (rad/s per sample, one value or one per gyro) defaults to
-        its residual estimate. The noise is then identified on the window
-        (:func:`fusion_gyrocal.core.noise.identify_noise` at the sample rate of ``t``, unless ``noise_model``
-        is given; a window shorter than 16 s leaves it white). When it flags a rate-dependent misfit,
-        the tracker weighs each sample by the white noise (``noise_std``, else the model's) plus the
-        misfit's variance, and the seed is solved again with the window's effective noise
-        (:func:`~.seed.effective_noise`) so that its covariance says what the window is worth. The tracker
-        starts at ``t[-1]`` with the seed inflated for the drift over the window (``seed_span_s``).
-        ``config`` and ``options`` configure the tracker.
+        The batch solve applies the paper's flex rejection and the tracker's gauge (``gauge``, else the
+        configuration's); ``noise_std`` (rad/s per sample, one value or one per gyro) defaults to its residual
+        estimate. The noise is then identified on the window (unless ``noise_model`` is given); when it flags a
+        rate-dependent misfit, the tracker weighs each sample by the white noise plus the misfit's variance and the
+        seed is solved again with the window's effective noise (:func:`~.seed.seed_from_samples`). The tracker
+        starts at ``t[-1]`` with the seed inflated for the drift over the window (``seed_span_s``), its adapted
+        noise started on the window. ``config`` and ``options`` configure the tracker.
         """
         if gauge is not None:
             options["gauge"] = gauge
@@ -407,14 +419,9 @@ class GyroPairTracker:
             t = t.astype(np.float64)            # one sample is a block too (check_timestamps asks for two)
         else:
             t = check_timestamps("t", t)
-        w1 = as_rates("omega_1", omega_1, length=t.shape[0])
-        w2 = as_rates("omega_2", omega_2, length=t.shape[0])
-        if not (np.isfinite(w1).all() and np.isfinite(w2).all()):
-            bad = int(np.flatnonzero(~(np.isfinite(w1).all(1) & np.isfinite(w2).all(1)))[0])
-            raise InputError(f"omega_1/omega_2: expected finite rates, got a non-finite value at sample {bad} "
-                             "of the block; mask or drop it first")
+        w1, w2 = _finite_rates(t, omega_1, omega_2, " of the block")
         self._check_start(t[0])
-        return self._track.step(t, np.asarray(w1, dtype=float), np.asarray(w2, dtype=float), "fast")
+        return self._track.step(t, w1, w2, "fast")
 
     def _check_start(self, t0) -> None:
         if t0 < self._track.filter.t:
@@ -458,43 +465,25 @@ class GyroPairTracker:
             raise OptionError(f"block_size: expected an integer >= 1, got {block_size!r}")
         B = int(B)
         t = check_timestamps("t", t)
-        w1 = np.asarray(as_rates("omega_1", omega_1, length=t.shape[0]), dtype=float)
-        w2 = np.asarray(as_rates("omega_2", omega_2, length=t.shape[0]), dtype=float)
-        if not (np.isfinite(w1).all() and np.isfinite(w2).all()):
-            bad = int(np.flatnonzero(~(np.isfinite(w1).all(1) & np.isfinite(w2).all(1)))[0])
-            raise InputError(f"omega_1/omega_2: expected finite rates, got a non-finite value at sample {bad}; "
-                             "mask or drop it first")
+        w1, w2 = _finite_rates(t, omega_1, omega_2, "")
         if truth is not None and self._track.config.history_max_rows is not None:
             raise OptionError("truth: the truth columns need one history row per update; expected "
                               f"history_max_rows=None, got {self._track.config.history_max_rows}")
         if truth is not None and len(truth) != t.shape[0]:
             raise InputError(f"truth: expected {t.shape[0]} rows (one per sample), got {len(truth)}")
         self._check_start(t[0])
-        if mode == "sample" and truth is None:     # the per-sample hot path: no per-sample slicing
-            for k, tk in enumerate(t.tolist()):
-                self._track.step_one(tk, w1[k], w2[k], mode)
-            return self.history()
-        spans = [(k, k + 1) for k in range(t.shape[0])] if mode == "sample" else block_spans(t, B, max_gap_s)
-        truth_idx, nees_rows = [], []
-        for s, e in spans:
-            self._track.step(t[s:e], w1[s:e], w2[s:e], mode)
+        n = t.shape[0]
+        spans = zip(range(n), range(1, n + 1)) if mode == "sample" else block_spans(t, B, max_gap_s)
+        step, truth_idx, nees_rows = self._track.step, [], []
+        for s, e in spans:                          # the per-sample mode: blocks of one
+            step(t[s:e], w1[s:e], w2[s:e], mode)
             if truth is not None:
                 k = min(int(s + np.searchsorted(t[s:e], t[s:e].mean())), e - 1)
                 truth_idx.append(k)
                 nees_rows.append(self.nees(truth.R_1_2[k], truth.scale_1[k], truth.scale_2[k], truth.bias[k]))
         if truth is None:
             return self.history()
-        # truth columns aligned with the rows of this run (scales in the gauge); earlier rows get NaN
-        rows = truth[np.asarray(truth_idx, dtype=int)]
-        scales = np.array([np.concatenate(self.express_in_gauge(a, b)) for a, b in zip(rows.scale_1, rows.scale_2)])
-        n0 = len(self._track.recorder) - len(truth_idx)
-
-        def pad(x):
-            return np.concatenate([np.full((n0,) + x.shape[1:], np.nan), x])
-
-        scales = pad(scales.reshape(-1, 6))
-        return self._history_with(pad(np.array(nees_rows)), (pad(rows.R_1_2), scales[:, :3], scales[:, 3:],
-                                                             pad(rows.bias)))
+        return self._history_with(*_truth_columns(self, truth[np.asarray(truth_idx, dtype=int)], nees_rows))
 
     def run_streams(self, t_1, omega_1, t_2, omega_2, *, mode: str = "fast", block_size: int | None = None,
                     max_gap_s: float | None = None) -> TrackHistory:
