@@ -577,7 +577,7 @@ def test_innovations_block_of_one_equals_vectorised():
     for k in (1000, 1500, 1999):
         H, r, d2, g, _ = f.innovations(w1[k - 1:k + 1], w2[k - 1:k + 1])
         H1, r1, d21, g1, held = f.innovations(w1[k:k + 1], w2[k:k + 1])
-        assert H1.shape == (1, 3, 12) and r1.shape == (1, 3) and g is None and g1 == [1.0] and held is None
+        assert H1.shape == (1, 3, 12) and r1.shape == (1, 3) and g is None and tuple(g1) == (1.0,) and held is None
         np.testing.assert_allclose(H1[0], H[1], rtol=1e-14, atol=1e-15)
         np.testing.assert_allclose(r1[0], (w1[k:k + 1] - w2[k:k + 1] @ f.A.T - f.b)[0], rtol=1e-14, atol=1e-17)
         np.testing.assert_allclose(r1[0], r[1], rtol=1e-12, atol=1e-15)         # (a 2-row product rounds differently)

@@ -131,8 +131,8 @@ class NoiseScale:
         return np.searchsorted(self._edges, np.sqrt(v), side="right")
 
     def _bin(self, w1) -> int:
-        """:meth:`_bins` of one sample (3,), in scalar arithmetic."""
-        x0, x1, x2 = w1.tolist()
+        """:meth:`_bins` of a block of one sample (1, 3), in scalar arithmetic."""
+        (x0, x1, x2), = w1.tolist()
         p = self._prev
         self._prev = (x0, x1, x2)
         v = x0 * x0 + x1 * x1 + x2 * x2
@@ -153,11 +153,11 @@ class NoiseScale:
     # (numpy's per-call cost on one sample is several times the arithmetic); larger blocks vectorised.
     def factors(self, w1):
         """``(bins, lambda)``: the rate bins (B,) of gyro-1 rates ``w1`` (B, 3) and their factors (B,)."""
-        if w1.shape[0] == 1:
-            j = self._bin(w1[0])
+        if len(w1) == 1:
+            j = self._bin(w1)
             if self._count[j] == 0:
                 self._inherit(j)
-            return [j], [self._scale[j]]
+            return (j,), (self._scale[j],)
         bins = self._bins(w1)
         for j in np.unique(bins).tolist():
             if self._count[j] == 0:
@@ -165,7 +165,7 @@ class NoiseScale:
         return bins, np.array(self._scale)[bins]
 
     def screened(self, bins, t, d2):
-        """``(t, d2)`` of the samples the CUSUM screens, ``d2`` as it screens them: only the samples whose bin
+        """``(t, d2)`` (sequences) of the samples the CUSUM screens, ``d2`` as it screens them: only the samples whose bin
         has seen :data:`MATURE` samples (its factor is learnt), ``3 (1 + (x - 1) / k)``, ``x = min(d^2, c) / 3``,
         with ``k = max(1, sqrt(v_j / v_0))`` for ``v_j`` the bin's running mean of ``(x - 1)^2`` and ``v_0`` its
         value for chi-square(3) innovations: a bin whose normalised innovations scatter more than the
@@ -180,13 +180,13 @@ class NoiseScale:
         mature = np.array(self._count)[bins] >= self.mature_count
         k = np.array(self._spread)[bins]
         x = np.minimum(np.nan_to_num(np.asarray(d2), nan=self.clip), self.clip)
-        return t[mature], (3.0 + (x - 3.0) / np.sqrt(np.maximum(k / CHI2_3_SPREAD, 1.0)))[mature].tolist()
+        return np.asarray(t)[mature], (3.0 + (x - 3.0) / np.sqrt(np.maximum(k / CHI2_3_SPREAD, 1.0)))[mature].tolist()
 
     def learn(self, bins, d2, held=None) -> None:
         """Update the factors from a block's normalised innovations ``d2`` (B,) (computed with the factors);
         ``held`` (B,): ``max(lambda g, 1) / (lambda g)`` of samples held at the white noise (None: none)."""
         if len(bins) == 1:
-            j = int(bins[0])
+            j = bins[0]
             c = self._count[j] + 1
             self._count[j] = c
             x = (d2[0] if d2[0] <= self.clip else self.clip) / 3.0          # NaN counts as the clip

@@ -351,8 +351,8 @@ class ErrorStateEKF:
         A block of one sample (the per-sample mode) is computed in scalar arithmetic with a reused Jacobian
         buffer (numpy's per-call cost on one sample is several times the arithmetic); the same values.
         """
-        if w1.shape[0] == 1:
-            return self._innovations_one(w1[0], w2[0], 1.0 if lam is None else lam[0])
+        if len(w1) == 1:
+            return self._innovations_one(w1, w2[0], 1.0 if lam is None else lam[0])
         H, r = self.linearise(w1, w2)
         g, held = self.inflation(w1), None
         if lam is not None:
@@ -360,7 +360,8 @@ class ErrorStateEKF:
         return H, r, self.innovation_d2(H, r, g).tolist(), g, held
 
     def _innovations_one(self, w1, w2, lam: float) -> tuple:
-        """:meth:`innovations` of one sample (3,) with the adapted factor ``lam`` (scalar arithmetic)."""
+        """:meth:`innovations` of a block of one sample (``w1`` (1, 3), ``w2`` (3,)) with the adapted factor ``lam``
+        (scalar arithmetic)."""
         (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = self.R.tolist()
         a0, a1, a2 = self.s1.tolist()
         c0, c1, c2 = self.s2.tolist()
@@ -375,7 +376,7 @@ class ErrorStateEKF:
         self._H1f[_H1_VARYING] = (a0 * u2, -a0 * u1, a0 * u0, A00 * -x0, A01 * -x1, A02 * -x2,   # row 0
                                       -a1 * u2, a1 * u0, a1 * u1, A10 * -x0, A11 * -x1, A12 * -x2,   # row 1
                                       a2 * u1, -a2 * u0, a2 * u2, A20 * -x0, A21 * -x1, A22 * -x2)   # row 2
-        y0, y1, y2 = w1.tolist()
+        (y0, y1, y2), = w1.tolist()
         # A omega_2 through numpy's product, as in :meth:`linearise` (BLAS fuses the multiply-adds)
         d0, d1, d2 = np.dot(np.array((A00, A01, A02, A10, A11, A12, A20, A21, A22)).reshape(3, 3), w2).tolist()
         e0, e1, e2 = y0 - d0 - b0, y1 - d1 - b1, y2 - d2 - b2        # omega_1 - A omega_2 - b
@@ -395,8 +396,8 @@ class ErrorStateEKF:
             gR = gs * R
             S += gR
             self._gR = (gs, R, gR)                 # the update's measurement covariance (update_one)
-        return (self._H1b, np.array(((e0, e1, e2),)), [_quadratic_3(S, e0, e1, e2)], [gs],
-                None if g >= 1.0 else [1.0 / g])
+        return (self._H1b, np.array((e0, e1, e2))[None], (_quadratic_3(S, e0, e1, e2),), (gs,),
+                None if g >= 1.0 else (1.0 / g,))
 
     def update_one(self, H, r, g: float = 1.0) -> None:
         """One sample's update through filterpy's Kalman update (Joseph form), then the fold; ``g`` is the

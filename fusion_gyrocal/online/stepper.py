@@ -110,8 +110,9 @@ class Stepper:
         per-sample mode: predict, gate, CUSUM, ONE filter update, record, maybe re-seed. Returns the samples
         used."""
         f, ns, rs = self.filter, self.noise_scale, self.reseeder
-        B = t.shape[0]
+        B = len(t)
         t_mid = float(t[0]) if B == 1 else float(t.sum()) / B       # the block's mean time
+        times = (t_mid,) if B == 1 else t
         f.predict_to(t_mid)
         if not self.replaying:
             self.ring.push(t, w1, w2)
@@ -122,7 +123,7 @@ class Stepper:
         H, r, d2, g, held = f.innovations(w1, w2, lam)
         alarm = None
         if rs.alarm is None and not self.replaying:
-            alarm = self.cusum.scan(t, d2) if ns is None else self.cusum.scan(*ns.screened(bins, t, d2))
+            alarm = self.cusum.scan(times, d2) if ns is None else self.cusum.scan(*ns.screened(bins, times, d2))
         if alarm is not None:
             rs.raise_alarm(self, *alarm)
             H, r, d2, g, held = f.innovations(w1, w2, lam)         # covariance opened by the step prior

@@ -29,11 +29,14 @@ class InnovationGate:
         mode) costs a few Python operations, a block of a hundred about what a vectorised mask does."""
         if fresh:
             self.pending = 0
-        B, n, limit, pending = len(d2), self.neighbours, self.limit, self.pending
-        keep = [True] * B
+        limit, pending = self.limit, self.pending
+        keep = [x <= limit for x in d2]    # NaN is gated too
+        if not pending and all(keep):
+            return keep
+        B, n = len(keep), self.neighbours
         last = -1                          # the last gated sample
-        for k, x in enumerate(d2):
-            if not x <= limit:             # NaN is gated too
+        for k, ok in enumerate(keep.copy()):
+            if not ok:
                 last = k
                 lo = k - n if k > n else 0
                 keep[lo:k + n + 1] = [False] * (min(k + n + 1, B) - lo)
@@ -84,37 +87,39 @@ class Cusum:
 
 
 class SampleRing:
-    """Fixed-capacity ring buffer of ``[t, omega_1, omega_2]`` rows (the re-seed window, replays)."""
+    """Fixed-capacity ring buffer of ``[t, omega_1, omega_2]`` rows (the re-seed window, replays); the times and
+    the two gyros' rates are kept in three arrays (a row is written as three contiguous slices)."""
 
-    __slots__ = ("buf", "cap", "n", "head")
+    __slots__ = ("t", "w1", "w2", "cap", "n", "head")
 
     def __init__(self, capacity: int):
-        self.buf = np.empty((capacity, 7))
+        self.t, self.w1, self.w2 = np.empty(capacity), np.empty((capacity, 3)), np.empty((capacity, 3))
         self.cap = capacity
         self.n = 0       # rows stored
         self.head = 0    # next write position
 
     def push(self, t, w1, w2) -> None:
         """Append sample rows (``t`` (m,), ``w1``/``w2`` (m, 3)); the oldest are overwritten."""
-        m, cap, head = t.shape[0], self.cap, self.head
+        m, cap, head = len(t), self.cap, self.head
         if m >= cap:
             t, w1, w2, m, head = t[-cap:], w1[-cap:], w2[-cap:], cap, 0
         end = head + m
         if end <= cap:
-            rows = self.buf[head:end]
-            rows[:, 0], rows[:, 1:4], rows[:, 4:7] = t, w1, w2
+            self.t[head:end] = t
+            self.w1[head:end] = w1
+            self.w2[head:end] = w2
         else:
             k = cap - head
-            self.buf[head:, 0], self.buf[head:, 1:4], self.buf[head:, 4:7] = t[:k], w1[:k], w2[:k]
-            self.buf[:m - k, 0], self.buf[:m - k, 1:4], self.buf[:m - k, 4:7] = t[k:], w1[k:], w2[k:]
-        self.head = end % cap
-        self.n = min(cap, self.n + m)
+            self.t[head:], self.w1[head:], self.w2[head:] = t[:k], w1[:k], w2[:k]
+            self.t[:m - k], self.w1[:m - k], self.w2[:m - k] = t[k:], w1[k:], w2[k:]
+        self.head = end if end < cap else end - cap
+        n = self.n + m
+        self.n = n if n < cap else cap
 
     def rows(self) -> np.ndarray:
-        """Every stored row, oldest first (a copy)."""
-        if self.n < self.cap:
-            return self.buf[: self.n].copy()
-        return np.concatenate([self.buf[self.head:], self.buf[: self.head]])
+        """Every stored row ``[t, omega_1, omega_2]`` (n, 7), oldest first (a copy)."""
+        parts = (slice(0, self.n),) if self.n < self.cap else (slice(self.head, None), slice(0, self.head))
+        return np.concatenate([np.column_stack((self.t[s], self.w1[s], self.w2[s])) for s in parts])
 
     def since(self, t0: float) -> np.ndarray:
         """Stored rows at or after ``t0``, oldest first."""
@@ -125,7 +130,7 @@ class SampleRing:
         """Time of the oldest stored row (inf when empty)."""
         if self.n == 0:
             return np.inf
-        return float(self.buf[0 if self.n < self.cap else self.head, 0])
+        return float(self.t[0 if self.n < self.cap else self.head])
 
     def resized(self, capacity: int) -> "SampleRing":
         """A new ring of ``capacity`` holding the most recent rows of this one."""

@@ -472,10 +472,13 @@ class GyroPairTracker:
         if truth is not None and len(truth) != t.shape[0]:
             raise InputError(f"truth: expected {t.shape[0]} rows (one per sample), got {len(truth)}")
         self._check_start(t[0])
-        n = t.shape[0]
-        spans = zip(range(n), range(1, n + 1)) if mode == "sample" else block_spans(t, B, max_gap_s)
         step, truth_idx, nees_rows = self._track.step, [], []
-        for s, e in spans:                          # the per-sample mode: blocks of one
+        if mode == "sample" and truth is None:      # blocks of one, as views made by numpy's iteration
+            for tk, a, b in zip(t[:, None], w1[:, None], w2[:, None]):
+                step(tk, a, b, mode)
+            return self.history()
+        n = t.shape[0]
+        for s, e in zip(range(n), range(1, n + 1)) if mode == "sample" else block_spans(t, B, max_gap_s):
             step(t[s:e], w1[s:e], w2[s:e], mode)
             if truth is not None:
                 k = min(int(s + np.searchsorted(t[s:e], t[s:e].mean())), e - 1)
