@@ -136,7 +136,7 @@ def history_memory(n=20000):
 
 def _z_at_alarm(tr, batch) -> tuple[float, float, float]:
     """``(t_detected, diff_mdeg, z)`` of the filter's state at its open alarm (the state it returns to if no step is
-    confirmed; a private field, for this diagnostic only) against the batch."""
+    confirmed; :attr:`GyroPairTracker.state_at_alarm`) against the batch."""
     from fusion_gyrocal.lie import log
 
     R0, P0 = tr.state_at_alarm[0], tr.state_at_alarm[4]

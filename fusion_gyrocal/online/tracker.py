@@ -94,6 +94,12 @@ def _finite_rates(t, omega_1, omega_2, where: str):
     return w1, w2
 
 
+def _check_start(f, t0) -> None:
+    """Refuse block times before the filter ``f``'s current time."""
+    if t0 < f.t:
+        raise InputError(f"t: expected block times at or after the current time {f.t!r}, got {t0!r}")
+
+
 def _truth_columns(tracker, rows: PairTruth, nees_rows) -> tuple:
     """``(nees, truth)`` columns of a tracker's history whose last ``len(rows)`` rows are the updates a run with
     the truth ``rows`` (one per update) made: scales in the tracker's gauge, NaN in the earlier rows."""
@@ -420,12 +426,8 @@ class GyroPairTracker:
         else:
             t = check_timestamps("t", t)
         w1, w2 = _finite_rates(t, omega_1, omega_2, " of the block")
-        self._check_start(t[0])
+        _check_start(self._track.filter, t[0])
         return self._track.step(t, w1, w2, "fast")
-
-    def _check_start(self, t0) -> None:
-        if t0 < self._track.filter.t:
-            raise InputError(f"t: expected block times at or after the current time {self._track.filter.t!r}, got {t0!r}")
 
     # ------------------------------------------------------------------ history
     def history(self) -> TrackHistory:
@@ -471,7 +473,7 @@ class GyroPairTracker:
                               f"history_max_rows=None, got {self._track.config.history_max_rows}")
         if truth is not None and len(truth) != t.shape[0]:
             raise InputError(f"truth: expected {t.shape[0]} rows (one per sample), got {len(truth)}")
-        self._check_start(t[0])
+        _check_start(self._track.filter, t[0])
         step, truth_idx, nees_rows = self._track.step, [], []
         if mode == "sample" and truth is None:      # blocks of one, as views made by numpy's iteration
             for tk, a, b in zip(t[:, None], w1[:, None], w2[:, None]):
