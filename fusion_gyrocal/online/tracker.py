@@ -180,7 +180,7 @@ class GyroPairTracker:
         self._track = Stepper(calibration, float(t0), float(seed_span_s), config, noise_std, misfit,
                               model_error(calibration))
 
-    def __setattr__(self, name, value):
+    def __setattr__(self, name, value):           # the configuration's fields: a helpful refusal
         if name in _CONFIG_FIELDS:
             raise AttributeError(f"{name}: the tracker's configuration is frozen; tracker.reconfigured({name}=...) "
                                  "returns a tracker with the new value that continues from the current state")
@@ -217,9 +217,8 @@ class GyroPairTracker:
         This tracker is left unchanged.
         """
         new = object.__new__(type(self))
-        object.__setattr__(new, "_noise_model", self._noise_model)
-        object.__setattr__(new, "_time_offset_s", self._time_offset_s)
-        object.__setattr__(new, "_track", self._track.reconfigured(self._track.config.replace(**changes)))
+        new._noise_model, new._time_offset_s = self._noise_model, self._time_offset_s
+        new._track = self._track.reconfigured(self._track.config.replace(**changes))
         return new
 
     # ------------------------------------------------------------------ configuration, state (read-only)
