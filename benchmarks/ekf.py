@@ -136,10 +136,10 @@ def history_memory(n=20000):
 
 def _z_at_alarm(tr, batch) -> tuple[float, float, float]:
     """``(t_detected, diff_mdeg, z)`` of the filter's state at its open alarm (the state it returns to if no step is
-    confirmed; a private field, for this diagnostic only) against the batch."""
+    confirmed; :attr:`GyroPairTracker.state_at_alarm`) against the batch."""
     from fusion_gyrocal.lie import log
 
-    R0, P0 = tr._alarm.state[0], tr._alarm.state[4]
+    R0, P0 = tr.state_at_alarm[0], tr.state_at_alarm[4]
     d = np.linalg.norm(log(R0 @ batch.R_1_2.T))
     se, sb = np.sqrt(np.trace(P0[:3, :3])), np.sqrt(np.trace(np.asarray(batch.covariance)[:3, :3]))
     return tr.open_alarm[0], d / DEG * 1e3, d / np.hypot(se, sb)

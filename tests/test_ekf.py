@@ -14,7 +14,8 @@ from fusion_gyrocal import PairCalibration, calibrate_pair
 from fusion_gyrocal.errors import InputError, OptionError
 from fusion_gyrocal.evaluate.sim import (DEG, HumanMotion, general_rotation, rotation_error, scale_error, shared_data_dir,
                                          simulate_drifting_pair)
-from fusion_gyrocal.online.tracker import DriftNoise, GyroPairTracker, TrackerConfig, _misfit_gain, plot_history
+from fusion_gyrocal.online.seed import misfit_gain
+from fusion_gyrocal.online.tracker import DriftNoise, GyroPairTracker, TrackerConfig, plot_history
 
 RATE = 100.0
 NOISE = 0.1 * DEG          # the paper's white noise per sample (rad/s)
@@ -97,7 +98,7 @@ def test_update_block_equals_stacked_update():
     K = P0 @ Hs.T @ np.linalg.inv(S)
     P1 = (np.eye(12) - K @ Hs) @ P0
     # plus the errors-in-variables correction of the information vector (ErrorStateEKF.update_block)
-    G = tr._filter.generators()
+    G = tr.filter.generators()
     x = K @ r + P1 @ (B * tr.noise_std[1] ** 2 * np.einsum("mai,am->i", G[:3], np.linalg.inv(Rk) @ A))
     used = tr.update_block(tb, w1b, w2b)
     assert used == B
@@ -115,7 +116,7 @@ def test_GyroPairTracker_config_assignment_raises():
     rng = np.random.default_rng(20)
     t, w1, w2, _ = scenario(rng, 12.0)
     tr = GyroPairTracker.from_samples(t[:1000], w1[:1000], w2[:1000], cusum_threshold=30.0)
-    assert tr.config.cusum_threshold == tr.cusum_threshold == 30.0
+    assert tr.config.cusum_threshold == 30.0
     P0 = tr.error_covariance
     with pytest.raises(AttributeError, match="frozen.*reconfigured"):
         tr.drift = DriftNoise(1e-2, 1e-2, 1e-2)
@@ -125,7 +126,7 @@ def test_GyroPairTracker_config_assignment_raises():
         tr.config.drift = DriftNoise(1e-2, 1e-2, 1e-2)          # the configuration itself is frozen
     with pytest.raises(AttributeError):
         tr.cusum_treshold = 5.0                                # a misspelt option is no new attribute either
-    assert tr.drift == DriftNoise() and tr.config.cusum_threshold == 30.0
+    assert tr.config.drift == DriftNoise() and tr.config.cusum_threshold == 30.0
     tr.predict(t[999] + 100.0)
     drift = DriftNoise()
     np.testing.assert_allclose(np.diag(tr.error_covariance - P0)[9:], drift.bias**2 * 100.0, rtol=1e-9)
@@ -138,7 +139,7 @@ def test_reconfigured_drift_reaches_covariance():
     tr.run(t[1000:1500], w1[1000:1500], w2[1000:1500])
     big = DriftNoise(rotation=1e-3, log_scale=1e-3, bias=1e-3)
     same, new = tr.reconfigured(), tr.reconfigured(drift=big)
-    assert new.drift == big and tr.drift == same.drift == DriftNoise()     # the original is unchanged
+    assert new.config.drift == big and tr.config.drift == same.config.drift == DriftNoise()     # the original is unchanged
     np.testing.assert_array_equal(new.error_covariance, tr.error_covariance)   # continues from the state
     np.testing.assert_array_equal(new.R_1_2, tr.R_1_2)
     assert len(new.history()) == len(tr.history()) and new.n_samples == tr.n_samples == 500
@@ -567,35 +568,54 @@ def test_example_track_drift_runs(tmp_path, capsys):
 
 
 # ---------------------------------------------------------------------------- per-sample hot path, history bound
-def test_linearise_one_equals_block_linearisation():
+def test_innovations_block_of_one_equals_vectorised():
+    """A block of one sample (scalar arithmetic) gives what the vectorised path gives for that sample in a block."""
     rng = np.random.default_rng(31)
     t, w1, w2, _ = scenario(rng, 20.0)
     tr = GyroPairTracker.from_samples(t[:1000], w1[:1000], w2[:1000])
-    f = tr._filter
+    f = tr.filter
     for k in (1000, 1500, 1999):
-        H, r = f.linearise(w1[k:k + 1], w2[k:k + 1])
-        d2 = f.innovation_d2(H, r)
-        H1, r1, S1, d21, g1 = f.linearise_one(w1[k], w2[k])
-        np.testing.assert_allclose(H1, H[0], rtol=1e-14, atol=1e-15)
-        np.testing.assert_allclose(r1, r[0], rtol=1e-14, atol=1e-17)
-        assert d21 == pytest.approx(float(d2[0]), rel=1e-10)
+        H, r, d2, g, _ = f.innovations(w1[k - 1:k + 1], w2[k - 1:k + 1])
+        H1, r1, d21, g1, held = f.innovations(w1[k:k + 1], w2[k:k + 1])
+        assert H1.shape == (1, 3, 12) and r1.shape == (1, 3) and g is None and tuple(g1) == (1.0,) and held is None
+        np.testing.assert_allclose(H1[0], H[1], rtol=1e-14, atol=1e-15)
+        np.testing.assert_allclose(r1[0], (w1[k:k + 1] - w2[k:k + 1] @ f.A.T - f.b)[0], rtol=1e-14, atol=1e-17)
+        np.testing.assert_allclose(r1[0], r[1], rtol=1e-12, atol=1e-15)         # (a 2-row product rounds differently)
+        assert d21[0] == pytest.approx(d2[1], rel=1e-10)
 
 
-def test_gate_and_cusum_one_sample_equal_block_of_one():
-    from fusion_gyrocal.online.steps import Cusum, InnovationGate
+def _reference_keep(gate, d2, fresh):
+    """The gate's rule as a vectorised mask (neighbours dropped on both sides, the drops owed carried over)."""
+    B = d2.shape[0]
+    if fresh:
+        gate.pending = 0
+    bad = ~(d2 <= gate.limit)
+    carry = max(gate.pending - B, 0)
+    if bad.any():
+        carry = max(carry, gate.neighbours - (B - 1 - int(np.flatnonzero(bad)[-1])))
+        for _ in range(gate.neighbours):
+            bad[1:] |= bad[:-1].copy()
+            bad[:-1] |= bad[1:].copy()
+    bad[:gate.pending] = True
+    gate.pending = carry
+    return ~bad
+
+
+def test_InnovationGate_keep_drops_neighbours_within_and_across_blocks():
+    from fusion_gyrocal.online.steps import InnovationGate
 
     rng = np.random.default_rng(32)
-    d2 = rng.chisquare(3, 3000) * np.where(rng.random(3000) < 0.05, 8.0, 1.0)   # spikes and steps
-    d2[1000:1200] *= 4.0
+    d2 = rng.chisquare(3, 3000) * np.where(rng.random(3000) < 0.05, 8.0, 1.0)   # spikes
     d2[rng.integers(0, 3000, 10)] = np.nan
     for neighbours in (0, 1, 3):
-        ga, gb = InnovationGate(11.3, neighbours), InnovationGate(11.3, neighbours)
-        ca, cb = Cusum(0.5, 25.0, 11.3, 0.0), Cusum(0.5, 25.0, 11.3, 0.0)
-        for k, x in enumerate(d2):
-            fresh = k % 500 == 0
-            assert ga.keep_one(float(x), fresh=fresh) == bool(gb.keep(d2[k:k + 1], fresh=fresh)[0])
-            assert ca.scan_one(float(k), float(x)) == cb.scan(np.array([float(k)]), d2[k:k + 1])
-            assert (ga.pending, ca.level, ca.zero_t) == (gb.pending, cb.level, cb.zero_t)
+        gate, ref = InnovationGate(11.3, neighbours), InnovationGate(11.3, neighbours)
+        lo = 0
+        while lo < d2.size:
+            B = int(rng.choice([1, 1, 2, 5, 50]))
+            blk, fresh = d2[lo:lo + B], rng.random() < 0.05
+            assert gate.keep(blk.tolist(), fresh=fresh) == _reference_keep(ref, blk, fresh).tolist()
+            assert gate.pending == ref.pending
+            lo += B
 
 
 def test_run_history_max_rows_bounds_rows_and_keeps_them_spread():
@@ -671,7 +691,7 @@ def test_update_block_with_misfit_equals_stacked_update():
     rng = np.random.default_rng(41)
     t, w1, w2, _ = scenario(rng, 20.0)
     tr = GyroPairTracker(calibrate_pair(w1[:1000], w2[:1000]), t0=t[999], drift=DriftNoise.constant())
-    f = tr._filter
+    f = tr.filter
     f.misfit = (0.01, 0.005)
     f.relinearise()
     B = 60
@@ -689,7 +709,7 @@ def test_update_block_with_misfit_equals_stacked_update():
     K = P0 @ Hs.T @ np.linalg.inv(S)
     P1 = (np.eye(12) - K @ Hs) @ P0
     np.testing.assert_allclose(f.kf.P, 0.5 * (P1 + P1.T), rtol=1e-6, atol=1e-14)
-    H1, r1, S1, d2, g1 = f.linearise_one(w1b[0], w2b[0])       # the per-sample path: the same factor
+    g1 = f.innovations(w1b[:1], w2b[:1])[3][0]                # a block of one (scalar arithmetic): the same factor
     assert g1 == pytest.approx(float(f.inflation(w1b[:1])[0]), rel=1e-12)
 
 
@@ -718,7 +738,7 @@ def test_run_rate_dependent_scale_no_alarm_and_within_3sigma():
     assert err < 3.0 * sigma, (err / DEG, sigma / DEG)
     # the same seed with white measurement noise (the seed's residual std, no misfit) raises step alarms
     seed = calibrate_pair(w1[:n0], w2[:n0])
-    assert GyroPairTracker(seed, t0=t[n0 - 1]).misfit_gain == _misfit_gain(seed.noise_model) != (0.0, 0.0)
+    assert GyroPairTracker(seed, t0=t[n0 - 1]).misfit_gain == misfit_gain(seed.noise_model) != (0.0, 0.0)
     white = GyroPairTracker(seed, t0=t[n0 - 1], seed_span_s=t[n0 - 1], noise_model=None)
     assert white.misfit_gain == (0.0, 0.0)
     assert white.run(t[n0:], w1[n0:], w2[n0:]).reseeds
@@ -763,7 +783,7 @@ def test_run_mimu_board_at_most_one_reseed_and_within_3sigma_of_batch(session, i
     assert sum(ev.accepted for ev in h.reseeds) <= 1
     assert tr.open_alarm is None and "suspected" not in " ".join(tr.calibration.notes)
     assert d < 3.0 * sigma, (d / DEG, sigma / DEG)
-    ns = tr._noise_scale
+    ns = tr.noise_scale
     if tr.misfit_gain != (0.0, 0.0):
         fast = (ns.floor < 1.0) & (ns.count >= 1000)
         assert fast.any() and np.all(ns.scale[fast] < 1.0), (ns.scale, ns.count)
@@ -776,7 +796,7 @@ def test_run_mimu_board_rigid_at_most_one_alarm(session, imu):
     at most one step alarm over the session (13-14 without the adaptation, all rejected)."""
     tr, h, _ = _mimu_run(session, imu)
     assert len(h.reseeds) <= 1, [(ev.t_detected, ev.reason) for ev in h.reseeds]
-    assert tr.reconfigured(noise_memory=0).noise_memory == 0
+    assert tr.reconfigured(noise_memory=0).config.noise_memory == 0
 
 
 def test_run_noise_scale_learns_underestimated_noise():
@@ -791,7 +811,7 @@ def test_run_noise_scale_learns_underestimated_noise():
         tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0], noise_std=NOISE / 3, noise_memory=memory)
         alarms[memory] = len(tr.run(t[n0:], w1[n0:], w2[n0:]).reseeds)
         if memory:
-            ns = tr._noise_scale
+            ns = tr.noise_scale
             scales = ns.scale[ns.count >= 2000]
     assert alarms[0] >= 1 and alarms[2000] == 0, alarms
     assert scales.size >= 2 and np.all((scales > 7.0) & (scales < 10.0)), scales
@@ -825,61 +845,63 @@ def test_run_sample_mode_agrees_with_fast_mode_at_rest():
 # and spreads (10) per rate bin, its correlation factor, the sum of the recorded NIS, rejected samples, alarms
 # (the two misfit runs re-pinned when unseen rate bins began to start at the slower bins' factor, and again when the
 # gate, the CUSUM and the adaptation began to see the update's covariance g_k R instead of the misfit along the rate,
-# unseen bins free to fall below 1: estimate within 1e-4 relative, covariance diagonal within 0.4 %; deliberate)
+# unseen bins free to fall below 1: estimate within 1e-4 relative, covariance diagonal within 0.4 %; deliberate;
+# all four re-made with numpy 2.4.6, whose summation moved them by up to 4.3e-9 relative: the commit that made them
+# gives the same values as today's code on this build)
 _PINNED_RUNS = {
-    ("white", "sample", 1): [
-        0.07543606468278612, -0.9584001405327713, 0.2752790779771352, 0.925245997565091, -0.0356560709593542,
-        -0.3776883485011417, 0.37179193661906335, 0.2831921877992208, 0.884066140418545, 0.9950948248618815,
-        1.0015318360908967, 1.002038354555876, 1.0048575197321297, 1.0074447361244252, 1.0006393925353014,
-        0.0184135016385372, -0.003954028575057607, -7.603512450334447e-05, 6.7639184763534895e-09,
-        6.7648490770780894e-09, 6.201582130886661e-09, 3.061377235961321e-08, 5.1755780934722754e-08,
-        6.602835314890116e-08, 2.8866156355924275e-08, 5.8620357133430456e-08, 5.70058394325638e-08,
-        3.947179446438338e-09, 4.246333430253738e-09, 4.174108885874184e-09, 1.0, 1.0, 1.0084442713804123,
-        1.0051325507431637, 1.0120659782969952, 1.0262654405584684, 1.0, 1.0, 1.0, 1.0, 0.6666666666666666,
-        0.6666666666666666, 0.41885766589896145, 0.5744782148821027, 0.6472947055326908, 0.6479361582937295,
-        0.6666666666666666, 0.6666666666666666, 0.6666666666666666, 0.6666666666666666, 1.0, 1958.239626509599, 2.0,
+    ('white', 'sample', 1): [
+        0.07543606468278691, -0.9584001405327744, 0.27527907797713635, 0.9252459975650923, -0.035656070959354975,
+        -0.37768834850114213, 0.3717919366190633, 0.28319218779922317, 0.8840661404185456, 0.9950948248618835,
+        1.001531836090891, 1.0020383545558746, 1.0048575197321266, 1.0074447361244276, 1.0006393925352994,
+        0.01841350163853741, -0.003954028575056888, -7.60351245033047e-05, 6.7639184764227054e-09,
+        6.764849077149693e-09, 6.201582130957001e-09, 3.061377235996825e-08, 5.175578093522084e-08,
+        6.602835314950412e-08, 2.8866156356259985e-08, 5.8620357133990285e-08, 5.700583943310277e-08,
+        3.947179446515306e-09, 4.246333430339007e-09, 4.174108885955383e-09, 1.0, 1.0, 1.008444271373639,
+        1.005132550721498, 1.0120659782465886, 1.0262654405407248, 1.0, 1.0, 1.0, 1.0, 0.6666666666666666,
+        0.6666666666666666, 0.41885766585686146, 0.574478214837255, 0.6472947054980576, 0.6479361582275833,
+        0.6666666666666666, 0.6666666666666666, 0.6666666666666666, 0.6666666666666666, 1.0, 1958.239626447522, 2.0,
         0.0],
-    ("misfit", "sample", 1): [
-        -0.005966688418500917, -0.6163102197405895, -0.7874808643215464, 0.6324642570575452, 0.6076522001483087,
-        -0.4803621209041834, 0.7745665640691972, -0.5009196709036495, 0.3861685139001056, 1.0119674771933496,
-        0.9857733758825494, 0.9741146451679322, 0.9877389912094037, 1.004239268550455, 0.9862252574539911,
-        -0.007122389912908471, -0.017439677937728996, 0.0073376864920494935, 7.570514154562522e-09,
-        7.009547152754216e-09, 6.6286345546022e-09, 1.9267408555224602e-08, 4.9361632716799975e-08,
-        5.3460014285155417e-08, 2.2260901915401537e-08, 4.934020061486542e-08, 4.2672195847177643e-08,
-        5.565851860434516e-09, 4.906278064975636e-09, 4.311410913069457e-09, 1.0, 1.0, 1.1496228351031796,
-        1.0661956959966874, 1.0304119414278068, 1.0133287250154341, 1.0, 1.0, 1.0, 1.0, 0.6666666666666666,
-        0.6666666666666666, 1.0484552730836803, 0.5803127882862308, 0.6070512559601611, 0.5422518416526041,
-        0.13030638620249024, 0.6666666666666666, 0.6666666666666666, 0.6666666666666666, 1.0, 1906.4423565478737, 2.0,
-        0.0],
-    ("white", "fast", 50): [
-        0.07543554925381664, -0.9584001678903784, 0.2752791239750423, 0.9252462888858595, -0.035656350180926895,
-        -0.37768760847388166, 0.37179131621343664, 0.28319206005724684, 0.8840664422478736, 0.9950920121207251,
-        1.0015259287668223, 1.0020333951898843, 1.004860315534288, 1.0074412435907107, 1.0006323225810574,
-        0.018413549701175102, -0.003957124428766108, -7.291659878004641e-05, 6.545817976787003e-09,
-        6.56280369907805e-09, 5.978482866210669e-09, 2.932842189123845e-08, 4.808587512916583e-08,
-        6.26510681378506e-08, 2.769650160074782e-08, 5.4642769014540714e-08, 5.367502163113448e-08,
-        3.9177614228683005e-09, 4.206413187719239e-09, 4.134008096945686e-09, 1.0, 1.0, 1.0009128530523117,
-        1.0034091868099162, 1.012918667529349, 1.0228952358126449, 1.0, 1.0, 1.0, 1.0, 0.6666666666666666,
-        0.6666666666666666, 0.41605538722811336, 0.5757677017249885, 0.6465670706711149, 0.6416141497854908,
-        0.6666666666666666, 0.6666666666666666, 0.6666666666666666, 0.6666666666666666, 1.006011375653008,
-        39.061697931088915, 3.0, 0.0],
-    ("misfit", "fast", 50): [
-        -0.005974661168985651, -0.6162890305860341, -0.7874973867913739, 0.6324821939369948, 0.6076503794859016,
-        -0.48034080678543745, 0.7745518560926449, -0.5009479484836381, 0.3861613330377248, 1.0119517490789491,
-        0.9857391661336111, 0.9739753647619844, 0.9877554829392144, 1.0042653287685481, 0.9862905049448303,
-        -0.00712157091541092, -0.017503301564993207, 0.007422555842869672, 1.1632771610915097e-08,
-        1.0817743677110353e-08, 1.0310085761463216e-08, 2.9635110235005267e-08, 7.153671203692452e-08,
-        7.916393523245068e-08, 3.428337352923354e-08, 6.972169720849582e-08, 6.419641147173937e-08,
-        1.0809518720882566e-08, 8.463882924161811e-09, 6.2553824965369355e-09, 1.0, 1.0, 1.1417942305321482,
-        1.0754781962253506, 1.0402343118861512, 1.035558499375681, 1.0, 1.0, 1.0, 1.0, 0.6666666666666666,
-        0.6666666666666666, 1.145050575016456, 0.5854341070749924, 0.6113224849237711, 0.5381783603916303,
-        0.1303063862024898, 0.6666666666666666, 0.6666666666666666, 0.6666666666666666, 2.6457712166982272,
-        13.608760293042183, 3.0, 0.0],
+    ('misfit', 'sample', 1): [
+        -0.00596668841769392, -0.61631021974065, -0.787480864321509, 0.6324642570576184, 0.60765220014855,
+        -0.48036212090379204, 0.7745665640691481, -0.5009196709032913, 0.3861685139006711, 1.0119674771935114,
+        0.985773375883296, 0.9741146451680774, 0.9877389912092349, 1.004239268551042, 0.9862252574540247,
+        -0.007122389913528541, -0.017439677939987446, 0.007337686492961447, 7.570514154598894e-09,
+        7.0095471527268836e-09, 6.6286345545481785e-09, 1.926740855554149e-08, 4.936163271715211e-08,
+        5.3460014285900236e-08, 2.226090191580472e-08, 4.934020061462783e-08, 4.2672195846697e-08,
+        5.5658518558207764e-09, 4.9062780620030114e-09, 4.3114109199511886e-09, 1.0, 1.0, 1.1496228352896427,
+        1.0661956961323185, 1.0304119414211885, 1.013328724976048, 1.0, 1.0, 1.0, 1.0, 0.6666666666666666,
+        0.6666666666666666, 1.0484552735286745, 0.580312788386976, 0.6070512560215601, 0.5422518418008754,
+        0.13030638636059066, 0.6666666666666666, 0.6666666666666666, 0.6666666666666666, 1.0, 1906.4423566052988,
+        2.0, 0.0],
+    ('white', 'fast', 50): [
+        0.07543554925381722, -0.958400167890379, 0.27527912397504367, 0.9252462888858605, -0.035656350180926756,
+        -0.3776876084738818, 0.3717913162134372, 0.2831920600572478, 0.8840664422478736, 0.9950920121207287,
+        1.001525928766819, 1.0020333951898819, 1.0048603155342843, 1.0074412435907103, 1.000632322581059,
+        0.018413549701175206, -0.003957124428765327, -7.291659878110358e-05, 6.5458179768454695e-09,
+        6.562803699138179e-09, 5.9784828662712456e-09, 2.9328421891538746e-08, 4.808587512954792e-08,
+        6.265106813831747e-08, 2.7696501601031044e-08, 5.4642769015047604e-08, 5.3675021631458734e-08,
+        3.917761422933337e-09, 4.2064131877906685e-09, 4.134008097013251e-09, 1.0, 1.0, 1.0009128530491054,
+        1.003409186787451, 1.0129186674789123, 1.0228952357953351, 1.0, 1.0, 1.0, 1.0, 0.6666666666666666,
+        0.6666666666666666, 0.4160553871895626, 0.575767701690772, 0.6465670706362292, 0.6416141497200059,
+        0.6666666666666666, 0.6666666666666666, 0.6666666666666666, 0.6666666666666666, 1.006011375625166,
+        39.06169793024135, 3.0, 0.0],
+    ('misfit', 'fast', 50): [
+        -0.005974661166309339, -0.6162890305860897, -0.7874973867913492, 0.6324821939371376, 0.6076503794868298,
+        -0.48034080678407454, 0.7745518560925488, -0.500947948482443, 0.38616133303946854, 1.0119517490789713,
+        0.9857391661347189, 0.9739753647624799, 0.9877554829391908, 1.0042653287693006, 0.9862905049452487,
+        -0.007121570916266557, -0.017503301567812123, 0.007422555844230558, 1.1632771612582814e-08,
+        1.0817743678311878e-08, 1.0310085762353111e-08, 2.9635110239882023e-08, 7.153671204587668e-08,
+        7.916393524228812e-08, 3.4283373532722426e-08, 6.972169721679416e-08, 6.419641147919396e-08,
+        1.0809518697631943e-08, 8.463882917765803e-09, 6.255382523278278e-09, 1.0, 1.0, 1.141794230685361,
+        1.0754781963637114, 1.0402343118619186, 1.0355584994246052, 1.0, 1.0, 1.0, 1.0, 0.6666666666666666,
+        0.6666666666666666, 1.1450505756347455, 0.5854341071820184, 0.6113224850121307, 0.5381783606539902,
+        0.13030638636059066, 0.6666666666666666, 0.6666666666666666, 0.6666666666666666, 2.6457712173155365,
+        13.608760292762703, 3.0, 0.0],
 }
 
 
 def _pinned_state(tr, h):
-    ns = tr._noise_scale
+    ns = tr.noise_scale
     return np.concatenate([tr.R_1_2.ravel(), tr.scale_1, tr.scale_2, tr.bias, np.diag(tr.error_covariance), ns.scale,
                            ns.spread, [ns.correlation, np.nansum(h.nis), h.n_rejected, len(h.reseeds)]])
 
@@ -919,7 +941,7 @@ def test_noise_scale_release_unseen_lets_only_unseen_bins_fall_below_one():
     ns.learn(np.full(50, 7), d2)                                        # a fresh bin: the block's mean at once
     assert ns.scale[7] == pytest.approx(d2.mean() / 3.0, rel=1e-12)
     for x in d2:
-        one.learn_one(7, float(x))                                      # per sample (d2 not recomputed here)
+        one.learn([7], [float(x)])                                      # per sample (d2 not recomputed here)
     assert MISFIT_FLOOR <= one.scale[7] < 1e-3
     ns.learn(np.zeros(50, int), rng.chisquare(3, 50) * 1e-3)
     assert ns.scale[0] == 1.0                                           # a filled bin never drops below 1
@@ -958,7 +980,7 @@ def test_run_misfit_overestimated_at_unseen_rates_is_learnt_down():
         sigma[name] = np.sqrt(np.trace(tr.error_covariance[:3, :3]))
         err[name] = rotation_error(tr.R_1_2, R0)
         if name == "released":
-            ns = tr._noise_scale
+            ns = tr.noise_scale
             fast = ns.count[ns.floor < 1.0] >= 1000
             assert fast.any() and np.all(ns.scale[ns.floor < 1.0][fast] < 0.05), (ns.scale, ns.count)
     assert err["released"] < 3.0 * sigma["released"], (err, sigma)

@@ -121,7 +121,7 @@ class NoiseScale:
         """Samples each bin has learnt from (a copy)."""
         return np.array(self._count, dtype=np.int64)
 
-    def bins(self, w1) -> np.ndarray:
+    def _bins(self, w1) -> np.ndarray:
         """Bin index (B,) of consecutive gyro-1 rates (B, 3): by ``max(|omega_k|, |omega_k - omega_{k-1}|)``
         (the previous sample of the first one is the last sample binned before)."""
         v = np.einsum("ka,ka->k", w1, w1)
@@ -130,6 +130,18 @@ class NoiseScale:
         self._prev = tuple(w1[-1].tolist())
         return np.searchsorted(self._edges, np.sqrt(v), side="right")
 
+    def _bin(self, w1) -> int:
+        """:meth:`_bins` of a block of one sample (1, 3), in scalar arithmetic."""
+        (x0, x1, x2), = w1.tolist()
+        p = self._prev
+        self._prev = (x0, x1, x2)
+        v = x0 * x0 + x1 * x1 + x2 * x2
+        if p is not None:
+            d0, d1, d2 = x0 - p[0], x1 - p[1], x2 - p[2]
+            d = d0 * d0 + d1 * d1 + d2 * d2
+            v = d if d > v else v
+        return bisect_right(EDGES, math.sqrt(v))
+
     def _inherit(self, j: int) -> None:
         """A bin seen for the first time starts at the largest factor of the slower bins already seen (the
         model error grows with the rate: a violent phase after static poses is not white noise either)."""
@@ -137,32 +149,57 @@ class NoiseScale:
         if below:
             self._scale[j] = max(self._scale[j], max(below))
 
-    def factors(self, bins) -> np.ndarray:
-        """Per-sample factors ``lambda`` (B,) of the bins."""
+    # A block of one sample (the per-sample mode) is computed in scalar arithmetic in the methods below
+    # (numpy's per-call cost on one sample is several times the arithmetic); larger blocks vectorised.
+    def factors(self, w1):
+        """``(bins, lambda)``: the rate bins (B,) of gyro-1 rates ``w1`` (B, 3) and their factors (B,)."""
+        if len(w1) == 1:
+            j = self._bin(w1)
+            if self._count[j] == 0:
+                self._inherit(j)
+            return (j,), (self._scale[j],)
+        bins = self._bins(w1)
         for j in np.unique(bins).tolist():
             if self._count[j] == 0:
                 self._inherit(j)
-        return np.array(self._scale)[bins]
+        return bins, np.array(self._scale)[bins]
 
-    def mature(self, bins) -> np.ndarray:
-        """Samples whose bin has seen enough samples for the CUSUM to screen them (B,) bool."""
-        return np.array(self._count)[bins] >= self.mature_count
-
-    def screened(self, bins, d2) -> np.ndarray:
-        """``d2`` (B,) as the CUSUM screens it: ``3 (1 + (x - 1) / k)``, ``x = min(d^2, c) / 3``, with
-        ``k = max(1, sqrt(v_j / v_0))`` for ``v_j`` the bin's running mean of ``(x - 1)^2`` and ``v_0`` its
+    def screened(self, bins, t, d2):
+        """``(t, d2)`` (sequences) of the samples the CUSUM screens, ``d2`` as it screens them: only the samples whose bin
+        has seen :data:`MATURE` samples (its factor is learnt), ``3 (1 + (x - 1) / k)``, ``x = min(d^2, c) / 3``,
+        with ``k = max(1, sqrt(v_j / v_0))`` for ``v_j`` the bin's running mean of ``(x - 1)^2`` and ``v_0`` its
         value for chi-square(3) innovations: a bin whose normalised innovations scatter more than the
         Gaussian model's (heavy tails, bursts) weighs less in the detector, never more."""
+        if len(bins) == 1:
+            j = bins[0]
+            if self._count[j] < self.mature_count:
+                return (), ()
+            k = self._spread[j] / CHI2_3_SPREAD
+            x = d2[0] if d2[0] <= self.clip else self.clip                # NaN counts as the clip
+            return t, (x if k <= 1.0 else 3.0 + (x - 3.0) / math.sqrt(k),)
+        mature = np.array(self._count)[bins] >= self.mature_count
         k = np.array(self._spread)[bins]
-        x = np.minimum(np.nan_to_num(d2, nan=self.clip), self.clip)
-        return 3.0 + (x - 3.0) / np.sqrt(np.maximum(k / CHI2_3_SPREAD, 1.0))
+        x = np.minimum(np.nan_to_num(np.asarray(d2), nan=self.clip), self.clip)
+        return np.asarray(t)[mature], (3.0 + (x - 3.0) / np.sqrt(np.maximum(k / CHI2_3_SPREAD, 1.0)))[mature].tolist()
 
     def learn(self, bins, d2, held=None) -> None:
         """Update the factors from a block's normalised innovations ``d2`` (B,) (computed with the factors);
         ``held`` (B,): ``max(lambda g, 1) / (lambda g)`` of samples held at the white noise (None: none)."""
+        if len(bins) == 1:
+            j = bins[0]
+            c = self._count[j] + 1
+            self._count[j] = c
+            x = (d2[0] if d2[0] <= self.clip else self.clip) / 3.0          # NaN counts as the clip
+            n = c if c < self.memory else self.memory
+            s = self._scale[j]
+            s += s * (x * (1.0 if held is None else held[0]) - 1.0) / n
+            f = self._floor[j]
+            self._scale[j] = s if s > f else f
+            self._spread[j] += ((x - 1.0) ** 2 - self._spread[j]) / n
+            return
         nb = len(self._scale)
         m = np.bincount(bins, minlength=nb)
-        xk = np.minimum(np.nan_to_num(d2, nan=self.clip), self.clip) / 3.0
+        xk = np.minimum(np.nan_to_num(np.asarray(d2), nan=self.clip), self.clip) / 3.0
         xs = xk if held is None else xk * held
         x = np.bincount(bins, weights=xs, minlength=nb)
         v = np.bincount(bins, weights=(xk - 1.0) ** 2, minlength=nb)
@@ -193,37 +230,3 @@ class NoiseScale:
         computed with), 1 for independent samples; the block-robust sandwich of
         :mod:`fusion_gyrocal.core.robust` as one online number."""
         return self._corr if self._corr > 1.0 else 1.0
-
-    # ---------------------------------------------------------------- one sample (the per-sample hot path)
-    def bin_one(self, w1) -> tuple[int, float, bool]:
-        """:meth:`bins`, :meth:`factors` and :meth:`mature` of one sample: ``(bin, factor, mature)``."""
-        x0, x1, x2 = w1.tolist()
-        p = self._prev
-        self._prev = (x0, x1, x2)
-        v = x0 * x0 + x1 * x1 + x2 * x2
-        if p is not None:
-            d0, d1, d2 = x0 - p[0], x1 - p[1], x2 - p[2]
-            d = d0 * d0 + d1 * d1 + d2 * d2
-            v = d if d > v else v
-        j = bisect_right(EDGES, math.sqrt(v))
-        if self._count[j] == 0:
-            self._inherit(j)
-        return j, self._scale[j], self._count[j] >= self.mature_count
-
-    def screened_one(self, j: int, d2: float) -> float:
-        """:meth:`screened` for one sample of bin ``j``."""
-        k = self._spread[j] / CHI2_3_SPREAD
-        x = d2 if d2 <= self.clip else self.clip                   # NaN counts as the clip
-        return x if k <= 1.0 else 3.0 + (x - 3.0) / math.sqrt(k)
-
-    def learn_one(self, j: int, d2: float, held: float = 1.0) -> None:
-        """:meth:`learn` for one sample of bin ``j`` (``held``: as in :meth:`learn`)."""
-        c = self._count[j] + 1
-        self._count[j] = c
-        x = (d2 if d2 <= self.clip else self.clip) / 3.0          # NaN counts as the clip
-        n = c if c < self.memory else self.memory
-        s = self._scale[j]
-        s += s * (x * held - 1.0) / n
-        f = self._floor[j]
-        self._scale[j] = s if s > f else f
-        self._spread[j] += ((x - 1.0) ** 2 - self._spread[j]) / n

@@ -14,7 +14,7 @@ two are nearly isotropic: ``A`` is a rotation up to scale factors near 1)::
     g_k = 1 + (a + b |omega_1(k)|)^2 |omega_1(k)|^2 / (3 sigma^2),   sigma^2 = tr(R_white) / 3
 
 and a block's samples still fold into one update through their (weighted) moments. The gate, the CUSUM
-and the noise adaptation (:meth:`ErrorStateEKF.innovation_d2`, :meth:`ErrorStateEKF.linearise_one`) see the
+and the noise adaptation (:meth:`ErrorStateEKF.innovations`) see the
 same covariance ``g_k R`` the update uses: the misfit is identified from the residual's mean square
 (:func:`fusion_gyrocal.core.noise.identify_noise`), not from its direction, and a covariance screened in
 one shape but folded in another would let the adapted factor (:class:`~.adapt.NoiseScale`) that fits the
@@ -44,7 +44,7 @@ from ..core.model import BIAS, ROT
 from ..core.moments import Moments
 from ..core.observability import A_of
 from ..errors import InputError
-from ..lie import exp3, skew
+from ..lie import exp3
 from .hold import DIM, LOG, ScaleHold
 
 REFRESH = 50      # folds between re-linearisations of the gauge projector and the measurement noise
@@ -56,19 +56,6 @@ _I3 = np.eye(3)
 _I3.flags.writeable = False
 
 
-def measurement_jacobian(R, s1, s2, w2, A=None) -> np.ndarray:
-    """Measurement Jacobians ``dh/dx`` (B, 3, 12) at zero error for gyro-2 samples ``w2`` (B, 3)."""
-    u = (w2 / s2) @ R.T                      # R diag(1/s2) omega_2: gyro 2's rate in gyro 1's frame
-    A = A_of(R, s1, s2) if A is None else A
-    H = np.zeros((w2.shape[0], 3, DIM))
-    H[:, :, 0:3] = -s1[None, :, None] * skew(u)                  # d(diag(s1) Exp(th) u)/dth
-    idx = np.arange(3)
-    H[:, idx, 3 + idx] = s1 * u                                  # d/d delta_1 = diag(A omega_2)
-    H[:, :, 6:9] = -A[None, :, :] * w2[:, None, :]               # d/d delta_2 = -A diag(omega_2)
-    H[:, idx, 9 + idx] = 1.0                                     # d/d b
-    return H
-
-
 # flat indices in G (4, 3, 12) of :func:`_generators`' entries: per G_m (m < 3) and row, the two off-diagonal
 # entries of -diag(s1) skew(u_m), diag(s1 u_m) and -A e_m in column 6 + m; then G_3's bias block
 _G_ENTRIES = np.array([36 * m + 12 * i + c for m in range(3) for i in range(3)
@@ -77,8 +64,8 @@ _G_ENTRIES = np.array([36 * m + 12 * i + c for m in range(3) for i in range(3)
 
 
 def _generators(R, s1, s2, A) -> np.ndarray:
-    """:func:`measurement_jacobian` at the unit rates minus at zero, and at zero (the generators ``G`` of
-    :meth:`ErrorStateEKF.generators`), entry by entry from the Jacobian's structure: with
+    """The measurement Jacobian ``dh/dx`` (3, 12) at zero error at the unit rates minus at zero, and at zero (the
+    generators ``G`` of :meth:`ErrorStateEKF.generators`), entry by entry from the Jacobian's structure: with
     ``u_m = R diag(1/s2) e_m``, ``G_m = [-diag(s1) skew(u_m), diag(s1 u_m), -A e_m e_m^T, 0]`` and
     ``G_3 = [0, 0, 0, I]``."""
     (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R.tolist()
@@ -104,6 +91,20 @@ def misfit_coefficients(noise_std, A, misfit) -> tuple[float, float, float] | No
     if a == b == 0.0:
         return None
     return a, b, 1.0 / (noise_std[0] ** 2 * 3.0 + noise_std[1] ** 2 * float(np.sum(np.square(A))))
+
+
+def covariance_factors(g, lam):
+    """The measurement covariance's factors (B,) of a block, ``max(lambda_j g_k, 1)`` (never below the white
+    noise), from the misfit's :func:`inflation` ``g`` (None: white) and the adapted ``lam``
+    (:meth:`~.adapt.NoiseScale.factors`), and ``held``: ``max(lambda_j g_k, 1) / (lambda_j g_k)`` (None when no
+    sample is held; the argument of :meth:`~.adapt.NoiseScale.learn`)."""
+    if g is None:
+        return lam, None              # white noise: lam >= 1
+    g = g * lam
+    if g.min() >= 1.0:
+        return g, None
+    gs = np.maximum(g, 1.0)
+    return gs, gs / g
 
 
 def inflation(coefficients, w1) -> np.ndarray | None:
@@ -195,7 +196,7 @@ class ErrorStateEKF:
 
     __slots__ = ("kf", "hold", "R", "s1", "s2", "b", "t", "noise_std", "misfit", "drift", "step_prior",
                  "_T", "_Pi", "_q", "_shock", "_bias_shock", "_G", "_folds", "_H1", "_held", "_mis", "_eiv", "score",
-                 "_R_rows", "_gR", "_Qdt", "_H1f", "_eiv_g", "_s12")
+                 "_R_rows", "_gR", "_Qdt", "_H1f", "_H1b", "_eiv_g", "_s12")
 
     def __init__(self, hold: ScaleHold, drift, step_prior, noise_std, R, s1, s2, b, P, t: float,
                  inflate_s: float = 0.0, misfit=(0.0, 0.0)):
@@ -210,7 +211,8 @@ class ErrorStateEKF:
         self._s12 = np.concatenate((self.s1, self.s2))     # [s1; s2] (the fold scales both at once)
         self.t = float(t)
         self._H1 = _one_sample_jacobian()
-        self._H1f = self._H1.reshape(-1)           # its flat view (:meth:`linearise_one` writes through it)
+        self._H1f = self._H1.reshape(-1)           # its flat view (:meth:`innovations` writes through it)
+        self._H1b = self._H1[None]                 # as a block of one
         self._bias_shock = _bias_cov(step_prior)  # fixed with the step prior
         self.score = (0.0, 0)
         self._held = hold.held_cov if hold.held_cov.any() else None    # fixed with the hold; None: nothing to add
@@ -235,6 +237,7 @@ class ErrorStateEKF:
         new._T, new._Pi, new._G, new._folds, new._held = self._T, self._Pi, self._G, self._folds, self._held
         new._H1 = _one_sample_jacobian()
         new._H1f = new._H1.reshape(-1)
+        new._H1b = new._H1[None]
         new.score = self.score
         TT = self._T @ self._T.T
         new._q, new._shock = _projected_cov(new.drift, TT), None
@@ -284,16 +287,12 @@ class ErrorStateEKF:
     def linearise(self, w1, w2) -> tuple[np.ndarray, np.ndarray]:
         """Jacobians ``H`` (B, 3, 12) and residuals ``r = omega_1 - A omega_2 - b`` (B, 3) of a block.
 
-        From two samples on, ``H_k = sum_m y_k[m] G[m]`` for ``y_k = [omega_2(k); 1]`` (``H`` is affine
-        in ``omega_2``) with the :meth:`generators` ``G``; one sample's Jacobian is computed directly.
+        ``H_k = sum_m y_k[m] G[m]`` for ``y_k = [omega_2(k); 1]`` (``H`` is affine in ``omega_2``) with the
+        :meth:`generators` ``G``.
         """
-        A = self.A
-        if w2.shape[0] == 1:
-            H = measurement_jacobian(self.R, self.s1, self.s2, w2, A)
-        else:
-            G = self.generators()
-            H = (w2 @ G[:3].reshape(3, 3 * DIM)).reshape(w2.shape[0], 3, DIM) + G[3]
-        return H, w1 - w2 @ A.T - self.b
+        G = self.generators()
+        H = (w2 @ G[:3].reshape(3, 3 * DIM)).reshape(w2.shape[0], 3, DIM) + G[3]
+        return H, w1 - w2 @ self.A.T - self.b
 
     def generators(self) -> np.ndarray:
         """``G`` (4, 3, 12) with ``H(omega_2) = sum_m omega_2[m] G[m] + G[3]``, once per estimate."""
@@ -342,13 +341,27 @@ class ErrorStateEKF:
             self.kf.P = self.kf.P + Q
             self.t = float(t)
 
-    def linearise_one(self, w1, w2, lam: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
-        """One sample's ``(H, r, S, d2, g)`` with the adapted factor ``lam`` (:class:`~.adapt.NoiseScale`) on its
-        measurement covariance: Jacobian (3, 12), residual (3,), innovation covariance ``H P H^T + g_s R``,
-        ``r^T S^-1 r`` and ``g = lam`` times :meth:`inflation` (``g_s = max(g, 1)``: the covariance the
-        update uses, never below the white one), with scalar arithmetic and a reused Jacobian
-        buffer (the per-sample hot path; the same values as :meth:`linearise`, :meth:`inflation` and
-        :meth:`innovation_d2`)."""
+    def innovations(self, w1, w2, lam=None) -> tuple:
+        """A block's ``(H, r, d2, g, held)`` at the current estimate: Jacobians (B, 3, 12) and residuals (B, 3)
+        (:meth:`linearise`), ``d2`` the B floats ``r_k^T S_k^-1 r_k`` (:meth:`innovation_d2`), ``g`` the factors
+        of the measurement covariance the update uses (B,) (:meth:`inflation` times the adapted factors ``lam``
+        (B,) of :class:`~.adapt.NoiseScale`, never below 1: :func:`covariance_factors`; None: every factor 1) and
+        ``held`` (:func:`covariance_factors`).
+
+        A block of one sample (the per-sample mode) is computed in scalar arithmetic with a reused Jacobian
+        buffer (numpy's per-call cost on one sample is several times the arithmetic); the same values.
+        """
+        if len(w1) == 1:
+            return self._innovations_one(w1, w2[0], 1.0 if lam is None else lam[0])
+        H, r = self.linearise(w1, w2)
+        g, held = self.inflation(w1), None
+        if lam is not None:
+            g, held = covariance_factors(g, lam)
+        return H, r, self.innovation_d2(H, r, g).tolist(), g, held
+
+    def _innovations_one(self, w1, w2, lam: float) -> tuple:
+        """:meth:`innovations` of a block of one sample (``w1`` (1, 3), ``w2`` (3,)) with the adapted factor ``lam``
+        (scalar arithmetic)."""
         (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = self.R.tolist()
         a0, a1, a2 = self.s1.tolist()
         c0, c1, c2 = self.s2.tolist()
@@ -363,7 +376,7 @@ class ErrorStateEKF:
         self._H1f[_H1_VARYING] = (a0 * u2, -a0 * u1, a0 * u0, A00 * -x0, A01 * -x1, A02 * -x2,   # row 0
                                       -a1 * u2, a1 * u0, a1 * u1, A10 * -x0, A11 * -x1, A12 * -x2,   # row 1
                                       a2 * u1, -a2 * u0, a2 * u2, A20 * -x0, A21 * -x1, A22 * -x2)   # row 2
-        y0, y1, y2 = w1.tolist()
+        (y0, y1, y2), = w1.tolist()
         # A omega_2 through numpy's product, as in :meth:`linearise` (BLAS fuses the multiply-adds)
         d0, d1, d2 = np.dot(np.array((A00, A01, A02, A10, A11, A12, A20, A21, A22)).reshape(3, 3), w2).tolist()
         e0, e1, e2 = y0 - d0 - b0, y1 - d1 - b1, y2 - d2 - b2        # omega_1 - A omega_2 - b
@@ -383,7 +396,8 @@ class ErrorStateEKF:
             gR = gs * R
             S += gR
             self._gR = (gs, R, gR)                 # the update's measurement covariance (update_one)
-        return H, np.array((e0, e1, e2)), S, _quadratic_3(S, e0, e1, e2), g
+        return (self._H1b, np.array((e0, e1, e2))[None], (_quadratic_3(S, e0, e1, e2),), (gs,),
+                None if g >= 1.0 else (1.0 / g,))
 
     def update_one(self, H, r, g: float = 1.0) -> None:
         """One sample's update through filterpy's Kalman update (Joseph form), then the fold; ``g`` is the
@@ -396,7 +410,7 @@ class ErrorStateEKF:
         """
         R = self.kf.R
         if g != 1.0:
-            c = self._gR               # g R of this sample when linearise_one made it (white noise)
+            c = self._gR               # g R of this sample when innovations made it (white noise)
             R = c[2] if c is not None and c[0] == g and c[1] is R else g * R
         x, P = kalman_update(self.kf.x, self.kf.P, r[:, None], R, H)
         self.kf.P = P

@@ -1,4 +1,5 @@
-"""Screening the tracker's innovations: the gate (flex spikes), the CUSUM (step changes), recent samples.
+"""Screening the tracker's innovations: the gate (flex spikes), the CUSUM (step changes), recent samples,
+and the blocks a run is cut into.
 
 Each works on a block of per-sample normalised innovations ``d^2 = r^T S^-1 r`` (chi-square(3) when
 the filter is consistent); a block of one sample is the per-sample mode, so both modes share them.
@@ -22,35 +23,30 @@ class InnovationGate:
     def __init__(self, limit: float, neighbours: int, pending: int = 0):
         self.limit, self.neighbours, self.pending = float(limit), int(neighbours), int(pending)
 
-    def keep(self, d2: np.ndarray, *, fresh: bool = False) -> np.ndarray:
-        """Boolean mask of the samples to use; ``fresh`` forgets the drops owed by earlier blocks."""
-        B = d2.shape[0]
+    def keep(self, d2, *, fresh: bool = False) -> list[bool]:
+        """Which samples of a block to use (a list of B bools) from their ``d2`` (a sequence of B floats);
+        ``fresh`` forgets the drops owed by earlier blocks. A plain loop: a block of one sample (the per-sample
+        mode) costs a few Python operations, a block of a hundred about what a vectorised mask does."""
         if fresh:
             self.pending = 0
-        bad = ~(d2 <= self.limit)          # NaN is gated too
-        carry = max(self.pending - B, 0)
-        if bad.any():
-            carry = max(carry, self.neighbours - (B - 1 - int(np.flatnonzero(bad)[-1])))
-            for _ in range(self.neighbours):
-                bad[1:] |= bad[:-1].copy()
-                bad[:-1] |= bad[1:].copy()
-        if self.pending:
-            bad[:self.pending] = True
+        limit, pending = self.limit, self.pending
+        keep = [x <= limit for x in d2]    # NaN is gated too
+        if not pending and all(keep):
+            return keep
+        B, n = len(keep), self.neighbours
+        last = -1                          # the last gated sample
+        for k, ok in enumerate(keep.copy()):
+            if not ok:
+                last = k
+                lo = k - n if k > n else 0
+                keep[lo:k + n + 1] = [False] * (min(k + n + 1, B) - lo)
+        carry = pending - B if pending > B else 0
+        if last >= 0 and n - (B - 1 - last) > carry:
+            carry = n - (B - 1 - last)
+        if pending:
+            keep[:pending] = [False] * min(pending, B)
         self.pending = carry
-        return ~bad
-
-
-    def keep_one(self, d2: float, *, fresh: bool = False) -> bool:
-        """:meth:`keep` for a block of one sample (scalar; the per-sample hot path)."""
-        if fresh:
-            self.pending = 0
-        if not d2 <= self.limit:           # NaN is gated too
-            self.pending = self.neighbours
-            return False
-        if self.pending:
-            self.pending -= 1
-            return False
-        return True
+        return keep
 
 
 class Cusum:
@@ -71,82 +67,59 @@ class Cusum:
         """Start again from zero at time ``t``."""
         self.level, self.zero_t = 0.0, float(t)
 
-    def scan(self, t: np.ndarray, d2: np.ndarray):
-        """Run over a block; ``(index, onset time)`` of the first alarm (the level then restarts), else None."""
+    def scan(self, t, d2):
+        """Run over a block (times ``t``, ``d2`` a sequence of floats); ``(t_detected, onset)`` of the first alarm
+        (the level then restarts), else None."""
         level, clip, shift, threshold = self.level, self.clip, 1.0 + self.allowance, self.threshold
         zero = -1
-        for k, x in enumerate(d2.tolist()):
+        for k, x in enumerate(d2):
             level += (x if x <= clip else clip) / 3.0 - shift      # NaN counts as the clip
             if level <= 0.0:
                 level, zero = 0.0, k
             elif level > threshold:
                 onset = float(t[zero]) if zero >= 0 else self.zero_t
                 self.level = 0.0
-                return k, onset
+                return float(t[k]), onset
         if zero >= 0:
             self.zero_t = float(t[zero])
         self.level = level
         return None
 
 
-    def scan_one(self, t: float, d2: float):
-        """:meth:`scan` for a block of one sample: ``(0, onset time)`` on an alarm, else None."""
-        level = self.level + ((d2 if d2 <= self.clip else self.clip) / 3.0 - (1.0 + self.allowance))
-        if level <= 0.0:
-            self.level, self.zero_t = 0.0, t
-            return None
-        if level > self.threshold:
-            self.level = 0.0
-            return 0, self.zero_t
-        self.level = level
-        return None
-
-
 class SampleRing:
-    """Fixed-capacity ring buffer of ``[t, omega_1, omega_2]`` rows (the re-seed window, replays)."""
+    """Fixed-capacity ring buffer of ``[t, omega_1, omega_2]`` rows (the re-seed window, replays); the times and
+    the two gyros' rates are kept in three arrays (a row is written as three contiguous slices)."""
 
-    __slots__ = ("buf", "cap", "n", "head")
+    __slots__ = ("t", "w1", "w2", "cap", "n", "head")
 
     def __init__(self, capacity: int):
-        self.buf = np.empty((capacity, 7))
+        self.t, self.w1, self.w2 = np.empty(capacity), np.empty((capacity, 3)), np.empty((capacity, 3))
         self.cap = capacity
         self.n = 0       # rows stored
         self.head = 0    # next write position
 
     def push(self, t, w1, w2) -> None:
         """Append sample rows (``t`` (m,), ``w1``/``w2`` (m, 3)); the oldest are overwritten."""
-        m = t.shape[0]
-        rows = np.empty((m, 7))
-        rows[:, 0], rows[:, 1:4], rows[:, 4:7] = t, w1, w2
-        if m >= self.cap:
-            self.buf[:] = rows[-self.cap:]
-            self.head, self.n = 0, self.cap
-            return
-        end = self.head + m
-        if end <= self.cap:
-            self.buf[self.head:end] = rows
+        m, cap, head = len(t), self.cap, self.head
+        if m >= cap:
+            t, w1, w2, m, head = t[-cap:], w1[-cap:], w2[-cap:], cap, 0
+        end = head + m
+        if end <= cap:
+            self.t[head:end] = t
+            self.w1[head:end] = w1
+            self.w2[head:end] = w2
         else:
-            k = self.cap - self.head
-            self.buf[self.head:] = rows[:k]
-            self.buf[: m - k] = rows[k:]
-        self.head = end % self.cap
-        self.n = min(self.cap, self.n + m)
-
-    def push_one(self, t: float, w1, w2) -> None:
-        """Append one sample row (the per-sample hot path of :meth:`push`)."""
-        row = self.buf[self.head]
-        row[0] = t
-        row[1:4] = w1
-        row[4:7] = w2
-        self.head = (self.head + 1) % self.cap
-        if self.n < self.cap:
-            self.n += 1
+            k = cap - head
+            self.t[head:], self.w1[head:], self.w2[head:] = t[:k], w1[:k], w2[:k]
+            self.t[:m - k], self.w1[:m - k], self.w2[:m - k] = t[k:], w1[k:], w2[k:]
+        self.head = end if end < cap else end - cap
+        n = self.n + m
+        self.n = n if n < cap else cap
 
     def rows(self) -> np.ndarray:
-        """Every stored row, oldest first (a copy)."""
-        if self.n < self.cap:
-            return self.buf[: self.n].copy()
-        return np.concatenate([self.buf[self.head:], self.buf[: self.head]])
+        """Every stored row ``[t, omega_1, omega_2]`` (n, 7), oldest first (a copy)."""
+        parts = (slice(0, self.n),) if self.n < self.cap else (slice(self.head, None), slice(0, self.head))
+        return np.concatenate([np.column_stack((self.t[s], self.w1[s], self.w2[s])) for s in parts])
 
     def since(self, t0: float) -> np.ndarray:
         """Stored rows at or after ``t0``, oldest first."""
@@ -157,7 +130,7 @@ class SampleRing:
         """Time of the oldest stored row (inf when empty)."""
         if self.n == 0:
             return np.inf
-        return float(self.buf[0 if self.n < self.cap else self.head, 0])
+        return float(self.t[0 if self.n < self.cap else self.head])
 
     def resized(self, capacity: int) -> "SampleRing":
         """A new ring of ``capacity`` holding the most recent rows of this one."""
@@ -166,3 +139,21 @@ class SampleRing:
         if data.shape[0]:
             new.push(data[:, 0], data[:, 1:4], data[:, 4:7])
         return new
+
+
+def block_spans(t, size: int, max_gap_s: float | None) -> list[tuple[int, int]]:
+    """``(start, end)`` of blocks of about ``size`` samples that never straddle a gap (a short tail joins
+    the block before it); a step larger than ``max_gap_s`` (default 5 median intervals) is a gap."""
+    if max_gap_s is None:
+        max_gap_s = 5.0 * float(np.median(np.diff(t))) if t.shape[0] > 1 else np.inf
+    bounds = np.concatenate([[0], np.flatnonzero(np.diff(t) > max_gap_s) + 1, [t.shape[0]]])
+    spans = []
+    for lo, hi in zip(bounds[:-1].tolist(), bounds[1:].tolist()):
+        for s in range(lo, hi, size):
+            e = min(s + size, hi)
+            if hi - e < size // 2 and e < hi:   # fold a short tail into this block
+                e = hi
+            spans.append((s, e))
+            if e == hi:
+                break
+    return spans
