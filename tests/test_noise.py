@@ -167,10 +167,10 @@ def test_identify_noise_mimu_white_noise_matches_static_poses_or_is_flagged():
 
 def test_identify_noise_allan_deviation_equals_allantools_oadev():
     allantools = pytest.importorskip("allantools")
-    from fusion_gyrocal.core.noise import _allan
+    from fusion_gyrocal.core.allan import allan_deviation
     rng = np.random.default_rng(11)
     y = rng.standard_normal((20000, 3)) + np.cumsum(rng.standard_normal((20000, 3)), axis=0) * 1e-3
-    taus, adev, _, _ = _allan(y, RATE)
+    taus, adev, _, _ = allan_deviation(y, RATE)
     phase = np.concatenate([np.zeros((1, 3)), np.cumsum(y - y.mean(axis=0), axis=0)]) / RATE
     for i in (0, 3, 7, taus.size - 1):
         m = int(round(taus[i] * RATE))
@@ -183,11 +183,11 @@ def test_identify_noise_allan_deviation_equals_allantools_oadev():
 
 def test_identify_noise_degrees_of_freedom_near_greenhall():
     allantools = pytest.importorskip("allantools")
-    from fusion_gyrocal.core.noise import _edf
+    from fusion_gyrocal.core.allan import edf
     for N, m in ((20001, 1), (5001, 2), (5001, 16), (2501, 128)):
         for alpha in (0, -1, -2):
             ref = allantools.edf_greenhall(alpha=alpha, d=2, m=m, N=N, overlapping=True)
-            assert _edf(alpha, float(m), float(N)) == pytest.approx(ref, rel=0.3 if m == 1 else 0.2)
+            assert edf(alpha, float(m), float(N)) == pytest.approx(ref, rel=0.3 if m == 1 else 0.2)
 
 
 def test_identify_noise_long_log_on_stretches_keeps_the_walk():

@@ -118,7 +118,7 @@ def allan_deviation(run: PipelineRun):
     ``residual_noise_std``) and its random-walk line (slope +1/2, ``K`` the rest of the fit at the longest
     tau) where the fit has that term.
     """
-    from ..core.noise import FLICKER
+    from ..core.allan import FLICKER
 
     nm = run.calibration.noise_model
     if nm is None:

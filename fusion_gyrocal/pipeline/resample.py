@@ -272,8 +272,8 @@ def noise_factors(t_src, t_query, *, max_points: int = 1 << 16, block: int = 64,
     span = (q[k * block - 1] - q[0]) * block / (k * block - 1)          # duration of a block (s)
     f_src = (i1 - i0 - 1) / (t[i1 - 1] - t[i0])        # the source's rate over the stretch used
     density = float(np.mean(means * means) * span * f_src / var0)
-    from ..core.noise import _allan
-    taus, adev, _, _ = _allan(out, (q.size - 1) / (q[-1] - q[0]))
+    from ..core.allan import allan_deviation
+    taus, adev, _, _ = allan_deviation(out, (q.size - 1) / (q[-1] - q[0]))
     line = (adev ** 2).mean(axis=1) * taus * f_src / (var0 * density)      # 1 on the white line
     near = np.flatnonzero((line[:7] >= 0.95) & (line[:7] <= 1.05))
     white_from = int(2 ** near[0]) if near.size else 64

@@ -8,11 +8,12 @@ residual
 
     r_k = omega_1 - A omega_2 - b  ~  u_k delta(t_k) + noise,     u_k = A d(omega_2)/dt (t_k)
 
-(first order in the delay): it lies along the rate's derivative and follows the beat tones. :func:`estimate_timing`
+(first order in the delay): it lies along the rate's derivative and follows the beat tones (the residual is
+high-passed over about a second first: a drifting bias is slow). :func:`estimate_timing`
 finds up to :data:`MAX_TONES` tones (one per chip against the read-out), each with :data:`HARMONICS` harmonics
 for the sawtooth's shape, by least squares of ``r_k . u_k`` on ``|u_k|^2 delta(t_k)`` (frequencies from the
-periodogram of ``r_k . u_k``, refined on a fine grid), and keeps them only where they explain far more than the
-noise would over a search of every frequency. :meth:`TimingModel.compensate` moves gyro 2's samples to the
+periodogram of ``r_k . u_k``, refined on a fine grid), and keeps them only where the peak is a spectral line
+(far above the periodogram around it) and explains far more than noise would over a search of every frequency. :meth:`TimingModel.compensate` moves gyro 2's samples to the
 instants they describe (``omega_2 + d(omega_2)/dt delta``), after which the pair is calibrated again.
 """
 
@@ -32,6 +33,11 @@ PADDING = 16
 REFINE_CELLS = 3.0
 #: Samples the search looks at (a longer log: its most excited stretch of this many).
 MAX_SAMPLES = 2**17
+#: A peak is a line when its power is this many times the median of its neighbourhood (exponential power: a
+#: noise peak exceeds 30x the median, 21x the mean, with probability ~1e-9 per bin).
+LINE_FACTOR = 30.0
+#: The neighbourhood, in resolution cells either side.
+LINE_CELLS = 50
 #: A tone is kept when it explains this many times what the largest of the searched frequencies would under noise.
 SIGNIFICANCE = 4.0
 
@@ -89,6 +95,27 @@ def _excited_stretch(w2, ok) -> int:
     return int(starts[int(np.argmax([energy[min(s // 16 + width, len(sub))] - energy[s // 16] for s in starts]))])
 
 
+def _is_line(power, i: int) -> bool:
+    """Whether the periodogram's peak at bin ``i`` is a spectral line: :data:`LINE_FACTOR` times the median power
+    of its neighbourhood (:data:`LINE_CELLS` resolution cells either side, the peak's own cells left out). A beat
+    tone is a line; coloured noise or a wandering bias is a smooth spectrum, whose peaks are not."""
+    lo, hi = max(i - LINE_CELLS * PADDING, 0), min(i + LINE_CELLS * PADDING + 1, len(power))
+    around = np.concatenate([power[lo:max(i - 2 * PADDING, lo)], power[min(i + 2 * PADDING + 1, hi):hi]])
+    return around.size > 0 and power[i] > LINE_FACTOR * float(np.median(around))
+
+
+def _high_pass(r, ok, window: int) -> np.ndarray:
+    """The residual less its moving mean over ``window`` samples (about 1 s): a drifting bias is slow, the
+    residual of a delay moves with the motion."""
+    x = np.where(ok[:, None], np.nan_to_num(r), 0.0)
+    c = np.cumsum(np.vstack([np.zeros((1, 3)), x]), axis=0)
+    n = np.cumsum(np.concatenate([[0.0], ok.astype(float)]))
+    lo = np.clip(np.arange(len(r)) - window // 2, 0, len(r))
+    hi = np.clip(lo + window, 0, len(r))
+    count = np.maximum(n[hi] - n[lo], 1.0)
+    return r - (c[hi] - c[lo]) / count[:, None]
+
+
 def _design(t, tones, harmonics) -> np.ndarray:
     cols = [np.ones_like(t)]
     for f in tones:
@@ -132,7 +159,8 @@ def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int =
     if np.count_nonzero(ok) < 100 * (1 + 2 * harmonics * max_tones):
         return NONE
     u = np.gradient(w2, t, axis=0) @ np.asarray(A).T
-    r = w1 - w2 @ np.asarray(A).T - bias
+    r = _high_pass(w1 - w2 @ np.asarray(A).T - bias, ok, window=max(int(round(1.0 / np.median(np.diff(t)))), 3)
+                   if np.median(np.diff(t)) < 1.0 else 64)
     tt, ru, uu = t[ok], np.einsum("ij,ij->i", r, u)[ok], np.einsum("ij,ij->i", u, u)[ok]
     energy = float(np.einsum("ij,ij->", r[ok], r[ok]))
     keep = uu > 0
@@ -154,7 +182,10 @@ def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int =
                 allowed &= np.abs(freq - h * f) > 2.0 / (len(t) * dt)
         if not allowed.any():
             break
-        peak = freq[allowed][np.argmax(power[allowed])]
+        i = int(np.flatnonzero(allowed)[np.argmax(power[allowed])])
+        if not _is_line(power, i):
+            break
+        peak = freq[i]
         span = REFINE_CELLS / (len(t) * dt)
         grid = np.linspace(peak - span, peak + span, 41)
         gains = [_fit(tt, ru, uu, tones + [f], harmonics)[1] for f in grid]
