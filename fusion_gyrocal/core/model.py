@@ -169,6 +169,9 @@ class PairCalibration:
         Beat tones of gyro 2's delay against gyro 1's beyond the constant offset
         (:mod:`~fusion_gyrocal.pipeline.timing`; Hz, cycles per sample without timestamps), empty when the residual
         shows none; gyro 2's samples were moved to the instants they describe before the solve.
+    timing_delay_s : float
+        Mean of gyro 2's delay beyond the time offset (s; samples without timestamps; a filter's group delay in
+        sample-aligned input), 0 when none was found.
     timing_delay_std_s : float
         Standard deviation of that delay (s; samples without timestamps).
     timing_explained : float
@@ -216,6 +219,7 @@ class PairCalibration:
     intrinsics_2: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
     intrinsics_2_covariance: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)))
     timing_tones_hz: tuple = ()
+    timing_delay_s: float = 0.0
     timing_delay_std_s: float = 0.0
     timing_explained: float = 0.0
     noise_model: Any = None

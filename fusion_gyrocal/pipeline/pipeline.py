@@ -214,12 +214,14 @@ def _with_timing(run: PipelineRun, mask, pair, resampling, o: Options) -> Pipeli
     again = _calibrate(run.omega_1, model.compensate(t, run.omega_2), mask, pair, resampling, o)
     unit = ("Hz", "ms", 1e3) if run.t is not None else ("cycles/sample", "samples", 1.0)
     tones = ", ".join(f"{f:.4g}" for f in model.tones_hz)
-    note = (f"inter-sensor timing: gyro 2's delay against gyro 1 follows beat tone(s) at {tones} {unit[0]} (each "
-            f"chip's sampling clock against the read-out), std {model.delay_std * unit[2]:.3g} {unit[1]}, "
+    shape = (f"follows beat tone(s) at {tones} {unit[0]} (each chip's sampling clock against the read-out), std "
+             f"{model.delay_std * unit[2]:.3g} {unit[1]}, mean" if tones else "is constant (a filter's group delay?):")
+    note = (f"inter-sensor timing: gyro 2's delay against gyro 1 {shape} {model.mean_delay * unit[2]:.3g} {unit[1]}; "
             f"{100 * model.explained:.0f}% of the residual's energy; gyro 2's samples were moved to the instants they "
-            "describe and the pair calibrated again (timing_model='off' keeps one constant offset)")
-    new = _replace(again.calibration, timing_tones_hz=model.tones_hz, timing_delay_std_s=model.delay_std,
-                   timing_explained=model.explained, notes=again.calibration.notes + (note,))
+            "describe and the pair calibrated again (timing_model='off': no delay beyond the time offset)")
+    new = _replace(again.calibration, timing_tones_hz=model.tones_hz, timing_delay_s=model.mean_delay,
+                   timing_delay_std_s=model.delay_std, timing_explained=model.explained,
+                   notes=again.calibration.notes + (note,))
     return PipelineRun(new, again.t, again.omega_1, again.omega_2, again.valid, again.used, again.aligned)
 
 

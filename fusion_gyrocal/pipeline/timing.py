@@ -13,7 +13,9 @@ high-passed over about a second first: a drifting bias is slow). :func:`estimate
 finds up to :data:`MAX_TONES` tones (one per chip against the read-out), each with :data:`HARMONICS` harmonics
 for the sawtooth's shape, by least squares of ``r_k . u_k`` on ``|u_k|^2 delta(t_k)`` (frequencies from the
 periodogram of ``r_k . u_k``, refined on a fine grid), and keeps them only where the peak is a spectral line
-(far above the periodogram around it) and explains far more than noise would over a search of every frequency. :meth:`TimingModel.compensate` moves gyro 2's samples to the
+(far above the periodogram around it) and explains far more than noise would over a search of every frequency.
+A constant delay alone (a filter's group delay, in sample-aligned input where no offset was estimated) is kept
+when it explains far more than noise would. :meth:`TimingModel.compensate` moves gyro 2's samples to the
 instants they describe (``omega_2 + d(omega_2)/dt delta``), after which the pair is calibrated again.
 """
 
@@ -33,6 +35,9 @@ PADDING = 16
 REFINE_CELLS = 3.0
 #: Samples the search looks at (a longer log: its most excited stretch of this many).
 MAX_SAMPLES = 2**17
+#: A constant delay (no tone: a filter's group delay in sample-aligned input) is kept when it explains this many
+#: times the residual's variance along the rate's derivative (chi2_1's 99.9 % point is 10.8).
+CONSTANT_SIGNIFICANCE = 30.0
 #: A peak is a line when its power is this many times the median of its neighbourhood (exponential power: a
 #: noise peak exceeds 30x the median, 21x the mean, with probability ~1e-9 per bin).
 LINE_FACTOR = 30.0
@@ -50,12 +55,13 @@ class TimingModel:
     ----------
     tones_hz : tuple of float
         Beat frequencies found (Hz; cycles per sample for input without timestamps); empty when none is
-        significant.
+        significant (a constant delay may still be).
     coefficients : ndarray
         ``[mean, (cos, sin) per harmonic per tone]`` of the delay (s; samples without timestamps).
     harmonics : int
     explained : float
-        Fraction of the residual's energy the delay explains.
+        Fraction of the residual's energy the delay explains; 0 when neither a constant delay nor a tone is
+        significant.
     delay_std : float
         Standard deviation of the modelled delay over the samples used (s; samples without timestamps).
     """
@@ -68,7 +74,12 @@ class TimingModel:
 
     @property
     def significant(self) -> bool:
-        return len(self.tones_hz) > 0
+        return self.explained > 0.0
+
+    @property
+    def mean_delay(self) -> float:
+        """The delay's mean (s; samples without timestamps): a constant group delay, or what the offset left."""
+        return float(self.coefficients[0])
 
     def delay(self, t) -> np.ndarray:
         """The modelled delay at the instants ``t``."""
@@ -169,7 +180,9 @@ def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int =
     sigma2 = float(np.median(ru[keep] ** 2 / uu[keep])) / 0.455        # the residual along u, robustly (chi2_1)
     dt = float(np.median(np.diff(t)))
     n_freq = len(t) / 2.0                                               # independent frequencies searched
-    tones, explained = [], 0.0
+    _, constant = _fit(tt, ru, uu, [], harmonics)                     # one delay: a filter's group delay
+    explained = constant if constant / sigma2 > CONSTANT_SIGNIFICANCE else 0.0
+    tones = []
     for _ in range(max_tones):
         c, _ = _fit(tt, ru, uu, tones, harmonics)
         x = np.zeros(len(t))
@@ -195,7 +208,7 @@ def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int =
             break
         tones.append(best)
         explained = max(gains)
-    if not tones:
+    if not tones and not explained:
         return NONE
     c, explained = _fit(tt, ru, uu, tones, harmonics)
     delay = _design(tt, tones, harmonics) @ c
