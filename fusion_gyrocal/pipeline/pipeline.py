@@ -212,15 +212,16 @@ def _with_timing(run: PipelineRun, mask, pair, resampling, o: Options) -> Pipeli
     if not model.significant:
         return run
     again = _calibrate(run.omega_1, model.compensate(t, run.omega_2), mask, pair, resampling, o)
+    delay = model.delay(t if again.used is None else t[again.used])
     unit = ("Hz", "ms", 1e3) if run.t is not None else ("cycles/sample", "samples", 1.0)
     tones = ", ".join(f"{f:.4g}" for f in model.tones_hz)
     shape = (f"follows beat tone(s) at {tones} {unit[0]} (each chip's sampling clock against the read-out), std "
-             f"{model.delay_std * unit[2]:.3g} {unit[1]}, mean" if tones else "is constant (a filter's group delay?):")
-    note = (f"inter-sensor timing: gyro 2's delay against gyro 1 {shape} {model.mean_delay * unit[2]:.3g} {unit[1]}; "
+             f"{delay.std() * unit[2]:.3g} {unit[1]}, mean" if tones else "is constant (a filter's group delay?):")
+    note = (f"inter-sensor timing: gyro 2's delay against gyro 1 {shape} {delay.mean() * unit[2]:.3g} {unit[1]}; "
             f"{100 * model.explained:.0f}% of the residual's energy; gyro 2's samples were moved to the instants they "
             "describe and the pair calibrated again (timing_model='off': no delay beyond the time offset)")
-    new = _replace(again.calibration, timing_tones_hz=model.tones_hz, timing_delay_s=model.mean_delay,
-                   timing_delay_std_s=model.delay_std, timing_explained=model.explained,
+    new = _replace(again.calibration, timing_tones_hz=model.tones_hz, timing_delay_s=float(delay.mean()),
+                   timing_delay_std_s=float(delay.std()), timing_explained=model.explained,
                    notes=again.calibration.notes + (note,))
     return PipelineRun(new, again.t, again.omega_1, again.omega_2, again.valid, again.used, again.aligned)
 

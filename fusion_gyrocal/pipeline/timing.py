@@ -88,9 +88,20 @@ class TimingModel:
     def compensate(self, t, omega_2) -> np.ndarray:
         """Gyro 2's rates moved to the instants they describe: ``omega_2 + d(omega_2)/dt * delay(t)``."""
         w2 = np.asarray(omega_2, dtype=float)
-        d = np.gradient(w2, t, axis=0)
-        d[~np.isfinite(d)] = 0.0          # beside a gap (NaN where a sample is invalid): left as it is
-        return w2 + d * self.delay(t)[:, None]
+        return w2 + derivative(t, w2) * self.delay(t)[:, None]
+
+
+def derivative(t, w) -> np.ndarray:
+    """``dw/dt`` by central differences, one-sided beside an invalid (NaN) sample, 0 between two."""
+    t = np.asarray(t, dtype=float)
+    fwd = np.full(w.shape, np.nan)
+    fwd[:-1] = (w[1:] - w[:-1]) / (t[1:] - t[:-1])[:, None]
+    bwd = np.full(w.shape, np.nan)
+    bwd[1:] = fwd[:-1]
+    d = 0.5 * (fwd + bwd)
+    d = np.where(np.isfinite(d), d, np.where(np.isfinite(fwd), fwd, bwd))
+    d[~np.isfinite(d)] = 0.0
+    return d
 
 
 NONE = TimingModel((), np.zeros(1), HARMONICS, 0.0, 0.0)
@@ -157,7 +168,7 @@ def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int =
         Sample-aligned rates (rad/s).
     A, bias : the calibration's map and combined bias (``omega_1 ~ A omega_2 + bias``).
     mask : array_like of bool (N,), optional
-        Samples to use (their neighbours must be valid too, for the derivative).
+        Samples to use (the derivative is one-sided beside an invalid one).
     """
     t = np.asarray(t, dtype=float)
     w1, w2 = np.asarray(omega_1, dtype=float), np.asarray(omega_2, dtype=float)
@@ -165,11 +176,11 @@ def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int =
     if len(t) > MAX_SAMPLES:          # the most excited stretch of a long log (the tones are stationary)
         lo = _excited_stretch(w2, ok)
         t, w1, w2, ok = t[lo:lo + MAX_SAMPLES], w1[lo:lo + MAX_SAMPLES], w2[lo:lo + MAX_SAMPLES], ok[lo:lo + MAX_SAMPLES]
-    ok[1:] &= ok[:-1].copy()
-    ok[:-1] &= ok[1:].copy()
+
     if np.count_nonzero(ok) < 100 * (1 + 2 * harmonics * max_tones):
         return NONE
-    u = np.gradient(w2, t, axis=0) @ np.asarray(A).T
+    ok &= np.all(np.isfinite(w1), axis=1) & np.all(np.isfinite(w2), axis=1)
+    u = derivative(t, w2) @ np.asarray(A).T
     r = _high_pass(w1 - w2 @ np.asarray(A).T - bias, ok, window=max(int(round(1.0 / np.median(np.diff(t)))), 3)
                    if np.median(np.diff(t)) < 1.0 else 64)
     tt, ru, uu = t[ok], np.einsum("ij,ij->i", r, u)[ok], np.einsum("ij,ij->i", u, u)[ok]
