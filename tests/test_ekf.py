@@ -986,3 +986,18 @@ def test_run_misfit_overestimated_at_unseen_rates_is_learnt_down():
     assert err["released"] < 3.0 * sigma["released"], (err, sigma)
     assert sigma["released"] < 2.0 * sigma["white"], sigma           # the fast samples count
     assert sigma["held"] > 5.0 * sigma["released"], sigma            # held at the model: they hardly do
+
+
+def test_gyro_pair_tracker_refuses_a_full_map_seed():
+    """The filter's model is rotation + scale factors: a full-map seed (another convention for R_1_2) is refused
+    with what to do, not tracked into a drift."""
+    from fusion_gyrocal.errors import ConfigurationError
+
+    flip = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    t, w1, w2, _ = scenario(np.random.default_rng(5), 20.0)
+    w2 = w1 @ flip + np.random.default_rng(6).normal(0.0, 1e-3, w1.shape)   # all axes parallel: the full map
+    seed = calibrate_pair(w1[:1500], w2[:1500])
+    assert seed.linear_map == "full"
+    with pytest.raises(ConfigurationError, match="linear_map='rigid'"):
+        GyroPairTracker(seed)
+    GyroPairTracker(calibrate_pair(w1[:1500], w2[:1500], linear_map="rigid"))
