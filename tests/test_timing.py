@@ -48,6 +48,11 @@ def test_calibrate_pair_timing_model_compensates_the_delay():
     assert err_on <= err_off
     assert any(n.startswith("inter-sensor timing") for n in on.notes)
     assert off.timing_tones_hz == () and not any(n.startswith("inter-sensor timing") for n in off.notes)
+    import json
+
+    from fusion_gyrocal.core.model import PairCalibration
+    back = PairCalibration.from_dict(json.loads(json.dumps(on.to_dict())))
+    assert back.timing_tones_hz == on.timing_tones_hz and back.timing_delay_std_s == on.timing_delay_std_s
 
 
 def test_calibrate_pair_timing_model_compensates_a_constant_group_delay_without_timestamps():
