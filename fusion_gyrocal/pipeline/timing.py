@@ -30,11 +30,11 @@ MAX_TONES = 2
 #: Harmonics of each tone (a sawtooth's shape).
 HARMONICS = 3
 #: Zero padding of the periodogram (frequency resolution of the search, before refinement).
-PADDING = 16
+PADDING = 4
 #: How far the refinement searches around a periodogram peak, in resolution cells (1 / the log's duration).
 REFINE_CELLS = 3.0
 #: Samples the search looks at (a longer log: its most excited stretch of this many).
-MAX_SAMPLES = 2**17
+MAX_SAMPLES = 2**16
 #: A constant delay (no tone: a filter's group delay in sample-aligned input) is kept when it explains this many
 #: times the residual's variance along the rate's derivative (chi2_1's 99.9 % point is 10.8).
 CONSTANT_SIGNIFICANCE = 30.0
@@ -109,12 +109,13 @@ NONE = TimingModel((), np.zeros(1), HARMONICS, 0.0, 0.0)
 
 def _excited_stretch(w2, ok) -> int:
     """Start of the stretch of :data:`MAX_SAMPLES` samples (from block starts) with the most motion of gyro 2."""
-    step = MAX_SAMPLES // 4
+    step, stride = MAX_SAMPLES // 4, 64
     starts = np.arange(0, len(w2) - MAX_SAMPLES + 1, step)
-    sub = np.where(ok[::16, None], w2[::16], 0.0)
+    sub = np.where(ok[::stride, None], w2[::stride], 0.0)
     energy = np.cumsum(np.concatenate([[0.0], np.nan_to_num(np.einsum("ij,ij->i", sub, sub))]))
-    width = MAX_SAMPLES // 16
-    return int(starts[int(np.argmax([energy[min(s // 16 + width, len(sub))] - energy[s // 16] for s in starts]))])
+    width = MAX_SAMPLES // stride
+    return int(starts[int(np.argmax([energy[min(s // stride + width, len(sub))] - energy[s // stride]
+                                     for s in starts]))])
 
 
 def _is_line(power, i: int) -> bool:
