@@ -139,7 +139,6 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         The pair is not rigid and ``on_not_rigid="raise"``.
     """
     o = Options.of(options, **keywords)
-    method, scale_prior_std, parallel_tol_deg = o.method, o.scale_prior_std, o.parallel_tol_deg
     gauge = Gauge.parse(o.gauge)
     if o.intrinsics_1 is not None or o.intrinsics_2 is not None:
         moments, windows = _transform(moments, windows, _skew_compensation(o.intrinsics_1),
@@ -155,170 +154,246 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
             f"not rigid: a single rotation and scale factors leave {100 * unexplained:.1f}% of gyro 1's motion "
             f"unexplained (a rigid pair leaves <= {100 * o.max_unexplained:g}%); the gyros move relative to each "
             "other, the streams are misaligned in time, or they are not the same device")
-    if noise is None:
-        ratio = 1.0 if noise_ratio is None or not np.isfinite(noise_ratio) else float(noise_ratio)
-        noise = _residual_noise(moments, A_ls, ratio)
-        noise_source = ("residual (split equally between the gyros)" if noise_ratio is None else
-                        f"residual, split {ratio:.3g}:1 by the third differences of each stream")
-    elif noise_model is not None:
-        noise_source = f"identified from the pair's residual ({noise_model.kind}, bias {noise_model.bias_model})"
-    else:
-        noise_source = "user"
+    noise, noise_source = _noise_of(moments, A_ls, noise, noise_ratio, noise_model)
     if rigid:
         check_excitation(moments, noise, min_snr=o.min_snr)
         _check_plausible_A(A_ls, moments, noise)
+    fit = _fit(moments, windows, A_ls, noise, rigid, gauge, o)
+    A, D = fit.map()
+    bias = moments.mean_1 - A @ moments.mean_2
+    W, M = residual_weight(A, noise), residual_scatter(A, moments.scatter)
+    # lack of fit: the residual's chi-square per degree of freedom against the stated noise
+    lack_of_fit = float(np.trace(W @ M)) / max(3.0 * moments.dof - fit.n_free, 1.0)
+    P, F = _model_covariance(moments, fit, A_ls, A, D, noise, gauge, o)
+    P, Sigma_r, inflation, basis_kind, basis, more = _reported_covariance(
+        moments, windows, fit, P, F, A, D, bias, noise, user_noise, gauge, o, lack_of_fit, np.linalg.inv(W))
+    notes = fit.notes + ([] if rigid else [f"NOT RIGID: {100 * unexplained:.1f}% of the motion is unexplained; do "
+                                           "not use this estimate"]) + more
+    cov = parameter_covariance(P, fit.jacobian(len(P)), D, moments, Sigma_r)
+    if o.scale_prior_std is None:
+        mark_undetermined(cov, fit.observable)
+    skew_cov = _skew_covariance(fit, P, o)
+    cov[ROT, ROT] += skew_cov
+    snr = per_axis_snr(moments, noise)
+    notes += _notes(fit, P, snr, o)
+    return PairCalibration(
+        R_1_2=fit.R, scale_1=fit.s1, scale_2=fit.s2, bias=bias, configuration=fit.config.name,
+        scale_observable=fit.observable, covariance=cov, gauge=_gauge_text(fit, gauge, o), snr=snr,
+        n_samples=int(moments.count), noise_std=np.array(noise), noise_source=noise_source,
+        residual_rms=float(np.sqrt(max(np.trace(M), 0.0) / (3.0 * max(moments.dof, 1.0)))), method=o.method,
+        iterations=fit.iterations, skew_rotation_covariance=skew_cov, bias_segments=moments.segments,
+        rigid=rigid, unexplained_fraction=unexplained, covariance_basis=basis, covariance_kind=basis_kind,
+        lack_of_fit=lack_of_fit, robust_inflation=inflation, cross_axis=fit.E, cross_axis_chi2=fit.chi2,
+        cross_axis_dof=fit.dof, linear_map=fit.model, cross_axis_terms=np.zeros(3) if fit.k is None else fit.k,
+        cross_axis_covariance=P[9:, 9:] if fit.model == "full" else np.zeros((3, 3)),
+        intrinsics_2=np.zeros((3, 3)) if fit.S2 is None else fit.S2,
+        intrinsics_2_covariance=P[3:, 3:] if fit.model == "reference" else np.zeros((6, 6)), noise_model=noise_model,
+        notes=tuple(notes))
+
+
+@dataclasses.dataclass
+class _Fit:
+    """The estimate in the parameters of its sensor model (``model``: "rigid", "full" or "reference")."""
+
+    R: np.ndarray
+    s1: np.ndarray
+    s2: np.ndarray
+    config: object
+    model: str = "rigid"
+    k: np.ndarray | None = None          # "full": the cross-axis terms
+    S2: np.ndarray | None = None         # "reference": gyro 2's intrinsic matrix
+    iterations: int = 0
+    notes: list = dataclasses.field(default_factory=list)
+    E: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((3, 3)))
+    chi2: float = float("nan")
+    dof: int = 0
+    shown: bool = False                  # the data show cross-axis terms (their chi-square, p < 0.001)
+    rigid: bool = True                   # False: the nearest rotation with unit scales, never refined
+
+    def map(self):
+        """``(A, dA/dp)`` of the model."""
+        if self.model == "reference":
+            return reference_map(self.R, self.S2, self.s1), reference_derivatives(self.R, self.S2, self.s1)
+        return A_of(self.R, self.s1, self.s2, self.k), dA_dp(self.R, self.s1, self.s2, self.k)
+
+    @property
+    def n_free(self) -> float:
+        """Parameters fitted beyond the bias (the residual's degrees of freedom lost to them)."""
+        return {"rigid": 8.0, "full": 11.0, "reference": 9.0}[self.model]
+
+    @property
+    def observable(self) -> np.ndarray:
+        return np.ones((2, 3), bool) if self.model == "reference" else self.config.scale_observable
+
+    def jacobian(self, n: int) -> np.ndarray:
+        """(9, n): ``[dtheta, scale_1, scale_2]`` from the model's ``n`` parameters."""
+        J = np.zeros((9, n))
+        J[:3, :3] = np.eye(3)
+        if self.model == "reference":    # scale_1 known; scale_2 the diagonal of S_2 (UPPER 0, 3, 5)
+            J[6, 3], J[7, 6], J[8, 8] = 1.0, 1.0, 1.0
+        else:                            # log scale factors
+            J[3:9, 3:9] = np.diag(np.concatenate([self.s1, self.s2]))
+        return J
+
+
+def _noise_of(moments, A_ls, noise, noise_ratio, noise_model):
+    """The noise per gyro and where it came from (the residual's, split by ``noise_ratio``, when not given)."""
+    if noise is None:
+        ratio = 1.0 if noise_ratio is None or not np.isfinite(noise_ratio) else float(noise_ratio)
+        return _residual_noise(moments, A_ls, ratio), ("residual (split equally between the gyros)"
+                                                      if noise_ratio is None else
+                                                      f"residual, split {ratio:.3g}:1 by the third differences of "
+                                                      "each stream")
+    if noise_model is not None:
+        return noise, f"identified from the pair's residual ({noise_model.kind}, bias {noise_model.bias_model})"
+    return noise, "user"
+
+
+def _fit(moments, windows, A_ls, noise, rigid: bool, gauge, o: Options) -> _Fit:
+    """Decomposition (Lemmas 2-4), gauge (Theorem 2), maximum likelihood, then the sensor model the data call for
+    (:mod:`~fusion_gyrocal.core.linear_map`)."""
     # classify from the polar factor of A (scales ~1), then again from the decomposed rotation
-    config = classify(nearest_rotation(A_ls), parallel_tol_deg)
-    notes = []
-    iterations = 0
+    config = classify(nearest_rotation(A_ls), o.parallel_tol_deg)
     if rigid:
         R, s1, s2 = decompose(A_ls, config)
-        config = classify(R, parallel_tol_deg)
+        config = classify(R, o.parallel_tol_deg)
         R, s1, s2 = decompose(A_ls, config)
     else:  # no rigid model fits: report the nearest rotation with unit scales, flagged, never refined
         R, s1, s2 = nearest_rotation(A_ls), np.ones(3), np.ones(3)
     s1, s2 = gauge.apply(config.groups, np.stack([s1, s2]))
-    if method == "ml" and rigid:
-        ref = refine_ml(moments, R, s1, s2, noise,
-                        constraints=lambda a, b: gauge.constraints(config.groups, [a, b], 3),
-                        regauge=lambda a, b: tuple(gauge.apply(config.groups, [a, b])))
-        R, s1, s2, iterations = ref.R, ref.s1, ref.s2, ref.iterations
+    fit = _Fit(R, s1, s2, config, rigid=rigid)
+
+    def constraints(a, b):
+        return gauge.constraints(config.groups, [a, b], 3)
+
+    def regauge(a, b):
+        return tuple(gauge.apply(config.groups, [a, b]))
+
+    if o.method == "ml" and rigid:
+        ref = refine_ml(moments, R, s1, s2, noise, constraints=constraints, regauge=regauge)
+        fit.R, fit.s1, fit.s2, fit.iterations = ref.R, ref.s1, ref.s2, ref.iterations
         if not ref.converged:
-            notes.append(f"maximum-likelihood refinement stopped after {iterations} iterations without converging")
-    E, cross_chi2, cross_dof = np.zeros((3, 3)), float("nan"), 0
-    reference = rigid and method == "ml" and o.intrinsics_1 is not None and o.intrinsics_2 is None
-    if rigid and not reference:
-        E, cross_chi2, cross_dof = cross_axis(A_ls, R, s1, s2, moments, noise, windows, n_null=len(config.groups))
-    full, shown = choose_full_map(o.linear_map, method, cross_chi2, cross_dof)
-    full = full and rigid and not reference
-    budget_prior = o.cross_axis_std if shown else None
-    k = S2 = None
-    if reference:   # gyro 1's intrinsics known: gyro 2's whole intrinsic matrix (core/linear_map.py)
-        s1 = np.diag(np.asarray(o.intrinsics_1, dtype=float)).copy()
-        R, S2, it, converged = refine_reference(moments, *decompose_reference(A_ls, s1), s1, noise)
-        s2, iterations = np.diag(S2).copy(), iterations + it
-        config = classify(R, parallel_tol_deg)
+            fit.notes.append(f"maximum-likelihood refinement stopped after {ref.iterations} iterations without "
+                             "converging")
+    if rigid and o.method == "ml" and o.intrinsics_1 is not None and o.intrinsics_2 is None:
+        fit.model, fit.s1 = "reference", np.diag(np.asarray(o.intrinsics_1, dtype=float)).copy()
+        fit.R, fit.S2, it, converged = refine_reference(moments, *decompose_reference(A_ls, fit.s1), fit.s1, noise)
+        fit.s2, fit.iterations = np.diag(fit.S2).copy(), fit.iterations + it
+        fit.config = classify(fit.R, o.parallel_tol_deg)
         if not converged:
-            notes.append(f"the refinement of gyro 2's intrinsics stopped after {it} iterations without converging")
-    if full:   # the full linear map from the rigid estimate (core/linear_map.py)
-        fm = refine_full(moments, R, s1, s2, noise, o.cross_axis_std,
-                         constraints=lambda a, b: gauge.constraints(config.groups, [a, b], 3),
-                         regauge=lambda a, b: tuple(gauge.apply(config.groups, [a, b])))
-        R, s1, s2, k = fm.R, fm.s1, fm.s2, fm.k
-        iterations += fm.iterations
+            fit.notes.append(f"the refinement of gyro 2's intrinsics stopped after {it} iterations without converging")
+        return fit
+    if rigid:
+        fit.E, fit.chi2, fit.dof = cross_axis(A_ls, fit.R, fit.s1, fit.s2, moments, noise, windows,
+                                              n_null=len(config.groups))
+    full, fit.shown = choose_full_map(o.linear_map, o.method, fit.chi2, fit.dof)
+    if full and rigid:
+        fm = refine_full(moments, fit.R, fit.s1, fit.s2, noise, o.cross_axis_std, constraints=constraints,
+                         regauge=regauge)
+        fit.model, fit.R, fit.s1, fit.s2, fit.k = "full", fm.R, fm.s1, fm.s2, fm.k
+        fit.iterations += fm.iterations
         if not fm.converged:
-            notes.append(f"the full linear map's refinement stopped after {fm.iterations} iterations without "
-                         "converging")
-    if scale_prior_std is not None:
+            fit.notes.append(f"the full linear map's refinement stopped after {fm.iterations} iterations without "
+                             "converging")
+    if o.scale_prior_std is not None:
         # the prior holds only what the data leave free, one common factor per group of linked scale factors;
         # its maximum there is the group's unit convention, so the determined ratios stay the data's
-        s1, s2 = PRIOR_GAUGE.apply(config.groups, np.stack([s1, s2]))
-    if reference:
-        A, D = reference_map(R, S2, s1), reference_derivatives(R, S2, s1)
-    else:
-        A, D = A_of(R, s1, s2, k), dA_dp(R, s1, s2, k)
-    bias = moments.mean_1 - A @ moments.mean_2
+        fit.s1, fit.s2 = PRIOR_GAUGE.apply(config.groups, np.stack([fit.s1, fit.s2]))
+    return fit
+
+
+def _model_covariance(moments, fit: _Fit, A_ls, A, D, noise, gauge, o: Options):
+    """``(P, F)``: the noise model's covariance of the fit's parameters and their information (with the
+    cross-axis prior of the full map)."""
     _, Xi_c = signal_scatter(moments, noise)
     F = information_of_A(A, D, noise, Xi_c)
-    if full:
+    if fit.model == "full":
         F = F + prior_information(o.cross_axis_std)
-    if reference:
-        P9 = constrained_inverse(F, np.zeros((0, 9)))
-    elif method == "ml":
-        P9 = _ml_covariance(F, s1, s2, config, gauge, scale_prior_std)
-    else:
-        P9 = _direct_covariance(moments, A_ls, noise, config, gauge)
-    # lack of fit: the residual's chi-square per degree of freedom against the stated noise
-    W = residual_weight(A, noise)
-    M = residual_scatter(A, moments.scatter)
-    dof = max(3.0 * moments.dof - (8.0 + 3.0 * full + reference), 1.0)
-    lack_of_fit = float(np.trace(W @ M)) / dof
-    if not rigid:
-        notes.append(f"NOT RIGID: {100 * unexplained:.1f}% of the motion is unexplained; do not use this estimate")
-    Sigma_r = np.linalg.inv(W) / moments.count      # covariance of the mean residual under the noise model
-    basis = "noise model (inverse Fisher information, Appendix B)" if method == "ml" else \
+    if fit.model == "reference":
+        return constrained_inverse(F, np.zeros((0, 9))), F
+    if o.method == "ml":
+        return _ml_covariance(F, fit.s1, fit.s2, fit.config, gauge, o.scale_prior_std), F
+    return _direct_covariance(moments, A_ls, noise, fit.config, gauge), F
+
+
+def _reported_covariance(moments, windows, fit: _Fit, P, F, A, D, bias, noise, user_noise, gauge, o: Options,
+                         lack_of_fit, Sigma_residual):
+    """The covariance reported (:func:`~fusion_gyrocal.core.robust.reported_covariance`) and that of the mean
+    residual (the bias estimate's own noise): ``(P, Sigma_r, inflation, kind, basis, notes)``."""
+    Sigma_r = Sigma_residual / moments.count      # under the noise model
+    basis = "noise model (inverse Fisher information, Appendix B)" if o.method == "ml" else \
         "noise model (first-order propagation of Cov(A))"
     robust = None
-    if rigid and method == "ml" and windows is not None:
+    if fit.rigid and o.method == "ml" and windows is not None:
         def robust():
             V = score_variance(scores_of_A(A, D, noise, windows), windows)
-            if full:   # the cross-axis prior's part of the scores' variance (what it holds is the model's)
+            if fit.model == "full":   # the cross-axis prior's part of the scores' variance (the model's)
                 V = V + 4.0 * prior_information(o.cross_axis_std)
             # the data's part in the gauge the covariance is expressed in; a prior's part (what the data leave
             # free) is the model's and stays
-            held = PRIOR_GAUGE if scale_prior_std is not None else gauge
-            C = np.zeros((0, 9)) if reference else _padded(held.constraints(config.groups, [s1, s2], 3), len(F))
-            return P9 + sandwich(F, V, C) - constrained_inverse(F, C)
-    P9, inflation, basis_kind, basis, more = reported_covariance(
-        P9, robust, windows, o.covariance, basis, lack_of_fit, user_noise=user_noise, what="flex, skew, time offset")
-    notes += more
-    if basis_kind in (CovarianceBasis.CHECKED, CovarianceBasis.RAISED, CovarianceBasis.ROBUST):
+            held = PRIOR_GAUGE if o.scale_prior_std is not None else gauge
+            C = (np.zeros((0, 9)) if fit.model == "reference" else
+                 _padded(held.constraints(fit.config.groups, [fit.s1, fit.s2], 3), len(F)))
+            return P + sandwich(F, V, C) - constrained_inverse(F, C)
+    P, inflation, kind, basis, notes = reported_covariance(
+        P, robust, windows, o.covariance, basis, lack_of_fit, user_noise=user_noise, what="flex, skew, time offset")
+    if kind in (CovarianceBasis.CHECKED, CovarianceBasis.RAISED, CovarianceBasis.ROBUST):
         if not windows.pooled and moments.segments == 1:
             Sigma_b = bias_variance(A, bias, windows)
             Sigma_r = Sigma_b if o.covariance == "robust" else larger(Sigma_r, Sigma_b, effective_windows(windows))[0]
     elif o.covariance == "robust":
         raise OptionError("covariance='robust': expected per-window statistics (windows=...) of an 'ml' solve of a "
                           f"rigid pair with at least {MIN_ROBUST_WINDOWS} windows; calibrate_pair computes them")
-    elif basis_kind is CovarianceBasis.INFLATED:
+    elif kind is CovarianceBasis.INFLATED:
         Sigma_r = Sigma_r * lack_of_fit
-    if full:
-        notes.append(_full_map_note(k, P9[9:, 9:], cross_chi2, cross_dof, budget_prior))
-    elif shown and rigid:
-        off = np.abs(E - np.diag(np.diag(E))).max()
+    return P, Sigma_r, inflation, kind, basis, notes
+
+
+def _skew_covariance(fit: _Fit, P, o: Options) -> np.ndarray:
+    """The rotation's skew budget: the user's ``skew_std`` (Appendix D: theta ~ (w_1 - C w_2) / 2) and, for the
+    full map, the antisymmetric cross-axis part the convention gives the rotation and no data see."""
+    sk = np.asarray(o.skew_std, dtype=float)
+    skew_cov = 0.25 * (sk[0] ** 2 + sk[1] ** 2) * np.eye(3)
+    if fit.model == "full":
+        skew_cov = skew_cov + cross_axis_budget(fit.k, P[9:, 9:], o.cross_axis_std if fit.shown else None) * np.eye(3)
+    return skew_cov
+
+
+def _notes(fit: _Fit, P, snr, o: Options) -> list:
+    """The notes on the sensor model, the per-axis SNR and the configuration."""
+    notes = []
+    if fit.model == "full":
+        notes.append(_full_map_note(fit.k, P[9:, 9:], fit.chi2, fit.dof, o.cross_axis_std if fit.shown else None))
+    elif fit.shown:
+        off = np.abs(fit.E - np.diag(np.diag(fit.E))).max()
         notes.append(f"the full linear map fits significantly better than rotation + scale factors (chi2 "
-                     f"{cross_chi2:.3g} for {cross_dof} dof, p < 0.001): relative cross-axis terms up to {off:.2g} "
+                     f"{fit.chi2:.3g} for {fit.dof} dof, p < 0.001): relative cross-axis terms up to {off:.2g} "
                      f"remain (cross_axis). Skew errors of that size that the data cannot see move the rotation by "
                      f"about {np.rad2deg(off / 2) * 1e3:.3g} mdeg (Appendix D, Eq. 40): use linear_map='auto' or "
                      "'full', compensate the intrinsics (intrinsics_1/2) or pass skew_std to budget for it")
-    if reference:
-        notes.append(_reference_note(S2, P9[3:, 3:]))
-    J = np.zeros((9, len(P9)))          # [dtheta, scale_1, scale_2] from the parameters
-    J[:3, :3] = np.eye(3)
-    if reference:                       # scale_1 known; scale_2 the diagonal of S_2
-        J[6, 3], J[7, 6], J[8, 8] = 1.0, 1.0, 1.0
-    else:                               # log scale factors
-        J[3:9, 3:9] = np.diag(np.concatenate([s1, s2]))
-    cov = parameter_covariance(P9, J, D, moments, Sigma_r)
-    observable = np.ones((2, 3), bool) if reference else config.scale_observable
-    if scale_prior_std is None:
-        mark_undetermined(cov, observable)
-    sk = np.asarray(o.skew_std, dtype=float)
-    skew_cov = 0.25 * (sk[0] ** 2 + sk[1] ** 2) * np.eye(3)  # Appendix D: theta ~ (w_1 - C w_2) / 2
-    if full:   # the antisymmetric cross-axis part, which the convention gives the rotation and no data see
-        skew_cov = skew_cov + cross_axis_budget(k, P9[9:, 9:], budget_prior) * np.eye(3)
-    cov[ROT, ROT] += skew_cov
-    snr = per_axis_snr(moments, noise)
+    elif fit.model == "reference":
+        notes.append(_reference_note(fit.S2, P[3:, 3:]))
     weak = [f"{'xyz'[i]} ({snr[i]:.3g})" for i in range(3) if snr[i] < o.target_snr]
     if weak:
         notes.append(f"per-axis SNR below the target {o.target_snr:g} (the paper accumulates to 4e3) on axis "
                      f"{', '.join(weak)}: rotate more about those axes of gyro 1, or record longer")
-    if config.name != "general":
+    if fit.config.name != "general":
         pairs = ", ".join(f"gyro 1 {'xyz'[i]} ~ gyro 2 {'xyz'[j]} ({ang:.2f} deg)"
-                          for i, j, ang in config.parallel_pairs)
+                          for i, j, ang in fit.config.parallel_pairs)
         held = ("; their common factor comes from the scale prior (scale_observable False)"
-                if scale_prior_std is not None else "")
-        notes.append(f"{config.name}: {pairs}; only the ratio of those scale factors is determined (Lemma "
-                     f"{'2' if config.name == 'all_axes_parallel' else '3'}){held}")
-    gauge_text = (f"Gaussian prior N(1, {scale_prior_std:g}^2) on the scale factors, acting only on what the data "
-                  "leave free: the global scale and the common factor of each parallel axis pair (ratios from the data)"
-                  if scale_prior_std is not None else gauge.describe())
-    if reference:
-        gauge_text = "absolute: gyro 1's intrinsic matrix is given (intrinsics_1)"
-    return PairCalibration(
-        R_1_2=R, scale_1=s1, scale_2=s2, bias=bias, configuration=config.name,
-        scale_observable=observable, covariance=cov, gauge=gauge_text, snr=snr,
-        n_samples=int(moments.count), noise_std=np.array(noise), noise_source=noise_source,
-        residual_rms=float(np.sqrt(max(np.trace(M), 0.0) / (3.0 * max(moments.dof, 1.0)))), method=method,
-        iterations=iterations, skew_rotation_covariance=skew_cov, bias_segments=moments.segments,
-        rigid=rigid, unexplained_fraction=unexplained, covariance_basis=basis, covariance_kind=basis_kind,
-        lack_of_fit=lack_of_fit,
-        robust_inflation=inflation, cross_axis=E, cross_axis_chi2=cross_chi2, cross_axis_dof=cross_dof,
-        linear_map="reference" if reference else "full" if full else "rigid",
-        cross_axis_terms=np.zeros(3) if k is None else k,
-        cross_axis_covariance=P9[9:, 9:] if full else np.zeros((3, 3)),
-        intrinsics_2=np.zeros((3, 3)) if S2 is None else S2,
-        intrinsics_2_covariance=P9[3:, 3:] if reference else np.zeros((6, 6)), noise_model=noise_model,
-        notes=tuple(notes))
+                if o.scale_prior_std is not None else "")
+        notes.append(f"{fit.config.name}: {pairs}; only the ratio of those scale factors is determined (Lemma "
+                     f"{'2' if fit.config.name == 'all_axes_parallel' else '3'}){held}")
+    return notes
+
+
+def _gauge_text(fit: _Fit, gauge, o: Options) -> str:
+    if fit.model == "reference":
+        return "absolute: gyro 1's intrinsic matrix is given (intrinsics_1)"
+    if o.scale_prior_std is not None:
+        return (f"Gaussian prior N(1, {o.scale_prior_std:g}^2) on the scale factors, acting only on what the data "
+                "leave free: the global scale and the common factor of each parallel axis pair (ratios from the data)")
+    return gauge.describe()
 
 
 def _reference_note(S2, cov):
