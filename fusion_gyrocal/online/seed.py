@@ -16,7 +16,7 @@ import numpy as np
 from ..core.model import S1, S2, PairCalibration
 from ..core.moments import as_rates, noise_pair
 from ..core.observability import seed_configuration
-from ..errors import InputError
+from ..errors import ConfigurationError, InputError
 from ..pipeline.streams import check_timestamps
 from .ekf import ErrorStateEKF, inflation, misfit_coefficients
 from .hold import DIM, ScaleHold
@@ -98,6 +98,15 @@ def seed_noise(calibration: PairCalibration, noise_model):
     if not (np.isfinite(noise).all() and (noise > 0).all()):
         raise InputError(f"{what}: expected two positive rad/s values, got {noise}")
     return noise_model, (float(noise[0]), float(noise[1])), misfit
+
+
+def check_seed_model(cal: PairCalibration) -> None:
+    """Refuse a seed whose sensor model is not the filter's (rotation + scale factors, Eq. 4)."""
+    if cal.linear_map != "rigid":
+        raise ConfigurationError(
+            f"calibration: the tracker's model is rotation + scale factors (Eq. 4), got a seed with linear_map "
+            f"{cal.linear_map!r} (its R_1_2 follows another convention); seed it with "
+            "calibrate_pair(..., linear_map='rigid'), as GyroPairTracker.from_samples does")
 
 
 def seed_filter(cal: PairCalibration, t: float, config, noise_std, misfit, *, span_s: float = 0.0,

@@ -65,7 +65,7 @@ import numpy as np
 from ..core.model import S1, S2, PairCalibration
 from ..core.moments import as_rates
 from ..core.noise import NoiseModel
-from ..errors import ConfigurationError, InputError, OptionError
+from ..errors import InputError, OptionError
 from ..pipeline.resample import resample
 from ..pipeline.streams import check_timestamps
 from .config import DriftNoise, StepPrior, TrackerConfig
@@ -73,7 +73,7 @@ from .figures import plot_history, track_figure_for_report
 from .history import PairTruth, ReseedEvent, TrackHistory
 from .hold import DIM
 from .reseed import observable_chi2
-from .seed import model_error, seed_from_samples, seed_noise
+from .seed import check_seed_model, model_error, seed_from_samples, seed_noise
 from .stepper import Stepper
 from .steps import block_spans
 
@@ -173,11 +173,7 @@ class GyroPairTracker:
                  noise_model: NoiseModel | None | str = "seed", config: TrackerConfig | None = None, **options):
         if not isinstance(calibration, PairCalibration):
             raise InputError(f"calibration: expected a PairCalibration, got {type(calibration).__name__}")
-        if calibration.linear_map != "rigid":
-            raise ConfigurationError(
-                f"calibration: the tracker's model is rotation + scale factors (Eq. 4), got a seed with linear_map "
-                f"{calibration.linear_map!r} (its R_1_2 follows another convention); seed it with "
-                "calibrate_pair(..., linear_map='rigid'), as GyroPairTracker.from_samples does")
+        check_seed_model(calibration)
         config = TrackerConfig.of(config, **options)
         noise_model, noise_std, misfit = seed_noise(calibration, noise_model)
         self._noise_model = noise_model
