@@ -532,26 +532,14 @@ def solve_array(moments: ArrayMoments, options: Options | None = None, *, refere
     def regauge(sc):
         return gauge.apply(groups, sc)
 
-    notes = []
-    total_it = 0
+    R, s, noise, total_it, converged = _fit(moments, R, s, user_noise, constraints, regauge, max_iter)
     if user_noise is not None:
-        noise = user_noise
-        R, s, total_it, converged = _refine(R, s, Sc, dof, noise, constraints, regauge, max_iter)
         noise_source = noise_source or "user"
     else:
-        noise = _noise_from_pairs(moments, R, s)
-        for _ in range(4):  # alternate: weights from the current fit, fit with the current weights
-            R, s, it, converged = _refine(R, s, Sc, dof, noise, constraints, regauge, max_iter)
-            total_it += it
-            new = _noise_from_pairs(moments, R, s)
-            done = np.max(np.abs(new / noise - 1.0)) < 1e-3
-            noise = new
-            if done:
-                break
         noise_source = ("residual (three-cornered hat over all pairs)" if n > 2
                         else "residual (split equally between the gyros)")
-    if not converged:
-        notes.append(f"joint maximum-likelihood refinement stopped after {total_it} iterations without converging")
+    notes = [] if converged else [f"joint maximum-likelihood refinement stopped after {total_it} iterations without "
+                                  "converging"]
 
     # covariance: inverse Fisher information in the gauge's tangent space
     Omega = _signal_scatter(R, s, Sc, noise, dof)
@@ -567,7 +555,44 @@ def solve_array(moments: ArrayMoments, options: Options | None = None, *, refere
         what="flex, skew, timing")
     notes += more
 
-    # biases against the reference (Eq. 5, 12) and the full covariance
+    bias, cov = _bias_and_covariance(moments, R, s, P, noise, reference)
+    residual_rms = _residual_rms(R, s, Sc, dof, noise)
+    snr = np.sqrt(np.clip(np.diag(Omega), 0.0, None)) / noise[reference]
+    obs = _observable(groups, n)
+    if len(groups) > 1:
+        notes.append(f"{len(groups)} groups of linked scale factors (axis-parallel gyros, Lemmas 2-3); only ratios "
+                     "within a group are determined")
+    return ArrayCalibration(
+        R_ref_k=R, scale=s, bias=bias, reference=reference, scale_observable=obs, scale_groups=groups,
+        configurations=configs, covariance=cov, gauge=_describe(gauge, n, len(groups)), snr=snr,
+        n_samples=int(moments.count), noise_std=noise, noise_source=noise_source, residual_rms=residual_rms,
+        iterations=total_it, bias_segments=moments.segments, notes=tuple(notes), moments=moments,
+        covariance_basis=basis, covariance_kind=basis_kind, robust_inflation=inflation)
+
+
+def _fit(moments, R, s, user_noise, constraints, regauge, max_iter):
+    """Fisher scoring with the given noise, or alternating with the noise of the pairwise residuals (weights from
+    the current fit, fit with the current weights): ``(R, s, noise, iterations, converged)``."""
+    Sc, dof = moments.scatter, moments.dof
+    if user_noise is not None:
+        R, s, it, converged = _refine(R, s, Sc, dof, user_noise, constraints, regauge, max_iter)
+        return R, s, user_noise, it, converged
+    noise, total = _noise_from_pairs(moments, R, s), 0
+    for _ in range(4):
+        R, s, it, converged = _refine(R, s, Sc, dof, noise, constraints, regauge, max_iter)
+        total += it
+        new = _noise_from_pairs(moments, R, s)
+        done = np.max(np.abs(new / noise - 1.0)) < 1e-3
+        noise = new
+        if done:
+            break
+    return R, s, noise, total, converged
+
+
+def _bias_and_covariance(moments, R, s, P, noise, reference):
+    """The biases against the reference (Eq. 5, 12) and the (9N, 9N) covariance from that of
+    ``[dtheta_all, log s_all]``."""
+    n = moments.n_gyros
     means = moments.mean.reshape(n, 3)
     bias = np.zeros((n, 3))
     cov = np.zeros((9 * n, 9 * n))
@@ -594,24 +619,17 @@ def solve_array(moments: ArrayMoments, options: Options | None = None, *, refere
             if k == l:
                 noise_part = noise_part + noise[k] ** 2 * Ak @ Ak.T
             cov[bk, bl] = noise_part / moments.count + Gk @ P @ Gl.T
+    return bias, cov
 
-    # per-gyro residuals against the fitted common rate: e = Sigma P y
+
+def _residual_rms(R, s, Sc, dof, noise):
+    """Per-gyro residual RMS against the fitted common rate: ``e = Sigma P y``."""
+    n = len(noise)
     Pm, _, _ = _projector(_H_of(R, s), noise**2)
     E = np.repeat(noise**2, 3)[:, None] * Pm
     Res = E @ Sc @ E.T
-    residual_rms = np.sqrt(np.clip([np.trace(Res[3 * k:3 * k + 3, 3 * k:3 * k + 3]) for k in range(n)], 0, None)
-                           / (3.0 * max(dof, 1.0)))
-    snr = np.sqrt(np.clip(np.diag(Omega), 0.0, None)) / noise[reference]
-    obs = _observable(groups, n)
-    if len(groups) > 1:
-        notes.append(f"{len(groups)} groups of linked scale factors (axis-parallel gyros, Lemmas 2-3); only ratios "
-                     "within a group are determined")
-    return ArrayCalibration(
-        R_ref_k=R, scale=s, bias=bias, reference=reference, scale_observable=obs, scale_groups=groups,
-        configurations=configs, covariance=cov, gauge=_describe(gauge, n, len(groups)), snr=snr,
-        n_samples=int(moments.count), noise_std=noise, noise_source=noise_source, residual_rms=residual_rms,
-        iterations=total_it, bias_segments=moments.segments, notes=tuple(notes), moments=moments,
-        covariance_basis=basis, covariance_kind=basis_kind, robust_inflation=inflation)
+    return np.sqrt(np.clip([np.trace(Res[3 * k:3 * k + 3, 3 * k:3 * k + 3]) for k in range(n)], 0, None)
+                   / (3.0 * max(dof, 1.0)))
 
 
 def calibrate_array(omegas, options: Options | None = None, *, reference: int = 0, mask=None,

@@ -569,7 +569,6 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0,
     """
     A = np.asarray(A, dtype=float).reshape(3, 3)
     bias = np.asarray(bias, dtype=float).reshape(3)
-    n = w1.shape[0]
     valid = finite_rows(w1) & finite_rows(w2)
     if mask is not None:
         valid &= mask
