@@ -66,3 +66,11 @@ def test_calibrate_pair_timing_model_compensates_a_constant_group_delay_without_
     assert on.timing_tones_hz == () and abs(on.timing_delay_s - 0.2) < 0.02       # samples at 100 Hz
     err_on, err_off = (np.linalg.norm(log(c.R_1_2 @ R.T)) for c in (on, off))
     assert err_on < 0.5 * err_off
+
+
+def test_estimate_timing_finds_the_tone_across_gaps_in_the_log():
+    t, w1, w2, R = _pair(np.random.default_rng(7), beat_hz=2.3)
+    keep = np.ones(t.size, bool)
+    keep[20000:20700] = keep[41000:41013] = False                       # dropped samples (clipped, say)
+    model = estimate_timing(t[keep], w1[keep], w2[keep], R, np.zeros(3))
+    assert model.significant and abs(model.tones_hz[0] - 2.3) < 1.0 / (t[-1] - t[0])

@@ -64,7 +64,10 @@ def summary_table(cal, truth=None):
     t.caption = (f"time offset {cal.time_offset_s * 1e3:+.4f} +- {cal.time_offset_std_s * 1e3:.4f} ms"
                  + (f" (truth {truth['time_offset_s'] * 1e3:+.4f} ms)" if truth is not None else "")
                  + f"; gauge: {cal.gauge}; unexplained {100 * cal.unexplained_fraction:.3g}%, "
-                   f"rejected {100 * cal.rejected_fraction:.2f}%; model: {MODELS[cal.linear_map]}")
+                   f"rejected {100 * cal.rejected_fraction:.2f}%; model: {MODELS[cal.linear_map]}"
+                 + (f"; gyro 2's delay beyond the offset: std {cal.timing_delay_std_s * 1e3:.3g} ms, tones "
+                    f"{', '.join(f'{f:.4g}' for f in cal.timing_tones_hz) or 'none'}" if cal.timing_explained > 0
+                    else ""))
     return t
 
 

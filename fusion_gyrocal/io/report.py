@@ -210,6 +210,26 @@ def uncertainty_basis(cal) -> str:
     return f"uncertainty: {noise}, {cov}"
 
 
+def sensor_model_lines(cal: PairCalibration) -> list[str]:
+    """What the sensor model of ``cal`` found (``linear_map``, cross-axis terms, gyro 2's intrinsics, timing), a
+    line each, with the rotation's repeatable 1-sigma beside its skew budget."""
+    rep = np.sqrt(np.clip(np.diag(cal.covariance[:3, :3] - cal.skew_rotation_covariance), 0.0, None))
+    budget = np.sqrt(np.clip(np.diag(cal.skew_rotation_covariance), 0.0, None))
+    lines = [f"model: {cal.linear_map}; rotation 1-sigma {np.array2string(np.rad2deg(rep) * 1e3, precision=2)} mdeg "
+             f"repeatable, skew budget {np.array2string(np.rad2deg(budget) * 1e3, precision=1)} mdeg"]
+    if cal.linear_map == "full":
+        sd = np.sqrt(np.clip(np.diag(cal.cross_axis_covariance), 0.0, None))
+        lines.append("cross-axis terms (xy, yz, zx): " + ", ".join(
+            f"{100 * v:.3f} +- {100 * e:.3f} %" for v, e in zip(cal.cross_axis_terms, sd)))
+    elif cal.linear_map == "reference":
+        lines.append(f"gyro 2's intrinsic matrix: {np.array2string(cal.intrinsics_2, precision=5)}")
+    if cal.timing_explained > 0:
+        tones = ", ".join(f"{f:.4g}" for f in cal.timing_tones_hz) or "none (a constant delay)"
+        lines.append(f"timing: beat tones {tones}; delay {cal.timing_delay_s * 1e3:+.3g} ms, std "
+                     f"{cal.timing_delay_std_s * 1e3:.3g} ms; {100 * cal.timing_explained:.0f}% of the residual's energy")
+    return lines
+
+
 def summary_markdown(cal: PairCalibration) -> str:
     """A short human-readable summary of a calibration."""
     rv = np.rad2deg(cal.rotvec)
@@ -228,7 +248,8 @@ def summary_markdown(cal: PairCalibration) -> str:
         f"- noise std: {np.array2string(np.rad2deg(cal.noise_std), precision=4)} deg/s ({cal.noise_source})",
         f"- {uncertainty_basis(cal)}; covariance basis: {cal.covariance_basis}",
     ]
-    lines += [f"- note: {n}" for n in cal.notes]
+    lines += ["", "## Sensor model", ""] + [f"- {line}" for line in sensor_model_lines(cal)]
+    lines += [""] + [f"- note: {n}" for n in cal.notes]
     if cal.noise_model is not None:
         lines += ["", "## Noise model (identified from the residual)", ""]
         lines += [f"- {line}" for line in cal.noise_model.describe().splitlines()]

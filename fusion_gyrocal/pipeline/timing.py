@@ -38,6 +38,8 @@ MAX_SAMPLES = 2**16
 #: A constant delay (no tone: a filter's group delay in sample-aligned input) is kept when it explains this many
 #: times the residual's variance along the rate's derivative (chi2_1's 99.9 % point is 10.8).
 CONSTANT_SIGNIFICANCE = 30.0
+#: A delay is compensated only when it explains at least this fraction of the residual's energy.
+MIN_EXPLAINED = 0.01
 #: A peak is a line when its power is this many times the median of its neighbourhood (exponential power: a
 #: noise peak exceeds 30x the median, 21x the mean, with probability ~1e-9 per bin).
 LINE_FACTOR = 30.0
@@ -191,27 +193,31 @@ def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int =
         return NONE
     sigma2 = float(np.median(ru[keep] ** 2 / uu[keep])) / 0.455        # the residual along u, robustly (chi2_1)
     dt = float(np.median(np.diff(t)))
-    n_freq = len(t) / 2.0                                               # independent frequencies searched
+    slot = np.round((tt - tt[0]) / dt).astype(np.int64)                # each sample's place on a uniform grid
+    cells = int(slot[-1]) + 1                                           # (logs with gaps: by time, not by index)
+    if cells > 4 * len(t):
+        return NONE
+    n_freq = cells / 2.0                                                # independent frequencies searched
     _, constant = _fit(tt, ru, uu, [], harmonics)                     # one delay: a filter's group delay
     explained = constant if constant / sigma2 > CONSTANT_SIGNIFICANCE else 0.0
     tones = []
     for _ in range(max_tones):
         c, _ = _fit(tt, ru, uu, tones, harmonics)
-        x = np.zeros(len(t))
-        x[ok] = ru - uu * (_design(tt, tones, harmonics) @ c)
-        power = np.abs(np.fft.rfft(x, PADDING * len(t))) ** 2
-        freq = np.fft.rfftfreq(PADDING * len(t), dt)
-        allowed = freq > 2.0 / (len(t) * dt)                            # at least two periods in the log
+        x = np.zeros(cells)
+        x[slot] = ru - uu * (_design(tt, tones, harmonics) @ c)
+        power = np.abs(np.fft.rfft(x, PADDING * cells)) ** 2
+        freq = np.fft.rfftfreq(PADDING * cells, dt)
+        allowed = freq > 2.0 / (cells * dt)                             # at least two periods in the log
         for f in tones:                                                 # not a harmonic of a tone found
             for h in range(1, harmonics + 1):
-                allowed &= np.abs(freq - h * f) > 2.0 / (len(t) * dt)
+                allowed &= np.abs(freq - h * f) > 2.0 / (cells * dt)
         if not allowed.any():
             break
         i = int(np.flatnonzero(allowed)[np.argmax(power[allowed])])
         if not _is_line(power, i):
             break
         peak = freq[i]
-        span = REFINE_CELLS / (len(t) * dt)
+        span = REFINE_CELLS / (cells * dt)
         grid = np.linspace(peak - span, peak + span, 41)
         gains = [_fit(tt, ru, uu, tones + [f], harmonics)[1] for f in grid]
         best = float(grid[int(np.argmax(gains))])
@@ -223,5 +229,7 @@ def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int =
     if not tones and not explained:
         return NONE
     c, explained = _fit(tt, ru, uu, tones, harmonics)
+    if explained < MIN_EXPLAINED * energy:                              # significant, but too small to matter
+        return NONE
     delay = _design(tt, tones, harmonics) @ c
     return TimingModel(tuple(tones), c, harmonics, explained / energy, float(delay.std()))
