@@ -9,10 +9,9 @@ sensitivity. Real MEMS gyros keep 1-2 % of it (datasheets): gyro i measures ``(I
 where ``K`` is the symmetric part of the relative cross-axis terms ``K_1 - A K_2 A^-1`` (gyro 1's axes) and
 ``R' = Exp(a) R`` takes up their antisymmetric part ``a`` as a small rotation. ``K`` acts after the scale factors,
 so the scale factors keep the paper's symmetries (Theorem 2, Lemmas 2-3: the common factor of a parallel axis
-pair is still free). No data separate ``a`` from the
-rotation (Appendix D), so the estimate follows one convention: **the relative cross-axis matrix is symmetric**;
-``R_1_2`` is the rotation under it and ``k = (K_xy, K_yz, K_zx)`` (:func:`~fusion_gyrocal.core.observability.cross_matrix`)
-are the cross-axis terms. It is the stable choice: unique, independent of the order and signs of the axes (a
+pair is still free). No data separate ``a`` from the rotation (Appendix D), so the estimate follows one
+convention: **the relative cross-axis matrix is symmetric**; ``R_1_2`` is the rotation under it and
+``k = (K_xy, K_yz, K_zx)`` (:func:`~fusion_gyrocal.core.observability.cross_matrix`) are the cross-axis terms. It is the stable choice: unique, independent of the order and signs of the axes (a
 triangular convention is not), and with all axes parallel (the usual multi-IMU board) ``R_1_2`` is, up to the
 scale factors, the rotation of the polar decomposition of ``A``, which every session of a board repeats whatever
 its motion.
