@@ -462,39 +462,6 @@ class GyroPairGraph:
         return self._result(values, lambda: self._isam, "graph_isam2", 0)
 
     # ------------------------------------------------------------------ result
-    def _joint_covariance(self, values, marginals, x_keys, weights) -> np.ndarray:
-        """Covariance of ``[x_keys..., sum_i weights_i b_i]`` (tangent spaces of the keys).
-
-        Up to :data:`MARGINALS_MAX_SEGMENTS` bias segments: ``jointMarginalCovariance`` over every key
-        of what ``marginals()`` returns (``gtsam.Marginals`` or iSAM2; built only then). Beyond, that
-        dense joint marginal grows cubically, so the same Gauss-Newton information ``J^T J`` of the
-        graph linearised at ``values`` is factorised sparsely and solved for the few columns needed.
-        """
-        nb = len(self._bias_keys)
-        dx = 10 if self.global_scale else 9
-        if nb <= MARGINALS_MAX_SEGMENTS:
-            try:
-                P = np.asarray(marginals().jointMarginalCovariance(x_keys + self._bias_keys).fullMatrix())
-            except RuntimeError as exc:
-                if "Indeterminate linear system" not in str(exc):
-                    raise
-                raise ConfigurationError(
-                    "graph: the covariance is undetermined (gtsam: indeterminate linear system); the graph's "
-                    "linearisation leaves a direction free on this data (seen on axis-parallel boards, Lemmas 2-3): "
-                    "use calibrate_pair, which reports undetermined scale factors as ratios") from None
-            T = np.zeros((dx + 3, dx + 3 * nb))
-            T[:dx, :dx] = np.eye(dx)
-            T[dx:, dx:] = np.kron(weights[None, :], np.eye(3))
-            return T @ P @ T.T
-        return _sparse_covariance(self.graph, values, self._key_dims(), x_keys, self._bias_keys, weights)
-
-    def _key_dims(self) -> dict:
-        k = self.keys
-        dims = {k.rotation: 3, k.log_scale: 6, k.global_scale: 1}
-        dims.update({b: 3 for b in self._bias_keys})
-        dims.update({c.key: 3 for c in self._camera})
-        return dims
-
     def _result(self, values, marginals, method: str, iterations: int) -> PairCalibration:
         k = self.keys
         R = values.atRot3(k.rotation).matrix()
@@ -502,31 +469,9 @@ class GyroPairGraph:
         n_b = len(self._bias_keys)
         x_keys = [k.rotation, k.log_scale] + ([k.global_scale] if self.global_scale else [])
         weights = np.asarray(self._bias_counts) / np.sum(self._bias_counts)
-        P = self._joint_covariance(values, marginals, x_keys, weights)
-        d = 10 if self.global_scale else 9
-        # linear map from [d_right (3), dl (6), (dg), d mean bias] to [dtheta, dlog s1, dlog s2, d mean bias]
-        T = np.zeros((12, d + 3))
-        T[ROT, :3] = R                                         # dtheta = R d (left vs right perturbation)
-        T[3:9, 3:9] = np.eye(6)
-        if self.global_scale:
-            T[3:9, 9] = 1.0                                    # absolute log-scale = g + l
-            l = l + values.atVector(k.global_scale)[0]
-        T[BIAS, d:] = np.eye(3)
-        C = T @ P @ T.T
-        C = 0.5 * (C + C.T)
-        s1, s2 = np.exp(l[:3]), np.exp(l[3:])
-        scale_observable = np.ones((2, 3), bool)
-        if self.global_scale:
-            gauge = GLOBAL_SCALE_GAUGE
-        else:
-            groups = self.configuration.groups
-            s1, s2 = self.gauge.apply(groups, [s1, s2])
-            C = _project_gauge(C, self.gauge, groups, s1, s2)
-            gauge = self.gauge.describe()
-            scale_observable = self.configuration.scale_observable
-        J = np.eye(12)                                         # log-scale -> scale
-        J[3:9, 3:9] = np.diag(np.concatenate([s1, s2]))
-        C = mark_undetermined(J @ C @ J.T, scale_observable)
+        P = _joint_covariance(self, values, marginals, x_keys, weights)
+        g = values.atVector(k.global_scale)[0] if self.global_scale else None
+        s1, s2, C, gauge, scale_observable = _pair_covariance(P, R, l, g, self.gauge, self.configuration)
         bias_values = np.array([values.atVector(b) for b in self._bias_keys])
         bias = weights @ bias_values
         A = A_of(R, s1, s2)
@@ -546,6 +491,72 @@ class GyroPairGraph:
             method=method,
             iterations=int(iterations), time_offset_s=self.seed.time_offset_s,
             time_offset_std_s=self.seed.time_offset_std_s, bias_segments=n_b, notes=tuple(notes))
+
+
+def _joint_covariance(gg: GyroPairGraph, values, marginals, x_keys, weights) -> np.ndarray:
+    """Covariance of ``[x_keys..., sum_i weights_i b_i]`` (tangent spaces of the keys) of the graph ``gg``.
+
+    Up to :data:`MARGINALS_MAX_SEGMENTS` bias segments: ``jointMarginalCovariance`` over every key
+    of what ``marginals()`` returns (``gtsam.Marginals`` or iSAM2; built only then). Beyond, that
+    dense joint marginal grows cubically, so the same Gauss-Newton information ``J^T J`` of the
+    graph linearised at ``values`` is factorised sparsely and solved for the few columns needed.
+    """
+    nb = len(gg._bias_keys)
+    dx = 10 if gg.global_scale else 9
+    if nb <= MARGINALS_MAX_SEGMENTS:
+        try:
+            P = np.asarray(marginals().jointMarginalCovariance(x_keys + gg._bias_keys).fullMatrix())
+        except RuntimeError as exc:
+            if "Indeterminate linear system" not in str(exc):
+                raise
+            raise ConfigurationError(
+                "graph: the covariance is undetermined (gtsam: indeterminate linear system); the graph's "
+                "linearisation leaves a direction free on this data (seen on axis-parallel boards, Lemmas 2-3): "
+                "use calibrate_pair, which reports undetermined scale factors as ratios") from None
+        T = np.zeros((dx + 3, dx + 3 * nb))
+        T[:dx, :dx] = np.eye(dx)
+        T[dx:, dx:] = np.kron(weights[None, :], np.eye(3))
+        return T @ P @ T.T
+    return _sparse_covariance(gg.graph, values, _key_dims(gg), x_keys, gg._bias_keys, weights)
+
+
+def _key_dims(gg: GyroPairGraph) -> dict:
+    """The tangent dimension of every key of the graph ``gg``."""
+    k = gg.keys
+    dims = {k.rotation: 3, k.log_scale: 6, k.global_scale: 1}
+    dims.update({b: 3 for b in gg._bias_keys})
+    dims.update({c.key: 3 for c in gg._camera})
+    return dims
+
+
+def _pair_covariance(P, R, l, g, gauge, configuration):
+    """``(s1, s2, covariance, gauge text, scale_observable)`` of the pair result from the graph's covariance ``P`` of
+    ``[d_right (3), dl (6), (dg), d mean bias]`` at ``R`` and log scales ``l`` (``g``: the global log-scale, None
+    without that variable)."""
+    d = 9 if g is None else 10
+    # linear map from [d_right (3), dl (6), (dg), d mean bias] to [dtheta, dlog s1, dlog s2, d mean bias]
+    T = np.zeros((12, d + 3))
+    T[ROT, :3] = R                                         # dtheta = R d (left vs right perturbation)
+    T[3:9, 3:9] = np.eye(6)
+    if g is not None:
+        T[3:9, 9] = 1.0                                    # absolute log-scale = g + l
+        l = l + g
+    T[BIAS, d:] = np.eye(3)
+    C = T @ P @ T.T
+    C = 0.5 * (C + C.T)
+    s1, s2 = np.exp(l[:3]), np.exp(l[3:])
+    scale_observable = np.ones((2, 3), bool)
+    if g is not None:
+        text = GLOBAL_SCALE_GAUGE
+    else:
+        groups = configuration.groups
+        s1, s2 = gauge.apply(groups, [s1, s2])
+        C = _project_gauge(C, gauge, groups, s1, s2)
+        text = gauge.describe()
+        scale_observable = configuration.scale_observable
+    J = np.eye(12)                                         # log-scale -> scale
+    J[3:9, 3:9] = np.diag(np.concatenate([s1, s2]))
+    return s1, s2, mark_undetermined(J @ C @ J.T, scale_observable), text, scale_observable
 
 
 def _sparse_covariance(graph, values, dims: dict, x_keys, bias_keys, weights) -> np.ndarray:
