@@ -124,3 +124,17 @@ def test_gate_spikes_are_gated_not_called_misfit():
     assert cal.rejected_fraction >= 60 / 6000
     assert not any("not flex" in n for n in cal.notes)
     assert rotation_error(cal.R_1_2, sim.R_1_2) < 5 * np.linalg.norm(cal.rotation_std_rad)
+
+
+def test_spearman_equals_scipy_spearmanr():
+    """The flex gate's own rank correlation (numpy: scipy.stats costs the command ~0.7 s of imports) is scipy's."""
+    from scipy.stats import spearmanr
+
+    from fusion_gyrocal.pipeline.flex import spearman
+
+    rng = np.random.default_rng(4)
+    for n in (10, 100, 5000):
+        x = rng.normal(size=n)
+        y = 0.3 * x + rng.normal(size=n)
+        assert spearman(x, y) == pytest.approx(spearmanr(x, y).statistic, abs=1e-12)
+        assert spearman(x, y, np.argsort(y)) == pytest.approx(spearmanr(x, y).statistic, abs=1e-12)

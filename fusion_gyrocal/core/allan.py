@@ -77,22 +77,6 @@ def edf_table(sub_n, sub_m):
     return np.maximum(out, 1.0)
 
 
-def _nnls(J, y) -> np.ndarray:
-    """Non-negative least squares ``min |J c - y|, c >= 0`` for a few columns: the best of the unconstrained
-    fits on every subset of columns whose coefficients are all non-negative (exact; 2^k small solves)."""
-    k = J.shape[1]
-    best, best_c = np.inf, np.zeros(k)
-    for bits in range(1, 2 ** k):
-        cols = [j for j in range(k) if bits >> j & 1]
-        c = np.linalg.lstsq(J[:, cols], y, rcond=None)[0]
-        if np.all(c >= 0):
-            r = float(np.sum((J[:, cols] @ c - y) ** 2))
-            if r < best:
-                best, best_c = r, np.zeros(k)
-                best_c[cols] = c
-    return best_c
-
-
 def _wls(taus, avar, edf, terms):
     """Non-negative generalised least squares of AVAR on the chosen terms (0: N^2/tau, 1: B^2, 2: K^2 tau/3).
 
@@ -102,6 +86,8 @@ def _wls(taus, avar, edf, terms):
     the points are whitened with that correlation before the fit (without it the uncertainties come out
     about twice too small). Iterated with the weights of the model.
     """
+    from scipy.optimize import nnls
+
     X = np.column_stack([1.0 / taus, np.full_like(taus, FLICKER), taus / 3.0])
     Xs = X[:, terms]
     scale = np.abs(Xs).max(axis=0)
@@ -119,7 +105,7 @@ def _wls(taus, avar, edf, terms):
         L = np.linalg.cholesky(C * np.outer(sd, sd))
         Jw = np.linalg.solve(L, Xs / scale)
         yw = np.linalg.solve(L, avar)
-        c = _nnls(Jw, yw) / scale
+        c = nnls(Jw, yw)[0] / scale
         coef = np.zeros(3)
         coef[terms] = c
         pred = X @ coef
