@@ -2,7 +2,9 @@
 
 Pipeline: moments -> direct least squares for A (Eq. 17) -> configuration class (Lemmas 2-4)
 -> decomposition -> gauge (Theorem 2, Eq. 32-34) -> maximum-likelihood refinement (Appendix C
-generalised, default) -> covariance from the Fisher information (Appendix B generalised).
+generalised, default) -> the sensor model the data call for (the full linear map or gyro 2's intrinsics,
+:mod:`~fusion_gyrocal.core.linear_map`) -> covariance from the Fisher information (Appendix B generalised),
+checked block-robustly (:mod:`~fusion_gyrocal.core.robust`) -> skew budget (Appendix D).
 """
 
 from __future__ import annotations
@@ -94,8 +96,8 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
 
     Pipeline: direct least squares for A (Eq. 17) -> rigidity test -> excitation test (Lemma 1) ->
     configuration class and decomposition (Lemmas 2-4) -> gauge (Theorem 2, Eq. 32-34) ->
-    maximum-likelihood refinement (``method="ml"``) -> covariance (Appendix B generalised) ->
-    skew error budget (Appendix D, Eq. 40-41).
+    maximum-likelihood refinement (``method="ml"``) -> sensor model (``linear_map``, ``intrinsics_1``) ->
+    covariance (Appendix B generalised) -> skew error budget (Appendix D, Eq. 40-41).
 
     Parameters
     ----------
