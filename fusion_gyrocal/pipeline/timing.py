@@ -177,22 +177,22 @@ def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int =
     w1, w2 = np.asarray(omega_1, dtype=float), np.asarray(omega_2, dtype=float)
     ok = np.ones(len(t), bool) if mask is None else np.asarray(mask, bool).copy()
     if len(t) > MAX_SAMPLES:          # the most excited stretch of a long log (the tones are stationary)
-        lo = _excited_stretch(w2, ok)
-        t, w1, w2, ok = t[lo:lo + MAX_SAMPLES], w1[lo:lo + MAX_SAMPLES], w2[lo:lo + MAX_SAMPLES], ok[lo:lo + MAX_SAMPLES]
-
+        part = slice(_excited_stretch(w2, ok), None)
+        part = slice(part.start, part.start + MAX_SAMPLES)
+        t, w1, w2, ok = t[part], w1[part], w2[part], ok[part]
+    ok &= np.all(np.isfinite(w1), axis=1) & np.all(np.isfinite(w2), axis=1)
     if np.count_nonzero(ok) < 100 * (1 + 2 * harmonics * max_tones):
         return NONE
-    ok &= np.all(np.isfinite(w1), axis=1) & np.all(np.isfinite(w2), axis=1)
+    dt = float(np.median(np.diff(t)))
+    window = max(int(round(1.0 / dt)), 3) if dt < 1.0 else 64   # about a second (64 samples without timestamps)
     u = derivative(t, w2) @ np.asarray(A).T
-    r = _high_pass(w1 - w2 @ np.asarray(A).T - bias, ok, window=max(int(round(1.0 / np.median(np.diff(t)))), 3)
-                   if np.median(np.diff(t)) < 1.0 else 64)
+    r = _high_pass(w1 - w2 @ np.asarray(A).T - bias, ok, window)
     tt, ru, uu = t[ok], np.einsum("ij,ij->i", r, u)[ok], np.einsum("ij,ij->i", u, u)[ok]
     energy = float(np.einsum("ij,ij->", r[ok], r[ok]))
     keep = uu > 0
     if not keep.any() or energy <= 0:
         return NONE
     sigma2 = float(np.median(ru[keep] ** 2 / uu[keep])) / 0.455        # the residual along u, robustly (chi2_1)
-    dt = float(np.median(np.diff(t)))
     slot = np.round((tt - tt[0]) / dt).astype(np.int64)                # each sample's place on a uniform grid
     cells = int(slot[-1]) + 1                                           # (logs with gaps: by time, not by index)
     if cells > 4 * len(t):
