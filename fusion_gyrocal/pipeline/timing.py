@@ -35,6 +35,9 @@ PADDING = 4
 REFINE_CELLS = 3.0
 #: Samples the search looks at (a longer log: its most excited stretch of this many).
 MAX_SAMPLES = 2**16
+#: Samples of the first, cheap look (one tone or a constant delay on the most excited stretch of this many):
+#: only when it finds one is the longer search run.
+DETECT_SAMPLES = 2**13
 #: A constant delay (no tone: a filter's group delay in sample-aligned input) is kept when it explains this many
 #: times the residual's variance along the rate's derivative (chi2_1's 99.9 % point is 10.8).
 CONSTANT_SIGNIFICANCE = 30.0
@@ -109,13 +112,13 @@ def derivative(t, w) -> np.ndarray:
 NONE = TimingModel((), np.zeros(1), HARMONICS, 0.0, 0.0)
 
 
-def _excited_stretch(w2, ok) -> int:
-    """Start of the stretch of :data:`MAX_SAMPLES` samples (from block starts) with the most motion of gyro 2."""
-    step, stride = MAX_SAMPLES // 4, 64
-    starts = np.arange(0, len(w2) - MAX_SAMPLES + 1, step)
+def _excited_stretch(w2, ok, length: int) -> int:
+    """Start of the stretch of ``length`` samples (from block starts) with the most motion of gyro 2."""
+    step, stride = length // 4, 64
+    starts = np.arange(0, len(w2) - length + 1, step)
     sub = np.where(ok[::stride, None], w2[::stride], 0.0)
     energy = np.cumsum(np.concatenate([[0.0], np.nan_to_num(np.einsum("ij,ij->i", sub, sub))]))
-    width = MAX_SAMPLES // stride
+    width = length // stride
     return int(starts[int(np.argmax([energy[min(s // stride + width, len(sub))] - energy[s // stride]
                                      for s in starts]))])
 
@@ -160,7 +163,7 @@ def _fit(t, ru, uu, tones, harmonics):
 
 
 def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int = MAX_TONES,
-                    harmonics: int = HARMONICS) -> TimingModel:
+                    harmonics: int = HARMONICS, max_samples: int = MAX_SAMPLES) -> TimingModel:
     """The delay of gyro 2 against gyro 1 that the residual of ``(A, bias)`` shows (:class:`TimingModel`).
 
     Parameters
@@ -176,10 +179,13 @@ def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int =
     t = np.asarray(t, dtype=float)
     w1, w2 = np.asarray(omega_1, dtype=float), np.asarray(omega_2, dtype=float)
     ok = np.ones(len(t), bool) if mask is None else np.asarray(mask, bool).copy()
-    if len(t) > MAX_SAMPLES:          # the most excited stretch of a long log (the tones are stationary)
-        part = slice(_excited_stretch(w2, ok), None)
-        part = slice(part.start, part.start + MAX_SAMPLES)
+    if len(t) > max_samples:          # the most excited stretch of a long log (the tones are stationary)
+        start = _excited_stretch(w2, ok, max_samples)
+        part = slice(start, start + max_samples)
         t, w1, w2, ok = t[part], w1[part], w2[part], ok[part]
+    if len(t) > DETECT_SAMPLES and not estimate_timing(t, w1, w2, A, bias, ok, max_tones=1, harmonics=harmonics,
+                                                       max_samples=DETECT_SAMPLES).significant:
+        return NONE                   # nothing on the most excited stretch: not worth the longer search
     ok &= np.all(np.isfinite(w1), axis=1) & np.all(np.isfinite(w2), axis=1)
     if np.count_nonzero(ok) < 100 * (1 + 2 * harmonics * max_tones):
         return NONE
