@@ -212,6 +212,8 @@ def _with_timing(run: PipelineRun, mask, pair, resampling, o: Options) -> Pipeli
     if not model.significant:
         return run
     again = _calibrate(run.omega_1, model.compensate(t, run.omega_2), mask, pair, resampling, o)
+    if not again.calibration.rigid or again.calibration.residual_rms >= run.calibration.residual_rms:
+        return run                    # the compensation did not explain the residual better: kept as it was
     delay = model.delay(t if again.used is None else t[again.used])
     unit = ("Hz", "ms", 1e3) if run.t is not None else ("cycles/sample", "samples", 1.0)
     tones = ", ".join(f"{f:.4g}" for f in model.tones_hz)
