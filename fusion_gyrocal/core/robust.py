@@ -50,15 +50,14 @@ def centred_scatters(stats: WindowStats) -> np.ndarray:
     return stats.scatter + stats.count[:, None, None] * d[:, :, None] * d[:, None, :]
 
 
-def window_scores(R, s1, s2, noise_std, stats: WindowStats, k=None) -> np.ndarray:
-    """Scores ``g_w`` (W, 9): gradient of each window's cost w.r.t. ``[dtheta, log s_1, log s_2]`` ((W, 12) with
-    the cross-axis terms ``k`` of the full linear map).
+def window_scores(R, s1, s2, noise_std, stats: WindowStats) -> np.ndarray:
+    """Scores ``g_w`` (W, 9): gradient of each window's cost w.r.t. ``[dtheta, log s_1, log s_2]``.
 
     The cost is ``tr(W(A) [I, -A] S [I, -A]^T)`` (:func:`~fusion_gyrocal.core.refine.ml_cost`) with
     ``S`` the window's scatter about the log's mean (about its own mean for bias segments); its
     gradient (:func:`~fusion_gyrocal.core.refine.ml_gradient`) is linear in ``S``.
     """
-    return scores_of_A(A_of(R, s1, s2, k), dA_dp(R, s1, s2, k), noise_std, stats)
+    return scores_of_A(A_of(R, s1, s2), dA_dp(R, s1, s2), noise_std, stats)
 
 
 def scores_of_A(A, D, noise_std, stats: WindowStats) -> np.ndarray:
@@ -253,8 +252,9 @@ def cross_axis(A_ls, R, s1, s2, moments, noise_std, windows: WindowStats | None 
     their difference, with the directions the rigid model can absorb (rotation, scales: the tangent
     ``dA/dp``) projected out in the metric of ``Cov(vec A)``, is what no rotation and scales explain;
     it is tested by its chi-square (``k = 9 - rank(dA/dp)`` degrees of freedom: 1 in the general
-    configuration, more with parallel axes; ``n_null``, the configuration's null directions (Theorem 2, Lemmas
-    2-3), fixes the rank where an estimated rotation a hair from axis-parallel would make it numerically full). ``Cov(vec A)`` is ``W^-1 (x) S22^-1`` under the noise model, or
+    configuration, more with parallel axes; ``n_null``, the configuration's null directions (Theorem 2,
+    Lemmas 2-3), fixes the rank where an estimated rotation a hair from axis-parallel would make it
+    numerically full). ``Cov(vec A)`` is ``W^-1 (x) S22^-1`` under the noise model, or
     with ``windows`` the block-robust one from the windows' influence on ``A``
     (``(S12_w - A S22_w) S22^-1``, Newey-West), whichever is larger.
 
@@ -282,7 +282,7 @@ def cross_axis(A_ls, R, s1, s2, moments, noise_std, windows: WindowStats | None 
     Q = np.eye(9) - P
     d = Q @ (A_ls - A_r).reshape(9)
     chi2 = float(d @ np.linalg.pinv(Q @ cov @ Q.T, rcond=1e-10, hermitian=True) @ d)
-    dof = 9 - int(np.linalg.matrix_rank(J, tol=1e-9 * np.abs(J).max()))
+    dof = n_null if n_null is not None else 9 - int(np.linalg.matrix_rank(J, tol=1e-9 * np.abs(J).max()))
     E = (d.reshape(3, 3) / s1[:, None]) * s2[None, :] @ R.T
     return E, chi2, dof
 

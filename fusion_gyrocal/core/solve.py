@@ -174,10 +174,13 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
     cov = parameter_covariance(P, fit.jacobian(len(P)), D, moments, Sigma_r)
     if o.scale_prior_std is None:
         mark_undetermined(cov, fit.observable)
-    skew_cov = _skew_covariance(fit, P, o)
+    budget = (cross_axis_budget(fit.k, P[9:, 9:], o.cross_axis_std if fit.shown else None)
+              if fit.model == "full" else 0.0)   # the antisymmetric cross-axis part no data see, per axis
+    sk = np.asarray(o.skew_std, dtype=float)
+    skew_cov = (0.25 * (sk[0] ** 2 + sk[1] ** 2) + budget) * np.eye(3)   # Appendix D: theta ~ (w_1 - C w_2) / 2
     cov[ROT, ROT] += skew_cov
     snr = per_axis_snr(moments, noise)
-    notes += _notes(fit, P, snr, o)
+    notes += _notes(fit, P, snr, budget, o)
     return PairCalibration(
         R_1_2=fit.R, scale_1=fit.s1, scale_2=fit.s2, bias=bias, configuration=fit.config.name,
         scale_observable=fit.observable, covariance=cov, gauge=_gauge_text(fit, gauge, o), snr=snr,
@@ -351,21 +354,13 @@ def _reported_covariance(moments, windows, fit: _Fit, P, F, A, D, bias, noise, u
     return P, Sigma_r, inflation, kind, basis, notes
 
 
-def _skew_covariance(fit: _Fit, P, o: Options) -> np.ndarray:
-    """The rotation's skew budget: the user's ``skew_std`` (Appendix D: theta ~ (w_1 - C w_2) / 2) and, for the
-    full map, the antisymmetric cross-axis part the convention gives the rotation and no data see."""
-    sk = np.asarray(o.skew_std, dtype=float)
-    skew_cov = 0.25 * (sk[0] ** 2 + sk[1] ** 2) * np.eye(3)
-    if fit.model == "full":
-        skew_cov = skew_cov + cross_axis_budget(fit.k, P[9:, 9:], o.cross_axis_std if fit.shown else None) * np.eye(3)
-    return skew_cov
-
-
-def _notes(fit: _Fit, P, snr, o: Options) -> list:
-    """The notes on the sensor model, the per-axis SNR and the configuration."""
+def _notes(fit: _Fit, P, snr, budget: float, o: Options) -> list:
+    """The notes on the sensor model (``budget``: the full map's skew variance per axis), the per-axis SNR and the
+    configuration."""
     notes = []
     if fit.model == "full":
-        notes.append(_full_map_note(fit.k, P[9:, 9:], fit.chi2, fit.dof, o.cross_axis_std if fit.shown else None))
+        notes.append(_full_map_note(fit.k, P[9:, 9:], fit.chi2, fit.dof, budget,
+                                    o.cross_axis_std if fit.shown else None))
     elif fit.shown:
         off = np.abs(fit.E - np.diag(np.diag(fit.E))).max()
         notes.append(f"the full linear map fits significantly better than rotation + scale factors (chi2 "
@@ -411,14 +406,14 @@ def _padded(C, n):
     return np.hstack([C, np.zeros((len(C), n - C.shape[1]))]) if n > C.shape[1] else C
 
 
-def _full_map_note(k, cov_k, chi2, dof, budget_prior):
+def _full_map_note(k, cov_k, chi2, dof, budget: float, budget_prior):
     sd = np.sqrt(np.clip(np.diag(cov_k), 0.0, None))
     terms = ", ".join(f"{n} {100 * v:.3g} +- {100 * e:.2g} %" for n, v, e in zip(("xy", "yz", "zx"), k, sd))
     pooled = "" if budget_prior is None else f", pooled with cross_axis_std {budget_prior:g}"
     return (f"full linear map (cross-axis chi2 {chi2:.3g} for {dof} dof): symmetric relative cross-axis terms "
             f"{terms}; R_1_2 is the rotation under the symmetric convention, repeatable from session to session. "
             f"The chip-to-chip rotation differs from it by the antisymmetric part, which no data see: budgeted at "
-            f"{np.rad2deg(np.sqrt(cross_axis_budget(k, cov_k, budget_prior))):.3g} deg per axis, as large as the "
+            f"{np.rad2deg(np.sqrt(budget)):.3g} deg per axis, as large as the "
             f"symmetric part{pooled} (skew_rotation_covariance, included in the covariance)")
 
 

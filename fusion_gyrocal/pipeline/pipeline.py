@@ -196,9 +196,10 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
     """:func:`calibrate_pair` returning its intermediate products too (same parameters)."""
     o = Options.of(options, **keywords).require("pair", "calibrate_pair")
     w1, w2, mask, pair = prepare_samples(omega_1, omega_2, t_1=t_1, t_2=t_2, mask=mask, options=o)
-    run = _calibrate(w1, w2, mask, pair, _resampling(t_1, t_2, pair, o), o)
+    resampling = _resampling(t_1, t_2, pair, o)
+    run = _calibrate(w1, w2, mask, pair, resampling, o)
     if o.timing_model == "auto" and run.calibration.rigid:
-        run = _with_timing(run, mask, pair, _resampling(t_1, t_2, pair, o), o)
+        run = _with_timing(run, mask, pair, resampling, o)
     return run
 
 
