@@ -988,16 +988,28 @@ def test_run_misfit_overestimated_at_unseen_rates_is_learnt_down():
     assert sigma["held"] > 5.0 * sigma["released"], sigma            # held at the model: they hardly do
 
 
-def test_gyro_pair_tracker_refuses_a_full_map_seed():
-    """The filter's model is rotation + scale factors: a full-map seed (another convention for R_1_2) is refused
-    with what to do, not tracked into a drift."""
+def test_gyro_pair_tracker_full_map_seed_holds_cross_axis_terms():
+    """A seed with the full linear map is tracked with its cross-axis terms held fixed: the tracker's rotation stays
+    in the batch's (symmetric) convention, its A is the full map, and a reference-map seed is refused."""
     from fusion_gyrocal.errors import ConfigurationError
+    from fusion_gyrocal.core.observability import cross_matrix
+    from fusion_gyrocal.lie import log
 
-    flip = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
-    t, w1, w2, _ = scenario(np.random.default_rng(5), 20.0)
-    w2 = w1 @ flip + np.random.default_rng(6).normal(0.0, 1e-3, w1.shape)   # all axes parallel: the full map
-    seed = calibrate_pair(w1[:1500], w2[:1500])
-    assert seed.linear_map == "full"
-    with pytest.raises(ConfigurationError, match="linear_map='rigid'"):
-        GyroPairTracker(seed)
-    GyroPairTracker(calibrate_pair(w1[:1500], w2[:1500], linear_map="rigid"))
+    t, w1, w2, truth = scenario(np.random.default_rng(5), 60.0)
+    k = np.array([0.012, -0.008, 0.015])
+    w1 = w1 @ (np.eye(3) + cross_matrix(k)).T                      # gyro 1 with 0.8-1.5 % cross-axis terms
+    n = t.size // 3
+    tracker = GyroPairTracker.from_samples(t[:n], w1[:n], w2[:n])
+    assert tracker.calibration.linear_map == "full"
+    assert np.abs(tracker.cross_axis_terms).max() > 3e-3              # the prior-held split of the symmetric part
+    tracker.run(t[n:], w1[n:], w2[n:])
+    batch = calibrate_pair(w1, w2, linear_map="full")
+    err = log(tracker.R_1_2 @ batch.R_1_2.T)
+    cov = tracker.covariance[:3, :3] + batch.covariance[:3, :3] - batch.skew_rotation_covariance
+    assert err @ np.linalg.solve(cov, err) < 16.3, err              # chi2_3 at 0.999
+    assert np.allclose(tracker.A, batch.A, atol=2e-3)
+    rigid = GyroPairTracker(calibrate_pair(w1[:n], w2[:n], linear_map="rigid"))
+    assert not rigid.cross_axis_terms.any()
+    reference = calibrate_pair(w1[:n], w2[:n], intrinsics_1=np.eye(3))
+    with pytest.raises(ConfigurationError, match="reference"):
+        GyroPairTracker(reference)

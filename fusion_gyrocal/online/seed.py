@@ -15,14 +15,14 @@ import numpy as np
 
 from ..core.model import S1, S2, PairCalibration
 from ..core.moments import as_rates, noise_pair
-from ..core.observability import seed_configuration
+from ..core.observability import cross_matrix, seed_configuration
 from ..errors import ConfigurationError, InputError
 from ..pipeline.streams import check_timestamps
 from .ekf import ErrorStateEKF, inflation, misfit_coefficients
 from .hold import DIM, ScaleHold
 
 
-def batch(w1, w2, noise_std, gauge, misfit=None) -> PairCalibration:
+def batch(w1, w2, noise_std, gauge, misfit=None, linear_map: str = "rigid") -> PairCalibration:
     """Batch calibration of a window (:func:`fusion_gyrocal.calibrate_pair`, which applies the paper's
     flex rejection, Section VI.C, when the residuals call for it).
 
@@ -34,7 +34,7 @@ def batch(w1, w2, noise_std, gauge, misfit=None) -> PairCalibration:
 
     if misfit is not None and noise_std is not None:
         noise_std = effective_noise(noise_std, w1, inflation(misfit, w1))
-    return calibrate_pair(w1, w2, noise_std=noise_std, gauge=gauge, linear_map="rigid")   # the filter's model
+    return calibrate_pair(w1, w2, noise_std=noise_std, gauge=gauge, linear_map=linear_map)
 
 
 def effective_noise(noise_std, w1, g) -> tuple[float, float]:
@@ -100,13 +100,34 @@ def seed_noise(calibration: PairCalibration, noise_model):
     return noise_model, (float(noise[0]), float(noise[1])), misfit
 
 
-def check_seed_model(cal: PairCalibration) -> None:
-    """Refuse a seed whose sensor model is not the filter's (rotation + scale factors, Eq. 4)."""
-    if cal.linear_map != "rigid":
+def filter_model(cal: PairCalibration) -> tuple[PairCalibration, np.ndarray | None]:
+    """``(seed, unmix)``: ``cal`` in the filter's model (rotation + scale factors, Eq. 4) and the fixed matrix that
+    takes gyro 1's samples to it.
+
+    A seed with the full linear map (``linear_map="full"``, ``A = (I + K) S_1 R S_2^-1``) keeps its relative
+    cross-axis terms ``K`` fixed: the board's chips do not change their cross-axis sensitivity, and the tracker
+    follows the rotation in the same (symmetric) convention as the batch, with gyro 1's samples taken through
+    ``unmix = (I + K)^-1`` (so ``unmix omega_1 = S_1 R S_2^-1 omega_2 + unmix b``). The seed's covariance drops the
+    convention's skew budget (``skew_rotation_covariance``: constant, the filter tracks changes) and its bias is
+    ``unmix b``. A rigid seed is returned as it is, with ``unmix`` None.
+    """
+    if cal.linear_map == "rigid":
+        return cal, None
+    if cal.linear_map != "full":
         raise ConfigurationError(
-            f"calibration: the tracker's model is rotation + scale factors (Eq. 4), got a seed with linear_map "
-            f"{cal.linear_map!r} (its R_1_2 follows another convention); seed it with "
-            "calibrate_pair(..., linear_map='rigid'), as GyroPairTracker.from_samples does")
+            f"calibration: the tracker's model is rotation + scale factors (Eq. 4), with fixed cross-axis terms "
+            f"where the seed has them; got a seed with linear_map {cal.linear_map!r} (gyro 2's intrinsics from "
+            "gyro 1's); seed it with calibrate_pair(...) without intrinsics_1")
+    unmix = np.linalg.inv(np.eye(3) + cross_matrix(cal.cross_axis_terms))
+    J = np.eye(DIM)
+    J[9:, 9:] = unmix
+    cov = np.array(cal.covariance, dtype=float)
+    cov[:3, :3] -= np.asarray(cal.skew_rotation_covariance)
+    finite = np.isfinite(cov).all(axis=1)
+    cov[np.ix_(finite, finite)] = (J @ np.where(np.isfinite(cov), cov, 0.0) @ J.T)[np.ix_(finite, finite)]
+    seed = dataclasses.replace(cal, linear_map="rigid", cross_axis_terms=np.zeros(3), bias=unmix @ cal.bias,
+                               covariance=cov, skew_rotation_covariance=np.zeros((3, 3)))
+    return seed, unmix
 
 
 def seed_filter(cal: PairCalibration, t: float, config, noise_std, misfit, *, span_s: float = 0.0,
@@ -138,7 +159,7 @@ def seed_from_samples(t, omega_1, omega_2, noise_std, noise_model, config):
     t = check_timestamps("t", t)
     w1 = as_rates("omega_1", omega_1, length=t.shape[0])
     w2 = as_rates("omega_2", omega_2, length=t.shape[0])
-    cal = batch(w1, w2, noise_std, config.gauge)
+    cal = batch(w1, w2, noise_std, config.gauge, linear_map="auto")
     if noise_model is None:
         try:
             noise_model = identify_noise(w1, w2, cal.A, cal.bias, rate_hz=1.0 / float(np.median(np.diff(t))))
@@ -149,5 +170,5 @@ def seed_from_samples(t, omega_1, omega_2, noise_std, noise_model, config):
         if noise_std is not None:    # the caller's white level, the model's misfit
             noise_model = dataclasses.replace(noise_model, noise_std=noise_pair(noise_std))
         cal = batch(w1, w2, noise_model.noise_std, config.gauge,
-                    misfit=misfit_coefficients(noise_model.noise_std, cal.A, misfit))
+                    misfit=misfit_coefficients(noise_model.noise_std, cal.A, misfit), linear_map="auto")
     return cal, noise_model, t, np.asarray(w1, dtype=float), np.asarray(w2, dtype=float)

@@ -73,7 +73,7 @@ from .figures import plot_history, track_figure_for_report
 from .history import PairTruth, ReseedEvent, TrackHistory
 from .hold import DIM
 from .reseed import observable_chi2
-from .seed import check_seed_model, model_error, seed_from_samples, seed_noise
+from .seed import filter_model, model_error, seed_from_samples, seed_noise
 from .stepper import Stepper
 from .steps import block_spans
 
@@ -127,6 +127,9 @@ class GyroPairTracker:
         Seed (estimate and covariance), e.g. from :func:`fusion_gyrocal.calibrate_pair`.
         Its ``noise_std`` (per-sample white noise of each gyro, rad/s) sets the measurement
         noise unless ``noise_model`` flags a misfit; its ``time_offset_s`` is used by :meth:`run_streams`.
+        A seed with the full linear map (``linear_map="full"``) keeps its cross-axis terms fixed
+        (:attr:`cross_axis_terms`, :func:`~.seed.filter_model`): the filter tracks the rotation in the batch's
+        convention, scale factors and bias. A seed with ``linear_map="reference"`` is refused.
     t0 : float
         Time (s) at which the seed is valid (usually the end of its data).
     seed_span_s : float
@@ -167,19 +170,25 @@ class GyroPairTracker:
     True
     """
 
-    __slots__ = ("_track", "_noise_model", "_time_offset_s")
+    __slots__ = ("_track", "_noise_model", "_time_offset_s", "_unmix", "_cross_axis_terms")
 
     def __init__(self, calibration: PairCalibration, *, t0: float = 0.0, seed_span_s: float = 0.0,
                  noise_model: NoiseModel | None | str = "seed", config: TrackerConfig | None = None, **options):
         if not isinstance(calibration, PairCalibration):
             raise InputError(f"calibration: expected a PairCalibration, got {type(calibration).__name__}")
-        check_seed_model(calibration)
+        seed, self._unmix = filter_model(calibration)
+        self._cross_axis_terms = np.array(calibration.cross_axis_terms if self._unmix is not None else np.zeros(3))
         config = TrackerConfig.of(config, **options)
         noise_model, noise_std, misfit = seed_noise(calibration, noise_model)
         self._noise_model = noise_model
         self._time_offset_s = float(calibration.time_offset_s)
-        self._track = Stepper(calibration, float(t0), float(seed_span_s), config, noise_std, misfit,
+        self._track = Stepper(seed, float(t0), float(seed_span_s), config, noise_std, misfit,
                               model_error(calibration))
+
+    def _gyro_1(self, w1) -> np.ndarray:
+        """Gyro 1's samples in the filter's model: through ``(I + K)^-1`` when the seed has cross-axis terms
+        (:func:`~.seed.filter_model`)."""
+        return w1 if self._unmix is None else w1 @ self._unmix.T
 
     def __setattr__(self, name, value):           # the configuration's fields: a helpful refusal
         if name in _CONFIG_FIELDS:
@@ -206,7 +215,7 @@ class GyroPairTracker:
         config = TrackerConfig.of(config, **options)
         cal, noise_model, t, w1, w2 = seed_from_samples(t, omega_1, omega_2, noise_std, noise_model, config)
         tracker = cls(cal, t0=float(t[-1]), seed_span_s=float(t[-1] - t[0]), noise_model=noise_model, config=config)
-        tracker._track.learn_noise(t, w1, w2)
+        tracker._track.learn_noise(t, tracker._gyro_1(w1), w2)
         return tracker
 
     def reconfigured(self, **changes) -> "GyroPairTracker":
@@ -219,6 +228,7 @@ class GyroPairTracker:
         """
         new = object.__new__(type(self))
         new._noise_model, new._time_offset_s = self._noise_model, self._time_offset_s
+        new._unmix, new._cross_axis_terms = self._unmix, self._cross_axis_terms
         new._track = self._track.reconfigured(self._track.config.replace(**changes))
         return new
 
@@ -302,7 +312,16 @@ class GyroPairTracker:
 
     @property
     def A(self) -> np.ndarray:
-        return self._track.filter.A
+        """The linear map ``omega_1 ~ A omega_2 + (I + K) b``: ``(I + K) S_1 R S_2^-1`` with the seed's fixed
+        cross-axis terms (:attr:`cross_axis_terms`), ``S_1 R S_2^-1`` without."""
+        A = self._track.filter.A
+        return A if self._unmix is None else np.linalg.solve(self._unmix, A)
+
+    @property
+    def cross_axis_terms(self) -> np.ndarray:
+        """The seed's relative cross-axis terms ``(xy, yz, zx)``, held fixed (zeros for a rigid seed). With them the
+        filter's bias, history and NEES are those of gyro 1's samples through ``(I + K)^-1``."""
+        return self._cross_axis_terms.copy()
 
     @property
     def error_covariance(self) -> np.ndarray:
@@ -353,8 +372,14 @@ class GyroPairTracker:
         if f.hold.prior_groups:
             notes.append("scale factors of parallel axis pairs: only their ratio is tracked; the common factor is "
                          f"held by a prior of std {tr.config.scale_prior_std:g}")
+        full = self._unmix is not None
+        if full:
+            notes.append("cross-axis terms held at the seed's (the bias is gyro 1's through (I + K)^-1 in the "
+                         "filter, here in gyro 1's own frame)")
         return PairCalibration(
-            R_1_2=f.R, scale_1=f.s1, scale_2=f.s2, bias=f.b, configuration=tr.configuration.name,
+            R_1_2=f.R, scale_1=f.s1, scale_2=f.s2, bias=f.b if not full else np.linalg.solve(self._unmix, f.b),
+            linear_map="full" if full else "rigid", cross_axis_terms=self._cross_axis_terms.copy(),
+            configuration=tr.configuration.name,
             scale_observable=tr.configuration.scale_observable, covariance=self.covariance,
             gauge=self.gauge_description, snr=np.full(3, np.nan), n_samples=int(tr.n_samples),
             noise_std=np.array(tr.noise_std), noise_source="seed", method="ekf",
@@ -395,7 +420,7 @@ class GyroPairTracker:
             raise InputError(f"omega_1/omega_2: expected 3 rates each, got shapes {w1.shape} and {w2.shape}")
         if not (np.isfinite(w1).all() and np.isfinite(w2).all()):
             raise InputError(f"omega_1/omega_2: expected finite rates, got {w1} and {w2} at t = {t}")
-        return self._track.step(np.array([float(t)]), w1.reshape(1, 3), w2.reshape(1, 3), "sample") == 1
+        return self._track.step(np.array([float(t)]), self._gyro_1(w1.reshape(1, 3)), w2.reshape(1, 3), "sample") == 1
 
     def update_block(self, t, omega_1, omega_2) -> int:
         """Fast mode: fold a block of sample pairs into ONE update through its moments.
@@ -427,7 +452,7 @@ class GyroPairTracker:
             t = check_timestamps("t", t)
         w1, w2 = _finite_rates(t, omega_1, omega_2, " of the block")
         _check_start(self._track.filter, t[0])
-        return self._track.step(t, w1, w2, "fast")
+        return self._track.step(t, self._gyro_1(w1), w2, "fast")
 
     # ------------------------------------------------------------------ history
     def history(self) -> TrackHistory:
@@ -468,6 +493,7 @@ class GyroPairTracker:
         B = int(B)
         t = check_timestamps("t", t)
         w1, w2 = _finite_rates(t, omega_1, omega_2, "")
+        w1 = self._gyro_1(w1)
         if truth is not None and self._track.config.history_max_rows is not None:
             raise OptionError("truth: the truth columns need one history row per update; expected "
                               f"history_max_rows=None, got {self._track.config.history_max_rows}")
