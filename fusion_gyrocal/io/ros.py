@@ -71,6 +71,25 @@ def default_frames(n: int) -> list[str]:
     return [f"gyro{k + 1}" for k in range(n)]
 
 
+def check_frames(frames, n: int) -> list[str]:
+    """``frames`` checked for ``n`` gyros (default :func:`default_frames`).
+
+    Raises
+    ------
+    InputError
+        Another number of names than gyros, a name ROS does not accept, or a name used twice.
+    """
+    frames = default_frames(n) if frames is None else [str(f) for f in frames]
+    if len(frames) != n:
+        raise InputError(f"frames: expected {n} frame names (gyro 1 first), got {len(frames)}: {frames!r}")
+    bad = [f for f in frames if not _FRAME.match(f)]
+    if bad:
+        raise InputError(f"frames: expected ROS frame names (letters, digits, '_', '/' between parts), got {bad!r}")
+    if len(set(frames)) != n:
+        raise InputError(f"frames: expected {n} different names, got {frames!r}")
+    return frames
+
+
 def frame_transforms(cal, frames=None) -> tuple[FrameTransform, ...]:
     """One :class:`FrameTransform` per gyro other than the reference, in gyro order.
 
@@ -94,14 +113,7 @@ def frame_transforms(cal, frames=None) -> tuple[FrameTransform, ...]:
     else:
         raise InputError(f"cal: expected a PairCalibration or an ArrayCalibration, got {type(cal).__name__}")
     n = len(Rs)
-    frames = default_frames(n) if frames is None else [str(f) for f in frames]
-    if len(frames) != n:
-        raise InputError(f"frames: expected {n} frame names (gyro 1 first), got {len(frames)}: {frames!r}")
-    bad = [f for f in frames if not _FRAME.match(f)]
-    if bad:
-        raise InputError(f"frames: expected ROS frame names (letters, digits, '_', '/' between parts), got {bad!r}")
-    if len(set(frames)) != n:
-        raise InputError(f"frames: expected {n} different names, got {frames!r}")
+    frames = check_frames(frames, n)
     if not np.isfinite(np.asarray(Rs)).all():
         raise InputError("cal: expected finite rotations for a transform, got non-finite values")
     return tuple(FrameTransform(k + 1, frames[ref], frames[k], np.asarray(Rs[k], float), np.asarray(sd[k], float))
