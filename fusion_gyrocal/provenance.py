@@ -149,6 +149,14 @@ class Provenance:
                    n_rejected=int(d.get("n_rejected", 0)), created_utc=str(d.get("created_utc", "")))
 
 
+def command_line() -> str:
+    """The running ``gyrocal`` command line, quoted as a shell would take it back."""
+    import shlex
+    import sys
+
+    return " ".join(shlex.quote(a) for a in ["gyrocal", *sys.argv[1:]])
+
+
 def provenance_of(streams, options=None, *, paths=None, formats=None, reader_options=None, command: str = "",
                   n_used: int = 0, n_rejected: int = 0) -> Provenance:
     """The :class:`Provenance` of a run on ``streams`` (:class:`~fusion_gyrocal.io.ImuStream`, gyro 1 first).

@@ -108,17 +108,14 @@ def _frames(args, n: int):
 def command_provenance(sources, streams, options, *, n_used: int, n_rejected: int = 0):
     """The :class:`~fusion_gyrocal.provenance.Provenance` of a command's run: every gyro's file, format, reader
     keywords, units and masked samples as read, the options, the command line and the version."""
-    import shlex
-
     from ..io import detect_format
-    from ..provenance import provenance_of
+    from ..provenance import command_line, provenance_of
     from .recording import _for_reader
 
     return provenance_of(streams, options, paths=[s.path for s in sources],
                          formats=[detect_format(s.path) for s in sources],
                          reader_options=[_for_reader(s.options, s.path) for s in sources],
-                         command=" ".join(shlex.quote(a) for a in ["gyrocal", *sys.argv[1:]]),
-                         n_used=n_used, n_rejected=n_rejected)
+                         command=command_line(), n_used=n_used, n_rejected=n_rejected)
 
 
 def run(args) -> int:

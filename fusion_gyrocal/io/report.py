@@ -170,6 +170,27 @@ def allan_deviation(run: PipelineRun):
     return fig
 
 
+def static_allan_figure(noise, title: str = ""):
+    """The pooled Allan deviation of a gyro at rest per axis (:class:`~fusion_gyrocal.core.static_noise.StaticNoise`)
+    with each axis's fitted model and its white-noise line (slope -1/2)."""
+    deg = np.rad2deg(1.0)
+    fig, ax = _figure(figsize=(8, 5))
+    for a, (name, colour) in enumerate(zip("xyz", ("tab:blue", "tab:orange", "tab:green"))):
+        ax.loglog(noise.taus, noise.adev[:, a] * deg, "o", ms=4, color=colour, label=f"axis {name}")
+        ax.loglog(noise.taus, noise.adev_fit[:, a] * deg, "-", color=colour, lw=1.5,
+                  label=f"fit {name}: N {noise.white[a] * deg * 60:.3g} deg/sqrt(h), "
+                        f"B {noise.bias_instability[a] * deg * 3600:.3g} deg/h, "
+                        f"K {noise.random_walk[a] * deg * 3600 ** 1.5:.3g} deg/h/sqrt(h)")
+        ax.loglog(noise.taus, noise.white[a] / np.sqrt(noise.taus) * deg, ":", color=colour, lw=1)
+    ax.set_xlabel("averaging time tau (s)")
+    ax.set_ylabel("Allan deviation (deg/s)")
+    ax.set_title(title or f"Allan deviation at rest: {noise.n_samples} samples in {len(noise.stretches)} stretch(es)",
+                 fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7, loc="best")
+    return fig
+
+
 def uncertainty_basis(cal) -> str:
     """One line saying what the reported uncertainty rests on: the noise (where it came from) and the
     covariance (noise model, block-robust, inflated), with the residual's chi-square per degree of freedom.

@@ -573,6 +573,47 @@ def read_imu_noise(path) -> tuple[ImuNoise, ...]:
     return tuple(out)
 
 
+def write_kalibr_noise(noise, path, *, rostopic: str = "/imu0", provenance=None) -> Path:
+    """Write a static noise analysis (:class:`~fusion_gyrocal.core.static_noise.StaticNoise`) as a Kalibr
+    ``imu.yaml`` (what ``kalibr_calibrate_imu_camera --imu`` reads, and what imu_utils / allan_variance_ros users
+    write by hand), atomically.
+
+    ``gyroscope_noise_density`` is the mean of the three axes' white noise ``N`` and ``gyroscope_random_walk`` the
+    mean of their ``K`` where the Allan fit kept a walk term (each axis with its 1-sigma in a comment); a walk no
+    axis showed, and the accelerometer figures (gyro data only), are marked placeholders. ``update_rate`` is the
+    recording's rate. The header names the recording (``provenance``) and the rest stretches used.
+    """
+    _topics([rostopic], 1)
+    deg = 180.0 / np.pi
+    figs = {k: _Figure(v, f"{_NOT_MEASURED} (gyro data only)", True) for k, v in _PLACEHOLDER.items()}
+    figs["gyroscope_noise_density"] = _Figure(float(np.mean(noise.white)), "mean of the axes' white noise N, "
+                                              "static Allan analysis")
+    walk = [k for k in noise.random_walk if k > 0]
+    if walk:
+        figs["gyroscope_random_walk"] = _Figure(float(np.mean(walk)), f"mean of the {len(walk)} axes' random walk K "
+                                                "with a walk term in the Allan fit")
+    else:
+        figs["gyroscope_random_walk"] = _Figure(
+            _PLACEHOLDER["gyroscope_random_walk"], f"{_NOT_MEASURED} (no random-walk term up to tau = "
+            f"{noise.taus[-1]:.3g} s: record longer at rest)", True)
+    lines = [f"# Kalibr IMU configuration written by fusion_gyrocal (gyrocal noise): static Allan analysis of "
+             f"{noise.n_samples} samples at rest in {len(noise.stretches)} stretch(es), {noise.rate_hz:.6g} Hz."]
+    if provenance is not None:
+        lines += [f"# {line}" for line in provenance.lines()]
+    for a, name in enumerate("xyz"):
+        lines.append(f"#   axis {name}: white N {noise.white[a]:.4g} +- {noise.white_std[a]:.2g} rad/s/sqrt(Hz) "
+                     f"({noise.white[a] * deg * 60:.4g} deg/sqrt(h)); bias instability B {noise.bias_instability[a]:.3g}"
+                     f" +- {noise.bias_instability_std[a]:.2g} rad/s; random walk K {noise.random_walk[a]:.3g} +- "
+                     f"{noise.random_walk_std[a]:.2g} rad/s^2/sqrt(Hz)")
+    if any(f.placeholder for f in figs.values()):
+        lines.append(_PLACEHOLDER_HOWTO)
+    lines += [f"rostopic: {_quoted(rostopic)}", f"update_rate: {_yf(noise.rate_hz)}  # [Hz]"]
+    lines += _noise_lines(figs, "")
+    text = "\n".join(lines) + "\n"
+    _check_yaml(text, path, [rostopic])
+    return atomic_write(path, text)
+
+
 def _per_imu(value, n: int, name: str) -> list:
     """One value for every IMU, or a sequence of ``n``."""
     if isinstance(value, (tuple, list)):
