@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 from fusion_gyrocal import InputError, PairCalibration, calibrate_pair
 from fusion_gyrocal.cli import main
 from fusion_gyrocal.core.array import calibrate_array
-from fusion_gyrocal.evaluate.sim import DEG, PAPER_NOISE_STD, HumanMotion, random_rotation, simulate_pair
+from fusion_gyrocal.evaluate.sim import HumanMotion, random_rotation, simulate_pair
 from fusion_gyrocal.io.ros import check_frames, parse_nominals, parse_rotation, write_ros_frames
 from fusion_gyrocal.io.writers import (FormatError, ImuNoise, read_imu_noise, write_kalibr_imu_configs,
                                        write_openvins_imu_chain)
@@ -168,8 +168,8 @@ def test_write_ros_frames_array_one_transform_per_gyro_from_the_reference(sim_ar
 def test_write_ros_frames_not_rigid_warns_and_bad_frames_refused(sim_pair, tmp_path):
     _, cal = sim_pair
     for p in write_ros_frames(dataclasses.replace(cal, rigid=False), tmp_path / "r"):
-        assert "WARNING: NOT RIGID" in p.read_text().split("\n", 4)[-2] + p.read_text()[:400]
-        ET.parse(p) if p.suffix != ".yaml" else yaml.safe_load(p.read_text())
+        assert "WARNING: NOT RIGID" in p.read_text()[:300], p.name   # at the top, and the file still parses
+        assert (yaml.safe_load(p.read_text()) if p.suffix == ".yaml" else ET.parse(p).getroot()) is not None
     with pytest.raises(InputError, match="frames: expected 2 frame names"):
         write_ros_frames(cal, tmp_path / "x", frames=["a"])
     with pytest.raises(InputError, match="frames: expected ROS frame names"):
@@ -372,5 +372,7 @@ def test_array_calibration_json_round_trips_every_field(sim_array):
 def test_kalibr_configs_scale_comment_relative_to_imu0(sim_pair, tmp_path):
     _, cal = sim_pair
     _, p1 = write_kalibr_imu_configs(cal, tmp_path / "k")
-    assert "# Scale factors relative to imu0" in p1.read_text()
-    assert DEG > 0 and PAPER_NOISE_STD > 0
+    text = p1.read_text()
+    assert cal.configuration == "general"
+    g = np.exp(np.mean(np.log(cal.scale_1)))   # a general mounting: one group, divided by imu0's geometric mean
+    assert f"x {cal.scale_2[0] / g:.6f}" in text

@@ -275,7 +275,7 @@ def summary_markdown(cal: PairCalibration) -> str:
         lines.append(f"- deviation from the nominal mounting: {np.degrees(np.linalg.norm(d)):.4f} deg, rotation vector "
                      f"{np.array2string(np.degrees(d), precision=4)} +- "
                      f"{np.array2string(np.degrees(np.sqrt(np.clip(np.diag(C), 0, None))), precision=4)} deg")
-    lines.append(f"- scale_2 / scale_1 on the parallel axes: " + ", ".join(
+    lines.append("- scale_2 / scale_1 on the parallel axes: " + ", ".join(
         f"{r:.6f} +- {e:.2g}" if np.isfinite(e) else f"{r:.6f}" for r, e in zip(cal.scale_ratio, cal.scale_ratio_std)))
     q = cal.quaternion_xyzw
     lines.append(f"- R_1_2 quaternion x, y, z, w: {', '.join(f'{v:.9f}' for v in q)}; roll, pitch, yaw "
