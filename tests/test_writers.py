@@ -100,11 +100,14 @@ def test_write_kalibr_imu_configs_pass_kalibr_imu_parameters(tmp_path):
     cal, _ = _array(1)
     paths = write_kalibr_imu_configs(cal, tmp_path / "kalibr", topics=TOPICS, update_rate=[200.0, 100.0, 400, 50])
     assert [p.name for p in paths] == ["imu0.yaml", "imu1.yaml", "imu2.yaml", "imu3.yaml"]
-    for p, topic, rate in zip(paths, TOPICS, (200.0, 100.0, 400.0, 50.0)):
+    for k, (p, topic, rate) in enumerate(zip(paths, TOPICS, (200.0, 100.0, 400.0, 50.0))):
         got = kalibr_imu_parameters(p)
         assert got["rostopic"] == topic and got["update_rate"] == rate
         text = p.read_text()
-        assert text.count("PLACEHOLDER, not measured") == 4 and "Allan-variance" in text
+        # the joint solve's white noise per gyro (per sample on imu0's grid), placeholders for the rest
+        assert got["gyroscope_noise_density"] == pytest.approx(cal.noise_std[k] / math.sqrt(200.0), rel=1e-12)
+        assert f"identified: gyro {k + 1}'s white noise in the joint solve" in text
+        assert text.count("PLACEHOLDER, not measured") == 3 and "Allan-variance" in text
 
 
 def test_kalibr_imu_parameters_rules_reject_the_chain_layout(tmp_path):

@@ -449,10 +449,12 @@ class PairCalibration:
         def num(x):
             return float(x) if np.isfinite(x) else None
 
+        with np.errstate(invalid="ignore"):   # a negative variance (a hand-made covariance) is no number
+            rot_sd = self.rotation_std_rad
         out: dict[str, Any] = {
             "rotation": {"of": "R_1_2: gyro 2's frame into gyro 1's (omega_1 = R_1_2 @ omega_2)",
                          **rotation_forms(self.R_1_2),
-                         "std_rad": [num(x) for x in self.rotation_std_rad]},
+                         "std_rad": [num(x) for x in rot_sd]},
             "scale_ratio": {"of": "scale_2[a] / scale_1[axis_of_gyro_1[a]] per axis a of gyro 2",
                             "axis_of_gyro_1": parallel_axes(self.R_1_2).tolist(),
                             "value": [num(x) for x in self.scale_ratio],

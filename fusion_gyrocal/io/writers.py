@@ -692,6 +692,9 @@ def _header(chain: _Chain, what: str, topics, noises) -> list[str]:
                       "wherever one of its axes fixes a group.")
     for i, imu in enumerate(chain.imus):
         lines.append(f"# imu{i}: relative scale factors {_scale_text(imu)}.")
+    unknown = [f"imu{i} {'xyz'[a]}" for i, imu in enumerate(chain.imus) for a in range(3) if not _known(imu)[a]]
+    if unknown:
+        lines.append(f"# Scale factors the data do not determine are written as 1 (not estimated): {', '.join(unknown)}.")
     for i, imu in enumerate(chain.imus[1:], start=1):
         if np.isfinite(imu.rotation_std_deg).all():
             lines.append(f"# imu{i}: 1-sigma rotation uncertainty (deg, body axes) "
@@ -709,15 +712,22 @@ def _noise_lines(noise: dict, indent: str) -> list[str]:
             for k in _PLACEHOLDER]
 
 
+def _known(imu: _ChainImu) -> np.ndarray:
+    """Which relative scale factors the data determine: the scale factor itself, or its ratio to one axis of imu0."""
+    return np.asarray(imu.observable, bool) | np.isfinite(imu.rel_scale_std)
+
+
 def _determined(imu: _ChainImu) -> np.ndarray:
-    """Diagonal scale matrix: the scale factors relative to imu0's (:func:`_relative_scales`)."""
-    return np.diag(imu.rel_scale)
+    """Diagonal scale matrix: the scale factors relative to imu0's (:func:`_relative_scales`), 1 where the data
+    determine neither the scale factor nor its ratio to imu0's."""
+    return np.diag(np.where(_known(imu), imu.rel_scale, 1.0))
 
 
 def _scale_text(imu: _ChainImu) -> str:
-    return ", ".join(f"{'xyz'[a]} {imu.rel_scale[a]:.6f}" + (f" +- {imu.rel_scale_std[a]:.2g}"
-                                                           if np.isfinite(imu.rel_scale_std[a]) else "")
-                     for a in range(3))
+    known = _known(imu)
+    return ", ".join((f"{'xyz'[a]} {imu.rel_scale[a]:.6f}" + (f" +- {imu.rel_scale_std[a]:.2g}"
+                                                            if np.isfinite(imu.rel_scale_std[a]) else ""))
+                     if known[a] else f"{'xyz'[a]} undetermined" for a in range(3))
 
 
 def _chain_block(i: int, imu: _ChainImu, noise, topic: str, rate: float, model: str) -> list[str]:
