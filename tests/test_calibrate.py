@@ -239,7 +239,7 @@ def test_pair_calibration_to_dict_round_trip_is_json():
     np.testing.assert_array_equal(back.R_1_2, cal.R_1_2)
     np.testing.assert_array_equal(back.covariance, cal.covariance)
     assert back.configuration == cal.configuration and back.gauge == cal.gauge
-    assert cal.to_dict()["format_version"] == "1.3"
+    assert cal.to_dict()["format_version"] == "1.4"
 
 
 def _strict_json(text):

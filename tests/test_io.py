@@ -575,7 +575,7 @@ def test_read_json_wrong_version_message(tmp_path):
     d = json.loads(p.read_text())
     d["format_version"] = "0.1"
     p.write_text(json.dumps(d))
-    with pytest.raises(FormatError, match=r"cal\.json: .*expected format_version '1\.3' \(or an earlier '1\.0', '1\.1', '1\.2'\), "
+    with pytest.raises(FormatError, match=r"cal\.json: .*expected format_version '1\.4' \(or an earlier '1\.0', '1\.1', '1\.2', '1\.3'\), "
                                          r"got '0\.1'"):
         read_json(p)
 
@@ -622,10 +622,11 @@ def test_write_kalibr_imu_chain_matrices_parse_back(tmp_path):
     np.testing.assert_array_equal(T1[:3, :3], cal.R_1_2.T)
     np.testing.assert_array_equal(T1[:3, 3], np.zeros(3))
     np.testing.assert_array_equal(T1[3], [0, 0, 0, 1])
-    np.testing.assert_array_equal(np.array(y["imu0"]["gyroscopes"]["M"]), np.diag(cal.scale_1))
+    g = np.exp(np.mean(np.log(cal.scale_1)))   # relative to imu0: a general mounting divided by imu0's geometric mean
+    np.testing.assert_allclose(np.array(y["imu0"]["gyroscopes"]["M"]), np.diag(cal.scale_1 / g), rtol=1e-15)
     # an undetermined scale factor (scale_2 z here) is not written as measured: 1 in its place
-    np.testing.assert_array_equal(np.array(y["imu1"]["gyroscopes"]["M"]),
-                                  np.diag(np.where(cal.scale_observable[1], cal.scale_2, 1.0)))
+    np.testing.assert_allclose(np.array(y["imu1"]["gyroscopes"]["M"]),
+                               np.diag(np.where(cal.scale_observable[1], cal.scale_2 / g, 1.0)), rtol=1e-15)
     np.testing.assert_array_equal(np.array(y["imu1"]["gyroscopes"]["C_gyro_i"]), np.eye(3))
     np.testing.assert_array_equal(np.array(y["imu1"]["gyroscopes"]["A"]), np.zeros((3, 3)))
     assert y["imu0"]["time_offset"] == 0.0 and y["imu1"]["time_offset"] == cal.time_offset_s
@@ -658,9 +659,11 @@ def test_write_openvins_imu_chain_parses_back(tmp_path):
     text = p.read_text()
     assert text.splitlines()[0] == "%YAML:1.0"
     y = yaml.safe_load(text.split("\n", 1)[1])
+    g = np.exp(np.mean(np.log(cal.scale_1)))   # relative to imu0: a general mounting divided by imu0's geometric mean
     for i, scale in enumerate((cal.scale_1, cal.scale_2)):
         imu = y[f"imu{i}"]
-        np.testing.assert_array_equal(np.array(imu["Tw"]), np.diag(np.where(cal.scale_observable[i], scale, 1.0)))
+        np.testing.assert_allclose(np.array(imu["Tw"]), np.diag(np.where(cal.scale_observable[i], scale / g, 1.0)),
+                                   rtol=1e-15)
         np.testing.assert_array_equal(np.array(imu["R_IMUtoGYRO"]), np.eye(3))
         np.testing.assert_array_equal(np.array(imu["Ta"]), np.eye(3))
         np.testing.assert_array_equal(np.array(imu["R_IMUtoACC"]), np.eye(3))

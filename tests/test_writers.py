@@ -100,11 +100,14 @@ def test_write_kalibr_imu_configs_pass_kalibr_imu_parameters(tmp_path):
     cal, _ = _array(1)
     paths = write_kalibr_imu_configs(cal, tmp_path / "kalibr", topics=TOPICS, update_rate=[200.0, 100.0, 400, 50])
     assert [p.name for p in paths] == ["imu0.yaml", "imu1.yaml", "imu2.yaml", "imu3.yaml"]
-    for p, topic, rate in zip(paths, TOPICS, (200.0, 100.0, 400.0, 50.0)):
+    for k, (p, topic, rate) in enumerate(zip(paths, TOPICS, (200.0, 100.0, 400.0, 50.0))):
         got = kalibr_imu_parameters(p)
         assert got["rostopic"] == topic and got["update_rate"] == rate
         text = p.read_text()
-        assert text.count("PLACEHOLDER, not measured") == 4 and "Allan-variance" in text
+        # the joint solve's white noise per gyro (per sample on imu0's grid), placeholders for the rest
+        assert got["gyroscope_noise_density"] == pytest.approx(cal.noise_std[k] / math.sqrt(200.0), rel=1e-12)
+        assert f"identified: gyro {k + 1}'s white noise in the joint solve" in text
+        assert text.count("PLACEHOLDER, not measured") == 3 and "Allan-variance" in text
 
 
 def test_kalibr_imu_parameters_rules_reject_the_chain_layout(tmp_path):
@@ -157,21 +160,30 @@ def test_write_openvins_imu_chain_read_by_opencv_gives_each_T_i_b(tmp_path):
         np.testing.assert_allclose(imu["T_i_b"][:3, :3], cal.R_ref_k[k].T, rtol=0, atol=1e-15)
         assert np.degrees(np.linalg.norm(Rotation.from_matrix(imu["T_i_b"][:3, :3] @ R[k]).as_rotvec())) < 0.05
         np.testing.assert_array_equal(imu["T_i_b"][3], [0, 0, 0, 1])
-        np.testing.assert_allclose(imu["Tw"], np.diag(cal.scale[k]), rtol=0, atol=1e-15)
+        # relative to imu0: a general mounting is one group, divided by the geometric mean of imu0's scale factors
+        g = np.exp(np.mean(np.log(cal.scale[0])))
+        np.testing.assert_allclose(imu["Tw"], np.diag(cal.scale[k] / g), rtol=0, atol=1e-15)
         assert imu["model"] == "kalibr" and imu["rostopic"] == TOPICS[k] and imu["update_rate"] == 200.0
         assert all(imu[key] > 0 for key in NOISE_KEYS)
         np.testing.assert_array_equal(imu["Tg"], np.zeros((3, 3)))
 
 
-def test_write_openvins_imu_chain_undetermined_scales_are_identity(tmp_path):
-    # axis-parallel gyros (Lemma 2): no scale factor is determined, so Tw stays the identity
+def test_write_openvins_imu_chain_parallel_axes_reference_exactly_one_others_relative(tmp_path):
+    # axis-parallel gyros (Lemma 2): no scale factor is determined, only ratios to the parallel axis of imu0;
+    # imu0's Tw is exactly the identity (OpenVINS applies Tw at every step) and the others carry the ratios
     flip = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
     cal, _ = _array(7, R=[np.eye(3), flip, np.eye(3)])
     assert not cal.scale_observable.any()
     p = write_openvins_imu_chain(cal, tmp_path / "c.yaml")
-    for imu in opencv_imu_chain(p, 3):
-        np.testing.assert_array_equal(imu["Tw"], np.eye(3))
-    assert "do not determine are written as 1" in p.read_text()
+    imus = opencv_imu_chain(p, 3)
+    np.testing.assert_array_equal(imus[0]["Tw"], np.eye(3))
+    rel, sd = cal.relative_scales()
+    for k in (1, 2):
+        perm = np.argmax(np.abs(cal.R_ref_k[k]), axis=0)
+        np.testing.assert_allclose(np.diag(imus[k]["Tw"]), cal.scale[k] / cal.scale[0, perm], rtol=1e-15)
+        np.testing.assert_allclose(np.diag(imus[k]["Tw"]), rel[k], rtol=1e-15)
+        assert np.isfinite(sd[k]).all() and (sd[k] > 0).all()
+        assert f"imu{k}: relative scale factors x {rel[k, 0]:.6f} +- {sd[k, 0]:.2g}" in p.read_text()
 
 
 def test_write_openvins_imu_chain_pair_time_offset_and_model(tmp_path):
@@ -179,7 +191,9 @@ def test_write_openvins_imu_chain_pair_time_offset_and_model(tmp_path):
     imus = opencv_imu_chain(write_openvins_imu_chain(cal, tmp_path / "c.yaml", update_rate=[200.0, 100.0]), 2)
     assert imus[1]["time_offset"] == cal.time_offset_s and imus[0]["time_offset"] == 0.0
     assert [i["model"] for i in imus] == ["kalibr", "kalibr"]
-    np.testing.assert_array_equal(imus[1]["Tw"], np.diag(cal.scale_2))
+    g = np.exp(np.mean(np.log(cal.scale_1)))   # a general mounting: one group, imu0's geometric mean is 1
+    np.testing.assert_allclose(imus[1]["Tw"], np.diag(cal.scale_2 / g), rtol=1e-15)
+    assert np.prod(np.diag(imus[0]["Tw"])) == pytest.approx(1.0, abs=1e-15)
 
 
 # --------------------------------------------------------------------------------- honesty

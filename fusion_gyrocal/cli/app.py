@@ -80,7 +80,7 @@ def one_line(text: str) -> str:
     return " ".join(" ".join(line.split()) for line in str(text).splitlines()
                     if line.strip() and not _CARETS.match(line))
 
-COMMANDS = ("calibrate", "report", "demo", "compare", "fleet")
+COMMANDS = ("calibrate", "report", "noise", "demo", "compare", "fleet")
 """The command modules of this package, in the order ``gyrocal --help`` lists them."""
 
 EXAMPLES = """examples:
@@ -92,6 +92,8 @@ EXAMPLES = """examples:
   gyrocal calibrate exp_1.npz --output array.json --openvins kalibr_imu_chain.yaml   (all IMUs, jointly)
   gyrocal calibrate a.csv b.csv c.csv --time-unit ms,s,s --kalibr kalibr/            (N recordings, jointly)
   gyrocal report imu_a.csv imu_b.csv --out report/
+  gyrocal calibrate exp_1.npz --nominal "180 deg about (1,-1,0)" --ros ros/ --noise imu.yaml --openvins chain.yaml
+  gyrocal noise static.csv --kalibr imu.yaml --plot allan.png          (Allan analysis of a static recording)
 
 """ + textwrap.fill("exit codes: " + "; ".join(f"{code} {meaning}" for code, meaning in EXIT_MEANINGS),
                     width=118, break_on_hyphens=False) + "\n"
@@ -180,6 +182,9 @@ def build_parser(argv=None) -> argparse.ArgumentParser:
         "rotation, scale factors (up to one global scale), biases and time offset.",
         epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--debug", action="store_true", help="show tracebacks of unexpected errors")
+    from .. import __version__
+
+    parser.add_argument("--version", action="version", version=f"gyrocal (fusion_gyrocal) {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     chosen = next((a for a in (argv or ()) if not a.startswith("-")), None)
     for module in command_modules((chosen,) if chosen in COMMANDS else COMMANDS):

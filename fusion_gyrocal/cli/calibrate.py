@@ -34,6 +34,21 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                      help="write Kalibr files into FOLDER (created): imu0.yaml, imu1.yaml, ... (what "
                           "kalibr_calibrate_imu_camera --imu reads) and imu_chain.yaml (Kalibr's result layout)")
     out.add_argument("--openvins", metavar="FILE", help="write an OpenVINS kalibr_imu_chain.yaml (every gyro)")
+    out.add_argument("--ros", metavar="FOLDER",
+                     help="write into FOLDER (created) the mounting for ROS: tf2 static transforms "
+                          "(static_transforms.launch for ROS 1, static_transforms.launch.xml for ROS 2, "
+                          "static_transforms.yaml) and URDF fixed joints (imu_joints.urdf); parent = gyro 1")
+    out.add_argument("--frames", metavar="NAMES",
+                     help="frame (link) names of every gyro for --ros, comma-separated, gyro 1 first "
+                          "(default gyro1,gyro2,...)")
+    out.add_argument("--noise", metavar="FILE",
+                     help="measured noise figures for the Kalibr/OpenVINS files: a Kalibr imu.yaml or "
+                          "allan_variance_ros output (for every IMU), an IMU chain (one per IMU), or one file per "
+                          "gyro comma-separated (gyro 1 first); e.g. from gyrocal noise")
+    p.add_argument("--nominal", metavar="ROTATION",
+                   help="the nominal mounting R_1_k of every gyro (or one per gyro 2..N separated by ';'): "
+                        "'identity', '180 deg about (1,-1,0)', 9 matrix entries row by row, 'rpy R,P,Y deg' or "
+                        "'xyzw X,Y,Z,W'; the deviation from it is printed and written with its uncertainty")
     p.add_argument("--array", action="store_true",
                    help="calibrate two gyros with the joint N-gyro solver too (default: the pair pipeline)")
     add_option_arguments(p)
@@ -57,6 +72,52 @@ def _topics(args, sources) -> list[str]:
     return [s.options.get("topic") or f"/imu{k}" for k, s in enumerate(sources)]
 
 
+def _noise_figures(spec: str, n: int):
+    """The :class:`~fusion_gyrocal.io.writers.ImuNoise` of ``--noise``: one file for every IMU (or a chain, one
+    per IMU), or one file per gyro."""
+    from ..errors import OptionError
+    from ..io.writers import read_imu_noise
+
+    files = [f.strip() for f in spec.split(",") if f.strip()]
+    figures = [read_imu_noise(f) for f in files]
+    if len(files) == 1:
+        got = figures[0]
+        if len(got) == 1:
+            return got[0]
+        if len(got) != n:
+            raise OptionError(f"--noise: expected one IMU's figures or a chain of {n} (imu0..imu{n - 1}), got a chain "
+                              f"of {len(got)} in {files[0]}")
+        return list(got)
+    if len(files) != n:
+        raise OptionError(f"--noise: expected one file or one per gyro ({n}), got {len(files)}")
+    bad = [f for f, g in zip(files, figures) if len(g) != 1]
+    if bad:
+        raise OptionError(f"--noise: expected one IMU's figures per file, got chains in {bad}")
+    return [g[0] for g in figures]
+
+
+def _frames(args, n: int):
+    """``--frames`` checked for ``n`` gyros (None: the defaults)."""
+    if not args.frames:
+        return None
+    from ..io.ros import check_frames
+
+    return check_frames([f.strip() for f in args.frames.split(",")], n)
+
+
+def command_provenance(sources, streams, options, *, n_used: int, n_rejected: int = 0):
+    """The :class:`~fusion_gyrocal.provenance.Provenance` of a command's run: every gyro's file, format, reader
+    keywords, units and masked samples as read, the options, the command line and the version."""
+    from ..io import detect_format
+    from ..provenance import command_line, provenance_of
+    from .recording import _for_reader
+
+    return provenance_of(streams, options, paths=[s.path for s in sources],
+                         formats=[detect_format(s.path) for s in sources],
+                         reader_options=[_for_reader(s.options, s.path) for s in sources],
+                         command=command_line(), n_used=n_used, n_rejected=n_rejected)
+
+
 def run(args) -> int:
     """Calibrate; exit code 0 (a pair flagged not rigid with ``--allow-not-rigid`` too, with a warning)."""
     from ..io.writers import (write_json, write_kalibr_imu_chain, write_kalibr_imu_configs,
@@ -65,10 +126,24 @@ def run(args) -> int:
     from ..progress import progress_bar
     from .display import array_table, console as make_console, summary_table
 
+    import dataclasses
+
+    import numpy as np
+
+    from .display import provenance_lines, rotation_lines
+
     kalibr = _kalibr_folder(args.kalibr) if args.kalibr else None
     console = make_console()
     sources = gyro_sources(args)
-    joint = len(sources) > 2 or args.array
+    n = len(sources)
+    joint = n > 2 or args.array
+    frames = _frames(args, n)
+    noise = _noise_figures(args.noise, n) if args.noise else None   # read before the long work: fail early
+    nominal = None
+    if args.nominal:
+        from ..io.ros import parse_nominals
+
+        nominal = parse_nominals(args.nominal, n)
     with progress_bar() as progress:
         task = progress.add_task("reading", total=len(sources) + 1)
         streams = read_sources(sources, lambda: progress.advance(task))
@@ -76,18 +151,32 @@ def run(args) -> int:
         if joint:
             from .array import calibrate_recordings
 
+            from .array import array_options
+
             cal, notes = calibrate_recordings(streams, args)
+            prov = command_provenance(sources, streams, array_options(args, n, streams[0].rate_hz),
+                                      n_used=cal.n_samples)
+            cal = dataclasses.replace(cal, provenance=prov, nominal_R_ref_k=nominal)
         else:
             from ..options import options_from_args
             from ..pipeline.pipeline import run_pipeline
 
             s1, s2 = streams
             options = options_from_args(args, rate_hz=s1.rate_hz)
-            cal = run_pipeline(s1.masked_omega, s2.masked_omega, t_1=s1.t, t_2=s2.t, options=options).calibration
+            run_ = run_pipeline(s1.masked_omega, s2.masked_omega, t_1=s1.t, t_2=s2.t, options=options)
+            rejected = 0 if run_.valid is None or run_.used is None else int(np.sum(run_.valid & ~run_.used))
+            prov = command_provenance(sources, streams, options, n_used=run_.calibration.n_samples,
+                                      n_rejected=rejected)
+            cal = dataclasses.replace(run_.calibration, provenance=prov,
+                                      nominal_R_1_2=None if nominal is None else nominal[1])
             notes = []
         progress.advance(task)
     console.print(array_table(cal) if joint else summary_table(cal))
+    for line in rotation_lines(cal):
+        console.print(line)
     console.print(uncertainty_basis(cal))
+    for line in provenance_lines(cal.provenance):
+        console.print(line)
     for note in tuple(cal.notes) + tuple(notes):
         console.print(f"note: {note}")
     for source, stream in zip(sources, streams):   # what each reader dropped or chose
@@ -102,9 +191,14 @@ def run(args) -> int:
     if args.output:
         console.print(f"wrote {write_json(cal, args.output)}")
     if kalibr is not None:
-        for p in write_kalibr_imu_configs(cal, kalibr, topics=topics, update_rate=rates):
+        for p in write_kalibr_imu_configs(cal, kalibr, topics=topics, update_rate=rates, noise=noise):
             console.print(f"wrote {p}")
-        console.print(f"wrote {write_kalibr_imu_chain(cal, kalibr / 'imu_chain.yaml', topics=topics, update_rate=rates)}")
+        console.print(f"wrote {write_kalibr_imu_chain(cal, kalibr / 'imu_chain.yaml', topics=topics, update_rate=rates, noise=noise)}")
     if args.openvins:
-        console.print(f"wrote {write_openvins_imu_chain(cal, args.openvins, topics=topics, update_rate=rates)}")
+        console.print(f"wrote {write_openvins_imu_chain(cal, args.openvins, topics=topics, update_rate=rates, noise=noise)}")
+    if args.ros:
+        from ..io.ros import write_ros_frames
+
+        for p in write_ros_frames(cal, args.ros, frames=frames):
+            console.print(f"wrote {p}")
     return EXIT_OK

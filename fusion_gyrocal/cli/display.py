@@ -25,6 +25,7 @@ def summary_table(cal, truth=None):
     import numpy as np
     from rich.table import Table
 
+    from ..core.model import parallel_axes
     from ..lie import canonical_rotvec
 
     t = Table(title=f"gyro pair calibration: {cal.configuration}, method {cal.method}, {cal.n_samples} samples, "
@@ -60,6 +61,15 @@ def summary_table(cal, truth=None):
         for a in range(3):
             t.add_row(f"intrinsics_2 row {'xyz'[a]}", *[f"{cal.intrinsics_2[a, b]:.5f} +- {sd[a, b]:.5f}" if b >= a
                                                          else "0" for b in range(3)])
+    p = parallel_axes(cal.R_1_2)
+    t.add_row("scale_2 / scale_1 (gyro 1 axis " + ",".join("xyz"[b] for b in p) + ")",
+              *[f"{r:.6f} +- {e:.6f}" if np.isfinite(e) else f"{r:.6f}" for r, e in zip(cal.scale_ratio,
+                                                                                         cal.scale_ratio_std)])
+    t.add_row("roll, pitch, yaw (deg)", *[f"{v:.4f}" for v in deg(cal.rpy)])
+    if cal.deviation is not None:
+        d, C = cal.deviation
+        t.add_row("deviation from nominal (deg)", *[f"{v:.4f} +- {e:.4f}" for v, e in
+                                                    zip(deg(d), deg(np.sqrt(np.clip(np.diag(C), 0, None))))])
     t.add_row("per-axis SNR", *[f"{x:.0f}" for x in cal.snr])
     t.caption = (f"time offset {cal.time_offset_s * 1e3:+.4f} +- {cal.time_offset_std_s * 1e3:.4f} ms"
                  + (f" (truth {truth['time_offset_s'] * 1e3:+.4f} ms)" if truth is not None else "")
@@ -97,3 +107,52 @@ def array_table(cal):
     t.caption = (f"gauge: {cal.gauge}; scale factors in parentheses: only ratios within a group of linked axes are "
                  f"determined ({len(cal.scale_groups)} group(s)); noise: {cal.noise_source}")
     return t
+
+
+def rotation_lines(cal) -> list[str]:
+    """Every gyro's rotation into gyro 1's frame as ROS and VIO consumers read it: the unit quaternion (x, y, z, w
+    and w-first), roll-pitch-yaw and the matrix rows; the relative scale factors with their 1-sigma; the deviation
+    from the nominal mounting (``--nominal``) with its 1-sigma."""
+    import numpy as np
+
+    from ..core.array_result import ArrayCalibration
+    from ..core.model import parallel_axes, rotation_forms
+
+    def fmt(v, p=6):
+        return ", ".join(f"{x:.{p}f}" for x in v)
+
+    if isinstance(cal, ArrayCalibration):
+        items = [k for k in range(cal.n_gyros) if k != cal.reference]
+        Rs = {k: cal.R_ref_k[k] for k in items}
+        rel, sd = cal.relative_scales()
+        scales = {k: (rel[k], sd[k]) for k in items}
+        devs = {k: cal.deviation(k) for k in items}
+        ref = cal.reference
+    else:
+        items, ref = [1], 0
+        Rs = {1: cal.R_1_2}
+        scales = {1: (cal.scale_ratio, cal.scale_ratio_std)}
+        devs = {1: cal.deviation}
+    lines = [f"rotations R_1_k (gyro k's frame into gyro {ref + 1}'s, v_{ref + 1} = R v_k; the tf transform with "
+             f"parent gyro {ref + 1}, child gyro k):"]
+    for k in items:
+        f = rotation_forms(Rs[k])
+        r, e = scales[k]
+        p = parallel_axes(Rs[k])
+        lines.append(f"  gyro {k + 1}: quaternion xyzw [{fmt(f['quaternion_xyzw'], 9)}] (wxyz "
+                     f"[{fmt(f['quaternion_wxyz'], 9)}]); roll pitch yaw [{fmt(np.degrees(f['rpy']), 4)}] deg; "
+                     "matrix [" + "; ".join(fmt(row) for row in f["matrix"]) + "]")
+        lines.append(f"    scale / gyro {ref + 1}'s on axes " + ",".join("xyz"[b] for b in p) + ": "
+                     + ", ".join(f"{a:.6f} +- {b:.2g}" if np.isfinite(b) else f"{a:.6f}" for a, b in zip(r, e)))
+        if devs[k] is not None:
+            d, C = devs[k]
+            sd_d = np.degrees(np.sqrt(np.clip(np.diag(C), 0.0, None)))
+            lines.append(f"    deviation from nominal: {np.degrees(np.linalg.norm(d)):.4f} deg, rotation vector "
+                         f"[{fmt(np.degrees(d), 4)}] +- [{fmt(sd_d, 4)}] deg (gyro {ref + 1}'s axes)")
+    return lines
+
+
+def provenance_lines(prov) -> list[str]:
+    """What the result was computed from (:meth:`~fusion_gyrocal.provenance.Provenance.lines`), prefixed
+    ``input:``; nothing without a provenance."""
+    return [] if prov is None else [f"input: {line}" for line in prov.lines()]

@@ -14,7 +14,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..errors import ConfigurationError, FormatError, InputError
-from .model import PairCalibration, from_json_list, mark_undetermined, to_json_list, to_json_number
+from .model import (PairCalibration, from_json_list, mark_undetermined, parallel_axes, ratio_std, rotation_forms,
+                    rotation_text, scale_ratios, to_json_list, to_json_number)
 from .moments import Moments
 from .observability import A_of, per_axis_snr, residual_weight
 from .refine import residual_scatter
@@ -26,7 +27,10 @@ if TYPE_CHECKING:
 
 ARRAY_KIND = "array_calibration"
 #: Format of :meth:`ArrayCalibration.to_dict` (``kind`` tells it from a pair's JSON).
-ARRAY_FORMAT_VERSION = "1.0"
+ARRAY_FORMAT_VERSION = "1.1"
+#: Versions :meth:`ArrayCalibration.from_dict` reads (1.1 adds ``nominal_R_ref_k``, ``provenance`` and the derived
+#: ``rotations``, ``relative_scale``, ``deviation`` entries, which are recomputed on reading).
+ARRAY_READABLE_VERSIONS = ("1.0", ARRAY_FORMAT_VERSION)
 _ARRAY_FIELDS = ("R_ref_k", "scale", "bias", "scale_observable", "covariance", "snr", "noise_std", "residual_rms",
                  "time_offset_s", "time_offset_std_s")
 
@@ -92,6 +96,11 @@ class ArrayCalibration:
         Which of those it is (:class:`~fusion_gyrocal.core.robust.CovarianceBasis`).
     robust_inflation : float
         Largest ratio of the block-robust variance to the noise model's (NaN when not computed).
+    nominal_R_ref_k : ndarray (N, 3, 3) or None
+        The nominal mounting of every gyro the user gave (``--nominal``); :meth:`deviation` is the estimate
+        against it.
+    provenance : Provenance or None
+        What the result was computed from (:class:`~fusion_gyrocal.provenance.Provenance`).
     time_offset_source : tuple of str (N,)
         Where each offset came from: ``"reference"``, ``"estimated"`` (rate-norm correlation refined by
         the rigid-model misfit, :func:`~fusion_gyrocal.pipeline.alignment.align_streams`), ``"given"``,
@@ -123,6 +132,8 @@ class ArrayCalibration:
     covariance_basis: str = "noise model"
     covariance_kind: CovarianceBasis = CovarianceBasis.MODEL
     robust_inflation: float = float("nan")
+    nominal_R_ref_k: np.ndarray | None = None
+    provenance: object = None
 
     def __post_init__(self):
         n = np.asarray(self.scale).shape[0]
@@ -147,10 +158,72 @@ class ArrayCalibration:
         object.__setattr__(self, "notes", tuple(self.notes))
         object.__setattr__(self, "time_offset_source", tuple(str(x) for x in self.time_offset_source))
         object.__setattr__(self, "covariance_kind", CovarianceBasis(self.covariance_kind))
+        if self.nominal_R_ref_k is not None:
+            nom = np.array(self.nominal_R_ref_k, dtype=np.float64)
+            if nom.shape != (n, 3, 3):
+                raise InputError(f"nominal_R_ref_k: expected shape {(n, 3, 3)}, got {nom.shape}")
+            bad = [k + 1 for k in range(n) if not np.allclose(nom[k] @ nom[k].T, np.eye(3), atol=1e-6)
+                   or np.linalg.det(nom[k]) < 0]
+            if bad:
+                raise InputError(f"nominal_R_ref_k: expected rotation matrices, got others for gyro(s) {bad}")
+            nom.flags.writeable = False
+            object.__setattr__(self, "nominal_R_ref_k", nom)
+
+    def __repr__(self) -> str:
+        """One short line per gyro: rotation into the reference frame and relative scale factors."""
+        rel, _ = self.relative_scales()
+        rot = self.rotation_std_rad
+        rows = "; ".join(f"gyro {k + 1}: {rotation_text(self.R_ref_k[k], rot[k])}, scale/ref "
+                         f"[{', '.join(f'{r:.5f}' for r in rel[k])}]" for k in range(self.n_gyros)
+                         if k != self.reference)
+        return (f"ArrayCalibration({self.n_gyros} gyros, reference gyro {self.reference + 1}, {self.n_samples} "
+                f"samples; {rows})")
 
     @property
     def n_gyros(self) -> int:
         return self.scale.shape[0]
+
+    def rotation(self, k: int):
+        """``R_ref_k[k]`` (gyro k's frame into the reference's, k from 0) as a
+        :class:`scipy.spatial.transform.Rotation`."""
+        from scipy.spatial.transform import Rotation
+
+        return Rotation.from_matrix(self.R_ref_k[self._index(k)])
+
+    def _index(self, k: int) -> int:
+        if not (isinstance(k, (int, np.integer)) and 0 <= k < self.n_gyros):
+            raise InputError(f"gyro index: expected 0..{self.n_gyros - 1} (gyro 1..{self.n_gyros}), got {k!r}")
+        return int(k)
+
+    def relative_scales(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(N, 3)`` scale factors of every gyro over the reference's on the parallel axis
+        (``scale[k, a] / scale[ref, p_k(a)]``, :func:`~fusion_gyrocal.core.model.parallel_axes`), and their 1-sigma
+        (:meth:`scale_ratio`; NaN where the two are in different groups of linked axes). The reference's are
+        exactly 1 with zero uncertainty."""
+        n, ref = self.n_gyros, self.reference
+        val, sd = np.ones((n, 3)), np.zeros((n, 3))
+        for k in range(n):
+            if k == ref:
+                continue
+            p = parallel_axes(self.R_ref_k[k])
+            for a in range(3):
+                val[k, a] = self.scale[k, a] / self.scale[ref, p[a]]
+                try:
+                    sd[k, a] = self.scale_ratio(k, a, ref, int(p[a]))[1]
+                except ConfigurationError:
+                    sd[k, a] = np.nan
+        return val, sd
+
+    def deviation(self, k: int):
+        """``(d, covariance)`` of gyro k (from 0) against its nominal mounting: ``R_ref_k[k] = Exp(d) nominal``
+        (rad, reference frame) and its (3, 3) covariance; None without :attr:`nominal_R_ref_k`."""
+        from .model import rotation_deviation
+
+        k = self._index(k)
+        if self.nominal_R_ref_k is None:
+            return None
+        C = self.covariance[3 * k:3 * k + 3, 3 * k:3 * k + 3]
+        return rotation_deviation(self.R_ref_k[k], self.nominal_R_ref_k[k], C)
 
     @property
     def rotation_std_rad(self) -> np.ndarray:
@@ -175,9 +248,7 @@ class ArrayCalibration:
         r = self.scale[i, axis_i] / self.scale[j, axis_j]
         ka, kb = 3 * self.n_gyros + 3 * i + axis_i, 3 * self.n_gyros + 3 * j + axis_j
         C = self.covariance
-        var_log = (C[ka, ka] / self.scale[i, axis_i] ** 2 + C[kb, kb] / self.scale[j, axis_j] ** 2
-                   - 2 * C[ka, kb] / (self.scale[i, axis_i] * self.scale[j, axis_j]))
-        return float(r), float(r * np.sqrt(max(var_log, 0.0)))
+        return float(r), ratio_std(r, C[ka, ka], C[kb, kb], C[ka, kb], self.scale[i, axis_i], self.scale[j, axis_j])
 
     def pair(self, i: int, j: int) -> PairCalibration:
         """The joint estimate seen as the calibration of the pair (gyro i as "gyro 1", gyro j as "gyro 2").
@@ -203,6 +274,7 @@ class ArrayCalibration:
         P9 = J @ _log_parameter_covariance(self) @ J.T
         cov = pair_covariance(P9, R, s1, s2, A, m, np.linalg.inv(residual_weight(A, noise)) / m.count)
         obs = np.stack([self.scale_observable[i], self.scale_observable[j]])
+        ratio_sd = scale_ratios(R, s1, s2, cov)[1]   # gauge-invariant: kept before the marking hides it
         mark_undetermined(cov, obs)
         M = residual_scatter(A, m.scatter)
         return PairCalibration(
@@ -215,7 +287,8 @@ class ArrayCalibration:
             method="ml_array", iterations=self.iterations, bias_segments=m.segments,
             time_offset_s=float(self.time_offset_s[j] - self.time_offset_s[i]),
             time_offset_std_s=float(np.hypot(self.time_offset_std_s[i], self.time_offset_std_s[j])),
-            notes=(f"view of the joint calibration of {n} gyros (gyro {i} as gyro 1, gyro {j} as gyro 2)",)
+            scale_ratio_std=ratio_sd,
+            notes=(f"view of the joint calibration of {n} gyros (gyro {i + 1} as gyro 1, gyro {j + 1} as gyro 2)",)
             + self.notes)
 
     # ------------------------------------------------------------------ serialisation
@@ -233,6 +306,10 @@ class ArrayCalibration:
             v = getattr(self, f.name)
             if f.name == "moments":
                 v = {"n_gyros": v.n_gyros, "pairs": [m.to_dict() for m in v.pairs]}
+            elif f.name == "provenance" and v is not None:
+                v = v.to_dict()
+            elif v is None:
+                pass
             elif isinstance(v, np.ndarray):
                 v = to_json_list(v)
             elif isinstance(v, (float, np.floating)):
@@ -244,6 +321,32 @@ class ArrayCalibration:
             elif isinstance(v, CovarianceBasis):
                 v = v.value
             out[f.name] = v
+        out.update(self._derived())
+        return out
+
+    def _derived(self) -> dict:
+        """For readers (not read back): every gyro's rotation in every form, the relative scale factors with their
+        1-sigma (finite numbers; null where not determined) and the deviations from the nominal mounting."""
+        def num(x):
+            return float(x) if np.isfinite(x) else None
+
+        rel, sd = self.relative_scales()
+        rot_sd = self.rotation_std_rad
+        out = {"rotations": [{"gyro": k + 1, "of": f"R_ref_k[{k}]: gyro {k + 1}'s frame into the reference's",
+                              **rotation_forms(self.R_ref_k[k]), "std_rad": [num(x) for x in rot_sd[k]]}
+                             for k in range(self.n_gyros)],
+               "relative_scale": {"of": "scale[k, a] / scale[reference, axis_of_reference[k][a]]",
+                                  "axis_of_reference": [parallel_axes(R).tolist() for R in self.R_ref_k],
+                                  "value": [[num(x) for x in row] for row in rel],
+                                  "std": [[num(x) for x in row] for row in sd]},
+               "deviation": None}
+        if self.nominal_R_ref_k is not None:
+            devs = []
+            for k in range(self.n_gyros):
+                dk, C = self.deviation(k)
+                devs.append({"gyro": k + 1, "rotvec_rad": dk.tolist(), "angle_deg": float(np.degrees(np.linalg.norm(dk))),
+                             "std_rad": [num(x) for x in np.sqrt(np.clip(np.diag(C), 0.0, None))]})
+            out["deviation"] = devs
         return out
 
     @classmethod
@@ -257,8 +360,9 @@ class ArrayCalibration:
         """
         if d.get("kind") != ARRAY_KIND:
             raise FormatError(f"array calibration: expected kind {ARRAY_KIND!r}, got {d.get('kind')!r}")
-        if d.get("format_version") != ARRAY_FORMAT_VERSION:
-            raise FormatError(f"array calibration: expected format_version {ARRAY_FORMAT_VERSION!r}, "
+        if d.get("format_version") not in ARRAY_READABLE_VERSIONS:
+            raise FormatError(f"array calibration: expected format_version {ARRAY_FORMAT_VERSION!r} (or an earlier "
+                              f"{', '.join(repr(v) for v in ARRAY_READABLE_VERSIONS[:-1])}), "
                               f"got {d.get('format_version')!r}")
         missing = [f.name for f in fields(cls) if f.default is MISSING and f.name not in d]
         if missing:
@@ -272,6 +376,12 @@ class ArrayCalibration:
                 from .array import ArrayMoments
 
                 v = ArrayMoments(int(v["n_gyros"]), tuple(Moments.from_dict(m) for m in v["pairs"]))
+            elif f.name == "provenance":
+                if v is not None:
+                    from ..provenance import Provenance
+                    v = Provenance.from_dict(v)
+            elif f.name == "nominal_R_ref_k":
+                v = None if v is None else from_json_list(v, np.float64)
             elif f.name in _ARRAY_FIELDS:
                 v = from_json_list(v, bool if f.name == "scale_observable" else np.float64)
             elif f.name == "scale_groups":

@@ -33,10 +33,12 @@ from ..errors import FormatError, InputError
 from ..lie import canonical_rotvec, log
 from .robust import CovarianceBasis
 
-FORMAT_VERSION = "1.3"
+FORMAT_VERSION = "1.4"
 #: Versions :meth:`PairCalibration.from_dict` reads: 1.0 wrote every non-finite number as ``null``
-#: (read back as inf in arrays, NaN in scalars); 1.1 writes them as the strings of :data:`NON_FINITE`.
-READABLE_VERSIONS = ("1.0", "1.1", "1.2", FORMAT_VERSION)
+#: (read back as inf in arrays, NaN in scalars); 1.1 writes them as the strings of :data:`NON_FINITE`;
+#: 1.4 adds ``scale_ratio_std``, ``nominal_R_1_2``, ``provenance`` and the derived ``rotation``, ``scale_ratio``,
+#: ``deviation`` entries (written for readers, recomputed on reading).
+READABLE_VERSIONS = ("1.0", "1.1", "1.2", "1.3", FORMAT_VERSION)
 #: Non-finite numbers in JSON: strings any standard JSON parser reads, distinct for NaN and +-inf.
 NON_FINITE = {"NaN": float("nan"), "Infinity": float("inf"), "-Infinity": float("-inf")}
 CONFIGURATIONS = ("general", "one_axis_pair_parallel", "all_axes_parallel")
@@ -52,8 +54,10 @@ _ARRAY_SHAPES = {
     "R_1_2": (3, 3), "scale_1": (3,), "scale_2": (3,), "bias": (3,), "scale_observable": (2, 3),
     "covariance": (12, 12), "snr": (3,), "noise_std": (2,), "skew_rotation_covariance": (3, 3),
     "cross_axis": (3, 3), "cross_axis_terms": (3,), "cross_axis_covariance": (3, 3), "intrinsics_2": (3, 3),
-    "intrinsics_2_covariance": (6, 6),
+    "intrinsics_2_covariance": (6, 6), "scale_ratio_std": (3,),
 }
+#: Entries :meth:`PairCalibration.to_dict` derives from the fields for readers (not read back).
+DERIVED_KEYS = ("rotation", "scale_ratio", "deviation")
 
 
 def mark_undetermined(cov: np.ndarray, scale_observable) -> np.ndarray:
@@ -67,6 +71,83 @@ def mark_undetermined(cov: np.ndarray, scale_observable) -> np.ndarray:
         cov[k, :], cov[:, k] = 0.0, 0.0
         cov[k, k] = np.inf
     return cov
+
+
+def rotation_forms(R) -> dict[str, list]:
+    """A rotation matrix in the forms its consumers read, as plain lists (JSON-ready).
+
+    ``quaternion_xyzw`` (ROS, tf2, scipy: scalar last) and ``quaternion_wxyz`` (Eigen's constructor, Kalibr's
+    ``q``: scalar first) are the same unit quaternion with ``w >= 0``; ``rpy`` is ``[roll, pitch, yaw]`` in rad
+    with ``R = Rz(yaw) Ry(pitch) Rx(roll)`` (fixed axes x, then y, then z: URDF's ``<origin rpy>``, tf's
+    ``setRPY`` and ``static_transform_publisher``'s yaw-pitch-roll); ``rotvec`` the rotation vector (rad,
+    :func:`~fusion_gyrocal.lie.canonical_rotvec`); ``matrix`` the 3x3 rows. Near pitch = +-90 deg (gimbal lock)
+    the roll and yaw are one of the equivalent pairs; the quaternion and the matrix are always unique.
+    """
+    import warnings
+
+    from scipy.spatial.transform import Rotation
+
+    r = Rotation.from_matrix(np.asarray(R, dtype=float))
+    q = r.as_quat()
+    if q[3] < 0:
+        q = -q
+    with warnings.catch_warnings():   # gimbal lock: scipy warns and still returns a valid triple
+        warnings.simplefilter("ignore", UserWarning)
+        rpy = r.as_euler("xyz")
+    return {"quaternion_xyzw": q.tolist(), "quaternion_wxyz": [q[3], q[0], q[1], q[2]], "rpy": rpy.tolist(),
+            "rotvec": canonical_rotvec(log(r.as_matrix())).tolist(), "matrix": r.as_matrix().tolist()}
+
+
+def parallel_axes(R) -> np.ndarray:
+    """For each axis ``a`` of the rotated gyro, the axis of the reference gyro nearest to (anti)parallel to it:
+    ``argmax_b |R[b, a]|`` for ``R`` mapping the rotated gyro's frame into the reference's."""
+    return np.argmax(np.abs(np.asarray(R)), axis=0)
+
+
+def ratio_std(ratio: float, var_num: float, var_den: float, cov: float, num: float, den: float) -> float:
+    """1-sigma of ``num / den`` from the (co)variances of ``num`` and ``den`` (first order, on the log):
+    NaN where one of them is not finite (an undetermined scale factor, :func:`mark_undetermined`)."""
+    v = var_num / num ** 2 + var_den / den ** 2 - 2.0 * cov / (num * den)
+    return float(ratio * np.sqrt(max(v, 0.0))) if np.isfinite(v) else float("nan")
+
+
+def scale_ratios(R_1_2, scale_1, scale_2, covariance) -> tuple[np.ndarray, np.ndarray]:
+    """``scale_2[a] / scale_1[p(a)]`` for every axis ``a`` of gyro 2, ``p`` its parallel axis of gyro 1
+    (:func:`parallel_axes`), and the 1-sigma of each from a (12, 12) covariance in the order of
+    :data:`PARAMETER_NAMES`.
+
+    Gauge-invariant (Theorem 2) for axis-parallel gyros (Lemmas 2-3: each pair of parallel axes is a group of
+    linked axes whose ratio the data determine although neither scale factor is), and for every pair whose scale
+    factors are all determined. The covariance must be the one in the gauge, before
+    :func:`mark_undetermined` hides the ratios' information (else NaN where it did).
+    """
+    p = parallel_axes(R_1_2)
+    s1, s2, C = np.asarray(scale_1, float), np.asarray(scale_2, float), np.asarray(covariance, float)
+    r = np.array([s2[a] / s1[p[a]] for a in range(3)])
+    sd = np.array([ratio_std(r[a], C[6 + a, 6 + a], C[3 + p[a], 3 + p[a]], C[6 + a, 3 + p[a]], s2[a], s1[p[a]])
+                   for a in range(3)])
+    return r, sd
+
+
+def rotation_deviation(R, R_nominal, covariance) -> tuple[np.ndarray, np.ndarray]:
+    """``d = Log(R R_nominal^T)``, the rotation taking the nominal mounting to the estimate in the reference
+    frame (``R = Exp(d) R_nominal``), and its (3, 3) covariance from the estimate's rotation covariance
+    ``covariance`` (``R_true = Exp(dtheta) R``): ``d_true ~ d + J_l(d)^-1 dtheta``."""
+    from ..lie import exp_and_right_jacobian
+
+    d = log(np.asarray(R, float) @ np.asarray(R_nominal, float).T)
+    _, Jl = exp_and_right_jacobian(-d)   # J_l(d) = J_r(-d)
+    Ji = np.linalg.inv(Jl)
+    return d, Ji @ np.asarray(covariance, float) @ Ji.T
+
+
+def rotation_text(R, std_rad=None) -> str:
+    """One line for a person: angle (deg) about a unit axis, with the 1-sigma norm when given."""
+    v = canonical_rotvec(log(np.asarray(R, float)))
+    ang = float(np.linalg.norm(v))
+    axis = v / ang if ang > 0 else np.array([0.0, 0.0, 1.0])
+    sd = "" if std_rad is None else f" +- {np.degrees(float(np.linalg.norm(std_rad))):.3g}"
+    return f"{np.degrees(ang):.4f}{sd} deg about ({axis[0]:.4f}, {axis[1]:.4f}, {axis[2]:.4f})"
 
 
 def _frozen(name, a, shape, dtype=np.float64):
@@ -176,6 +257,14 @@ class PairCalibration:
         Standard deviation of that delay (s; samples without timestamps).
     timing_explained : float
         Fraction of the residual's energy it explained.
+    scale_ratio_std : ndarray (3,)
+        1-sigma of :attr:`scale_ratio` (gauge-invariant, finite also where the scale factors themselves are
+        undetermined: computed from the covariance before :func:`mark_undetermined`); NaN when not known.
+    nominal_R_1_2 : ndarray (3, 3) or None
+        The nominal mounting the user gave (``--nominal``); :attr:`deviation` is the estimate against it.
+    provenance : Provenance or None
+        What the result was computed from (:class:`~fusion_gyrocal.provenance.Provenance`: inputs, options,
+        version, masked and rejected samples).
     noise_model : NoiseModel or None
         The noise model identified from the pair's residual (:func:`~fusion_gyrocal.core.noise.identify_noise`)
         when ``noise_std`` came from it.
@@ -222,6 +311,9 @@ class PairCalibration:
     timing_delay_s: float = 0.0
     timing_delay_std_s: float = 0.0
     timing_explained: float = 0.0
+    scale_ratio_std: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    nominal_R_1_2: np.ndarray | None = None
+    provenance: Any = None
     noise_model: Any = None
     notes: tuple = ()
 
@@ -234,6 +326,26 @@ class PairCalibration:
         object.__setattr__(self, "notes", tuple(self.notes))
         object.__setattr__(self, "timing_tones_hz", tuple(float(f) for f in self.timing_tones_hz))
         object.__setattr__(self, "covariance_kind", CovarianceBasis(self.covariance_kind))
+        if np.isnan(self.scale_ratio_std).all():   # not given: from the covariance where it keeps the ratios
+            object.__setattr__(self, "scale_ratio_std", _frozen("scale_ratio_std", scale_ratios(
+                self.R_1_2, self.scale_1, self.scale_2, self.covariance)[1], (3,)))
+        if self.nominal_R_1_2 is not None:
+            from ..lie import nearest_rotation
+
+            nom = _frozen("nominal_R_1_2", self.nominal_R_1_2, (3, 3))
+            if not np.allclose(nom, nearest_rotation(nom), atol=1e-6):
+                raise InputError(f"nominal_R_1_2: expected a rotation matrix, got {nom.tolist()}")
+            object.__setattr__(self, "nominal_R_1_2", nom)
+
+    def __repr__(self) -> str:
+        """One short line: configuration, rotation, relative scales, bias, time offset, samples (not the arrays)."""
+        deg = np.degrees
+        ratios = ", ".join(f"{r:.5f}" + (f"+-{e:.1g}" if np.isfinite(e) else "") for r, e in
+                           zip(self.scale_ratio, self.scale_ratio_std))
+        return (f"PairCalibration({self.configuration}, R_1_2 {rotation_text(self.R_1_2, self.rotation_std_rad)}, "
+                f"scale_2/scale_1 [{ratios}], bias [{', '.join(f'{b:.4g}' for b in deg(self.bias))}] deg/s, "
+                f"time offset {self.time_offset_s * 1e3:+.4g} ms, {self.n_samples} samples, rigid {self.rigid}, "
+                f"{self.linear_map}/{self.method})")
 
     # ------------------------------------------------------------------ derived
     @property
@@ -266,6 +378,44 @@ class PairCalibration:
         """Rotation vector (axis * angle, rad) of ``R_1_2``, canonical at 180 deg (:func:`fusion_gyrocal.lie.canonical_rotvec`)."""
         return canonical_rotvec(log(self.R_1_2))
 
+    @property
+    def rotation(self):
+        """``R_1_2`` as a :class:`scipy.spatial.transform.Rotation` (``rotation.apply(omega_2)`` is in gyro 1's
+        frame)."""
+        from scipy.spatial.transform import Rotation
+
+        return Rotation.from_matrix(self.R_1_2)
+
+    @property
+    def quaternion_xyzw(self) -> np.ndarray:
+        """Unit quaternion of ``R_1_2``, scalar last, ``w >= 0`` (ROS / tf2 / scipy order)."""
+        return np.array(rotation_forms(self.R_1_2)["quaternion_xyzw"])
+
+    @property
+    def quaternion_wxyz(self) -> np.ndarray:
+        """Unit quaternion of ``R_1_2``, scalar first, ``w >= 0`` (Eigen's constructor order)."""
+        return np.array(rotation_forms(self.R_1_2)["quaternion_wxyz"])
+
+    @property
+    def rpy(self) -> np.ndarray:
+        """``[roll, pitch, yaw]`` (rad) of ``R_1_2 = Rz(yaw) Ry(pitch) Rx(roll)`` (URDF / tf convention)."""
+        return np.array(rotation_forms(self.R_1_2)["rpy"])
+
+    @property
+    def scale_ratio(self) -> np.ndarray:
+        """``scale_2[a] / scale_1[p(a)]`` per axis of gyro 2, ``p(a)`` the parallel axis of gyro 1
+        (:func:`scale_ratios`): the relative scale factors, gauge-invariant; 1-sigma in :attr:`scale_ratio_std`."""
+        p = parallel_axes(self.R_1_2)
+        return self.scale_2 / self.scale_1[p]
+
+    @property
+    def deviation(self):
+        """``(d, covariance)``: the rotation vector (rad, gyro 1's frame) from :attr:`nominal_R_1_2` to the
+        estimate, ``R_1_2 = Exp(d) nominal_R_1_2``, and its (3, 3) covariance; None without a nominal."""
+        if self.nominal_R_1_2 is None:
+            return None
+        return rotation_deviation(self.R_1_2, self.nominal_R_1_2, self.covariance[ROT, ROT])
+
     def compensate(self, omega_2) -> np.ndarray:
         """Predict gyro 1's measurement from gyro 2's: ``A @ omega_2 + bias`` for (N, 3) input."""
         return np.asarray(omega_2) @ self.A.T + self.bias
@@ -285,11 +435,38 @@ class PairCalibration:
                 v = to_json_number(v)
             elif isinstance(v, tuple):
                 v = list(v)
-            elif f.name == "noise_model" and v is not None:
+            elif f.name in ("noise_model", "provenance") and v is not None:
                 v = v.to_dict()
             elif isinstance(v, Enum):
                 v = v.value
             out[f.name] = v
+        out.update(self._derived())
+        return out
+
+    def _derived(self) -> dict[str, Any]:
+        """The :data:`DERIVED_KEYS` entries: the rotation in every form, the relative scale factors with their
+        1-sigma (finite numbers, null where not known) and the deviation from the nominal mounting."""
+        def num(x):
+            return float(x) if np.isfinite(x) else None
+
+        with np.errstate(invalid="ignore"):   # a negative variance (a hand-made covariance) is no number
+            rot_sd = self.rotation_std_rad
+        out: dict[str, Any] = {
+            "rotation": {"of": "R_1_2: gyro 2's frame into gyro 1's (omega_1 = R_1_2 @ omega_2)",
+                         **rotation_forms(self.R_1_2),
+                         "std_rad": [num(x) for x in rot_sd]},
+            "scale_ratio": {"of": "scale_2[a] / scale_1[axis_of_gyro_1[a]] per axis a of gyro 2",
+                            "axis_of_gyro_1": parallel_axes(self.R_1_2).tolist(),
+                            "value": [num(x) for x in self.scale_ratio],
+                            "std": [num(x) for x in self.scale_ratio_std]},
+            "deviation": None}
+        dev = self.deviation
+        if dev is not None:
+            d, C = dev
+            out["deviation"] = {"of": "R_1_2 = Exp(rotvec) @ nominal_R_1_2 (rotvec in gyro 1's frame)",
+                                "rotvec_rad": d.tolist(), "angle_deg": float(np.degrees(np.linalg.norm(d))),
+                                "std_rad": [num(x) for x in np.sqrt(np.clip(np.diag(C), 0.0, None))],
+                                "covariance": [[num(x) for x in row] for row in C]}
         return out
 
     def to_json(self, **kwargs) -> str:
@@ -314,6 +491,12 @@ class PairCalibration:
                 if v is not None:
                     from .noise import NoiseModel
                     v = NoiseModel.from_dict(v)
+            elif f.name == "provenance":
+                if v is not None:
+                    from ..provenance import Provenance
+                    v = Provenance.from_dict(v)
+            elif f.name == "nominal_R_1_2":
+                v = None if v is None else from_json_list(v, np.float64)
             elif f.name in _ARRAY_SHAPES:
                 v = from_json_list(v, bool if f.name == "scale_observable" else np.float64, legacy)
             elif f.name == "covariance_kind":

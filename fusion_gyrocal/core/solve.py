@@ -20,7 +20,7 @@ from .direct import decompose, solve_A
 from .gauge import Gauge, constrained_inverse
 from .linear_map import (UPPER, choose_full_map, cross_axis_budget, decompose_reference, prior_information,
                          reference_derivatives, reference_map, refine_full, refine_reference)
-from .model import BIAS, ROT, PairCalibration, mark_undetermined
+from .model import BIAS, ROT, PairCalibration, mark_undetermined, scale_ratios
 from .moments import Moments, WindowStats, noise_pair
 from .observability import (PRIOR_GAUGE, A_of, check_excitation, check_samples, classify, dA_dp, information_of_A,
                             per_axis_snr, prior_held_covariance, residual_weight, signal_scatter)
@@ -172,6 +172,7 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
     notes = fit.notes + ([] if rigid else [f"NOT RIGID: {100 * unexplained:.1f}% of the motion is unexplained; do "
                                            "not use this estimate"]) + more
     cov = parameter_covariance(P, fit.jacobian(len(P)), D, moments, Sigma_r)
+    ratio_sd = scale_ratios(fit.R, fit.s1, fit.s2, cov)[1]   # gauge-invariant: kept before the marking hides it
     if o.scale_prior_std is None:
         mark_undetermined(cov, fit.observable)
     budget = (cross_axis_budget(fit.k, P[9:, 9:], o.cross_axis_std if fit.shown else None)
@@ -193,6 +194,7 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
         cross_axis_covariance=P[9:, 9:] if fit.model == "full" else np.zeros((3, 3)),
         intrinsics_2=np.zeros((3, 3)) if fit.S2 is None else fit.S2,
         intrinsics_2_covariance=P[3:, 3:] if fit.model == "reference" else np.zeros((6, 6)), noise_model=noise_model,
+        scale_ratio_std=ratio_sd,
         notes=tuple(notes))
 
 

@@ -170,6 +170,27 @@ def allan_deviation(run: PipelineRun):
     return fig
 
 
+def static_allan_figure(noise, title: str = ""):
+    """The pooled Allan deviation of a gyro at rest per axis (:class:`~fusion_gyrocal.core.static_noise.StaticNoise`)
+    with each axis's fitted model and its white-noise line (slope -1/2)."""
+    deg = np.rad2deg(1.0)
+    fig, ax = _figure(figsize=(8, 5))
+    for a, (name, colour) in enumerate(zip("xyz", ("tab:blue", "tab:orange", "tab:green"))):
+        ax.loglog(noise.taus, noise.adev[:, a] * deg, "o", ms=4, color=colour, label=f"axis {name}")
+        ax.loglog(noise.taus, noise.adev_fit[:, a] * deg, "-", color=colour, lw=1.5,
+                  label=f"fit {name}: N {noise.white[a] * deg * 60:.3g} deg/sqrt(h), "
+                        f"B {noise.bias_instability[a] * deg * 3600:.3g} deg/h, "
+                        f"K {noise.random_walk[a] * deg * 3600 ** 1.5:.3g} deg/h/sqrt(h)")
+        ax.loglog(noise.taus, noise.white[a] / np.sqrt(noise.taus) * deg, ":", color=colour, lw=1)
+    ax.set_xlabel("averaging time tau (s)")
+    ax.set_ylabel("Allan deviation (deg/s)")
+    ax.set_title(title or f"Allan deviation at rest: {noise.n_samples} samples in {len(noise.stretches)} stretch(es)",
+                 fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7, loc="best")
+    return fig
+
+
 def uncertainty_basis(cal) -> str:
     """One line saying what the reported uncertainty rests on: the noise (where it came from) and the
     covariance (noise model, block-robust, inflated), with the residual's chi-square per degree of freedom.
@@ -249,7 +270,19 @@ def summary_markdown(cal: PairCalibration) -> str:
         f"- {uncertainty_basis(cal)}; covariance basis: {cal.covariance_basis}",
     ]
     lines += ["", "## Sensor model", ""] + [f"- {line}" for line in sensor_model_lines(cal)]
+    if cal.deviation is not None:
+        d, C = cal.deviation
+        lines.append(f"- deviation from the nominal mounting: {np.degrees(np.linalg.norm(d)):.4f} deg, rotation vector "
+                     f"{np.array2string(np.degrees(d), precision=4)} +- "
+                     f"{np.array2string(np.degrees(np.sqrt(np.clip(np.diag(C), 0, None))), precision=4)} deg")
+    lines.append("- scale_2 / scale_1 on the parallel axes: " + ", ".join(
+        f"{r:.6f} +- {e:.2g}" if np.isfinite(e) else f"{r:.6f}" for r, e in zip(cal.scale_ratio, cal.scale_ratio_std)))
+    q = cal.quaternion_xyzw
+    lines.append(f"- R_1_2 quaternion x, y, z, w: {', '.join(f'{v:.9f}' for v in q)}; roll, pitch, yaw "
+                 f"{np.array2string(np.degrees(cal.rpy), precision=4)} deg")
     lines += [""] + [f"- note: {n}" for n in cal.notes]
+    if cal.provenance is not None:
+        lines += ["", "## Inputs", ""] + [f"- {line}" for line in cal.provenance.lines()]
     if cal.noise_model is not None:
         lines += ["", "## Noise model (identified from the residual)", ""]
         lines += [f"- {line}" for line in cal.noise_model.describe().splitlines()]
@@ -314,4 +347,46 @@ def write_report(run: PipelineRun, out_dir, *, extra_figures=None) -> list[Path]
         cause = exc if isinstance(exc, OSError) else exc.__cause__
         why = os_reason(cause) if isinstance(cause, OSError) else str(exc)
         raise FormatError(f"cannot write the report to {out}: {why}") from exc
+    return paths
+
+
+def write_array_report(runs, out_dir, *, provenance=None) -> list[Path]:
+    """The report of N gyros: one page per gyro against the reference, and an index.
+
+    ``runs`` maps each gyro's number (from 2; gyro 1 is the reference) to the :class:`PipelineRun` of its pair with
+    gyro 1. Every page is :func:`write_report` in ``out_dir/gyro<k>/``; ``out_dir/report.md`` lists each gyro's
+    rotation, relative scale factors, time offset, rigidity and noise with a link to its page, and the inputs
+    (``provenance``: :class:`~fusion_gyrocal.provenance.Provenance`). Every file is written atomically.
+
+    Raises
+    ------
+    FormatError
+        ``out_dir`` cannot be created or written.
+    """
+    from ..core.model import rotation_text
+    from ..errors import FormatError
+    from .writers import atomic_write
+
+    out = Path(out_dir).expanduser()
+    if out.exists() and not out.is_dir():
+        raise FormatError(f"cannot write the report to {out}: it is a file, expected a folder (--out)")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise FormatError(f"cannot write the report to {out}: {exc.strerror or exc}") from exc
+    paths = []
+    lines = [f"# Calibration of {len(runs) + 1} gyros, each against gyro 1 (the reference)", "",
+             "| gyro | R_1_k | scale_k / scale_1 (parallel axes) | time offset (ms) | rigid | rejected | page |",
+             "|---|---|---|---|---|---|---|"]
+    for k, run in sorted(runs.items()):
+        paths += write_report(run, out / f"gyro{k}")
+        cal = run.calibration
+        ratios = ", ".join(f"{r:.5f} +- {e:.2g}" if np.isfinite(e) else f"{r:.5f}"
+                           for r, e in zip(cal.scale_ratio, cal.scale_ratio_std))
+        lines.append(f"| {k} | {rotation_text(cal.R_1_2, cal.rotation_std_rad)} | {ratios} | "
+                     f"{cal.time_offset_s * 1e3:+.4f} +- {cal.time_offset_std_s * 1e3:.4f} | {cal.rigid} | "
+                     f"{100 * cal.rejected_fraction:.2f}% | [gyro {k}](gyro{k}/report.md) |")
+    if provenance is not None:
+        lines += ["", "## Inputs", ""] + [f"- {line}" for line in provenance.lines()]
+    paths.append(atomic_write(out / "report.md", "\n".join(lines) + "\n"))
     return paths

@@ -27,10 +27,16 @@ Frame and time conventions of the YAML exports (``ARCHITECTURE.md``)
   (diagonal: no misalignment is estimated), ``C_gyro_i = I`` and ``A = 0`` (no g-sensitivity), and
   OpenVINS' ``omega_m = Tw R_IMUtoGYRO omega_I + Tg a + b`` with ``Tw = S_i``,
   ``R_IMUtoGYRO = I``, ``Tg = 0``;
-* scale factors are known only up to one global factor (Theorem 2): the files carry the values in
-  the calibration's gauge, named in a comment; scale factors the data do not determine at all
-  (axis-parallel gyros, Lemmas 2-3) are written as 1 and named in a comment;
-* noise figures: figures passed as :class:`ImuNoise` are written as given. Otherwise, when a pair's
+* scale factors are known only up to one common factor per group of linked axes (Theorem 2, Lemmas 2-3): the
+  files carry them RELATIVE TO THE REFERENCE IMU (imu0), every scale factor of a group divided by imu0's in
+  that group, so imu0's ``M`` / ``Tw`` is exactly the identity wherever a group holds one of its axes (every
+  axis-parallel board) and OpenVINS does not rescale the reference gyro; where a group holds several of imu0's
+  axes (a general mounting: the data fix their ratios) it is divided by their geometric mean. Each IMU's
+  relative scale factors and their 1-sigma are in a comment;
+* noise figures: figures passed as :class:`ImuNoise` are written as given (:func:`read_imu_noise` reads them
+  from a Kalibr ``imu.yaml``, an ``allan_variance_ros`` output or an IMU chain). Otherwise an array's
+  per-gyro white noise (:attr:`ArrayCalibration.noise_std`, identified by the joint solve) is each IMU's
+  ``gyroscope_noise_density``; and when a pair's
   calibration carries the noise model identified from its own residual
   (:attr:`PairCalibration.noise_model`, :func:`~fusion_gyrocal.core.noise.identify_noise`), each gyro's
   white noise density (``noise_density``, rad/s/sqrt(Hz)) is its ``gyroscope_noise_density`` and the bias
@@ -56,7 +62,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.array import ARRAY_KIND, ArrayCalibration
-from ..core.model import PairCalibration
+from ..core.model import PairCalibration, parallel_axes
 from ..errors import FormatError, InputError
 from ..lie import canonical_rotvec, log
 from .stream import ImuStream, input_path
@@ -308,6 +314,8 @@ class _ChainImu:
     time_offset: float
     time_offset_source: str
     rotation_std_deg: np.ndarray
+    rel_scale: np.ndarray = None       # scale factors relative to imu0's (see the module docstring)
+    rel_scale_std: np.ndarray = None   # their 1-sigma (NaN where the divisor is no single axis of imu0)
 
 
 @dataclass(frozen=True)
@@ -328,6 +336,25 @@ def _finite(name: str, v) -> None:
         raise FormatError(f"{name}: Kalibr/OpenVINS files need finite values, got {np.asarray(v).tolist()}")
 
 
+def _relative_scales(scale, groups, ref: int, ratio_sd) -> tuple[np.ndarray, np.ndarray]:
+    """Scale factors ``(N, 3)`` relative to the reference gyro's, per group of linked axes (``(gyro, axis)``
+    tuples): divided by the reference's scale factor in the group, or the geometric mean of its several. The
+    1-sigma is ``ratio_sd(gyro, axis, ref_axis)`` where one axis of the reference divides (0 for that axis itself),
+    NaN elsewhere."""
+    scale = np.asarray(scale, float)
+    rel, sd = scale.copy(), np.full(scale.shape, np.nan)
+    for group in groups:
+        refs = [a for g, a in group if g == ref]
+        if not refs:
+            continue
+        div = float(np.exp(np.mean(np.log(scale[ref, refs]))))
+        for g, a in group:
+            rel[g, a] = scale[g, a] / div
+            if len(refs) == 1:
+                sd[g, a] = 0.0 if (g, a) == (ref, refs[0]) else ratio_sd(g, a, refs[0])
+    return rel, sd
+
+
 def _chain_of(cal) -> _Chain:
     """The :class:`_Chain` of a :class:`PairCalibration` or an :class:`ArrayCalibration` (finite values checked)."""
     if isinstance(cal, PairCalibration):
@@ -335,10 +362,18 @@ def _chain_of(cal) -> _Chain:
             _finite(f"cal.{nm}", getattr(cal, nm))
         if not np.isfinite(cal.time_offset_s):
             raise FormatError(f"cal.time_offset_s: expected a finite time offset, got {cal.time_offset_s}")
+        from ..core.observability import seed_configuration
+
         rot_std = np.degrees(cal.rotation_std_rad)
         src = "estimated" if cal.time_offset_std_s > 0 else "given or sample-aligned"
-        imus = (_ChainImu(0, np.eye(3), cal.scale_1, cal.scale_observable[0], 0.0, "reference", np.zeros(3)),
-                _ChainImu(1, cal.R_1_2, cal.scale_2, cal.scale_observable[1], float(cal.time_offset_s), src, rot_std))
+        p = parallel_axes(cal.R_1_2)
+        rel, rel_sd = _relative_scales(
+            np.stack([cal.scale_1, cal.scale_2]), seed_configuration(cal.R_1_2, cal.configuration).groups, 0,
+            lambda g, a, b: float(cal.scale_ratio_std[a]) if g == 1 and p[a] == b else float("nan"))
+        imus = (_ChainImu(0, np.eye(3), cal.scale_1, cal.scale_observable[0], 0.0, "reference", np.zeros(3),
+                          rel[0], rel_sd[0]),
+                _ChainImu(1, cal.R_1_2, cal.scale_2, cal.scale_observable[1], float(cal.time_offset_s), src, rot_std,
+                          rel[1], rel_sd[1]))
         warning = ()
         if cal.rigid is False:
             warning = (f"WARNING: NOT RIGID. A single rotation and scale factors leave "
@@ -355,9 +390,11 @@ def _chain_of(cal) -> _Chain:
         ref = cal.reference
         order = [ref] + [k for k in range(cal.n_gyros) if k != ref]
         rot_std = np.degrees(cal.rotation_std_rad)
+        rel, rel_sd = _relative_scales(cal.scale, cal.scale_groups, ref,
+                                       lambda g, a, b: cal.scale_ratio(g, a, ref, b)[1])
         imus = tuple(_ChainImu(k, cal.R_ref_k[k], cal.scale[k], cal.scale_observable[k],
                                float(cal.time_offset_s[k] - cal.time_offset_s[ref]), cal.time_offset_source[k],
-                               rot_std[k]) for k in order)
+                               rot_std[k], rel[k], rel_sd[k]) for k in order)
         configs = sorted({c for row in cal.configurations for c in row if c})
         what = f"a joint calibration of {cal.n_gyros} gyros (ml_array, {cal.n_samples} samples)"
         return _Chain(imus, what, cal.gauge, "pairs: " + ", ".join(configs), ())
@@ -461,6 +498,122 @@ def _identified(cal: PairCalibration, rates) -> tuple[tuple, tuple]:
     return tuple(per_gyro), tuple(lines)
 
 
+def _identified_array(cal: ArrayCalibration, rates) -> tuple[tuple, tuple]:
+    """The gyro white-noise densities the joint solve identified (:attr:`ArrayCalibration.noise_std`, per sample
+    on the reference's grid): ``noise_std[k] / sqrt(rate of imu0)`` for every IMU in chain order (the reference
+    first); nothing when the noise was the user's. The random walk stays a placeholder (the joint solve does not
+    identify one)."""
+    if cal.noise_source == "user":
+        return (None,) * cal.n_gyros, ()
+    ref = cal.reference
+    order = [ref] + [k for k in range(cal.n_gyros) if k != ref]
+    fs = float(rates[0])
+    per = []
+    for k in order:
+        d = float(cal.noise_std[k]) / np.sqrt(fs)
+        if not (np.isfinite(d) and d > 0):
+            per.append(None)
+            continue
+        per.append({"gyroscope_noise_density": _Figure(
+            d, f"identified: gyro {k + 1}'s white noise in the joint solve, uncertainty not available", from_model=True),
+            "gyroscope_random_walk": _Figure(_PLACEHOLDER["gyroscope_random_walk"],
+                                             f"{_NOT_MEASURED} (the joint solve identifies white noise only)", True,
+                                             True)})
+    lines = _wrapped(f"Gyroscope white noise IDENTIFIED by fusion_gyrocal's joint solve of {cal.n_gyros} gyros "
+                     f"({cal.noise_source}), per sample on imu0's {fs:.6g} Hz grid: gyroscope_noise_density = "
+                     "noise_std / sqrt(rate); a static Allan analysis (gyrocal noise) measures it better.")
+    for i, k in enumerate(order):
+        lines.append(f"#   imu{i} = gyro {k + 1}: white {np.degrees(cal.noise_std[k]):.4g} deg/s per sample")
+    return tuple(per), tuple(lines)
+
+
+def read_imu_noise(path) -> tuple[ImuNoise, ...]:
+    """Measured noise figures from a YAML file: a Kalibr IMU configuration / ``allan_variance_ros`` output (the
+    four figures at the top level: one :class:`ImuNoise`), or an IMU chain (``imu0``, ``imu1``, ... each with
+    them: one per IMU; an OpenCV ``%YAML:1.0`` first line is skipped).
+
+    Keys, in Kalibr's units: ``gyroscope_noise_density`` (rad/s/sqrt(Hz)), ``gyroscope_random_walk``
+    (rad/s^2/sqrt(Hz)), ``accelerometer_noise_density`` (m/s^2/sqrt(Hz)), ``accelerometer_random_walk``
+    (m/s^3/sqrt(Hz)); each must be positive (Kalibr rejects 0).
+
+    Raises
+    ------
+    FormatError
+        Not YAML, or a key missing or not a positive number (the message names the file and the key).
+    """
+    import yaml
+
+    p = input_path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise FormatError(f"{p.name}: expected a UTF-8 YAML file, got undecodable bytes") from None
+    if text.startswith("%YAML:1.0"):   # OpenCV's directive, which PyYAML does not take
+        text = text.split("\n", 1)[1] if "\n" in text else ""
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise FormatError(f"{p.name}: expected YAML, got {exc}") from None
+    if not isinstance(data, dict):
+        raise FormatError(f"{p.name}: expected a mapping of noise figures, got {type(data).__name__}")
+    blocks = [data[k] for k in sorted((k for k in data if str(k).startswith("imu") and str(k)[3:].isdigit()),
+                                      key=lambda k: int(str(k)[3:]))] or [data]
+    out = []
+    for i, block in enumerate(blocks):
+        where = f"{p.name}" + (f" imu{i}" if len(blocks) > 1 or block is not data else "")
+        if not isinstance(block, dict):
+            raise FormatError(f"{where}: expected a mapping of noise figures, got {type(block).__name__}")
+        missing = [k for k in _PLACEHOLDER if k not in block]
+        if missing:
+            raise FormatError(f"{where}: expected the Kalibr noise keys {list(_PLACEHOLDER)}, missing {missing}")
+        try:
+            out.append(ImuNoise(**{k: float(block[k]) for k in _PLACEHOLDER}))
+        except (TypeError, ValueError, InputError) as exc:
+            raise FormatError(f"{where}: {exc}") from None
+    return tuple(out)
+
+
+def write_kalibr_noise(noise, path, *, rostopic: str = "/imu0", provenance=None) -> Path:
+    """Write a static noise analysis (:class:`~fusion_gyrocal.core.static_noise.StaticNoise`) as a Kalibr
+    ``imu.yaml`` (what ``kalibr_calibrate_imu_camera --imu`` reads, and what imu_utils / allan_variance_ros users
+    write by hand), atomically.
+
+    ``gyroscope_noise_density`` is the mean of the three axes' white noise ``N`` and ``gyroscope_random_walk`` the
+    mean of their ``K`` where the Allan fit kept a walk term (each axis with its 1-sigma in a comment); a walk no
+    axis showed, and the accelerometer figures (gyro data only), are marked placeholders. ``update_rate`` is the
+    recording's rate. The header names the recording (``provenance``) and the rest stretches used.
+    """
+    _topics([rostopic], 1)
+    deg = 180.0 / np.pi
+    figs = {k: _Figure(v, f"{_NOT_MEASURED} (gyro data only)", True) for k, v in _PLACEHOLDER.items()}
+    figs["gyroscope_noise_density"] = _Figure(float(np.mean(noise.white)), "mean of the axes' white noise N, "
+                                              "static Allan analysis")
+    walk = [k for k in noise.random_walk if k > 0]
+    if walk:
+        figs["gyroscope_random_walk"] = _Figure(float(np.mean(walk)), f"mean of the {len(walk)} axes' random walk K "
+                                                "with a walk term in the Allan fit")
+    else:
+        figs["gyroscope_random_walk"] = _Figure(
+            _PLACEHOLDER["gyroscope_random_walk"], f"{_NOT_MEASURED} (no random-walk term up to tau = "
+            f"{noise.taus[-1]:.3g} s: record longer at rest)", True)
+    lines = [f"# Kalibr IMU configuration written by fusion_gyrocal (gyrocal noise): static Allan analysis of "
+             f"{noise.n_samples} samples at rest in {len(noise.stretches)} stretch(es), {noise.rate_hz:.6g} Hz."]
+    if provenance is not None:
+        lines += [f"# {line}" for line in provenance.lines()]
+    for a, name in enumerate("xyz"):
+        lines.append(f"#   axis {name}: white N {noise.white[a]:.4g} +- {noise.white_std[a]:.2g} rad/s/sqrt(Hz) "
+                     f"({noise.white[a] * deg * 60:.4g} deg/sqrt(h)); bias instability B {noise.bias_instability[a]:.3g}"
+                     f" +- {noise.bias_instability_std[a]:.2g} rad/s; random walk K {noise.random_walk[a]:.3g} +- "
+                     f"{noise.random_walk_std[a]:.2g} rad/s^2/sqrt(Hz)")
+    if any(f.placeholder for f in figs.values()):
+        lines.append(_PLACEHOLDER_HOWTO)
+    lines += [f"rostopic: {_quoted(rostopic)}", f"update_rate: {_yf(noise.rate_hz)}  # [Hz]"]
+    lines += _noise_lines(figs, "")
+    text = "\n".join(lines) + "\n"
+    _check_yaml(text, path, [rostopic])
+    return atomic_write(path, text)
+
+
 def _per_imu(value, n: int, name: str) -> list:
     """One value for every IMU, or a sequence of ``n``."""
     if isinstance(value, (tuple, list)):
@@ -534,9 +687,14 @@ def _header(chain: _Chain, what: str, topics, noises) -> list[str]:
         "# time_offset [s] is ADDED to this IMU's timestamps to put them on imu0's clock.",
         f"# Scale factors are relative (Theorem 2): gauge = {chain.gauge}; configuration = {chain.configuration}.",
     ]
-    unobs = [f"imu{i} {'xyz'[a]}" for i, imu in enumerate(chain.imus) for a in range(3) if not imu.observable[a]]
-    if unobs:
-        lines.append(f"# Scale factors the data do not determine are written as 1 (not estimated): {', '.join(unobs)}.")
+    lines += _wrapped("M / Tw hold the scale factors RELATIVE TO imu0 (per group of linked axes divided by imu0's, "
+                      "the geometric mean of imu0's where a group holds several of its axes): imu0's are exactly 1 "
+                      "wherever one of its axes fixes a group.")
+    for i, imu in enumerate(chain.imus):
+        lines.append(f"# imu{i}: relative scale factors {_scale_text(imu)}.")
+    unknown = [f"imu{i} {'xyz'[a]}" for i, imu in enumerate(chain.imus) for a in range(3) if not _known(imu)[a]]
+    if unknown:
+        lines.append(f"# Scale factors the data do not determine are written as 1 (not estimated): {', '.join(unknown)}.")
     for i, imu in enumerate(chain.imus[1:], start=1):
         if np.isfinite(imu.rotation_std_deg).all():
             lines.append(f"# imu{i}: 1-sigma rotation uncertainty (deg, body axes) "
@@ -554,9 +712,22 @@ def _noise_lines(noise: dict, indent: str) -> list[str]:
             for k in _PLACEHOLDER]
 
 
+def _known(imu: _ChainImu) -> np.ndarray:
+    """Which relative scale factors the data determine: the scale factor itself, or its ratio to one axis of imu0."""
+    return np.asarray(imu.observable, bool) | np.isfinite(imu.rel_scale_std)
+
+
 def _determined(imu: _ChainImu) -> np.ndarray:
-    """Diagonal scale matrix: the scale factors the data determine, 1 where they do not."""
-    return np.diag(np.where(imu.observable, imu.scale, 1.0))
+    """Diagonal scale matrix: the scale factors relative to imu0's (:func:`_relative_scales`), 1 where the data
+    determine neither the scale factor nor its ratio to imu0's."""
+    return np.diag(np.where(_known(imu), imu.rel_scale, 1.0))
+
+
+def _scale_text(imu: _ChainImu) -> str:
+    known = _known(imu)
+    return ", ".join((f"{'xyz'[a]} {imu.rel_scale[a]:.6f}" + (f" +- {imu.rel_scale_std[a]:.2g}"
+                                                            if np.isfinite(imu.rel_scale_std[a]) else ""))
+                     if known[a] else f"{'xyz'[a]} undetermined" for a in range(3))
 
 
 def _chain_block(i: int, imu: _ChainImu, noise, topic: str, rate: float, model: str) -> list[str]:
@@ -592,6 +763,9 @@ def _prepare(cal, topics, update_rate, noise):
     rates = _rates(update_rate, n)
     if isinstance(cal, PairCalibration):
         identified, header = _identified(cal, rates)
+        chain = dataclasses.replace(chain, identified=identified, noise_header=header)
+    else:
+        identified, header = _identified_array(cal, rates)
         chain = dataclasses.replace(chain, identified=identified, noise_header=header)
     return chain, _topics(topics, n), rates, _noises(noise, chain)
 
@@ -642,9 +816,7 @@ def write_kalibr_imu_configs(cal, folder, *, topics=None, update_rate=200.0, noi
             lines.append(f"# fusion_gyrocal's estimate against imu0 (Kalibr estimates its own): R_b_i rotation vector "
                          f"[deg] {', '.join(f'{v:.4f}' for v in rv)}; time offset "
                          f"{imu.time_offset:+.6g} s ({imu.time_offset_source}).")
-        lines.append(f"# Scale factors (relative, gauge {chain.gauge}): "
-                     + ", ".join(f"{'xyz'[a]} {imu.scale[a]:.6f}" if imu.observable[a] else f"{'xyz'[a]} undetermined"
-                                 for a in range(3)) + ".")
+        lines.append(f"# Scale factors relative to imu0 (Kalibr estimates its own): {_scale_text(imu)}.")
         if _identified_used(noises[i:i + 1]):
             lines += list(chain.noise_header)
         if _any_placeholder(noises[i:i + 1]):

@@ -1,0 +1,129 @@
+"""``gyrocal noise``: the static Allan analysis against simulated noise of known figures and against a direct
+estimate on real rest stretches (MIMU static poses, BROAD breaks)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from fusion_gyrocal import ExcitationError
+from fusion_gyrocal.cli import main
+from fusion_gyrocal.core.static_noise import rest_stretches, static_noise
+from fusion_gyrocal.evaluate.sim import shared_data_dir
+from fusion_gyrocal.io.writers import ImuNoise, read_imu_noise
+from test_writers import kalibr_imu_parameters
+
+
+def _direct(omega, stretches, rate_hz):
+    """The direct estimate of the white noise density: the per-sample std of every stretch about its own mean,
+    pooled, over sqrt(rate)."""
+    x = np.concatenate([omega[a:b] - omega[a:b].mean(axis=0) for a, b in stretches])
+    return x.std(axis=0) / np.sqrt(rate_hz)
+
+
+# --------------------------------------------------------------------------------- simulated
+def test_static_noise_recovers_simulated_white_noise_and_random_walk():
+    rng = np.random.default_rng(0)
+    fs, n = 200.0, 400_000                          # 2000 s at rest
+    N = np.array([2e-4, 3e-4, 4e-4])                # rad/s/sqrt(Hz)
+    K = np.array([2e-5, 2e-5, 2e-5])                # rad/s^2/sqrt(Hz)
+    omega = rng.normal(0, 1, (n, 3)) * N * np.sqrt(fs) + np.cumsum(rng.normal(0, 1, (n, 3)) * K / np.sqrt(fs), axis=0)
+    r = static_noise(omega, fs, stretches=[(0, n)])
+    assert np.all(np.abs(r.white - N) < 4 * r.white_std + 0.01 * N)
+    assert np.all(r.white_std < 0.05 * N) and np.all(r.white_std > 0)
+    assert np.all(r.random_walk > 0) and np.all(np.abs(r.random_walk - K) < 4 * r.random_walk_std)
+
+
+def test_rest_stretches_find_the_rest_between_motions():
+    rng = np.random.default_rng(1)
+    fs = 100.0
+    t = np.arange(0, 120, 1 / fs)
+    omega = rng.normal(0, 0.002, (t.size, 3))
+    moving = ((t > 30) & (t < 40)) | ((t > 80) & (t < 90))
+    omega[moving] += np.sin(2 * np.pi * 0.7 * t[moving])[:, None] * [1.0, -0.5, 0.3]
+    got = [(a / fs, b / fs) for a, b in rest_stretches(omega, fs)]
+    assert len(got) == 3
+    for (a, b), (lo, hi) in zip(got, ((0, 30), (40, 80), (90, 120))):
+        assert lo <= a <= lo + 2.01 and hi - 2.01 <= b <= hi     # each rest, trimmed by at most a window per end
+    with pytest.raises(ExcitationError, match="no rest stretch"):
+        static_noise(omega, fs, stretches=[])
+
+
+def test_cli_noise_writes_kalibr_yaml_plot_and_json(tmp_path, capsys):
+    rng = np.random.default_rng(2)
+    fs, n = 100.0, 60_000
+    t = np.arange(n) / fs
+    w = rng.normal(0, 3e-4 * np.sqrt(fs), (n, 3))
+    csv = tmp_path / "static.csv"
+    np.savetxt(csv, np.column_stack([t, np.rad2deg(w)]), delimiter=",", header="t,gx,gy,gz", comments="")
+    code = main(["noise", str(csv), "--unit", "deg/s", "--whole", "--kalibr", str(tmp_path / "imu.yaml"),
+                 "--plot", str(tmp_path / "allan.png"), "-o", str(tmp_path / "noise.json"), "--rostopic", "/imu/data"])
+    out = capsys.readouterr().out
+    assert code == 0 and "white N" in out and "input: gyro 1:" in out
+    k = kalibr_imu_parameters(tmp_path / "imu.yaml")           # what Kalibr's reader takes
+    assert k["rostopic"] == "/imu/data" and k["update_rate"] == pytest.approx(fs)
+    assert k["gyroscope_noise_density"] == pytest.approx(3e-4, rel=0.03)
+    noise, = read_imu_noise(tmp_path / "imu.yaml")            # and what gyrocal calibrate --noise reads back
+    assert isinstance(noise, ImuNoise) and noise.gyroscope_noise_density == k["gyroscope_noise_density"]
+    assert (tmp_path / "imu.yaml").read_text().count("PLACEHOLDER, not measured (gyro data only)") == 2
+    d = json.loads((tmp_path / "noise.json").read_text())
+    assert d["kind"] == "static_noise" and d["provenance"]["inputs"][0]["unit_in"] == "deg/s"
+    assert d["n_samples"] == n and len(d["white"]) == 3
+    assert (tmp_path / "allan.png").read_bytes().startswith(b"\x89PNG")
+
+
+def test_cli_noise_bad_window_is_one_line_error(tmp_path, capsys):
+    csv = tmp_path / "s.csv"
+    np.savetxt(csv, np.column_stack([np.arange(1000) / 100.0, np.zeros((1000, 3))]), delimiter=",",
+               header="t,gx,gy,gz", comments="")
+    assert main(["noise", str(csv), "--start", "50"]) == 1
+    assert "--start/--end: expected a range holding samples" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------------- real rest stretches
+def _data(folder):
+    d = shared_data_dir() / folder
+    if not d.is_dir():
+        pytest.skip(f"../shared/data/{folder} is absent (a user's own clone)")
+    return d
+
+
+@pytest.mark.shared_data
+def test_cli_noise_mimu_static_poses_white_noise_within_10_percent_of_direct(tmp_path, capsys):
+    from fusion_gyrocal.io import read_npz
+
+    p = _data("mimu_8imu_array") / "npz" / "exp_1.npz"
+    for imu in range(8):
+        out = tmp_path / f"n{imu}.json"
+        assert main(["noise", str(p), "--imu", str(imu), "-o", str(out)]) == 0
+        d = json.loads(out.read_text())
+        s = read_npz(p, imu=imu)
+        assert len(d["stretches"]) >= 20        # the 20 static poses (masked samples may split one)
+        direct = _direct(s.omega, d["stretches"], s.rate_hz)
+        white = np.array(d["white"])
+        # where the fit is the white-noise term alone from the shortest tau on, the per-sample spread is that noise
+        only_white = (np.array(d["fit_from"]) == 0) & (np.array(d["bias_instability"]) == 0) & \
+            (np.array(d["random_walk"]) == 0)
+        assert only_white.sum() >= 2
+        np.testing.assert_array_less(np.abs(white / direct - 1)[only_white], 0.10)
+    capsys.readouterr()
+
+
+@pytest.mark.shared_data
+def test_cli_noise_broad_rest_stretches_white_noise_within_10_percent_of_direct(tmp_path, capsys):
+    from scipy.io import loadmat
+
+    folder = _data("broad_handheld") / "data_mat"
+    for name in ("04_undisturbed_slow_rotation_with_breaks_A", "08_undisturbed_fast_rotation_with_breaks_A"):
+        m = loadmat(folder / f"{name}.mat", squeeze_me=True)
+        g, fs = np.asarray(m["imu_gyr"], float), float(m["sampling_rate"])
+        csv = tmp_path / f"{name}.csv"
+        np.savetxt(csv, np.column_stack([np.arange(len(g)) / fs, g]), delimiter=",", header="t,gx,gy,gz",
+                   comments="")
+        out = tmp_path / f"{name}.json"
+        assert main(["noise", str(csv), "-o", str(out)]) == 0
+        d = json.loads(out.read_text())
+        assert len(d["stretches"]) >= 4 and d["n_samples"] / fs > 40     # the breaks (and the rest at the start)
+        direct = _direct(g, d["stretches"], fs)
+        np.testing.assert_array_less(np.abs(np.array(d["white"]) / direct - 1), 0.10)
+    capsys.readouterr()
