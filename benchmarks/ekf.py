@@ -141,7 +141,8 @@ def _z_at_alarm(tr, batch) -> tuple[float, float, float]:
 
     R0, P0 = tr.state_at_alarm[0], tr.state_at_alarm[4]
     d = np.linalg.norm(log(R0 @ batch.R_1_2.T))
-    se, sb = np.sqrt(np.trace(P0[:3, :3])), np.sqrt(np.trace(np.asarray(batch.covariance)[:3, :3] - batch.skew_rotation_covariance))
+    se = np.sqrt(np.trace(P0[:3, :3]))
+    sb = np.sqrt(np.trace(np.asarray(batch.covariance)[:3, :3] - batch.skew_rotation_covariance))
     return tr.open_alarm[0], d / DEG * 1e3, d / np.hypot(se, sb)
 
 
