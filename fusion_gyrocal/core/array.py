@@ -444,17 +444,6 @@ def _pair_map(R, s, k, reference: int, i: int, j: int) -> np.ndarray:
     return H[0] @ np.linalg.inv(H[1])
 
 
-def _split(X, y) -> np.ndarray:
-    """Per-gyro variances ``v`` from per-pair sums ``X v = y`` (three-cornered hat): non-negative least squares;
-    with two gyros only the sum is observable and is split in the ratio of its row of ``X``'s weights."""
-    X, y = np.asarray(X, float), np.asarray(y, float)
-    if X.shape[1] == 2:
-        return np.full(2, y[0] / X[0].sum())
-    from scipy.optimize import nnls   # only here: keeps scipy.optimize off the command line's start-up
-
-    return nnls(X, y)[0]
-
-
 def _noise_from_pairs(moments: ArrayMoments, R, s, k=None, reference: int = 0):
     """Per-gyro white-noise std from every pair's residual ``y_i - A_ij y_j`` (three-cornered hat).
 
@@ -473,7 +462,12 @@ def _noise_from_pairs(moments: ArrayMoments, R, s, k=None, reference: int = 0):
         X.append(row)
         y.append(float(np.trace(residual_scatter(A, m.scatter))) / max(m.dof - 3.0, 1.0))
     X, y = np.array(X), np.array(y)
-    v = _split(X, y)
+    if n == 2:
+        v = np.full(2, y[0] / X[0].sum())
+    else:
+        from scipy.optimize import nnls   # only here: keeps scipy.optimize off the command line's start-up
+
+        v = nnls(X, y)[0]
     floor = max(1e-24 * float(np.trace(moments.pairs[0].S11)) / (3.0 * max(moments.dof, 1.0)),
                 (0.1 * np.sqrt(np.median(v))) ** 2 if np.median(v) > 0 else 0.0)
     return np.sqrt(np.maximum(v, floor))
@@ -527,8 +521,12 @@ def _pair_windows(windows: WindowStats | None, i: int, j: int) -> WindowStats | 
 
 def _cross_axis_tests(moments: ArrayMoments, R, s, noise, windows, reference, o: Options):
     """Every gyro's cross-axis test against the reference (:func:`~fusion_gyrocal.core.robust.cross_axis` on its
-    pair's moments at the joint rigid estimate) and the model it gets (:func:`choose_full_map`):
-    ``(chi2 (N,), dof (N,), full (N,), shown (N,))``."""
+    pair's moments at the joint rigid estimate) and the model it gets: :func:`choose_full_map`'s, except that with
+    ``linear_map="auto"`` every gyro gets the full map once the data show cross-axis terms on any one of them.
+    Outside the axis-parallel configurations one test sees a single combination of a gyro's three terms, which can
+    be small by chance while the others turn its rotation by a degree; cross-axis sensitivity is a property of the
+    chips, so terms shown on one gyro are expected on all. Returns ``(chi2 (N,), dof (N,), full (N,), shown (N,))``.
+    """
     n = moments.n_gyros
     chi2, dof = np.full(n, np.nan), np.zeros(n, int)
     full, shown = np.zeros(n, bool), np.zeros(n, bool)
@@ -541,6 +539,8 @@ def _cross_axis_tests(moments: ArrayMoments, R, s, noise, windows, reference, o:
                                         _pair_windows(windows, reference, j),
                                         n_null=len(classify(R[j], o.parallel_tol_deg).groups))
         full[j], shown[j] = choose_full_map(o.linear_map, "ml", float(chi2[j]), int(dof[j]))
+    if o.linear_map == "auto" and shown.any():   # the chips have cross-axis terms: every gyro gets them
+        full[np.arange(n) != reference] = True
     return chi2, dof, full, shown
 
 
@@ -548,30 +548,31 @@ def _cross_budget(k, P, reference, shown, prior_std) -> np.ndarray:
     """The rotations' covariance (3N, 3N) from the antisymmetric cross-axis parts no data see (the array's
     :func:`~fusion_gyrocal.core.linear_map.cross_axis_budget`).
 
-    Every pair's relative terms ``k_j - k_i`` (``k_ref = 0``) give, as in the pair solver, a variance per axis of
-    their antisymmetric part (pooled with the prior where the data show cross-axis terms on either gyro); a
-    three-cornered hat splits these into one variance ``v_g`` per gyro (the antisymmetric part of its own
-    cross-axis matrix), so ``R_ref_j`` carries ``v_ref + v_j`` and two gyros share ``v_ref``: the rotation between
-    gyros i and j, ``R_ref_i^T R_ref_j``, carries ``v_i + v_j``, its pair's budget.
+    Every pair's relative terms ``k_j - k_i`` (``k_ref = 0``, reference axes) give, as in the pair solver, a variance
+    ``b_ij`` per axis of their antisymmetric part (pooled with the prior where the data show cross-axis terms on
+    either gyro). ``R_ref_j`` carries its pair's ``b_j`` (the pair solver's figure) and two rotations share
+    ``(b_i + b_j - b_ij) / 2``, so the rotation between gyros i and j, ``R_ref_i^T R_ref_j``, carries its pair's
+    ``b_ij``, as far as a covariance can (the nearest positive semi-definite matrix).
     """
     n = len(k)
     Pk = P[6 * n:, 6 * n:]
-    X, y = [], []
-    for i, j in itertools.combinations(range(n), 2):
+
+    def budget(i, j):
         d = k[j] - k[i]
         Pd = (Pk[3 * j:3 * j + 3, 3 * j:3 * j + 3] + Pk[3 * i:3 * i + 3, 3 * i:3 * i + 3]
               - Pk[3 * i:3 * i + 3, 3 * j:3 * j + 3] - Pk[3 * j:3 * j + 3, 3 * i:3 * i + 3])
-        row = np.zeros(n)
-        row[[i, j]] = 1.0
-        X.append(row)
-        y.append(cross_axis_budget(d, Pd, prior_std if (shown[i] or shown[j]) else None))
-    v = _split(X, y)
-    B = np.zeros((3 * n, 3 * n))
-    for i in range(n):
-        for j in range(n):
-            if reference not in (i, j):
-                B[3 * i:3 * i + 3, 3 * j:3 * j + 3] = (v[reference] + (v[i] if i == j else 0.0)) * np.eye(3)
-    return B
+        return cross_axis_budget(d, Pd, prior_std if (shown[i] or shown[j]) else None)
+
+    C = np.zeros((n, n))
+    for j in range(n):
+        if j != reference:
+            C[j, j] = budget(reference, j)
+    for i, j in itertools.combinations(range(n), 2):
+        if reference not in (i, j):
+            C[i, j] = C[j, i] = 0.5 * (C[i, i] + C[j, j] - budget(i, j))
+    w, V = np.linalg.eigh(C)
+    C = (V * np.clip(w, 0.0, None)) @ V.T
+    return np.kron(C, np.eye(3))
 
 
 # ---------------------------------------------------------------------------------------- public solvers

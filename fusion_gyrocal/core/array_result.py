@@ -118,8 +118,9 @@ class ArrayCalibration:
     cross_axis_dof : tuple of int (N,)
     skew_rotation_covariance : ndarray (3N, 3N)
         The part of the rotation blocks of ``covariance`` that no data see: the antisymmetric cross-axis parts
-        (:func:`~fusion_gyrocal.core.linear_map.cross_axis_budget`, split per gyro by a three-cornered hat: the
-        rotation of every pair carries its own pair's budget); zero with the rigid model. Two sessions of one
+        (:func:`~fusion_gyrocal.core.linear_map.cross_axis_budget` of every pair's relative terms: the rotation
+        between any two gyros carries its own pair's budget, as far as a covariance can); zero with the rigid
+        model. Two sessions of one
         board share it, so their difference cancels it.
     """
 
