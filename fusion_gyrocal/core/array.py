@@ -19,12 +19,27 @@ exactly the pair cost :func:`fusion_gyrocal.core.refine.ml_cost` (``A = S_1 R_1_
 more it uses every pair at once, and because one true rate drives all gyros the rotations are
 consistent around every loop by construction (``R_i_j = R_ref_i^T R_ref_j``).
 
-Unknowns are the rotations of every non-reference gyro and the log scale factors of every gyro;
-the scale factors are determined only up to one common factor per group of linked axes
+The full linear map (:mod:`~fusion_gyrocal.core.linear_map`): real MEMS gyros keep 1-2 % cross-axis
+sensitivity, so every gyro ``j`` other than the reference may carry its own symmetric relative cross-axis
+terms ``K_j`` against the reference, in the pair solver's convention::
+
+    omega_ref_meas = (I + K_j) S_ref R_ref_j S_j^-1 omega_j_meas + bias_j,
+    i.e.  H_j = S_j R_ref_j^T S_ref^-1 (I + K_j)^-1 S_ref   (H_ref = S_ref),
+
+so the pair of the reference and gyro j has exactly :func:`~fusion_gyrocal.core.observability.A_of`'s map with
+``k_j``, and ``R_ref_j`` is the rotation under the symmetric convention. ``K_j`` acts after the reference's
+scale factors, so the groups of linked scale factors keep their common factors free (Lemma 2). Which gyros get
+the terms follows the pair solver (``linear_map``: ``"auto"``, the cross-axis test of every gyro against the
+reference at the joint rigid estimate, then the full map for every gyro once any one shows the terms; ``"rigid"``;
+``"full"``), with the pair's prior ``N(0, cross_axis_std^2)`` on each term and its budget for the antisymmetric
+part no data see, for every pair of gyros (:func:`_cross_budget`).
+
+Unknowns are the rotations of every non-reference gyro, the log scale factors of every gyro (and the
+cross-axis terms ``k_j``); the scale factors are determined only up to one common factor per group of linked axes
 (Theorem 2; for axis-parallel gyros, Lemma 2, one group per axis). The minimisation is Fisher
 scoring (Gauss-Newton on the expected Hessian, the Appendix B information generalised to N gyros)
 with an analytic gradient, seeded from the pairwise direct solutions (Eq. 17, Lemmas 2-4) of every
-gyro to the reference. The covariance is the inverse Fisher information in the gauge.
+gyro to the reference. The covariance is the inverse Fisher information in the gauge (with the cross-axis prior).
 
 The one O(N) pass over the samples is :meth:`ArrayMoments.from_samples`: the
 :class:`~fusion_gyrocal.core.moments.Moments` of every pair of gyros, from which the stacked scatter is
@@ -604,6 +619,9 @@ def solve_array(moments: ArrayMoments, options: Options | None = None, *, refere
             (Lemma 1).
         ``covariance``
             What is reported with ``windows`` (``"auto"``, ``"model"``, ``"robust"``).
+        ``linear_map``, ``cross_axis_std``
+            Every gyro's sensor model against the reference and the prior of its cross-axis terms (module
+            docstring; :class:`~fusion_gyrocal.options.Options`).
     reference : int
         Index of the reference gyro (its frame is the array frame, ``R_ref_k[reference] = I``).
     max_iter : int
@@ -831,7 +849,7 @@ def calibrate_array(omegas, options: Options | None = None, *, reference: int = 
 
         ``noise_std``
             White-noise std per sample (rad/s), one value or one per gyro (N); estimated when omitted.
-        ``gauge``, ``parallel_tol_deg``, ``min_snr``, ``covariance``
+        ``gauge``, ``parallel_tol_deg``, ``min_snr``, ``covariance``, ``linear_map``, ``cross_axis_std``
             See :func:`solve_array`.
         ``bias_window``
             Model every bias as piecewise constant over windows of this many samples.
