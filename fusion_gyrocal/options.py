@@ -277,7 +277,7 @@ class Options(FrozenOptions):
         "--skew-std", type=float, nargs="+", metavar="STD",
         help="remaining skew uncertainty for the error budget, one value or one per gyro")
     linear_map: str = _option(
-        "auto", _choice(LINEAR_MAPS), _SOLVE,
+        "auto", _choice(LINEAR_MAPS), _SOLVE | _JOINT,
         "The sensor model (:mod:`~fusion_gyrocal.core.linear_map`). ``'auto'`` (default): the full linear map "
         "(rotation, scale factors and the symmetric relative cross-axis terms) when it fits significantly better "
         "than rotation + scale factors (the cross-axis chi-square, p < 0.001) or when the data determine every "
@@ -287,7 +287,7 @@ class Options(FrozenOptions):
         "--linear-map", choices=LINEAR_MAPS,
         help="sensor model: auto (cross-axis terms when the data show them, default), rigid (paper), full")
     cross_axis_std: float = _option(
-        0.015, _positive, _SOLVE,
+        0.015, _positive, _SOLVE | _JOINT,
         "Std of each gyro's cross-axis sensitivity (a fraction; MEMS datasheets give 1-2 %): the prior of the "
         "full linear map's relative cross-axis terms where the data do not determine them (the rotation's "
         "uncertainty from their antisymmetric part, which no data see, is as large as the symmetric part: "

@@ -341,11 +341,13 @@ def test_calibrate_array_mimu_ratio_means_match_source_gains(mimu_runs):
     assert np.abs(per_session / gains - 1.0).max() < 0.005
 
 
-def test_calibrate_array_mimu_joint_at_least_as_consistent_as_pairwise(mimu_runs):
+def test_calibrate_array_mimu_joint_as_consistent_as_pairwise(mimu_runs):
+    # the full linear map (the default here) gives every gyro's map to the reference as many parameters as entries on
+    # this axis-parallel board: the joint estimate is the pairwise one up to the weights
     dev_j, rat_j = mimu_runs["joint"]
     dev_p, rat_p = mimu_runs["pairwise"]
-    assert dev_j.std(axis=0).mean() <= dev_p.std(axis=0).mean()
-    assert rat_j.std(axis=0).mean() <= rat_p.std(axis=0).mean()
+    assert dev_j.std(axis=0).mean() <= 1.02 * dev_p.std(axis=0).mean()
+    assert rat_j.std(axis=0).mean() <= 1.02 * rat_p.std(axis=0).mean()
 
 
 def test_example_mimu_array_runs_and_reports_both_estimates(capsys):

@@ -19,12 +19,27 @@ exactly the pair cost :func:`fusion_gyrocal.core.refine.ml_cost` (``A = S_1 R_1_
 more it uses every pair at once, and because one true rate drives all gyros the rotations are
 consistent around every loop by construction (``R_i_j = R_ref_i^T R_ref_j``).
 
-Unknowns are the rotations of every non-reference gyro and the log scale factors of every gyro;
-the scale factors are determined only up to one common factor per group of linked axes
+The full linear map (:mod:`~fusion_gyrocal.core.linear_map`): real MEMS gyros keep 1-2 % cross-axis
+sensitivity, so every gyro ``j`` other than the reference may carry its own symmetric relative cross-axis
+terms ``K_j`` against the reference, in the pair solver's convention::
+
+    omega_ref_meas = (I + K_j) S_ref R_ref_j S_j^-1 omega_j_meas + bias_j,
+    i.e.  H_j = S_j R_ref_j^T S_ref^-1 (I + K_j)^-1 S_ref   (H_ref = S_ref),
+
+so the pair of the reference and gyro j has exactly :func:`~fusion_gyrocal.core.observability.A_of`'s map with
+``k_j``, and ``R_ref_j`` is the rotation under the symmetric convention. ``K_j`` acts after the reference's
+scale factors, so the groups of linked scale factors keep their common factors free (Lemma 2). Which gyros get
+the terms follows the pair solver (``linear_map``: ``"auto"``, the cross-axis test of every gyro against the
+reference at the joint rigid estimate, then the full map for every gyro once any one shows the terms; ``"rigid"``;
+``"full"``), with the pair's prior ``N(0, cross_axis_std^2)`` on each term and its budget for the antisymmetric
+part no data see, for every pair of gyros (:func:`_cross_budget`).
+
+Unknowns are the rotations of every non-reference gyro, the log scale factors of every gyro (and the
+cross-axis terms ``k_j``); the scale factors are determined only up to one common factor per group of linked axes
 (Theorem 2; for axis-parallel gyros, Lemma 2, one group per axis). The minimisation is Fisher
 scoring (Gauss-Newton on the expected Hessian, the Appendix B information generalised to N gyros)
 with an analytic gradient, seeded from the pairwise direct solutions (Eq. 17, Lemmas 2-4) of every
-gyro to the reference. The covariance is the inverse Fisher information in the gauge.
+gyro to the reference. The covariance is the inverse Fisher information in the gauge (with the cross-axis prior).
 
 The one O(N) pass over the samples is :meth:`ArrayMoments.from_samples`: the
 :class:`~fusion_gyrocal.core.moments.Moments` of every pair of gyros, from which the stacked scatter is
@@ -35,6 +50,7 @@ assembled. The result, :class:`~fusion_gyrocal.core.array_result.ArrayCalibratio
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 from dataclasses import dataclass, field
 from typing import Iterable, Sequence
@@ -45,12 +61,14 @@ from ..errors import GyroCalError, InputError, OptionError
 from ..lie import exp, skew
 from ..options import Options
 from .array_result import ARRAY_FORMAT_VERSION, ARRAY_KIND, ArrayCalibration  # noqa: F401 (their home before)
+from .direct import solve_A
 from .gauge import Gauge, constrained_inverse
 from .moments import (Moments, WindowStats, as_rates, finite_rows, stacked_window_stats, window_moments,
                       window_samples)
-from .observability import A_of, classify, dA_dp
+from .linear_map import choose_full_map, cross_axis_budget
+from .observability import A_of, classify, cross_matrix, dA_dp
 from .refine import fisher_scoring, residual_scatter
-from .robust import reported_covariance, sandwich, score_variance
+from .robust import cross_axis, reported_covariance, sandwich, score_variance
 from .solve import solve
 
 
@@ -240,9 +258,18 @@ def _checked_rates(omegas, mask):
     return rates, mask
 
 
-def _H_of(R, s):
-    """Stacked design ``H = [S_k R_ref_k^T]_k`` (3N, 3)."""
-    return np.concatenate([s[k][:, None] * R[k].T for k in range(len(s))])
+def _G_of(s_ref, k) -> np.ndarray:
+    """``S_ref^-1 (I + K)^-1 S_ref``: the reference's view of a gyro's relative cross-axis terms ``k``."""
+    M = np.linalg.inv(np.eye(3) + cross_matrix(k))
+    return (M / s_ref[:, None]) * s_ref[None, :]
+
+
+def _H_of(R, s, k=None, reference: int = 0):
+    """Stacked design ``H = [S_j R_ref_j^T G_j]_j`` (3N, 3), ``G_j`` of :func:`_G_of` (the identity without
+    cross-axis terms ``k``, (N, 3))."""
+    if k is None:
+        return np.concatenate([s[j][:, None] * R[j].T for j in range(len(s))])
+    return np.concatenate([(s[j][:, None] * R[j].T) @ _G_of(s[reference], k[j]) for j in range(len(s))])
 
 
 def _projector(H, sig2):
@@ -255,70 +282,88 @@ def _projector(H, sig2):
     return 0.5 * (P + P.T), K, Minv
 
 
-def _dH(R, s):
-    """Derivatives (6N, 3N, 3) of H w.r.t. ``[dtheta_0..N-1, log s_0..N-1]``.
+def _dH(R, s, k=None, reference: int = 0):
+    """Derivatives (6N, 3N, 3) of H w.r.t. ``[dtheta_0..N-1, log s_0..N-1]``; (9N, 3N, 3) with the cross-axis
+    terms ``k_0..N-1`` appended.
 
-    ``R_k <- Exp(dtheta_k) R_k`` gives ``dH_k = -S_k R_k^T [e_m x]``; ``s_k,i <- s_k,i e^dl`` scales row i of H_k.
+    ``R_j <- Exp(dtheta_j) R_j`` gives ``dH_j = -S_j R_j^T [e_m x] G_j``; ``s_j,i <- s_j,i e^dl`` scales row i of
+    H_j; with cross-axis terms the reference's scale factors also enter every ``G_j`` (``dG = G E_ii - E_ii G``)
+    and ``dG_j / dk_j,m = -S_ref^-1 (I + K_j)^-1 E_m (I + K_j)^-1 S_ref`` (``E_m`` = ``cross_matrix(e_m)``).
     """
     n = len(s)
-    D = np.zeros((6 * n, 3 * n, 3))
-    for k in range(n):
-        Hk = s[k][:, None] * R[k].T
+    full = k is not None
+    eye = np.eye(3)
+    D = np.zeros(((9 if full else 6) * n, 3 * n, 3))
+    for j in range(n):
+        rows = slice(3 * j, 3 * j + 3)
+        SRt = s[j][:, None] * R[j].T
+        G = _G_of(s[reference], k[j]) if full else eye
+        Hj = SRt @ G
         for m in range(3):
-            e = np.zeros(3)
-            e[m] = 1.0
-            D[3 * k + m, 3 * k:3 * k + 3] = -Hk @ skew(e)
+            D[3 * j + m, rows] = -SRt @ skew(eye[m]) @ G
         for i in range(3):
-            D[3 * n + 3 * k + i, 3 * k + i] = Hk[i]
+            D[3 * n + 3 * j + i, 3 * j + i] = Hj[i]
+        if full:
+            M = np.linalg.inv(eye + cross_matrix(k[j]))
+            for i in range(3):
+                E = np.zeros((3, 3))
+                E[i, i] = 1.0
+                D[3 * n + 3 * reference + i, rows] += SRt @ (G @ E - E @ G)
+            for m in range(3):
+                dG = -(M @ cross_matrix(eye[m]) @ M) / s[reference][:, None] * s[reference][None, :]
+                D[6 * n + 3 * j + m, rows] = SRt @ dG
     return D
 
 
-def joint_cost(R, s, scatter, noise_std) -> float:
+def joint_cost(R, s, scatter, noise_std, k=None, reference: int = 0) -> float:
     """Negative log-likelihood (times 2, up to a constant) of the array model, ``tr(P S_c)``.
 
     Parameters
     ----------
     R : (N, 3, 3) rotations ``R_ref_k``; s : (N, 3) scale factors; scatter : (3N, 3N) centred scatter;
-    noise_std : (N,) white-noise std per gyro (rad/s).
+    noise_std : (N,) white-noise std per gyro (rad/s); k : (N, 3) relative cross-axis terms of every gyro
+    against the reference (the full linear map, zero for the reference), optional; reference : its index.
     """
-    P, _, _ = _projector(_H_of(R, s), np.asarray(noise_std, float) ** 2)
+    P, _, _ = _projector(_H_of(R, s, k, reference), np.asarray(noise_std, float) ** 2)
     return float(np.sum(P * scatter))
 
 
-def joint_gradient(R, s, scatter, noise_std) -> np.ndarray:
-    """Gradient of :func:`joint_cost` w.r.t. ``[dtheta_0..N-1, log s_0..N-1]``: ``-2 tr(P dH K S_c)``."""
-    P, K, _ = _projector(_H_of(R, s), np.asarray(noise_std, float) ** 2)
+def joint_gradient(R, s, scatter, noise_std, k=None, reference: int = 0) -> np.ndarray:
+    """Gradient of :func:`joint_cost` w.r.t. ``[dtheta_0..N-1, log s_0..N-1]`` (and ``k_0..N-1`` with ``k``):
+    ``-2 tr(P dH K S_c)``."""
+    P, K, _ = _projector(_H_of(R, s, k, reference), np.asarray(noise_std, float) ** 2)
     KS = K @ scatter
-    return -2.0 * np.einsum("ab,pbc,ca->p", P, _dH(R, s), KS)
+    return -2.0 * np.einsum("ab,pbc,ca->p", P, _dH(R, s, k, reference), KS)
 
 
-def joint_information(R, s, noise_std, Omega_c) -> np.ndarray:
-    """Fisher information (6N, 6N) of ``[dtheta, log s]`` with rates and biases profiled out.
+def joint_information(R, s, noise_std, Omega_c, k=None, reference: int = 0) -> np.ndarray:
+    """Fisher information (6N, 6N) of ``[dtheta, log s]`` with rates and biases profiled out ((9N, 9N) with the
+    cross-axis terms ``k``).
 
     ``I_pq = tr(D_p^T P D_q Omega_c)`` with ``D_p = dH/dp`` and ``Omega_c`` the centred scatter of the
     true rate (Appendix B generalised: the information of the errors-in-variables model).
     """
-    P, _, _ = _projector(_H_of(R, s), np.asarray(noise_std, float) ** 2)
-    D = _dH(R, s)
+    P, _, _ = _projector(_H_of(R, s, k, reference), np.asarray(noise_std, float) ** 2)
+    D = _dH(R, s, k, reference)
     PD = np.einsum("ab,qbc->qac", P, D)
     DO = np.einsum("pab,bc->pac", D, Omega_c)
     F = np.einsum("pac,qac->pq", DO, PD)
     return 0.5 * (F + F.T)
 
 
-def _window_scores(R, s, noise_std, windows: WindowStats) -> np.ndarray:
-    """Scores (W, 6N) of :func:`joint_cost` per window: :func:`joint_gradient` is linear in the scatter."""
+def _window_scores(R, s, noise_std, windows: WindowStats, k=None, reference: int = 0) -> np.ndarray:
+    """Scores (W, 6N or 9N) of :func:`joint_cost` per window: :func:`joint_gradient` is linear in the scatter."""
     from .robust import centred_scatters
 
-    P, K, _ = _projector(_H_of(R, s), np.asarray(noise_std, float) ** 2)
-    PD = np.einsum("ab,pbc->pac", P, _dH(R, s))                 # (6N, 3N, 3)
+    P, K, _ = _projector(_H_of(R, s, k, reference), np.asarray(noise_std, float) ** 2)
+    PD = np.einsum("ab,pbc->pac", P, _dH(R, s, k, reference))  # (p, 3N, 3)
     KS = np.matmul(K, centred_scatters(windows))                # (W, 3, 3N)
     return -2.0 * np.einsum("pac,wca->wp", PD, KS)
 
 
-def _signal_scatter(R, s, scatter, noise_std, dof):
+def _signal_scatter(R, s, scatter, noise_std, dof, k=None, reference: int = 0):
     """Noise-corrected centred scatter of the common rate, ``K S_c K^T - dof M^-1`` (clipped PSD)."""
-    _, K, Minv = _projector(_H_of(R, s), np.asarray(noise_std, float) ** 2)
+    _, K, Minv = _projector(_H_of(R, s, k, reference), np.asarray(noise_std, float) ** 2)
     X = K @ scatter @ K.T - dof * Minv
     w, V = np.linalg.eigh(0.5 * (X + X.T))
     return (V * np.clip(w, 0.0, None)) @ V.T
@@ -327,7 +372,7 @@ def _signal_scatter(R, s, scatter, noise_std, dof):
 def _retract(R, s, delta):
     n = len(s)
     rot = exp(delta[:3 * n].reshape(n, 3))
-    return np.einsum("kij,kjl->kil", rot, R), s * np.exp(delta[3 * n:].reshape(n, 3))
+    return np.einsum("kij,kjl->kil", rot, R), s * np.exp(delta[3 * n:6 * n].reshape(n, 3))
 
 
 def _describe(gauge: Gauge, n: int, n_groups: int) -> str:
@@ -407,7 +452,14 @@ def _seed(moments: ArrayMoments, reference, noise_std, parallel_tol_deg, min_snr
     return R, np.exp(l.reshape(n, 3))
 
 
-def _noise_from_pairs(moments: ArrayMoments, R, s):
+def _pair_map(R, s, k, reference: int, i: int, j: int) -> np.ndarray:
+    """``A_ij = H_i H_j^-1``, the map of the pair (``omega_i_meas ~ A_ij omega_j_meas``): ``A_of(R_ref_i^T R_ref_j,
+    s_i, s_j)`` without cross-axis terms, ``(I + K_j) S_ref R_ref_j S_j^-1`` for ``i`` the reference."""
+    H = [(s[g][:, None] * R[g].T) @ (np.eye(3) if k is None else _G_of(s[reference], k[g])) for g in (i, j)]
+    return H[0] @ np.linalg.inv(H[1])
+
+
+def _noise_from_pairs(moments: ArrayMoments, R, s, k=None, reference: int = 0):
     """Per-gyro white-noise std from every pair's residual ``y_i - A_ij y_j`` (three-cornered hat).
 
     ``E[r r^T] = sigma_i^2 I + sigma_j^2 A A^T``: one linear equation in the variances per pair,
@@ -418,7 +470,7 @@ def _noise_from_pairs(moments: ArrayMoments, R, s):
     X, y = [], []
     for i, j in itertools.combinations(range(n), 2):
         m = moments.pairs[_pair_index(n, i, j)]
-        A = A_of(R[i].T @ R[j], s[i], s[j])
+        A = _pair_map(R, s, k, reference, i, j)
         row = np.zeros(n)
         row[i] += 3.0
         row[j] += float(np.trace(A @ A.T))
@@ -436,18 +488,106 @@ def _noise_from_pairs(moments: ArrayMoments, R, s):
     return np.sqrt(np.maximum(v, floor))
 
 
-def _refine(R, s, moments_scatter, dof, noise, constraints, regauge, max_iter, tol=1e-11):
-    """Joint maximum likelihood by :func:`~fusion_gyrocal.core.refine.fisher_scoring` in the gauge's tangent space."""
-    def step(x, delta):
-        Rn, sn = _retract(*x, delta)
-        return Rn, regauge(sn)
+def _refine(x, moments_scatter, dof, noise, constraints, regauge, max_iter, prior_std, reference, tol=1e-11):
+    """Joint maximum likelihood of ``x = (R, s, k)`` (``k`` None: the rigid model) by
+    :func:`~fusion_gyrocal.core.refine.fisher_scoring` in the gauge's tangent space; the cross-axis terms carry the
+    prior ``N(0, prior_std^2)`` (:func:`~fusion_gyrocal.core.linear_map.refine_full`'s)."""
+    full = x[2] is not None
+    n = len(x[1])
 
-    (R, s), it, converged = fisher_scoring(
-        (R, s), cost=lambda x: joint_cost(*x, moments_scatter, noise),
-        gradient=lambda x: joint_gradient(*x, moments_scatter, noise),
-        information=lambda x: 2.0 * joint_information(*x, noise, _signal_scatter(*x, moments_scatter, noise, dof)),
-        retract=step, constraints=lambda x: constraints(x[1]), max_iter=max_iter, tol=tol)
-    return R, s, it, converged
+    def step(x, delta):
+        Rn, sn = _retract(x[0], x[1], delta)
+        return Rn, regauge(sn), (x[2] + delta[6 * n:].reshape(n, 3) if full else None)
+
+    def cost(x):
+        c = joint_cost(x[0], x[1], moments_scatter, noise, x[2], reference)
+        return c + float(np.sum(x[2] ** 2)) / prior_std**2 if full else c
+
+    def gradient(x):
+        g = joint_gradient(x[0], x[1], moments_scatter, noise, x[2], reference)
+        if full:
+            g[6 * n:] += 2.0 * x[2].ravel() / prior_std**2
+        return g
+
+    def information(x):
+        F = joint_information(x[0], x[1], noise, _signal_scatter(*x[:2], moments_scatter, noise, dof, x[2], reference),
+                              x[2], reference)
+        return 2.0 * (F + _prior_information(n, prior_std) if full else F)
+
+    x, it, converged = fisher_scoring(x, cost=cost, gradient=gradient, information=information, retract=step,
+                                      constraints=lambda x: constraints(x[1]), max_iter=max_iter, tol=tol)
+    return x, it, converged
+
+
+def _prior_information(n: int, prior_std: float) -> np.ndarray:
+    """Information (9N, 9N) of the prior ``N(0, prior_std^2)`` on every cross-axis term (zero elsewhere)."""
+    F = np.zeros((9 * n, 9 * n))
+    F[6 * n:, 6 * n:] = np.eye(3 * n) / prior_std**2
+    return F
+
+
+def _pair_windows(windows: WindowStats | None, i: int, j: int) -> WindowStats | None:
+    """The per-window statistics of gyros ``i`` and ``j`` (as gyro 1 and gyro 2) from the stacked ones."""
+    if windows is None:
+        return None
+    idx = np.r_[3 * i:3 * i + 3, 3 * j:3 * j + 3]
+    return dataclasses.replace(windows, mean=windows.mean[:, idx], scatter=windows.scatter[:, idx][:, :, idx])
+
+
+def _cross_axis_tests(moments: ArrayMoments, R, s, noise, windows, reference, o: Options):
+    """Every gyro's cross-axis test against the reference (:func:`~fusion_gyrocal.core.robust.cross_axis` on its
+    pair's moments at the joint rigid estimate) and the model it gets: :func:`choose_full_map`'s, except that with
+    ``linear_map="auto"`` every gyro gets the full map once the data show cross-axis terms on any one of them.
+    Outside the axis-parallel configurations one test sees a single combination of a gyro's three terms, which can
+    be small by chance while the others turn its rotation by a degree; cross-axis sensitivity is a property of the
+    chips, so terms shown on one gyro are expected on all. Returns ``(chi2 (N,), dof (N,), full (N,), shown (N,))``.
+    """
+    n = moments.n_gyros
+    chi2, dof = np.full(n, np.nan), np.zeros(n, int)
+    full, shown = np.zeros(n, bool), np.zeros(n, bool)
+    for j in range(n):
+        if j == reference:
+            continue
+        m = moments.pair(reference, j)
+        A_ls, _ = solve_A(m)
+        _, chi2[j], dof[j] = cross_axis(A_ls, R[j], s[reference], s[j], m, (noise[reference], noise[j]),
+                                        _pair_windows(windows, reference, j),
+                                        n_null=len(classify(R[j], o.parallel_tol_deg).groups))
+        full[j], shown[j] = choose_full_map(o.linear_map, "ml", float(chi2[j]), int(dof[j]))
+    if o.linear_map == "auto" and shown.any():   # the chips have cross-axis terms: every gyro gets them
+        full[np.arange(n) != reference] = True
+    return chi2, dof, full, shown
+
+
+def _cross_budget(k, P, reference, shown, prior_std) -> np.ndarray:
+    """The rotations' covariance (3N, 3N) from the antisymmetric cross-axis parts no data see (the array's
+    :func:`~fusion_gyrocal.core.linear_map.cross_axis_budget`).
+
+    Every pair's relative terms ``k_j - k_i`` (``k_ref = 0``, reference axes) give, as in the pair solver, a variance
+    ``b_ij`` per axis of their antisymmetric part (pooled with the prior where the data show cross-axis terms on
+    either gyro). ``R_ref_j`` carries its pair's ``b_j`` (the pair solver's figure) and two rotations share
+    ``(b_i + b_j - b_ij) / 2``, so the rotation between gyros i and j, ``R_ref_i^T R_ref_j``, carries its pair's
+    ``b_ij``, as far as a covariance can (the nearest positive semi-definite matrix).
+    """
+    n = len(k)
+    Pk = P[6 * n:, 6 * n:]
+
+    def budget(i, j):
+        d = k[j] - k[i]
+        Pd = (Pk[3 * j:3 * j + 3, 3 * j:3 * j + 3] + Pk[3 * i:3 * i + 3, 3 * i:3 * i + 3]
+              - Pk[3 * i:3 * i + 3, 3 * j:3 * j + 3] - Pk[3 * j:3 * j + 3, 3 * i:3 * i + 3])
+        return cross_axis_budget(d, Pd, prior_std if (shown[i] or shown[j]) else None)
+
+    C = np.zeros((n, n))
+    for j in range(n):
+        if j != reference:
+            C[j, j] = budget(reference, j)
+    for i, j in itertools.combinations(range(n), 2):
+        if reference not in (i, j):
+            C[i, j] = C[j, i] = 0.5 * (C[i, i] + C[j, j] - budget(i, j))
+    w, V = np.linalg.eigh(C)
+    C = (V * np.clip(w, 0.0, None)) @ V.T
+    return np.kron(C, np.eye(3))
 
 
 # ---------------------------------------------------------------------------------------- public solvers
@@ -479,6 +619,9 @@ def solve_array(moments: ArrayMoments, options: Options | None = None, *, refere
             (Lemma 1).
         ``covariance``
             What is reported with ``windows`` (``"auto"``, ``"model"``, ``"robust"``).
+        ``linear_map``, ``cross_axis_std``
+            Every gyro's sensor model against the reference and the prior of its cross-axis terms (module
+            docstring; :class:`~fusion_gyrocal.options.Options`).
     reference : int
         Index of the reference gyro (its frame is the array frame, ``R_ref_k[reference] = I``).
     max_iter : int
@@ -525,14 +668,32 @@ def solve_array(moments: ArrayMoments, options: Options | None = None, *, refere
     Sc, dof = moments.scatter, moments.dof
     fix_reference = np.eye(3, 6 * n, 3 * reference)   # the reference's rotation is the array frame
 
-    def constraints(sc):
-        """Linearised conditions on ``[dtheta (3n), log s (3n)]``: the reference rotation, then the gauge."""
-        return np.vstack([fix_reference, gauge.constraints(groups, sc, leading=3 * n)])
+    def constraints(sc, held=None):
+        """Linearised conditions on ``[dtheta (3n), log s (3n)]``: the reference rotation, then the gauge; with
+        ``held`` (N,) bool, on ``[dtheta, log s, k (3n)]`` with those gyros' cross-axis terms held at zero."""
+        C = np.vstack([fix_reference, gauge.constraints(groups, sc, leading=3 * n)])
+        if held is None:
+            return C
+        rows = np.eye(9 * n)[[6 * n + 3 * j + m for j in np.flatnonzero(held) for m in range(3)]]
+        return np.vstack([np.hstack([C, np.zeros((len(C), 3 * n))]), rows])
 
     def regauge(sc):
         return gauge.apply(groups, sc)
 
-    R, s, noise, total_it, converged = _fit(moments, R, s, user_noise, constraints, regauge, max_iter)
+    (R, s, _), noise, total_it, converged = _fit(moments, (R, s, None), user_noise, constraints, regauge, max_iter,
+                                                 o.cross_axis_std, reference)
+    # the sensor model every gyro's data call for (the pair solver's test, against the reference)
+    chi2, cdof, full, shown = _cross_axis_tests(moments, R, s, noise, windows, reference, o)
+    k, held = None, None
+    if full.any():
+        held = ~full
+
+        def constraints_full(sc):
+            return constraints(sc, held)
+
+        (R, s, k), noise, it, converged = _fit(moments, (R, s, np.zeros((n, 3))), user_noise, constraints_full,
+                                               regauge, max_iter, o.cross_axis_std, reference)
+        total_it += it
     if user_noise is not None:
         noise_source = noise_source or "user"
     else:
@@ -541,24 +702,35 @@ def solve_array(moments: ArrayMoments, options: Options | None = None, *, refere
     notes = [] if converged else [f"joint maximum-likelihood refinement stopped after {total_it} iterations without "
                                   "converging"]
 
-    # covariance: inverse Fisher information in the gauge's tangent space
-    Omega = _signal_scatter(R, s, Sc, noise, dof)
-    F = joint_information(R, s, noise, Omega)
-    C = constraints(s)
+    # covariance: inverse Fisher information in the gauge's tangent space (with the cross-axis prior)
+    Omega = _signal_scatter(R, s, Sc, noise, dof, k, reference)
+    F = joint_information(R, s, noise, Omega, k, reference)
+    if k is not None:
+        F = F + _prior_information(n, o.cross_axis_std)
+    C = constraints(s, held)
     P = constrained_inverse(F, C)
-    cost = joint_cost(R, s, Sc, noise)
-    chi2_dof = max(3.0 * (n - 1) * dof - (6 * n - len(C)), 1.0)
+    cost = joint_cost(R, s, Sc, noise, k, reference)
+    chi2_dof = max(3.0 * (n - 1) * dof - (len(F) - len(C)), 1.0)
     ratio = cost / chi2_dof
+
+    def robust():
+        V = score_variance(_window_scores(R, s, noise, windows, k, reference), windows)
+        if k is not None:   # the cross-axis prior's part of the scores' variance (the model's)
+            V = V + 4.0 * _prior_information(n, o.cross_axis_std)
+        return sandwich(F, V, C)
+
     P, inflation, basis_kind, basis, more = reported_covariance(
-        P, lambda: sandwich(F, score_variance(_window_scores(R, s, noise, windows), windows), C), windows,
-        o.covariance, "noise model (inverse Fisher information, Appendix B)", ratio, user_noise=user_noise is not None,
-        what="flex, skew, timing")
+        P, robust, windows, o.covariance, "noise model (inverse Fisher information, Appendix B)", ratio,
+        user_noise=user_noise is not None, what="flex, skew, timing")
     notes += more
 
-    bias, cov = _bias_and_covariance(moments, R, s, P, noise, reference)
-    residual_rms = _residual_rms(R, s, Sc, dof, noise)
+    bias, cov, cross_cov = _bias_and_covariance(moments, R, s, k, P, noise, reference)
+    skew_cov = np.zeros((3 * n, 3 * n)) if k is None else _cross_budget(k, P, reference, shown, o.cross_axis_std)
+    cov[:3 * n, :3 * n] += skew_cov
+    residual_rms = _residual_rms(R, s, Sc, dof, noise, k, reference)
     snr = np.sqrt(np.clip(np.diag(Omega), 0.0, None)) / noise[reference]
     obs = _observable(groups, n)
+    notes += _model_notes(k, P, chi2, cdof, full, shown, skew_cov, reference)
     if len(groups) > 1:
         notes.append(f"{len(groups)} groups of linked scale factors (axis-parallel gyros, Lemmas 2-3); only ratios "
                      "within a group are determined")
@@ -567,68 +739,97 @@ def solve_array(moments: ArrayMoments, options: Options | None = None, *, refere
         configurations=configs, covariance=cov, gauge=_describe(gauge, n, len(groups)), snr=snr,
         n_samples=int(moments.count), noise_std=noise, noise_source=noise_source, residual_rms=residual_rms,
         iterations=total_it, bias_segments=moments.segments, notes=tuple(notes), moments=moments,
-        covariance_basis=basis, covariance_kind=basis_kind, robust_inflation=inflation)
+        covariance_basis=basis, covariance_kind=basis_kind, robust_inflation=inflation,
+        linear_map=tuple("" if j == reference else "full" if full[j] else "rigid" for j in range(n)),
+        cross_axis_terms=np.zeros((n, 3)) if k is None else k, cross_axis_covariance=cross_cov,
+        cross_axis_chi2=chi2, cross_axis_dof=tuple(int(v) for v in cdof), skew_rotation_covariance=skew_cov)
 
 
-def _fit(moments, R, s, user_noise, constraints, regauge, max_iter):
+def _model_notes(k, P, chi2, dof, full, shown, skew_cov, reference) -> list:
+    """The notes on every gyro's sensor model (as the pair solver's)."""
+    n = len(full)
+    notes = []
+    if k is not None:
+        sd = np.sqrt(np.clip(np.diag(P)[6 * n:], 0.0, None)).reshape(n, 3)
+        terms = "; ".join(f"gyro {j}: " + ", ".join(f"{a} {100 * v:.3g} +- {100 * e:.2g} %"
+                                                     for a, v, e in zip(("xy", "yz", "zx"), k[j], sd[j]))
+                          + f" (chi2 {chi2[j]:.3g} for {dof[j]} dof)" for j in np.flatnonzero(full))
+        budget = np.sqrt(np.diag(skew_cov)[[3 * j for j in np.flatnonzero(full)]])
+        notes.append(f"full linear map (omega_ref = (I + K_j) S_ref R_ref_j S_j^-1 omega_j): symmetric relative "
+                     f"cross-axis terms against gyro {reference}: {terms}. R_ref_k are the rotations under the "
+                     "symmetric convention, repeatable from session to session; the chip-to-chip rotations differ "
+                     "from them by the antisymmetric parts, which no data see: budgeted at "
+                     f"{np.rad2deg(budget.min()):.3g}-{np.rad2deg(budget.max()):.3g} deg per axis "
+                     "(skew_rotation_covariance, included in the covariance)")
+    shown_rigid = [j for j in range(n) if shown[j] and not full[j]]
+    if shown_rigid:
+        notes.append("the full linear map fits significantly better than rotation + scale factors for gyro(s) "
+                     + ", ".join(f"{j} (chi2 {chi2[j]:.3g} for {dof[j]} dof)" for j in shown_rigid)
+                     + " (p < 0.001): use linear_map='auto' or 'full'")
+    return notes
+
+
+def _fit(moments, x, user_noise, constraints, regauge, max_iter, prior_std, reference):
     """Fisher scoring with the given noise, or alternating with the noise of the pairwise residuals (weights from
-    the current fit, fit with the current weights): ``(R, s, noise, iterations, converged)``."""
+    the current fit, fit with the current weights): ``(x, noise, iterations, converged)``."""
     Sc, dof = moments.scatter, moments.dof
     if user_noise is not None:
-        R, s, it, converged = _refine(R, s, Sc, dof, user_noise, constraints, regauge, max_iter)
-        return R, s, user_noise, it, converged
-    noise, total = _noise_from_pairs(moments, R, s), 0
+        x, it, converged = _refine(x, Sc, dof, user_noise, constraints, regauge, max_iter, prior_std, reference)
+        return x, user_noise, it, converged
+    noise, total = _noise_from_pairs(moments, *x, reference), 0
     for _ in range(4):
-        R, s, it, converged = _refine(R, s, Sc, dof, noise, constraints, regauge, max_iter)
+        x, it, converged = _refine(x, Sc, dof, noise, constraints, regauge, max_iter, prior_std, reference)
         total += it
-        new = _noise_from_pairs(moments, R, s)
+        new = _noise_from_pairs(moments, *x, reference)
         done = np.max(np.abs(new / noise - 1.0)) < 1e-3
         noise = new
         if done:
             break
-    return R, s, noise, total, converged
+    return x, noise, total, converged
 
 
-def _bias_and_covariance(moments, R, s, P, noise, reference):
-    """The biases against the reference (Eq. 5, 12) and the (9N, 9N) covariance from that of
-    ``[dtheta_all, log s_all]``."""
+def _bias_and_covariance(moments, R, s, k, P, noise, reference):
+    """The biases against the reference (Eq. 5, 12), the (9N, 9N) covariance of ``[dtheta, scale, bias]`` and
+    the (3N, 12N) covariance of the cross-axis terms with ``[dtheta, scale, bias, k]``, from the covariance ``P``
+    of ``[dtheta_all, log s_all]`` (and ``k_all`` with the full map)."""
     n = moments.n_gyros
+    full = k is not None
     means = moments.mean.reshape(n, 3)
     bias = np.zeros((n, 3))
-    cov = np.zeros((9 * n, 9 * n))
-    Jl = np.diag(np.concatenate([np.ones(3 * n), s.ravel()]))
-    cov[:6 * n, :6 * n] = Jl @ P @ Jl.T
-    Gs = {}
-    for k in range(n):
-        if k == reference:
+    T = np.zeros((12 * n, P.shape[0]))   # [dtheta, scale, bias, k] from [dtheta, log s (, k)]
+    T[:3 * n, :3 * n] = np.eye(3 * n)
+    T[3 * n:6 * n, 3 * n:6 * n] = np.diag(s.ravel())
+    if full:
+        T[9 * n:, 6 * n:] = np.eye(3 * n)
+    noise_part = np.zeros((12 * n, 12 * n))
+    for j in range(n):
+        if j == reference:
             continue
-        A = A_of(R[k], s[reference], s[k])
-        bias[k] = means[reference] - A @ means[k]
-        Dk = dA_dp(R[k], s[reference], s[k])  # w.r.t. [dtheta_k, log s_ref, log s_k]
-        G = np.zeros((3, 6 * n))
-        idx = np.r_[3 * k:3 * k + 3, 3 * n + 3 * reference:3 * n + 3 * reference + 3, 3 * n + 3 * k:3 * n + 3 * k + 3]
-        G[:, idx] = np.einsum("pij,j->ip", Dk, means[k])
-        Gs[k] = (G, A)
-    for k, (Gk, Ak) in Gs.items():
-        bk = slice(6 * n + 3 * k, 6 * n + 3 * k + 3)
-        cov[bk, :6 * n] = -Gk @ P @ Jl.T
-        cov[:6 * n, bk] = cov[bk, :6 * n].T
-        for l, (Gl, Al) in Gs.items():
-            bl = slice(6 * n + 3 * l, 6 * n + 3 * l + 3)
-            noise_part = noise[reference] ** 2 * np.eye(3)
-            if k == l:
-                noise_part = noise_part + noise[k] ** 2 * Ak @ Ak.T
-            cov[bk, bl] = noise_part / moments.count + Gk @ P @ Gl.T
-    return bias, cov
+        kj = None if k is None else k[j]
+        A = A_of(R[j], s[reference], s[j], kj)
+        bias[j] = means[reference] - A @ means[j]
+        Dj = dA_dp(R[j], s[reference], s[j], kj)  # w.r.t. [dtheta_j, log s_ref, log s_j (, k_j)]
+        idx = np.r_[3 * j:3 * j + 3, 3 * n + 3 * reference:3 * n + 3 * reference + 3, 3 * n + 3 * j:3 * n + 3 * j + 3]
+        if full:
+            idx = np.r_[idx, 6 * n + 3 * j:6 * n + 3 * j + 3]
+        bj = slice(6 * n + 3 * j, 6 * n + 3 * j + 3)
+        T[bj, idx] = -np.einsum("pij,j->ip", Dj, means[j])
+        noise_part[bj, bj] += noise[j] ** 2 * A @ A.T / moments.count
+        for l in range(n):
+            if l != reference:
+                noise_part[bj, 6 * n + 3 * l:6 * n + 3 * l + 3] += noise[reference] ** 2 * np.eye(3) / moments.count
+    full_cov = T @ P @ T.T + noise_part
+    full_cov = 0.5 * (full_cov + full_cov.T)
+    return bias, full_cov[:9 * n, :9 * n], (full_cov[9 * n:] if full else np.zeros((3 * n, 12 * n)))
 
 
-def _residual_rms(R, s, Sc, dof, noise):
+def _residual_rms(R, s, Sc, dof, noise, k=None, reference: int = 0):
     """Per-gyro residual RMS against the fitted common rate: ``e = Sigma P y``."""
     n = len(noise)
-    Pm, _, _ = _projector(_H_of(R, s), noise**2)
+    Pm, _, _ = _projector(_H_of(R, s, k, reference), noise**2)
     E = np.repeat(noise**2, 3)[:, None] * Pm
     Res = E @ Sc @ E.T
-    return np.sqrt(np.clip([np.trace(Res[3 * k:3 * k + 3, 3 * k:3 * k + 3]) for k in range(n)], 0, None)
+    return np.sqrt(np.clip([np.trace(Res[3 * g:3 * g + 3, 3 * g:3 * g + 3]) for g in range(n)], 0, None)
                    / (3.0 * max(dof, 1.0)))
 
 
@@ -648,7 +849,7 @@ def calibrate_array(omegas, options: Options | None = None, *, reference: int = 
 
         ``noise_std``
             White-noise std per sample (rad/s), one value or one per gyro (N); estimated when omitted.
-        ``gauge``, ``parallel_tol_deg``, ``min_snr``, ``covariance``
+        ``gauge``, ``parallel_tol_deg``, ``min_snr``, ``covariance``, ``linear_map``, ``cross_axis_std``
             See :func:`solve_array`.
         ``bias_window``
             Model every bias as piecewise constant over windows of this many samples.

@@ -17,10 +17,11 @@ from ..errors import ConfigurationError, FormatError, InputError
 from .model import (PairCalibration, from_json_list, mark_undetermined, parallel_axes, ratio_std, rotation_forms,
                     rotation_text, scale_ratios, to_json_list, to_json_number)
 from .moments import Moments
-from .observability import A_of, per_axis_snr, residual_weight
+from ..lie import exp, log
+from .observability import CROSS_AXIS_PAIRS, dA_dp, per_axis_snr, residual_weight
 from .refine import residual_scatter
 from .robust import CovarianceBasis
-from .solve import pair_covariance
+from .solve import parameter_covariance
 
 if TYPE_CHECKING:
     from .array import ArrayMoments
@@ -28,11 +29,12 @@ if TYPE_CHECKING:
 ARRAY_KIND = "array_calibration"
 #: Format of :meth:`ArrayCalibration.to_dict` (``kind`` tells it from a pair's JSON).
 ARRAY_FORMAT_VERSION = "1.1"
-#: Versions :meth:`ArrayCalibration.from_dict` reads (1.1 adds ``nominal_R_ref_k``, ``provenance`` and the derived
+#: Versions :meth:`ArrayCalibration.from_dict` reads (1.1 adds the cross-axis fields, ``nominal_R_ref_k``, ``provenance`` and the derived
 #: ``rotations``, ``relative_scale``, ``deviation`` entries, which are recomputed on reading).
 ARRAY_READABLE_VERSIONS = ("1.0", ARRAY_FORMAT_VERSION)
 _ARRAY_FIELDS = ("R_ref_k", "scale", "bias", "scale_observable", "covariance", "snr", "noise_std", "residual_rms",
-                 "time_offset_s", "time_offset_std_s")
+                 "time_offset_s", "time_offset_std_s", "cross_axis_terms", "cross_axis_covariance", "cross_axis_chi2",
+                 "skew_rotation_covariance")
 
 
 def _json_ready(v):
@@ -106,6 +108,29 @@ class ArrayCalibration:
         the rigid-model misfit, :func:`~fusion_gyrocal.pipeline.alignment.align_streams`), ``"given"``,
         ``"one clock"`` (recordings with identical timestamps) or ``"sample-aligned"`` (input without
         timestamps).
+    linear_map : tuple of str (N,)
+        Every gyro's sensor model against the reference (:mod:`~fusion_gyrocal.core.linear_map`, chosen as the
+        pair solver chooses it, ``linear_map`` option): ``"rigid"`` (``A = S_ref R_ref_k S_k^-1``, Eq. 4) or
+        ``"full"`` (``omega_ref = (I + K_k) S_ref R_ref_k S_k^-1 omega_k``, ``K_k`` the symmetric relative
+        cross-axis terms, so ``R_ref_k`` is the rotation under the pair's symmetric convention); ``""`` for the
+        reference.
+    cross_axis_terms : ndarray (N, 3)
+        ``k = (K_xy, K_yz, K_zx)`` of every gyro against the reference (:func:`~fusion_gyrocal.core.observability.
+        cross_matrix`, reference axes); zero for the reference and the ``"rigid"`` gyros.
+    cross_axis_covariance : ndarray (3N, 12N)
+        Covariance of ``[k_0..k_{N-1}]`` (rows) with ``[dtheta, scale, bias, k]`` (columns, ``covariance``'s order
+        followed by the cross-axis terms); its last 3N columns are the cross-axis terms' own covariance. Zero
+        where a gyro's terms are not estimated.
+    cross_axis_chi2 : ndarray (N,)
+        Every gyro's cross-axis chi-square against the reference (:func:`~fusion_gyrocal.core.robust.cross_axis`
+        on its pair at the joint rigid estimate; NaN for the reference), with ``cross_axis_dof`` degrees of freedom.
+    cross_axis_dof : tuple of int (N,)
+    skew_rotation_covariance : ndarray (3N, 3N)
+        The part of the rotation blocks of ``covariance`` that no data see: the antisymmetric cross-axis parts
+        (:func:`~fusion_gyrocal.core.linear_map.cross_axis_budget` of every pair's relative terms: the rotation
+        between any two gyros carries its own pair's budget, as far as a covariance can); zero with the rigid
+        model. Two sessions of one
+        board share it, so their difference cancels it.
     """
 
     R_ref_k: np.ndarray
@@ -134,9 +159,27 @@ class ArrayCalibration:
     robust_inflation: float = float("nan")
     nominal_R_ref_k: np.ndarray | None = None
     provenance: object = None
+    linear_map: tuple | None = None
+    cross_axis_terms: np.ndarray | None = None
+    cross_axis_covariance: np.ndarray | None = None
+    cross_axis_chi2: np.ndarray | None = None
+    cross_axis_dof: tuple | None = None
+    skew_rotation_covariance: np.ndarray | None = None
 
     def __post_init__(self):
         n = np.asarray(self.scale).shape[0]
+        defaults = {"linear_map": tuple("" if k == self.reference else "rigid" for k in range(n)),
+                    "cross_axis_terms": np.zeros((n, 3)), "cross_axis_covariance": np.zeros((3 * n, 12 * n)),
+                    "cross_axis_chi2": np.full(n, np.nan), "cross_axis_dof": (0,) * n,
+                    "skew_rotation_covariance": np.zeros((3 * n, 3 * n))}
+        for name, value in defaults.items():
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, value)
+        for name in ("linear_map", "cross_axis_dof"):
+            if len(getattr(self, name)) != n:
+                raise InputError(f"{name}: expected {n} entries, got {len(getattr(self, name))}")
+        object.__setattr__(self, "linear_map", tuple(str(x) for x in self.linear_map))
+        object.__setattr__(self, "cross_axis_dof", tuple(int(x) for x in self.cross_axis_dof))
         if self.time_offset_s is None:
             object.__setattr__(self, "time_offset_s", np.zeros(n))
         if self.time_offset_std_s is None:
@@ -148,7 +191,9 @@ class ArrayCalibration:
             raise InputError(f"time_offset_source: expected {n} entries, got {len(self.time_offset_source)}")
         shapes = {"R_ref_k": (n, 3, 3), "scale": (n, 3), "bias": (n, 3), "scale_observable": (n, 3),
                   "covariance": (9 * n, 9 * n), "snr": (3,), "noise_std": (n,), "residual_rms": (n,),
-                  "time_offset_s": (n,), "time_offset_std_s": (n,)}
+                  "time_offset_s": (n,), "time_offset_std_s": (n,), "cross_axis_terms": (n, 3),
+                  "cross_axis_covariance": (3 * n, 12 * n), "cross_axis_chi2": (n,),
+                  "skew_rotation_covariance": (3 * n, 3 * n)}
         for name, shape in shapes.items():
             arr = np.array(getattr(self, name), dtype=bool if name == "scale_observable" else np.float64)
             if arr.shape != shape:
@@ -253,32 +298,66 @@ class ArrayCalibration:
     def pair(self, i: int, j: int) -> PairCalibration:
         """The joint estimate seen as the calibration of the pair (gyro i as "gyro 1", gyro j as "gyro 2").
 
-        ``R_1_2 = R_ref_k[i]^T R_ref_k[j]`` (so loops close exactly), scale factors of the two gyros
-        in the array's gauge, bias ``mean_i - A mean_j`` (Eq. 12), and the 12x12 covariance derived
-        from the joint one (undetermined scale factors: infinite variance, as in
-        :class:`PairCalibration`).
+        The pair's map ``A_ij`` of the joint model (``H_i H_j^-1``, :mod:`~fusion_gyrocal.core.array`) in the pair
+        solver's parameters (:func:`pair_convention`): without cross-axis terms ``R_1_2 = R_ref_k[i]^T R_ref_k[j]``
+        (so loops close exactly) and the array's scale factors; with them (``linear_map`` ``"full"`` for either
+        gyro) the rotation, gyro i's scale factors and the symmetric cross-axis terms of
+        ``A_ij = (I + K) S_i R_1_2 S_j^-1``, the pair's convention. For a pair with the reference that is the
+        array's own parametrisation; for two other gyros ``R_1_2`` differs from ``R_ref_k[i]^T R_ref_k[j]`` by the
+        antisymmetric part of ``S^-1 K S`` (``K`` the difference of their cross-axis terms, ``S`` the scale
+        factors): ``O(|K| * dscale)``, said in the notes. Bias ``mean_i - A_ij mean_j`` (Eq. 12); the 12x12
+        covariance and the view's cross-axis covariance follow from the joint one to first order (undetermined
+        scale factors: infinite variance, as in :class:`PairCalibration`); ``skew_rotation_covariance`` is the
+        pair's part of the joint one.
         """
+        from .array import _G_of, _retract
+
         m = self.moments.pair(i, j)  # checks the indices
-        n = self.n_gyros
-        Ri, Rj = self.R_ref_k[i], self.R_ref_k[j]
-        R = Ri.T @ Rj
-        s1, s2 = self.scale[i], self.scale[j]
-        A = A_of(R, s1, s2)
+        n, ref = self.n_gyros, self.reference
+        full = "full" in (self.linear_map[i], self.linear_map[j])
+        R0, s0, k0 = self.R_ref_k, self.scale, (self.cross_axis_terms if full else None)
+
+        def view(delta):
+            """``[dtheta, log s_1, log s_2 (, k)]`` of the pair after the joint step ``delta``, and its state."""
+            R, s = _retract(R0, s0, delta)
+            k = None if k0 is None else k0 + delta[6 * n:].reshape(n, 3)
+            H = [(s[g][:, None] * R[g].T) @ (np.eye(3) if k is None else _G_of(s[ref], k[g])) for g in (i, j)]
+            A = H[0] @ np.linalg.inv(H[1])
+            Rp, s1, kp = pair_convention(A, s[i], s[j], R[i].T @ R[j]) if full else (R[i].T @ R[j], s[i], None)
+            return Rp, s1, s[j], kp, A
+
+        Rv, s1, s2, kv, A = view(np.zeros((9 if full else 6) * n))
+        P_joint = _log_parameter_covariance(self, full)
+        J = np.zeros((12 if full else 9, len(P_joint)))   # d[dtheta_ij, log s_1, log s_2 (, k)] / d[joint]
+        h = 1e-7
+        for p in range(len(P_joint)):
+            d = np.zeros(len(P_joint))
+            d[p] = h
+            out = [view(d), view(-d)]
+            J[:3, p] = (log(out[0][0] @ Rv.T) - log(out[1][0] @ Rv.T)) / (2 * h)
+            J[3:9, p] = (np.log(np.concatenate(out[0][1:3])) - np.log(np.concatenate(out[1][1:3]))) / (2 * h)
+            if full:
+                J[9:, p] = (out[0][3] - out[1][3]) / (2 * h)
+        P = J @ P_joint @ J.T
+        skew_cov = J[:3, :3 * n] @ self.skew_rotation_covariance @ J[:3, :3 * n].T
         noise = (float(self.noise_std[i]), float(self.noise_std[j]))
-        # [dtheta_ij, log s_i, log s_j] = J [dtheta_all, log s_all]; dtheta_ij = R_i^T (dtheta_j - dtheta_i)
-        J = np.zeros((9, 6 * n))
-        J[0:3, 3 * i:3 * i + 3] = -Ri.T
-        J[0:3, 3 * j:3 * j + 3] += Ri.T
-        J[3:6, 3 * n + 3 * i:3 * n + 3 * i + 3] = np.eye(3)
-        J[6:9, 3 * n + 3 * j:3 * n + 3 * j + 3] = np.eye(3)
-        P9 = J @ _log_parameter_covariance(self) @ J.T
-        cov = pair_covariance(P9, R, s1, s2, A, m, np.linalg.inv(residual_weight(A, noise)) / m.count)
+        Jv = np.zeros((9, len(P)))
+        Jv[:3, :3] = np.eye(3)
+        Jv[3:9, 3:9] = np.diag(np.concatenate([s1, s2]))
+        cov = parameter_covariance(P, Jv, dA_dp(Rv, s1, s2, kv), m, np.linalg.inv(residual_weight(A, noise)) / m.count)
+        cov[:3, :3] += skew_cov
         obs = np.stack([self.scale_observable[i], self.scale_observable[j]])
-        ratio_sd = scale_ratios(R, s1, s2, cov)[1]   # gauge-invariant: kept before the marking hides it
+        ratio_sd = scale_ratios(Rv, s1, s2, cov)[1]   # gauge-invariant: kept before the marking hides it
         mark_undetermined(cov, obs)
         M = residual_scatter(A, m.scatter)
+        notes = (f"view of the joint calibration of {n} gyros (gyro {i + 1} as gyro 1, gyro {j + 1} as gyro 2)",)
+        if full and ref not in (i, j):
+            shift = float(np.linalg.norm(log(Rv @ (self.R_ref_k[j].T @ self.R_ref_k[i]))))
+            notes += (f"R_1_2 in the pair's symmetric cross-axis convention differs from R_ref_k[{i}]^T R_ref_k[{j}] "
+                      f"by {np.rad2deg(shift) * 1e3:.3g} mdeg (the antisymmetric part of S^-1 K S: |K| x dscale)",)
+        tested = ref in (i, j)
         return PairCalibration(
-            R_1_2=R, scale_1=s1, scale_2=s2, bias=m.mean_1 - A @ m.mean_2,
+            R_1_2=Rv, scale_1=s1, scale_2=s2, bias=m.mean_1 - A @ m.mean_2,
             configuration=self.configurations[i][j], scale_observable=obs, covariance=cov,
             gauge=self.gauge, snr=per_axis_snr(m, noise), n_samples=int(m.count), noise_std=np.array(noise),
             noise_source=self.noise_source, covariance_basis=self.covariance_basis,
@@ -288,8 +367,12 @@ class ArrayCalibration:
             time_offset_s=float(self.time_offset_s[j] - self.time_offset_s[i]),
             time_offset_std_s=float(np.hypot(self.time_offset_std_s[i], self.time_offset_std_s[j])),
             scale_ratio_std=ratio_sd,
-            notes=(f"view of the joint calibration of {n} gyros (gyro {i + 1} as gyro 1, gyro {j + 1} as gyro 2)",)
-            + self.notes)
+            skew_rotation_covariance=skew_cov, linear_map="full" if full else "rigid",
+            cross_axis_terms=np.zeros(3) if kv is None else kv,
+            cross_axis_covariance=P[9:, 9:] if full else np.zeros((3, 3)),
+            cross_axis_chi2=float(self.cross_axis_chi2[i + j - ref]) if tested else float("nan"),
+            cross_axis_dof=int(self.cross_axis_dof[i + j - ref]) if tested else 0,
+            notes=notes + self.notes)
 
     # ------------------------------------------------------------------ serialisation
     def to_dict(self) -> dict:
@@ -300,7 +383,9 @@ class ArrayCalibration:
         """
         out = {"kind": ARRAY_KIND, "format_version": ARRAY_FORMAT_VERSION, "units": {"rate": "rad/s", "time": "s"},
                "convention": "omega_ref = R_ref_k[k] @ omega_k; omega_k_meas = diag(scale[k]) omega_k + b_k; "
-                             "time_offset_s[k] is added to gyro k's timestamps",
+                             "where linear_map[k] is 'full', omega_ref_meas = (I + K_k) diag(scale[ref]) R_ref_k[k] "
+                             "diag(scale[k])^-1 omega_k_meas + bias[k], K_k the symmetric zero-diagonal matrix of "
+                             "cross_axis_terms[k] = (xy, yz, zx); time_offset_s[k] is added to gyro k's timestamps",
                "covariance_order": "[dtheta_0..dtheta_N-1, scale_0..scale_N-1, bias_0..bias_N-1], 3 entries each"}
         for f in fields(self):
             v = getattr(self, f.name)
@@ -388,7 +473,7 @@ class ArrayCalibration:
                 v = tuple(tuple((int(g), int(a)) for g, a in group) for group in v)
             elif f.name == "configurations":
                 v = tuple(tuple(str(c) for c in row) for row in v)
-            elif f.name in ("notes", "time_offset_source"):
+            elif f.name in ("notes", "time_offset_source", "linear_map", "cross_axis_dof"):
                 v = tuple(v)
             elif f.name == "covariance_kind":
                 v = CovarianceBasis.read(v, "array calibration")
@@ -401,8 +486,43 @@ class ArrayCalibration:
             raise FormatError(f"array calibration: {exc}") from None
 
 
-def _log_parameter_covariance(cal: ArrayCalibration) -> np.ndarray:
-    """(6N, 6N) covariance of ``[dtheta_all, log scale_all]`` from the stored one."""
+def _log_parameter_covariance(cal: ArrayCalibration, full: bool = False) -> np.ndarray:
+    """(6N, 6N) covariance of ``[dtheta_all, log scale_all]`` from the stored one, without the rotations' skew budget
+    (``skew_rotation_covariance``); (9N, 9N) with the cross-axis terms ``k_all`` appended when ``full``."""
     n = cal.n_gyros
     d = np.concatenate([np.ones(3 * n), 1.0 / cal.scale.ravel()])
-    return cal.covariance[:6 * n, :6 * n] * np.outer(d, d)
+    P = cal.covariance[:6 * n, :6 * n] * np.outer(d, d)
+    P[:3 * n, :3 * n] -= cal.skew_rotation_covariance
+    if not full:
+        return P
+    X = cal.cross_axis_covariance
+    out = np.zeros((9 * n, 9 * n))
+    out[:6 * n, :6 * n] = P
+    out[6 * n:, :6 * n] = X[:, :6 * n] * d[None, :]
+    out[:6 * n, 6 * n:] = out[6 * n:, :6 * n].T
+    out[6 * n:, 6 * n:] = X[:, 9 * n:]
+    return out
+
+
+def pair_convention(A, s1, s2, R0, iterations: int = 8) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(R, s_1, k)`` with ``A = (I + K) S_1 R S_2^-1``, ``K = cross_matrix(k)`` symmetric with a zero diagonal
+    (the pair solver's full linear map, :mod:`~fusion_gyrocal.core.linear_map`), for given ``s_2`` near
+    ``(R0, s1)``.
+
+    ``Y = A S_2 R^T`` must be ``(I + K) S_1``: ``s_1 = diag(Y)`` and ``R`` turned by the antisymmetric part of
+    ``Y S_1^-1`` until it vanishes (a contraction by the scale factors' spread; a few steps reach float precision).
+    """
+    R, s1 = np.array(R0, float), np.array(s1, float)
+    for _ in range(iterations):
+        Y = (np.asarray(A) * np.asarray(s2)[None, :]) @ R.T
+        s1 = np.diag(Y).copy()
+        X = Y / s1[None, :]
+        phi = 0.5 * np.array([X[2, 1] - X[1, 2], X[0, 2] - X[2, 0], X[1, 0] - X[0, 1]])
+        R = exp(phi) @ R
+        if np.max(np.abs(phi)) < 1e-15:
+            break
+    Y = (np.asarray(A) * np.asarray(s2)[None, :]) @ R.T
+    s1 = np.diag(Y).copy()
+    X = Y / s1[None, :]
+    k = np.array([0.5 * (X[a, b] + X[b, a]) for a, b in CROSS_AXIS_PAIRS])
+    return R, s1, k
