@@ -30,7 +30,8 @@ ARRAY_KIND = "array_calibration"
 #: Format of :meth:`ArrayCalibration.to_dict` (``kind`` tells it from a pair's JSON).
 ARRAY_FORMAT_VERSION = "1.1"
 #: Versions :meth:`ArrayCalibration.from_dict` reads (1.1 adds the cross-axis fields, ``nominal_R_ref_k``,
-#: ``provenance`` and the derived ``rotations``, ``relative_scale``, ``deviation`` entries, which are recomputed on reading).
+#: ``provenance`` and the derived ``rotations``, ``relative_scale``, ``deviation`` entries, which are recomputed on
+#: reading).
 ARRAY_READABLE_VERSIONS = ("1.0", ARRAY_FORMAT_VERSION)
 _ARRAY_FIELDS = ("R_ref_k", "scale", "bias", "scale_observable", "covariance", "snr", "noise_std", "residual_rms",
                  "time_offset_s", "time_offset_std_s", "cross_axis_terms", "cross_axis_covariance", "cross_axis_chi2",
