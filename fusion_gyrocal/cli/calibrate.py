@@ -29,11 +29,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                               formatter_class=argparse.RawDescriptionHelpFormatter)
     add_recording_args(p, many=True)
     out = p.add_argument_group("outputs")
-    out.add_argument("--output", "-o", help="write the full result as JSON (every gyro)")
+    out.add_argument("--output", "-o", help="write the full result as JSON (every gyro); '-' is standard output")
     out.add_argument("--kalibr", metavar="FOLDER",
                      help="write Kalibr files into FOLDER (created): imu0.yaml, imu1.yaml, ... (what "
                           "kalibr_calibrate_imu_camera --imu reads) and imu_chain.yaml (Kalibr's result layout)")
-    out.add_argument("--openvins", metavar="FILE", help="write an OpenVINS kalibr_imu_chain.yaml (every gyro)")
+    out.add_argument("--openvins", metavar="FILE", help="write an OpenVINS kalibr_imu_chain.yaml (every gyro); '-' is standard output")
     p.add_argument("--array", action="store_true",
                    help="calibrate two gyros with the joint N-gyro solver too (default: the pair pipeline)")
     add_option_arguments(p)
@@ -47,6 +47,9 @@ def _kalibr_folder(path: str):
     from ..errors import OptionError
 
     p = Path(path)
+    if path == "-":
+        raise OptionError("--kalibr: expected a folder (imu0.yaml, imu1.yaml, ... are written into it), got '-' "
+                          "(standard output takes one file: --output - or --openvins -)")
     if p.suffix.lower() in (".yaml", ".yml"):
         raise OptionError(f"--kalibr: expected a folder (Kalibr reads one file per IMU: imu0.yaml, imu1.yaml, ... "
                           f"are written into it), got the file name {path!r}")
@@ -59,14 +62,17 @@ def _topics(args, sources) -> list[str]:
 
 def run(args) -> int:
     """Calibrate; exit code 0 (a pair flagged not rigid with ``--allow-not-rigid`` too, with a warning)."""
-    from ..io.writers import (write_json, write_kalibr_imu_chain, write_kalibr_imu_configs,
+    from ..io.writers import (STDOUT, output_group, write_json, write_kalibr_imu_chain, write_kalibr_imu_configs,
                               write_openvins_imu_chain)
     from ..io.report import uncertainty_basis
     from ..progress import progress_bar
     from .display import array_table, console as make_console, summary_table
 
     kalibr = _kalibr_folder(args.kalibr) if args.kalibr else None
-    console = make_console()
+    if args.output == STDOUT and args.openvins == STDOUT:
+        from ..errors import OptionError
+        raise OptionError("--output and --openvins: expected at most one of them on standard output ('-'), got both")
+    console = make_console(stderr=STDOUT in (args.output, args.openvins))   # "-o -": the result alone on stdout
     sources = gyro_sources(args)
     joint = len(sources) > 2 or args.array
     with progress_bar() as progress:
@@ -99,12 +105,15 @@ def run(args) -> int:
               file=sys.stderr)
     topics = _topics(args, sources)
     rates = [s.rate_hz for s in streams]
-    if args.output:
-        console.print(f"wrote {write_json(cal, args.output)}")
-    if kalibr is not None:
-        for p in write_kalibr_imu_configs(cal, kalibr, topics=topics, update_rate=rates):
-            console.print(f"wrote {p}")
-        console.print(f"wrote {write_kalibr_imu_chain(cal, kalibr / 'imu_chain.yaml', topics=topics, update_rate=rates)}")
-    if args.openvins:
-        console.print(f"wrote {write_openvins_imu_chain(cal, args.openvins, topics=topics, update_rate=rates)}")
+    wrote = []
+    with output_group():   # this run's files are replaced together or not at all
+        if args.output:
+            wrote.append(write_json(cal, args.output))
+        if kalibr is not None:
+            wrote += write_kalibr_imu_configs(cal, kalibr, topics=topics, update_rate=rates)
+            wrote.append(write_kalibr_imu_chain(cal, kalibr / "imu_chain.yaml", topics=topics, update_rate=rates))
+        if args.openvins:
+            wrote.append(write_openvins_imu_chain(cal, args.openvins, topics=topics, update_rate=rates))
+    for p in wrote:
+        console.print(f"wrote {'standard output' if str(p) == STDOUT else p}")
     return EXIT_OK
