@@ -45,7 +45,7 @@ TIME_UNIT_LABELS = {**{u: u for u in TIME_UNITS}, "sec": "s", "seconds": "s", "Â
 #: 0.1 deg/s/sqrt(Hz) at 800 Hz), a zero-rate offset below 0.35 rad/s (20 deg/s, beyond the datasheet
 #: limits), rates within 35 rad/s (2000 deg/s, the widest usual full scale). Rates in deg/s read as rad/s
 #: are 57.3 times larger in all three.
-MEMS_LIMITS = {"noise": 0.05, "bias": 0.35, "range": 35.0}
+MEMS_LIMITS = {"noise": 0.05, "bias": 0.35, "offset": 0.35, "range": 35.0}
 _DEFAULT_LIMIT = 100.0
 #: A figure this many times its MEMS limit is refused on its own.
 STRONG_SIGN = 2.0
@@ -60,12 +60,15 @@ def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT) -> tup
     ``figures`` holds ``noise`` (white noise per sample, from the third differences, the larger of the
     streams'), ``bias`` (the rate norm of the static stretches: windows whose spread is within 3 times the
     noise, the median over them, the larger of the streams'; NaN without :data:`_MIN_QUIET_WINDOWS` of
-    them) and ``range`` (the 99th percentile of the rate norm, the larger). ``signs`` names each figure above
+    them), ``offset`` (the norm of the combined bias ``b_1 - A b_2`` of the least-squares fit of gyro 1's
+    rates on gyro 2's, Eq. 5 and 12: two gyros' offsets, seen without any static stretch) and ``range``
+    (the 99th percentile of the rate norm, the larger). ``signs`` names each figure above
     its MEMS limit (:data:`MEMS_LIMITS`, times ``limit / 100``): signs that the rates are in deg/s, not rad/s.
     A bounded subsample (:data:`_EVIDENCE_SAMPLES` samples in contiguous blocks spread over the log) is used.
     """
     scale = float(limit) / _DEFAULT_LIMIT
-    figures = {"noise": 0.0, "bias": float("nan"), "range": 0.0}
+    figures = {"noise": 0.0, "bias": float("nan"), "offset": float("nan"), "range": 0.0}
+    sub = []
     for w in streams:
         w = np.asarray(w, dtype=np.float64)
         ok = np.isfinite(w).all(axis=1) if mask is None else (np.asarray(mask, bool) & np.isfinite(w).all(axis=1))
@@ -75,6 +78,7 @@ def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT) -> tup
             starts = np.linspace(0, n - block, _EVIDENCE_SAMPLES // block).astype(int)
             idx = (starts[:, None] + np.arange(block)).ravel()
             w, ok = w[idx], ok[idx]
+        sub.append((w, ok))
         if ok.sum() < 8:
             continue
         good = np.where(ok[:, None], w, np.nan)
@@ -94,6 +98,14 @@ def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT) -> tup
             if quiet.sum() >= _MIN_QUIET_WINDOWS:
                 bias = float(np.median(np.linalg.norm(win[quiet].mean(axis=1), axis=1)))
                 figures["bias"] = bias if np.isnan(figures["bias"]) else max(figures["bias"], bias)
+    if len(sub) == 2 and len(sub[0][0]) == len(sub[1][0]):
+        (w1, ok1), (w2, ok2) = sub
+        both = ok1 & ok2
+        if both.sum() >= 16:
+            X = np.column_stack([w2[both], np.ones(int(both.sum()))])
+            coef = np.linalg.lstsq(X, w1[both], rcond=None)[0]
+            if np.isfinite(coef).all():
+                figures["offset"] = float(np.linalg.norm(coef[3]))
     signs = [k for k, lim in MEMS_LIMITS.items() if figures[k] > lim * scale]
     return figures, signs
 
@@ -102,7 +114,7 @@ def describe_unit_evidence(figures: dict, signs, limit: float = _DEFAULT_LIMIT) 
     """The figures of :func:`rate_unit_evidence` against their MEMS limits, in words."""
     scale = float(limit) / _DEFAULT_LIMIT
     what = {"noise": "white noise per sample", "bias": "rate at rest (static stretches)",
-            "range": "99th percentile of the rate"}
+            "offset": "combined bias b_1 - A b_2", "range": "99th percentile of the rate"}
     parts = [f"{what[k]} {figures[k]:.3g} ({'above' if k in signs else 'within'} a MEMS gyro's "
              f"{MEMS_LIMITS[k] * scale:g})" for k in MEMS_LIMITS if np.isfinite(figures[k])]
     return "; ".join(parts)

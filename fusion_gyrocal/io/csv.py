@@ -353,11 +353,11 @@ def _units(layout: _Layout, k_t: int, k_w: list[int], time_unit: str | None, uni
     if time_unit not in TIME_UNITS:
         raise InputError(f"{fname}: expected time_unit in {tuple(TIME_UNITS)}, got {time_unit!r}")
     if unit is None and header is not None:
-        named = {_rate_unit_from_header(header[k], fname) for k in k_w}
+        named = {_rate_unit_from_header(header[k], fname) for k in k_w} - {None}   # often only x names it
         if len(named) > 1:
             raise FormatError(f"{fname}: the gyro columns {[header[k] for k in k_w]} name different units "
                               f"{sorted(str(u) for u in named)}; expected one unit (or pass unit=, CLI --unit)")
-        unit = named.pop()
+        unit = named.pop() if named else None
     return time_unit, how, unit
 
 
