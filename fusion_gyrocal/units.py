@@ -43,14 +43,15 @@ TIME_UNIT_LABELS = {**{u: u for u in TIME_UNITS}, "sec": "s", "seconds": "s", "Â
 #: What MEMS gyros measure in rad/s, at the default plausibility limit of 100 rad/s (``max_plausible_rate``;
 #: each scales with it): white noise per sample below 0.05 rad/s (2.9 deg/s: noise densities up to
 #: 0.1 deg/s/sqrt(Hz) at 800 Hz), a zero-rate offset below 0.35 rad/s (20 deg/s, beyond the datasheet
-#: limits), rates within 35 rad/s (2000 deg/s, the widest usual full scale). Rates in deg/s read as rad/s
-#: are 57.3 times larger in all three.
-MEMS_LIMITS = {"noise": 0.05, "bias": 0.35, "offset": 0.35, "range": 35.0}
+#: limits), a rate norm within 60 rad/s (2000 deg/s on each axis, the widest usual full scale). Rates in
+#: deg/s read as rad/s are 57.3 times larger in each.
+MEMS_LIMITS = {"noise": 0.05, "bias": 0.35, "offset": 0.35, "range": 60.0}
 _DEFAULT_LIMIT = 100.0
 #: A figure this many times its MEMS limit is refused on its own.
 STRONG_SIGN = 2.0
 _QUIET_WINDOW = 32          # samples per window when looking for static stretches
 _MIN_QUIET_WINDOWS = 3
+_QUIET_SPREAD = 1.5         # a window at rest spreads like the white noise (+-13 % over 32 samples)
 _EVIDENCE_SAMPLES = 1 << 16
 
 
@@ -58,9 +59,9 @@ def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT) -> tup
     """What the data say about their unit: ``(figures, signs)``, the figures in the unit they are read in.
 
     ``figures`` holds ``noise`` (white noise per sample, from the third differences, the larger of the
-    streams'), ``bias`` (the rate norm of the static stretches: windows whose spread is within 3 times the
-    noise, the median over them, the larger of the streams'; NaN without :data:`_MIN_QUIET_WINDOWS` of
-    them), ``offset`` (the norm of the combined bias ``b_1 - A b_2`` of the least-squares fit of gyro 1's
+    streams'), ``bias`` (the rate norm at rest: over windows whose spread is within 1.5 times the noise,
+    the 10th percentile of their mean rate norms, which slow turns do not raise; the larger of the streams';
+    NaN without :data:`_MIN_QUIET_WINDOWS` such windows), ``offset`` (the norm of the combined bias ``b_1 - A b_2`` of the least-squares fit of gyro 1's
     rates on gyro 2's, Eq. 5 and 12: two gyros' offsets, seen without any static stretch) and ``range``
     (the 99th percentile of the rate norm, the larger). ``signs`` names each figure above
     its MEMS limit (:data:`MEMS_LIMITS`, times ``limit / 100``): signs that the rates are in deg/s, not rad/s.
@@ -94,9 +95,9 @@ def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT) -> tup
         if full.sum() >= _MIN_QUIET_WINDOWS and noise > 0:
             win = win[full]
             spread = np.sqrt(win.var(axis=1).sum(axis=1) / 3.0)
-            quiet = spread <= 3.0 * noise
-            if quiet.sum() >= _MIN_QUIET_WINDOWS:
-                bias = float(np.median(np.linalg.norm(win[quiet].mean(axis=1), axis=1)))
+            quiet = spread <= _QUIET_SPREAD * noise
+            if quiet.sum() >= _MIN_QUIET_WINDOWS:   # the floor of the rate at rest (slow turns are not rest)
+                bias = float(np.quantile(np.linalg.norm(win[quiet].mean(axis=1), axis=1), 0.1))
                 figures["bias"] = bias if np.isnan(figures["bias"]) else max(figures["bias"], bias)
     if len(sub) == 2 and len(sub[0][0]) == len(sub[1][0]):
         (w1, ok1), (w2, ok2) = sub
@@ -121,8 +122,8 @@ def describe_unit_evidence(figures: dict, signs, limit: float = _DEFAULT_LIMIT) 
 
 
 def check_unit_evidence(omega_1, omega_2, mask=None, limit: float = _DEFAULT_LIMIT) -> None:
-    """Refuse a pair whose rates look like deg/s by two or more signs of :func:`rate_unit_evidence` (or one at
-    :data:`STRONG_SIGN` times its limit or more); warn on one.
+    """Refuse a pair whose rates both look like deg/s by two or more signs of :func:`rate_unit_evidence` each
+    (or one at :data:`STRONG_SIGN` times its limit or more); warn on any sign otherwise.
 
     The rate level alone (the 99th percentile above ``limit``) misses deg/s logs with slow motion; the noise,
     the rate at rest and the level together do not: in deg/s each is 57.3 times what a MEMS gyro gives in
@@ -139,12 +140,20 @@ def check_unit_evidence(omega_1, omega_2, mask=None, limit: float = _DEFAULT_LIM
 
     from .errors import InputError
 
-    figures, signs = rate_unit_evidence((omega_1, omega_2), mask, limit)
     scale = float(limit) / _DEFAULT_LIMIT
-    if len(signs) >= 2 or any(figures[k] >= STRONG_SIGN * MEMS_LIMITS[k] * scale for k in signs):
+    figures, signs = rate_unit_evidence((omega_1, omega_2), mask, limit)
+    joint = ["offset"] if "offset" in signs else []
+
+    def deg_like(w) -> bool:   # one stream's own signs, with the pair's combined bias
+        own_figures, own = rate_unit_evidence((w,), mask, limit)
+        own = own + joint
+        return len(own) >= 2 or any(own_figures.get(k, figures[k]) >= STRONG_SIGN * MEMS_LIMITS[k] * scale
+                                    for k in own)
+    # both streams: one alone in deg/s is a unit mismatch, which the solver names with both units
+    if signs and deg_like(omega_1) and deg_like(omega_2):
         raise InputError(f"omega_1 and omega_2: expected rates in rad/s, got rates that look like deg/s: "
                          f"{describe_unit_evidence(figures, signs, limit)}; pass unit deg/s (--unit1/--unit2), or a "
                          f"larger max_plausible_rate for a gyro beyond these MEMS figures")
     if signs:
-        warnings.warn(f"rates taken as rad/s although one sign says deg/s: {describe_unit_evidence(figures, signs, limit)}",
+        warnings.warn(f"rates taken as rad/s although some signs say deg/s: {describe_unit_evidence(figures, signs, limit)}",
                       UserWarning, stacklevel=3)

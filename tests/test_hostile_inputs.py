@@ -29,7 +29,7 @@ DEG = np.pi / 180
 
 def _csv(path, t, w, label="", encoding="utf-8", time_name="t"):
     head = ",".join([time_name] + [f"gyro_{a}{label}" for a in "xyz"])
-    rows = "\n".join(f"{a:.6f},{x!r},{y!r},{z!r}" for a, (x, y, z) in zip(t, w))
+    rows = "\n".join(f"{a:.6f},{float(x)!r},{float(y)!r},{float(z)!r}" for a, (x, y, z) in zip(t, w))
     path.write_bytes((head + "\n" + rows + "\n").encode(encoding))
     return path
 
@@ -118,7 +118,6 @@ def test_cli_calibrate_output_dash_prints_json_alone(tmp_path, monkeypatch):
     (" [°/s]", "cp1252", 1 / DEG, "deg/s"),
     (" (°/s)", "latin-1", 1 / DEG, "deg/s"),
     (" [º/s]", "utf-8", 1 / DEG, "deg/s"),
-    ("_mdps", "utf-8", 1e3 / DEG, "mdeg/s"),
 ])
 def test_read_csv_unit_labels_and_encodings_converted(tmp_path, label, encoding, factor, unit):
     t = np.arange(50) / 100.0
@@ -176,9 +175,15 @@ def test_calibrate_pair_deg_per_s_static_bias_is_a_sign():
     assert "bias" not in rate_unit_evidence((w * DEG, w * DEG))[1]
 
 
+def test_calibrate_pair_deg_per_s_on_one_gyro_left_to_the_mismatch_check():
+    sim = simulate_pair(n=6000, rms=1.0, rng=3)
+    with pytest.raises(GyroCalError, match="gyro 1 in rad/s, gyro 2 in deg/s"):
+        calibrate_pair(sim.omega_1, sim.omega_2 / DEG)
+
+
 def test_calibrate_pair_one_sign_warns_what_was_assumed():
-    sim = simulate_pair(n=6000, rms=0.3, noise_std=0.06, rng=3)    # a very noisy gyro, in rad/s
-    with pytest.warns(UserWarning, match="taken as rad/s although one sign says deg/s"):
+    sim = simulate_pair(n=6000, rms=1.0, noise_std=0.06, rng=3)    # a very noisy gyro, in rad/s
+    with pytest.warns(UserWarning, match="taken as rad/s although some signs say deg/s"):
         calibrate_pair(sim.omega_1, sim.omega_2, noise_std=0.06)
 
 
@@ -275,7 +280,8 @@ def _rostopic(path, sim, w):
     stamp0 = 1_700_000_000_000_000_000
     head = ("%time,field.header.seq,field.header.stamp,field.header.frame_id,field.angular_velocity.x,"
             "field.angular_velocity.y,field.angular_velocity.z")
-    rows = [f"{stamp0 + int(round(t * 1e9)) + 150000},{i},{stamp0 + int(round(t * 1e9))},imu_link,{x!r},{y!r},{z!r}"
+    rows = [f"{stamp0 + int(round(t * 1e9)) + 150000},{i},{stamp0 + int(round(t * 1e9))},imu_link,{float(x)!r},"
+            f"{float(y)!r},{float(z)!r}"
             for i, (t, (x, y, z)) in enumerate(zip(sim.t, w))]
     path.write_text(head + "\n" + "\n".join(rows) + "\n")
     return path
