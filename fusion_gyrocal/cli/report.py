@@ -26,6 +26,7 @@ def run(args) -> int:
     """Calibrate the pair and write the report; a failing drift tracking only skips its plot."""
     from ..errors import GyroCalError
     from ..io.report import write_report
+    from ..io.writers import output_group
     from ..pipeline.pipeline import run_pipeline
 
     from ..progress import progress_bar
@@ -45,7 +46,8 @@ def run(args) -> int:
             except GyroCalError as e:  # the rest of the report is still worth writing
                 print(f"gyrocal: drift tracking skipped: {e}", file=sys.stderr)
         bar.update(stage, advance=1, description="drawing the figures")
-        paths = write_report(run_, args.out, extra_figures=extra)
+        with output_group():   # the report's files replaced together or not at all
+            paths = write_report(run_, args.out, extra_figures=extra)
     for p in paths:
         print(f"wrote {p}")
     return EXIT_OK

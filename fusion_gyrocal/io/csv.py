@@ -1,8 +1,8 @@
 """Delimited text files (generic CSV / TSV / whitespace, and the EuRoC / ASL layout): :func:`read_csv`.
 
 Columns are found by header name (or given by index or name), units are read from the header
-(``[ns]``, ``[deg/s]``, ``_dps``, ...; the spellings are those of :mod:`fusion_gyrocal.units`) or
-given, and converted at this edge: rates to rad/s, timestamps to seconds. Integer timestamps
+(``[ns]``, ``[deg/s]``, ``_dps``, ...; the spellings are those of :mod:`fusion_gyrocal.units`; a label
+that looks like a unit but is none of them is refused, naming it) or given, and converted at this edge: rates to rad/s, timestamps to seconds. Integer timestamps
 (EuRoC nanoseconds) are split into whole and fractional seconds before the conversion, so an
 epoch-sized nanosecond count keeps the full float64 resolution (about 0.2 us at 1.7e9 s) instead of
 losing digits in a single ``ns * 1e-9``. Timestamps whose unit would give a sample rate outside
@@ -182,13 +182,15 @@ def read_csv(path, *, time_column=None, columns=None, unit: str | None = None, s
         The x, y, z gyro columns. Default: a recognised header triple (``gyro_x..``, ``gyr_x..``,
         EuRoC ``w_RS_S_x..``, ``omega_x..``, ``wx..``, ``gx..``, ROS ``angular_velocity.x..``),
         or columns 1, 2, 3 of a file without header.
-    unit : {"rad/s", "deg/s", "counts"}, optional
-        Rate unit in the file. Default: from the header (``[rad s^-1]``, ``[deg/s]``, ``_dps``),
-        else rad/s.
+    unit : {"rad/s", "deg/s", "counts", "mrad/s", "mdeg/s"}, optional
+        Rate unit in the file. Default: from the header (``[rad s^-1]``, ``[deg/s]``, ``[°/s]``, ``[mdps]``,
+        ``_dps``; a bracketed label that looks like a rate unit this reader does not know is refused,
+        naming it), else rad/s with a note saying that it was assumed.
     sensitivity : float, optional
         LSB per deg/s, required with ``unit="counts"`` (rad/s = counts / sensitivity * pi / 180).
     time_unit : {"s", "ms", "us", "ns"}, optional
-        Timestamp unit. Default: from the header (``[ns]``, ``_ns``), ``ns`` for EuRoC, else s.
+        Timestamp unit. Default: from the header (``[ns]``, ``_ns``, ``rostopic echo -p`` columns; another
+        bracketed label is refused), ``ns`` for EuRoC, else s.
     delimiter : str, optional
         Field separator. Default: sniffed from the first data row (``,`` tab ``;`` or whitespace).
     name : str, optional
