@@ -239,7 +239,7 @@ def _target(path) -> tuple[Path | None, str]:
         kind = "a block device" if stat.S_ISBLK(st.st_mode) else "a socket" if stat.S_ISSOCK(st.st_mode) else \
             "not a regular file"
         raise FormatError(f"{p}: expected a regular file, a character device or a FIFO to write, got {kind}")
-    return Path(os.path.realpath(p)), "atomic"
+    return (Path(os.path.realpath(p)) if p.is_symlink() else p), "atomic"
 
 
 def _write_direct(path: Path | None, data: bytes) -> None:
@@ -303,6 +303,7 @@ def atomic_write(path, data: bytes | str) -> Path:
         (``"cal.json: could not write: Permission denied"``).
     """
     target, how = _target(path)
+    shown = Path(STDOUT) if target is None else Path(path).expanduser()   # what the caller named
     if isinstance(data, str):
         data = data.encode("utf-8")
     group = _GROUP.get()
@@ -311,18 +312,18 @@ def atomic_write(path, data: bytes | str) -> Path:
             group.append((None, target, data))
         else:
             _write_direct(target, data)
-        return Path(STDOUT) if target is None else target
+        return shown
     tmp = _stage(target, data)
     if group is not None:
         group.append((tmp, target, None))
-        return target
+        return shown
     try:
         os.replace(tmp, target)
     except OSError as exc:
         _unlink(tmp)
         raise FormatError(f"{target}: could not write: {os_reason(exc)}") from exc
     fsync_dir(target.parent)
-    return target
+    return shown
 
 
 @contextlib.contextmanager
