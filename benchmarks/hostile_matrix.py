@@ -1,7 +1,8 @@
 """The hostile-input matrix of issue 22: every class of bad input through the API, the readers and the CLI.
 
 Each case says what a good answer is (a refusal naming what was expected, or a correct result) and is
-classified as one of: ``clean`` (a GyroCalError / exit 1-3 with a message saying what was expected),
+classified as one of: ``clean`` (a GyroCalError / exit 1-3 with a message saying what was expected, or for a failed write "could not
+write" and the cause),
 ``unclear`` (a GyroCalError without that, or a refusal where a correct answer was possible), ``correct``,
 ``silent wrong`` (a result, exit 0, that is wrong or destroys something), ``foreign`` (another exception, or
 exit 70) and ``crash`` (out of memory under the run's 3 GiB address-space limit, a recursion overflow).
@@ -370,7 +371,8 @@ def _rostopic(folder: Path, seed=7):
         p = folder / f"imu{k}.csv"
         head = ("%time,field.header.seq,field.header.stamp,field.header.frame_id,field.angular_velocity.x,"
                 "field.angular_velocity.y,field.angular_velocity.z")
-        rows = [f"{stamp0 + int(t * 1e9) + 150000},{i},{stamp0 + int(t * 1e9)},imu_link,{x!r},{y!r},{z!r}"
+        rows = [f"{stamp0 + int(t * 1e9) + 150000},{i},{stamp0 + int(t * 1e9)},imu_link,{float(x)!r},{float(y)!r},"
+                f"{float(z)!r}"
                 for i, (t, (x, y, z)) in enumerate(zip(sim.t, w))]
         p.write_text(head + "\n" + "\n".join(rows) + "\n")
         paths.append(p)
@@ -597,7 +599,7 @@ def classify(f, works: bool) -> tuple[str, str]:
         return "silent wrong", str(exc)
     except GyroCalError as exc:
         msg = " ".join(str(exc).split())
-        clear = "expected" in msg and not msg.startswith("(unclear)") and not works
+        clear = ("expected" in msg or "could not write" in msg) and not msg.startswith("(unclear)") and not works
         return ("clean" if clear else "unclear"), msg
     except (MemoryError, RecursionError) as exc:
         return "crash", f"{type(exc).__name__}: {exc}"[:100]

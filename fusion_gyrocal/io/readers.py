@@ -91,7 +91,8 @@ def read_imu(path, *, format: str = "auto", **options) -> ImuStream:
     try:
         return _read(path, format, options)
     except OSError as exc:   # EIO, a file that vanished or became unreadable while read: a FormatError naming it
-        raise FormatError(f"{path}: could not read: {exc.strerror or exc}") from exc
+        raise FormatError(f"{path}: expected a readable file, got an error reading it (could not read: "
+                          f"{exc.strerror or exc})") from exc
     except RecursionError:
         raise FormatError(f"{path}: expected an IMU log, got data nested too deeply to read") from None
 

@@ -116,7 +116,8 @@ def input_path(path, what: str = "file", *, folder: bool = False) -> Path:
             p.is_block_device() else "a socket" if p.is_socket() else "not a regular file"
         raise FormatError(f"{p}: expected a regular {what.replace('file or folder', 'file or a folder')}, got {kind}")
     if not os.access(p, os.R_OK | (os.X_OK if p.is_dir() else 0)):
-        raise FormatError(f"{p}: could not read: permission denied")
+        raise FormatError(f"{p}: expected a {what} we may read, got one "
+                          "without read permission (could not read: permission denied)")
     return p
 
 

@@ -131,7 +131,7 @@ def head_lines(path: Path, n: int = 64) -> list[str]:
             if not line:
                 break
             if len(line) > MAX_LINE_BYTES and b"\r" not in line:
-                raise FormatError(f"{path.name}: expected rows of a text table, got a line {len(raw) + 1} longer than "
+                raise FormatError(f"{path.name}: expected rows of a text table, got line {len(raw) + 1} longer than "
                                   f"{MAX_LINE_BYTES} bytes")
             raw.append(line)
     text, _ = decode_header(b"".join(raw))
