@@ -145,7 +145,8 @@ def check_line_lengths(path: Path, end: int | None = None) -> None:
     """Refuse a file with a line longer than twice :data:`MAX_LINE_BYTES` before a parser splits it into fields.
 
     Such a line holds a whole aligned block of :data:`MAX_LINE_BYTES` without a line end; each block is
-    searched from its start (memory-mapped, the search stops at the first line end: microseconds per block).
+    searched from its start (memory-mapped; the search stops at the first line end, so a few bytes per block
+    are read).
     """
     size = path.stat().st_size if end is None else end
     if size <= 2 * MAX_LINE_BYTES:
