@@ -323,11 +323,11 @@ def _():
     return check_bias(calibrate_pair(sim.omega_1, sim.omega_2, bias_window=10 ** 12), sim)
 
 
-@case("8 memory", "npz whose array header claims 2 GiB (a few hundred bytes)")
+@case("8 memory", "npz whose array header claims 8 GiB (a few hundred bytes)")
 def _():
     p = TMP / "claim.npz"
     buf = io.BytesIO()
-    np.lib.format.write_array_header_1_0(buf, {"descr": "<f8", "fortran_order": False, "shape": (1 << 28,)})
+    np.lib.format.write_array_header_1_0(buf, {"descr": "<f8", "fortran_order": False, "shape": (1 << 30,)})
     raw = buf.getvalue() + bytes(32)
     with zipfile.ZipFile(p, "w") as z:
         z.writestr("t.npy", raw)
