@@ -102,7 +102,8 @@ def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT) -> tup
     if len(sub) == 2 and len(sub[0][0]) == len(sub[1][0]):
         (w1, ok1), (w2, ok2) = sub
         both = ok1 & ok2
-        if both.sum() >= 16:
+        sv = np.linalg.svd(w2[both] - w2[both].mean(axis=0), compute_uv=False) if both.sum() >= 16 else np.zeros(3)
+        if sv[-1] > 1e-6 * sv[0]:   # gyro 2 moves about every axis: the fit's offset is determined
             X = np.column_stack([w2[both], np.ones(int(both.sum()))])
             coef = np.linalg.lstsq(X, w1[both], rcond=None)[0]
             if np.isfinite(coef).all():
