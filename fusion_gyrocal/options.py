@@ -60,6 +60,8 @@ TIMING_MODELS = ("auto", "off")
 
 # ------------------------------------------------------------------------------------------ checks
 def _finite(name, v):
+    if isinstance(v, (bool, np.bool_)):   # True is no noise level, duration or rate (float(True) == 1.0)
+        raise OptionError(f"{name}: expected a number, got {v!r}")
     try:
         x = float(v)
     except (TypeError, ValueError):

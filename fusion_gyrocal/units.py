@@ -15,17 +15,146 @@ DEG = np.pi / 180.0
 
 #: Rate units: name -> factor to rad/s. Raw ``"counts"`` are further divided by the sensor's
 #: sensitivity in LSB per deg/s (rad/s = counts / sensitivity * pi / 180).
-RATE_FACTORS = {"rad/s": 1.0, "deg/s": DEG, "counts": DEG}
+RATE_FACTORS = {"rad/s": 1.0, "deg/s": DEG, "counts": DEG, "mrad/s": 1e-3, "mdeg/s": 1e-3 * DEG}
 #: The rate unit names, in the order of :data:`RATE_FACTORS`.
 RATE_UNITS = tuple(RATE_FACTORS)
-#: Spellings of the rate units in a column header's brackets (spaces removed): ``[rad s^-1]``, ``[dps]``, ...
+#: Spellings of the rate units in a column header's brackets (spaces removed, lower case): ``[rad s^-1]``,
+#: ``[dps]``, ``[°/s]`` (also the masculine ordinal ``º`` many Spanish and Italian files use), ``[mdps]``, ...
 RATE_UNIT_LABELS = {
-    "rad/s": "rad/s", "rads^-1": "rad/s", "rad/sec": "rad/s", "rad*s^-1": "rad/s",
-    "deg/s": "deg/s", "dps": "deg/s", "°/s": "deg/s", "degs^-1": "deg/s", "deg/sec": "deg/s",
+    "rad/s": "rad/s", "rads^-1": "rad/s", "rad/sec": "rad/s", "rad*s^-1": "rad/s", "rad.s^-1": "rad/s",
+    "deg/s": "deg/s", "dps": "deg/s", "°/s": "deg/s", "º/s": "deg/s", "degs^-1": "deg/s", "deg/sec": "deg/s",
+    "°/sec": "deg/s", "deg*s^-1": "deg/s", "°s^-1": "deg/s",
     "counts": "counts", "lsb": "counts", "raw": "counts",
+    "mrad/s": "mrad/s", "mrads^-1": "mrad/s", "mrad/sec": "mrad/s",
+    "mdeg/s": "mdeg/s", "mdps": "mdeg/s", "m°/s": "mdeg/s", "mº/s": "mdeg/s", "mdeg/sec": "mdeg/s",
 }
+#: Pieces of a bracketed header label that make it a rate unit: a label with one of them that
+#: :data:`RATE_UNIT_LABELS` does not know is refused by the readers (naming it), never read as rad/s.
+RATE_UNIT_HINTS = ("/", "^-1", "rad", "deg", "dps", "°", "º", "rpm", "rps", "lsb", "count", "digit", "raw", "hz")
 
 #: Time units: name -> power of ten of one second (``"ms"``: 3, one unit is 1e-3 s).
 TIME_UNITS = {"s": 0, "ms": 3, "us": 6, "ns": 9}
 #: Spellings of the time units in a column header's brackets: ``[ns]``, ``[sec]``, ``[µs]``, ...
-TIME_UNIT_LABELS = {**{u: u for u in TIME_UNITS}, "sec": "s", "seconds": "s", "µs": "us", "usec": "us"}
+TIME_UNIT_LABELS = {**{u: u for u in TIME_UNITS}, "sec": "s", "seconds": "s", "µs": "us", "μs": "us",
+                    "usec": "us", "msec": "ms", "nsec": "ns"}
+
+
+# ----------------------------------------------------------------------------- is it rad/s?
+#: What MEMS gyros measure in rad/s, at the default plausibility limit of 100 rad/s (``max_plausible_rate``;
+#: each scales with it): white noise per sample below 0.05 rad/s (2.9 deg/s: noise densities up to
+#: 0.1 deg/s/sqrt(Hz) at 800 Hz), a zero-rate offset below 0.35 rad/s (20 deg/s, beyond the datasheet
+#: limits), a rate norm within 60 rad/s (2000 deg/s on each axis, the widest usual full scale). Rates in
+#: deg/s read as rad/s are 57.3 times larger in each.
+MEMS_LIMITS = {"noise": 0.05, "bias": 0.35, "offset": 0.35, "range": 60.0}
+_DEFAULT_LIMIT = 100.0
+#: A figure this many times its MEMS limit is refused on its own.
+STRONG_SIGN = 2.0
+_QUIET_WINDOW = 32          # samples per window when looking for static stretches
+_MIN_QUIET_WINDOWS = 3
+_QUIET_SPREAD = 1.5         # a window at rest spreads like the white noise (+-13 % over 32 samples)
+_EVIDENCE_SAMPLES = 1 << 16
+
+
+def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT) -> tuple[dict, list[str]]:
+    """What the data say about their unit: ``(figures, signs)``, the figures in the unit they are read in.
+
+    ``figures`` holds ``noise`` (white noise per sample, from the third differences, the larger of the
+    streams'), ``bias`` (the rate norm at rest: over windows whose spread is within 1.5 times the noise,
+    the 10th percentile of their mean rate norms, which slow turns do not raise; the larger of the streams';
+    NaN without :data:`_MIN_QUIET_WINDOWS` such windows), ``offset`` (the norm of the combined bias ``b_1 - A b_2`` of the least-squares fit of gyro 1's
+    rates on gyro 2's, Eq. 5 and 12: two gyros' offsets, seen without any static stretch) and ``range``
+    (the 99th percentile of the rate norm, the larger). ``signs`` names each figure above
+    its MEMS limit (:data:`MEMS_LIMITS`, times ``limit / 100``): signs that the rates are in deg/s, not rad/s.
+    A bounded subsample (:data:`_EVIDENCE_SAMPLES` samples in contiguous blocks spread over the log) is used.
+    """
+    scale = float(limit) / _DEFAULT_LIMIT
+    figures = {"noise": 0.0, "bias": float("nan"), "offset": float("nan"), "range": 0.0}
+    sub = []
+    for w in streams:
+        w = np.asarray(w, dtype=np.float64)
+        ok = np.isfinite(w).all(axis=1) if mask is None else (np.asarray(mask, bool) & np.isfinite(w).all(axis=1))
+        n = len(w)
+        block = 4096
+        if n > _EVIDENCE_SAMPLES:
+            starts = np.linspace(0, n - block, _EVIDENCE_SAMPLES // block).astype(int)
+            idx = (starts[:, None] + np.arange(block)).ravel()
+            w, ok = w[idx], ok[idx]
+        sub.append((w, ok))
+        if ok.sum() < 8:
+            continue
+        good = np.where(ok[:, None], w, np.nan)
+        d3 = np.diff(good, n=3, axis=0)
+        d3 = d3[np.isfinite(d3).all(axis=1)]
+        noise = float(np.sqrt(np.median(d3 ** 2) / 20.0 / 0.4549)) if len(d3) else 0.0   # median of chi2_1 = 0.4549
+        norms = np.linalg.norm(good[ok], axis=1)
+        figures["noise"] = max(figures["noise"], noise)
+        figures["range"] = max(figures["range"], float(np.quantile(norms, 0.99)))
+        m = (len(good) // _QUIET_WINDOW) * _QUIET_WINDOW
+        win = good[:m].reshape(-1, _QUIET_WINDOW, 3)
+        full = np.isfinite(win).all(axis=(1, 2))
+        if full.sum() >= _MIN_QUIET_WINDOWS and noise > 0:
+            win = win[full]
+            spread = np.sqrt(win.var(axis=1).sum(axis=1) / 3.0)
+            quiet = spread <= _QUIET_SPREAD * noise
+            if quiet.sum() >= _MIN_QUIET_WINDOWS:   # the floor of the rate at rest (slow turns are not rest)
+                bias = float(np.quantile(np.linalg.norm(win[quiet].mean(axis=1), axis=1), 0.1))
+                figures["bias"] = bias if np.isnan(figures["bias"]) else max(figures["bias"], bias)
+    if len(sub) == 2 and len(sub[0][0]) == len(sub[1][0]):
+        (w1, ok1), (w2, ok2) = sub
+        both = ok1 & ok2
+        sv = np.linalg.svd(w2[both] - w2[both].mean(axis=0), compute_uv=False) if both.sum() >= 16 else np.zeros(3)
+        if sv[-1] > 1e-6 * sv[0]:   # gyro 2 moves about every axis: the fit's offset is determined
+            X = np.column_stack([w2[both], np.ones(int(both.sum()))])
+            coef = np.linalg.lstsq(X, w1[both], rcond=None)[0]
+            if np.isfinite(coef).all():
+                figures["offset"] = float(np.linalg.norm(coef[3]))
+    signs = [k for k, lim in MEMS_LIMITS.items() if figures[k] > lim * scale]
+    return figures, signs
+
+
+def describe_unit_evidence(figures: dict, signs, limit: float = _DEFAULT_LIMIT) -> str:
+    """The figures of :func:`rate_unit_evidence` against their MEMS limits, in words."""
+    scale = float(limit) / _DEFAULT_LIMIT
+    what = {"noise": "white noise per sample", "bias": "rate at rest (static stretches)",
+            "offset": "combined bias b_1 - A b_2", "range": "99th percentile of the rate"}
+    parts = [f"{what[k]} {figures[k]:.3g} ({'above' if k in signs else 'within'} a MEMS gyro's "
+             f"{MEMS_LIMITS[k] * scale:g})" for k in MEMS_LIMITS if np.isfinite(figures[k])]
+    return "; ".join(parts)
+
+
+def check_unit_evidence(omega_1, omega_2, mask=None, limit: float = _DEFAULT_LIMIT) -> None:
+    """Refuse a pair whose rates both look like deg/s by two or more signs of :func:`rate_unit_evidence` each
+    (or one at :data:`STRONG_SIGN` times its limit or more); warn on any sign otherwise.
+
+    The rate level alone (the 99th percentile above ``limit``) misses deg/s logs with slow motion; the noise,
+    the rate at rest and the level together do not: in deg/s each is 57.3 times what a MEMS gyro gives in
+    rad/s. One sign alone is said (a :class:`UserWarning` naming what was assumed), not refused: a noisy gyro
+    or a large offset exists; a gyro beyond the MEMS figures is accepted with a larger ``limit``
+    (``max_plausible_rate``).
+
+    Raises
+    ------
+    InputError
+        Naming the figures, their limits and the unit to pass.
+    """
+    import warnings
+
+    from .errors import InputError
+
+    scale = float(limit) / _DEFAULT_LIMIT
+    figures, signs = rate_unit_evidence((omega_1, omega_2), mask, limit)
+    joint = ["offset"] if "offset" in signs else []
+
+    def deg_like(w) -> bool:   # one stream's own signs, with the pair's combined bias
+        own_figures, own = rate_unit_evidence((w,), mask, limit)
+        own = own + joint
+        return len(own) >= 2 or any(own_figures.get(k, figures[k]) >= STRONG_SIGN * MEMS_LIMITS[k] * scale
+                                    for k in own)
+    # both streams: one alone in deg/s is a unit mismatch, which the solver names with both units
+    if signs and deg_like(omega_1) and deg_like(omega_2):
+        raise InputError(f"omega_1 and omega_2: expected rates in rad/s, got rates that look like deg/s: "
+                         f"{describe_unit_evidence(figures, signs, limit)}; pass unit deg/s (--unit1/--unit2), or a "
+                         f"larger max_plausible_rate for a gyro beyond these MEMS figures")
+    if signs:
+        warnings.warn(f"rates taken as rad/s although some signs say deg/s: {describe_unit_evidence(figures, signs, limit)}",
+                      UserWarning, stacklevel=3)

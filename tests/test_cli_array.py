@@ -77,7 +77,7 @@ def test_cli_calibrate_array_flag_two_gyros_joint(tmp_path):
     (["--method", "direct"], "gyrocal: error: --method: not available for the joint calibration of 3 gyros"),
     (["--allow-not-rigid"], "gyrocal: error: --allow-not-rigid: not available for the joint calibration of 3 gyros"),
     (["--noise-std", "0.001", "0.002"], "gyrocal: error: --noise-std: expected one value or one per gyro (3), got 2"),
-    (["--unit", "furlongs"], "gyrocal: error: --unit: expected one of ('rad/s', 'deg/s', 'counts'), got 'furlongs'"),
+    (["--unit", "furlongs"], "gyrocal: error: --unit: expected one of ('rad/s', 'deg/s', 'counts', 'mrad/s', 'mdeg/s'), got 'furlongs'"),
 ])
 def test_cli_calibrate_three_gyros_bad_flags_name_the_flag(tmp_path, capsys, argv, message):
     paths, _ = _write_gyros(tmp_path, 4, [0.0, 0.0, 0.0], [100.0] * 3, duration=5.0)

@@ -29,11 +29,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                               formatter_class=argparse.RawDescriptionHelpFormatter)
     add_recording_args(p, many=True)
     out = p.add_argument_group("outputs")
-    out.add_argument("--output", "-o", help="write the full result as JSON (every gyro)")
+    out.add_argument("--output", "-o", help="write the full result as JSON (every gyro); '-' is standard output")
     out.add_argument("--kalibr", metavar="FOLDER",
                      help="write Kalibr files into FOLDER (created): imu0.yaml, imu1.yaml, ... (what "
                           "kalibr_calibrate_imu_camera --imu reads) and imu_chain.yaml (Kalibr's result layout)")
-    out.add_argument("--openvins", metavar="FILE", help="write an OpenVINS kalibr_imu_chain.yaml (every gyro)")
+    out.add_argument("--openvins", metavar="FILE",
+                     help="write an OpenVINS kalibr_imu_chain.yaml (every gyro); '-' is standard output")
     out.add_argument("--ros", metavar="FOLDER",
                      help="write into FOLDER (created) the mounting for ROS: tf2 static transforms "
                           "(static_transforms.launch for ROS 1, static_transforms.launch.xml for ROS 2, "
@@ -62,6 +63,9 @@ def _kalibr_folder(path: str):
     from ..errors import OptionError
 
     p = Path(path)
+    if path == "-":
+        raise OptionError("--kalibr: expected a folder (imu0.yaml, imu1.yaml, ... are written into it), got '-' "
+                          "(standard output takes one file: --output - or --openvins -)")
     if p.suffix.lower() in (".yaml", ".yml"):
         raise OptionError(f"--kalibr: expected a folder (Kalibr reads one file per IMU: imu0.yaml, imu1.yaml, ... "
                           f"are written into it), got the file name {path!r}")
@@ -120,7 +124,7 @@ def command_provenance(sources, streams, options, *, n_used: int, n_rejected: in
 
 def run(args) -> int:
     """Calibrate; exit code 0 (a pair flagged not rigid with ``--allow-not-rigid`` too, with a warning)."""
-    from ..io.writers import (write_json, write_kalibr_imu_chain, write_kalibr_imu_configs,
+    from ..io.writers import (STDOUT, output_group, write_json, write_kalibr_imu_chain, write_kalibr_imu_configs,
                               write_openvins_imu_chain)
     from ..io.report import uncertainty_basis
     from ..progress import progress_bar
@@ -133,7 +137,10 @@ def run(args) -> int:
     from .display import provenance_lines, rotation_lines
 
     kalibr = _kalibr_folder(args.kalibr) if args.kalibr else None
-    console = make_console()
+    if args.output == STDOUT and args.openvins == STDOUT:
+        from ..errors import OptionError
+        raise OptionError("--output and --openvins: expected at most one of them on standard output ('-'), got both")
+    console = make_console(stderr=STDOUT in (args.output, args.openvins))   # "-o -": the result alone on stdout
     sources = gyro_sources(args)
     n = len(sources)
     joint = n > 2 or args.array
@@ -188,17 +195,20 @@ def run(args) -> int:
               file=sys.stderr)
     topics = _topics(args, sources)
     rates = [s.rate_hz for s in streams]
-    if args.output:
-        console.print(f"wrote {write_json(cal, args.output)}")
-    if kalibr is not None:
-        for p in write_kalibr_imu_configs(cal, kalibr, topics=topics, update_rate=rates, noise=noise):
-            console.print(f"wrote {p}")
-        console.print(f"wrote {write_kalibr_imu_chain(cal, kalibr / 'imu_chain.yaml', topics=topics, update_rate=rates, noise=noise)}")
-    if args.openvins:
-        console.print(f"wrote {write_openvins_imu_chain(cal, args.openvins, topics=topics, update_rate=rates, noise=noise)}")
-    if args.ros:
-        from ..io.ros import write_ros_frames
+    wrote = []
+    with output_group():   # this run's files are replaced together or not at all
+        if args.output:
+            wrote.append(write_json(cal, args.output))
+        if kalibr is not None:
+            wrote += write_kalibr_imu_configs(cal, kalibr, topics=topics, update_rate=rates, noise=noise)
+            wrote.append(write_kalibr_imu_chain(cal, kalibr / "imu_chain.yaml", topics=topics, update_rate=rates,
+                                                noise=noise))
+        if args.openvins:
+            wrote.append(write_openvins_imu_chain(cal, args.openvins, topics=topics, update_rate=rates, noise=noise))
+        if args.ros:
+            from ..io.ros import write_ros_frames
 
-        for p in write_ros_frames(cal, args.ros, frames=frames):
-            console.print(f"wrote {p}")
+            wrote += write_ros_frames(cal, args.ros, frames=frames)
+    for p in wrote:
+        console.print(f"wrote {'standard output' if str(p) == STDOUT else p}")
     return EXIT_OK

@@ -64,7 +64,7 @@ def run(args) -> int:
     """Run ``gyrocal compare`` from parsed arguments (raises; :func:`compare_main` maps errors to exit codes)."""
     from rich.console import Console
 
-    from ..io.writers import atomic_write
+    from ..io.writers import atomic_write, output_group
 
     console = Console(highlight=False)
     names = tuple(n.strip() for n in args.estimators.split(",") if n.strip())
@@ -95,10 +95,11 @@ def run(args) -> int:
             console.print(f"  {s.estimator:>20}: rotation {s.rotation:+.3f}, scales {s.scale:+.3f}")
         br, bs = sweep.bound_slopes()
         console.print(f"  {'Cramer-Rao bound':>20}: rotation {br:+.3f}, scales {bs:+.3f}")
-    if args.markdown:
-        atomic_write(args.markdown, "\n".join(t.to_markdown() for t in tables))
-    if args.csv:
-        atomic_write(args.csv, tables[0].to_csv() if len(tables) == 1 else _sweep_csv(tables))
+    with output_group():   # replaced together or not at all
+        if args.markdown:
+            atomic_write(args.markdown, "\n".join(t.to_markdown() for t in tables))
+        if args.csv:
+            atomic_write(args.csv, tables[0].to_csv() if len(tables) == 1 else _sweep_csv(tables))
     if args.figure:
         if sweep is None:
             raise InputError("--figure: expected --sweep (the figure is RMSE versus SNR)")

@@ -12,12 +12,13 @@ MODELS = {"rigid": "rotation + scale factors (Eq. 4)",
 """The sensor model of a pair's result (``PairCalibration.linear_map``), as the summary names it."""
 
 
-def console():
-    """A rich console, 110 columns wide unless the terminal is a wide one."""
+def console(stderr: bool = False):
+    """A rich console, 110 columns wide unless the terminal is a wide one; on stderr when ``stderr`` (the
+    result itself goes to standard output)."""
     from rich.console import Console
 
-    c = Console()
-    return c if c.is_terminal and c.width >= 100 else Console(width=110)
+    c = Console(stderr=stderr)
+    return c if c.is_terminal and c.width >= 100 else Console(width=110, stderr=stderr)
 
 
 def summary_table(cal, truth=None):

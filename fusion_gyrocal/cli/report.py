@@ -43,6 +43,7 @@ def _with_provenance(run_, sources, streams, options):
 def _run_many(args, sources, streams) -> int:
     """N gyros: every gyro against gyro 1 through the pair pipeline, a page each and an index."""
     from ..io.report import write_array_report
+    from ..io.writers import output_group
     from ..options import options_from_args
     from ..pipeline.pipeline import run_pipeline
     from ..progress import progress_bar
@@ -63,7 +64,8 @@ def _run_many(args, sources, streams) -> int:
             runs[k + 1] = _with_provenance(run_, [sources[0], sources[k]], [s1, sk], options)
             bar.advance(stage)
         prov = command_provenance(sources, streams, options, n_used=min(r.calibration.n_samples for r in runs.values()))
-        paths = write_array_report(runs, args.out, provenance=prov)
+        with output_group():   # the report's files replaced together or not at all
+            paths = write_array_report(runs, args.out, provenance=prov)
     for p in paths:
         print(f"wrote {p}")
     return EXIT_OK
@@ -74,6 +76,7 @@ def run(args) -> int:
     its plot."""
     from ..errors import GyroCalError
     from ..io.report import write_report
+    from ..io.writers import output_group
     from ..options import options_from_args
     from ..pipeline.pipeline import run_pipeline
 
@@ -99,7 +102,8 @@ def run(args) -> int:
             except GyroCalError as e:  # the rest of the report is still worth writing
                 print(f"gyrocal: drift tracking skipped: {e}", file=sys.stderr)
         bar.update(stage, advance=1, description="drawing the figures")
-        paths = write_report(run_, args.out, extra_figures=extra)
+        with output_group():   # the report's files replaced together or not at all
+            paths = write_report(run_, args.out, extra_figures=extra)
     for p in paths:
         print(f"wrote {p}")
     return EXIT_OK

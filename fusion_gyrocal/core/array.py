@@ -890,6 +890,8 @@ def calibrate_array(omegas, options: Options | None = None, *, reference: int = 
     """
     rates, mask = _checked_rates(omegas, mask)
     o = Options.of(options, gyros=len(rates), **keywords).require("array", "calibrate_array")
+    if isinstance(reference, bool) or not (isinstance(reference, (int, np.integer)) and 0 <= reference < len(rates)):
+        raise OptionError(f"reference: expected a gyro index in [0, {len(rates)}), got {reference!r}")
     if o.bias_window is None:
         moments = ArrayMoments.from_samples(rates, mask=mask)
     else:

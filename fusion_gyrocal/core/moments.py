@@ -300,6 +300,9 @@ class Moments:
         """
         w1, w2, mask = as_rate_pair(omega_1, omega_2, mask)
         n = w1.shape[0]
+        if isinstance(chunk_size, bool) or not isinstance(chunk_size, (int, np.integer)) or chunk_size < 1:
+            raise InputError(f"chunk_size: expected an integer >= 1 (rows per chunk), got {chunk_size!r}")
+        chunk_size = int(min(chunk_size, max(n, 1)))   # the buffer is bounded by the data
         n_chunks = -(-n // chunk_size)
         workers = max(1, min(threads or _default_threads(), n_chunks // 4))
         bounds = np.linspace(0, n_chunks, workers + 1).astype(int) * chunk_size

@@ -52,6 +52,21 @@ MAX_IDENTIFY_SAMPLES = 2 ** 16   # longer logs: identified on stretches spread o
 STRETCH_WINDOWS = 64             # windows per stretch
 NOISE_SPLIT_SAMPLES = 16384   # samples behind the noise split: 16 blocks of 1024 spread over the log
 _NOISE_BLOCK = 1024
+#: Fewest degrees of freedom of a residual a noise level is estimated from (the estimate's relative std is then
+#: at most sqrt(2 / 30) = 26 % in variance): fewer, and a noise-free exact fit reports a spurious zero noise.
+MIN_RESIDUAL_DOF = 30
+
+
+def check_residual_dof(dof: float, what: str = "the least-squares residual") -> None:
+    """Refuse to estimate a noise level from ``what`` with fewer than :data:`MIN_RESIDUAL_DOF` degrees of freedom.
+
+    ``dof`` counts the residual's scalar degrees of freedom: three per sample, less every fitted parameter
+    (``A`` and the bias of the direct solve, Eq. 12-17: 12, and 3 per bias window beyond the first).
+    """
+    if not dof >= MIN_RESIDUAL_DOF:
+        raise InputError(f"noise_std: expected at least {MIN_RESIDUAL_DOF} degrees of freedom in {what} to estimate "
+                         f"the noise from it, got {max(dof, 0):g} (three per sample less the fitted A and biases): "
+                         "record more samples or pass noise_std")
 
 
 def difference_noise_std(omega, mask=None, *, max_samples: int = NOISE_SPLIT_SAMPLES) -> float:

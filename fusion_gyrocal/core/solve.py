@@ -22,6 +22,7 @@ from .linear_map import (UPPER, choose_full_map, cross_axis_budget, decompose_re
                          reference_derivatives, reference_map, refine_full, refine_reference)
 from .model import BIAS, ROT, PairCalibration, mark_undetermined, scale_ratios
 from .moments import Moments, WindowStats, noise_pair
+from .noise import check_residual_dof
 from .observability import (PRIOR_GAUGE, A_of, check_excitation, check_samples, classify, dA_dp, information_of_A,
                             per_axis_snr, prior_held_covariance, residual_weight, signal_scatter)
 from .refine import residual_scatter, refine_ml
@@ -31,6 +32,7 @@ from .robust import (MIN_ROBUST_WINDOWS, CovarianceBasis, bias_variance, cross_a
 
 def _residual_noise(moments: Moments, A, ratio: float = 1.0) -> tuple[float, float]:
     """Noise per gyro from the least-squares residual, split in the ratio ``sigma_1 / sigma_2``."""
+    check_residual_dof(3.0 * (moments.dof - 3.0))   # before any noise is estimated from the residual
     M = residual_scatter(A, moments.scatter)
     dof = max(moments.dof - 3.0, 1.0)
     total = float(np.trace(M)) / (3.0 * dof)

@@ -132,8 +132,14 @@ def _read_parquet_device(path: Path) -> tuple[np.ndarray, np.ndarray]:
             tables.append(pf.read(columns=list(COLUMNS)))
         except Exception as exc:  # noqa: BLE001 - pyarrow raises its own types for damaged files
             raise FormatError(f"{part}: not a readable Parquet file: {exc}") from exc
-    cols = {c: np.concatenate([np.asarray(t.column(c).to_numpy(zero_copy_only=False), dtype=np.float64)
-                               for t in tables]) for c in COLUMNS}
+    cols = {}
+    for c in COLUMNS:
+        try:
+            cols[c] = np.concatenate([np.asarray(t.column(c).to_numpy(zero_copy_only=False), dtype=np.float64)
+                                      for t in tables])
+        except (ValueError, TypeError):   # strings, lists, ...: say which column
+            kinds = sorted({str(t.schema.field(c).type) for t in tables})
+            raise FormatError(f"{path}: expected numbers in column {c!r}, got type {', '.join(kinds)}") from None
     check_timestamps(f"{path}: t", cols["t"])
     w1 = np.column_stack([cols["w1x"], cols["w1y"], cols["w1z"]])
     w2 = np.column_stack([cols["w2x"], cols["w2y"], cols["w2z"]])

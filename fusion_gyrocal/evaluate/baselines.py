@@ -19,7 +19,7 @@ from scipy.spatial.transform import Rotation
 
 from ..core.moments import Moments, as_rates
 from ..core.observability import A_of
-from ..errors import ConvergenceError, OptionError
+from ..errors import ConvergenceError, ExcitationError, OptionError
 from ..lie import skew
 
 __all__ = ["AppendixCResult", "solve_appendix_c", "rotation_only"]
@@ -166,6 +166,23 @@ def solve_appendix_c(moments: Moments, R_1_2=None, scale_1=None, scale_2=None, *
     return AppendixCResult(C, s1, s2, bias, it)
 
 
+def _check_two_directions(m: Moments, w1, w2, min_snr: float = 10.0) -> None:
+    """Refuse motion about one direction only: the rotation about it is then undetermined (Kabsch needs two
+    directions; the SNR of Eq. 36 along the second principal direction of the motion gyro 2 explains, the noise
+    from each stream's third differences)."""
+    from ..core.noise import difference_noise_std
+    from ..core.observability import explained_scatter, check_samples
+
+    check_samples(m)
+    sigma = float(np.hypot(difference_noise_std(w1), difference_noise_std(w2)))
+    lam = np.sort(np.clip(np.linalg.eigvalsh(explained_scatter(m)), 0.0, None))
+    snr = float(np.sqrt(lam[1]) / sigma) if sigma > 0 else (np.inf if lam[1] > 1e-20 * lam[2] else 0.0)
+    if not snr >= min_snr:
+        raise ExcitationError(f"rotation_only: expected motion about at least two directions, got one (the second "
+                              f"direction's SNR is {snr:.3g}, need >= {min_snr:g}): the rotation about the moving "
+                              "axis is undetermined")
+
+
 def rotation_only(omega_1, omega_2) -> tuple[np.ndarray, np.ndarray]:
     """Rotation-only baseline: Kabsch (Wahba) alignment of the bias-removed rates.
 
@@ -184,6 +201,7 @@ def rotation_only(omega_1, omega_2) -> tuple[np.ndarray, np.ndarray]:
     w1 = as_rates("omega_1", omega_1)
     w2 = as_rates("omega_2", omega_2, length=w1.shape[0])
     m = Moments.from_samples(w1, w2)
+    _check_two_directions(m, w1, w2)
     rot, _ = Rotation.align_vectors(w1 - m.mean_1, w2 - m.mean_2)
     R = rot.as_matrix()
     return R, m.mean_1 - R @ m.mean_2

@@ -26,6 +26,8 @@ The names of those modules that callers use are importable from here too.
 
 from __future__ import annotations
 
+import numpy as np
+
 from ..core.moments import as_rates
 from ..errors import InputError
 from ..options import Options
@@ -42,6 +44,13 @@ __all__ = [
     "RunRecord", "Row", "Comparison", "Slope", "SnrSweep", "solve_appendix_c", "rotation_only", "run_estimator",
     "estimator_available", "compare", "snr_sweep", "plot_rmse_vs_snr", "plot_residual_vs_rate",
 ]
+
+
+def check_seed(seed) -> int:
+    """``seed`` as the non-negative integer numpy's generators take, else :class:`InputError`."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise InputError(f"seed: expected an integer >= 0 (numpy's random generators take no other), got {seed!r}")
+    return int(seed)
 
 
 def compare(source="nominal", *, estimators=None, runs: int = 1, seed: int = 0, snr_factor: float = 1.0,
@@ -93,6 +102,7 @@ def compare(source="nominal", *, estimators=None, runs: int = 1, seed: int = 0, 
     """
     names = estimator_names(estimators)
     options = Options.of(options, **keywords)
+    seed = check_seed(seed)
     if isinstance(source, str):
         description = describe_scenario(source, snr_factor=snr_factor, snr_via=snr_via)  # checks the name first
         records = monte_carlo([(source, snr_factor, snr_via)], int(runs), names, seed, workers, progress,
@@ -126,6 +136,7 @@ def snr_sweep(scenario: str = "nominal", *, factors=SNR_FACTORS, via: str = "rat
     """
     names = estimator_names(estimators)
     options = Options.of(options, **keywords)
+    seed = check_seed(seed)
     factors = tuple(float(f) for f in factors)
     descriptions = [describe_scenario(scenario, snr_factor=f, snr_via=via) for f in factors]  # checks first
     recs = monte_carlo([(scenario, f, via) for f in factors], int(runs), names, seed, workers, progress, paired,

@@ -292,9 +292,11 @@ def write_imu_bag(path, streams: Mapping[str, ImuStream], *, version: int = 1,
             raise
         fsync_dir(path.parent)
     except BaseException as exc:
+        import sqlite3
+
         from rosbags.rosbag1 import WriterError as W1
         from rosbags.rosbag2 import WriterError as W2
-        if isinstance(exc, (OSError, W1, W2)):
+        if isinstance(exc, (OSError, W1, W2, sqlite3.Error)):   # sqlite3: a ROS2 bag on a full disk
             raise FormatError(f"{path}: could not write the bag: {exc}") from exc
         raise
     finally:

@@ -1,8 +1,8 @@
 """Delimited text files (generic CSV / TSV / whitespace, and the EuRoC / ASL layout): :func:`read_csv`.
 
 Columns are found by header name (or given by index or name), units are read from the header
-(``[ns]``, ``[deg/s]``, ``_dps``, ...; the spellings are those of :mod:`fusion_gyrocal.units`) or
-given, and converted at this edge: rates to rad/s, timestamps to seconds. Integer timestamps
+(``[ns]``, ``[deg/s]``, ``_dps``, ...; the spellings are those of :mod:`fusion_gyrocal.units`; a label
+that looks like a unit but is none of them is refused, naming it) or given, and converted at this edge: rates to rad/s, timestamps to seconds. Integer timestamps
 (EuRoC nanoseconds) are split into whole and fractional seconds before the conversion, so an
 epoch-sized nanosecond count keeps the full float64 resolution (about 0.2 us at 1.7e9 s) instead of
 losing digits in a single ``ns * 1e-9``. Timestamps whose unit would give a sample rate outside
@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FormatError, InputError
-from ..units import RATE_UNIT_LABELS, RATE_UNITS, TIME_UNIT_LABELS, TIME_UNITS
+from ..units import RATE_UNIT_HINTS, RATE_UNIT_LABELS, RATE_UNITS, TIME_UNIT_LABELS, TIME_UNITS
 from .stream import ImuStream, input_path, int_time_to_seconds, rate_factor
 from .text import data_end, dropped_note, head_lines, is_number, read_columns, sniff_delimiter, split_fields
 
@@ -42,7 +42,8 @@ _TIME_NAMES = ("t", "time", "timestamp", "stamp", "time_s", "t_s", "timestamp_s"
                "field.header.stamp", "%time")
 _NS_TIME_NAMES = ("field.header.stamp", "%time")  # `rostopic echo -p` CSV: integer nanoseconds
 # Column-name suffixes naming a rate unit (``gyro_x_dps``), by unit.
-_RATE_SUFFIXES = (("rad/s", ("_rad_s", "_rads")), ("deg/s", ("_dps", "_deg_s")))
+_RATE_SUFFIXES = (("rad/s", ("_rad_s", "_rads")), ("deg/s", ("_dps", "_deg_s")), ("mrad/s", ("_mrad_s", "_mrads")),
+                  ("mdeg/s", ("_mdps", "_mdeg_s")))
 
 
 #: Sample rates an IMU log can plausibly have; timestamps whose median step gives a rate outside
@@ -94,11 +95,18 @@ def _bracket_unit(name: str) -> str | None:
     return m.group(1).strip().lower() if m else None
 
 
-def _time_unit_from_header(name: str) -> str | None:
-    """The time unit a header names: in brackets (``[ns]``), by a ``rostopic`` name, or by a ``_ms``-like suffix."""
+def _time_unit_from_header(name: str, fname: str = "") -> str | None:
+    """The time unit a header names: in brackets (``[ns]``), by a ``rostopic`` name, or by a ``_ms``-like suffix.
+
+    A bracketed label that is no time unit this reader knows (``[min]``, ``[ticks]``) is refused, naming it.
+    """
     unit = _bracket_unit(name)
     if unit in TIME_UNIT_LABELS:
         return TIME_UNIT_LABELS[unit]
+    if unit:
+        raise FormatError(f"{fname}: the time column {name.strip()!r} names the unit {unit!r}, expected one of "
+                          f"{sorted(TIME_UNIT_LABELS)}; pass time_unit= (CLI --time-unit) with the unit in "
+                          f"{tuple(TIME_UNITS)}")
     n = _norm(name)
     if n in _NS_TIME_NAMES:
         return "ns"
@@ -108,11 +116,19 @@ def _time_unit_from_header(name: str) -> str | None:
     return None
 
 
-def _rate_unit_from_header(name: str) -> str | None:
-    """The rate unit a header names: in brackets (``[rad s^-1]``, ``[deg/s]``) or by a suffix (``_dps``)."""
+def _rate_unit_from_header(name: str, fname: str = "") -> str | None:
+    """The rate unit a header names: in brackets (``[rad s^-1]``, ``[deg/s]``, ``[mdps]``) or by a suffix (``_dps``).
+
+    A bracketed label that looks like a rate unit (:data:`~fusion_gyrocal.units.RATE_UNIT_HINTS`) but is none
+    this reader knows (``[rpm]``, ``[urad/s]``) is refused, naming it: never read as rad/s.
+    """
     n = _norm(name)
-    named = {RATE_UNIT_LABELS.get((_bracket_unit(name) or "").replace(" ", "")),
-             next((u for u, ends in _RATE_SUFFIXES if n.endswith(ends)), None)}
+    label = (_bracket_unit(name) or "").replace(" ", "")
+    if label and label not in RATE_UNIT_LABELS and any(h in label for h in RATE_UNIT_HINTS):
+        raise FormatError(f"{fname}: the gyro column {name.strip()!r} names the unit {label!r}, expected one of "
+                          f"{sorted(RATE_UNIT_LABELS)}; convert the rates or pass unit= (CLI --unit) with one of "
+                          f"{RATE_UNITS}")
+    named = {RATE_UNIT_LABELS.get(label), next((u for u, ends in _RATE_SUFFIXES if n.endswith(ends)), None)}
     return next((u for u in RATE_UNITS if u in named), None)
 
 
@@ -166,13 +182,15 @@ def read_csv(path, *, time_column=None, columns=None, unit: str | None = None, s
         The x, y, z gyro columns. Default: a recognised header triple (``gyro_x..``, ``gyr_x..``,
         EuRoC ``w_RS_S_x..``, ``omega_x..``, ``wx..``, ``gx..``, ROS ``angular_velocity.x..``),
         or columns 1, 2, 3 of a file without header.
-    unit : {"rad/s", "deg/s", "counts"}, optional
-        Rate unit in the file. Default: from the header (``[rad s^-1]``, ``[deg/s]``, ``_dps``),
-        else rad/s.
+    unit : {"rad/s", "deg/s", "counts", "mrad/s", "mdeg/s"}, optional
+        Rate unit in the file. Default: from the header (``[rad s^-1]``, ``[deg/s]``, ``[°/s]``, ``[mdps]``,
+        ``_dps``; a bracketed label that looks like a rate unit this reader does not know is refused,
+        naming it), else rad/s with a note saying that it was assumed.
     sensitivity : float, optional
         LSB per deg/s, required with ``unit="counts"`` (rad/s = counts / sensitivity * pi / 180).
     time_unit : {"s", "ms", "us", "ns"}, optional
-        Timestamp unit. Default: from the header (``[ns]``, ``_ns``), ``ns`` for EuRoC, else s.
+        Timestamp unit. Default: from the header (``[ns]``, ``_ns``, ``rostopic echo -p`` columns; another
+        bracketed label is refused), ``ns`` for EuRoC, else s.
     delimiter : str, optional
         Field separator. Default: sniffed from the first data row (``,`` tab ``;`` or whitespace).
     name : str, optional
@@ -196,11 +214,16 @@ def read_csv(path, *, time_column=None, columns=None, unit: str | None = None, s
     k_t = _time_column(time_column, layout, fname)
     k_w = _gyro_columns(columns, layout, fname)
     time_unit, how, unit = _units(layout, k_t, k_w, time_unit, unit, fname)
+    notes = []
+    if unit is None:   # said, so that a log in another unit is not silently read as rad/s
+        unit = "rad/s"
+        notes.append("rates read as rad/s: neither the header nor unit= names their unit (pass unit=, CLI --unit, "
+                     "if they are in deg/s or another unit)")
     factor = rate_factor(unit, sensitivity, fname)
 
     # junk after the data (spreadsheets): cut, and said in a note
     end, dropped = data_end(path, layout.delim, layout.skip)
-    notes = [dropped_note(dropped)] if dropped else []
+    notes += [dropped_note(dropped)] if dropped else []
 
     raw, w = _read_rows(path, layout, k_t, k_w, end, fname)
     column = layout.header[k_t] if layout.header is not None else f"#{k_t}"
@@ -244,9 +267,11 @@ def _layout(path: Path, fname: str, delimiter: str | None) -> _Layout:
     """The header row (if any), the delimiter (``delimiter`` or sniffed) and where the data start."""
     lines = head_lines(path)
     # Leading blank lines and '//', '%', '#' comment lines are skipped; a '#' line right above the
-    # first data row with as many fields is the header (the EuRoC "#timestamp [ns],w_RS_S_x ..." row).
+    # first data row with as many fields is the header (the EuRoC "#timestamp [ns],w_RS_S_x ..." row). The
+    # `rostopic echo -p` header starts with '%time': it is the header, not a comment.
     first, last_hash = 0, None
-    while first < len(lines) and (not lines[first].strip() or lines[first].lstrip().startswith(("//", "%", "#"))):
+    while first < len(lines) and (not lines[first].strip() or lines[first].lstrip().startswith(("//", "%", "#"))) \
+            and not lines[first].lstrip().lower().startswith("%time"):
         if lines[first].lstrip().startswith("#"):
             last_hash = first
         first += 1
@@ -318,18 +343,23 @@ def _units(layout: _Layout, k_t: int, k_w: list[int], time_unit: str | None, uni
     ``how`` says where the time unit came from (for the message of :func:`_check_time_unit`).
     """
     header = layout.header
+    from_header = _time_unit_from_header(header[k_t], fname) if header is not None and time_unit is None else None
     if time_unit is not None:
         how = "time_unit= given"
-    elif header is not None and _time_unit_from_header(header[k_t]):
-        time_unit, how = _time_unit_from_header(header[k_t]), f"as the header {header[k_t]!r} says"
+    elif from_header:
+        time_unit, how = from_header, f"as the header {header[k_t]!r} says"
     elif layout.is_euroc:
         time_unit, how = "ns", "the EuRoC layout"
     else:
         time_unit, how = "s", "the default"
     if time_unit not in TIME_UNITS:
         raise InputError(f"{fname}: expected time_unit in {tuple(TIME_UNITS)}, got {time_unit!r}")
-    if unit is None:
-        unit = (_rate_unit_from_header(header[k_w[0]]) if header is not None else None) or "rad/s"
+    if unit is None and header is not None:
+        named = {_rate_unit_from_header(header[k], fname) for k in k_w} - {None}   # often only x names it
+        if len(named) > 1:
+            raise FormatError(f"{fname}: the gyro columns {[header[k] for k in k_w]} name different units "
+                              f"{sorted(str(u) for u in named)}; expected one unit (or pass unit=, CLI --unit)")
+        unit = named.pop() if named else None
     return time_unit, how, unit
 
 

@@ -7,8 +7,13 @@ import zlib
 
 import numpy as np
 
-from ..errors import FormatError, InputError
+from ..errors import FormatError, InputError, OptionError
 from .stream import ImuStream, input_path, rate_factor
+
+#: Arrays of an archive may take at most this many times its size (plus :data:`EXPANSION_SLACK_BYTES`).
+MAX_EXPANSION = 50
+EXPANSION_SLACK_BYTES = 64 << 20
+
 
 def read_npz(path, imu: int | None = None, *, unit: str = "rad/s", name: str | None = None):
     """Read gyro streams from a numpy ``.npz`` archive.
@@ -47,13 +52,57 @@ def read_npz(path, imu: int | None = None, *, unit: str = "rad/s", name: str | N
             "a file that is not a zip archive"
         raise FormatError(f"{path.name}: expected a numpy .npz archive (zip), got {got}")
     try:
+        _check_sizes(path)
         with np.load(path, allow_pickle=False) as z:
             d = {k: z[k] for k in z.files}
-    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error, NotImplementedError,
+            RuntimeError) as exc:
         why = "an object array (pickled data), which is not read" if "pickle" in str(exc) else \
             " ".join(str(exc).split())
         raise FormatError(f"{path.name}: expected a complete numpy .npz archive of numeric arrays, got {why}") \
             from None
+    bad = sorted(k for k, v in d.items() if v.dtype.kind not in "biuf")
+    if bad:
+        raise FormatError(f"{path.name}: expected numeric arrays, got {', '.join(f'{k!r} of dtype {d[k].dtype}' for k in bad)}")
+    try:
+        return _streams(path, d, imu, unit, name)
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, (InputError, OptionError)):
+            raise
+        raise FormatError(f"{path.name}: expected the arrays of a gyro log, {' '.join(str(exc).split())}") from None
+
+
+def _check_sizes(path) -> None:
+    """Refuse an archive whose arrays would take more memory than such a file can hold, before decompressing.
+
+    Every ``.npy`` member's header (shape and dtype) is read first: its bytes must match what the archive
+    declares, and all members together may take at most :data:`MAX_EXPANSION` times the file's size (plus
+    :data:`EXPANSION_SLACK_BYTES`): gyro logs compress a few times at most, a "zip bomb" a thousand times.
+    """
+    limit = EXPANSION_SLACK_BYTES + MAX_EXPANSION * path.stat().st_size
+    total = 0
+    with zipfile.ZipFile(path) as zf:
+        for info in zf.infolist():
+            if not info.filename.endswith(".npy"):
+                continue
+            with zf.open(info) as f:
+                version = np.lib.format.read_magic(f)
+                shape, _, dtype = (np.lib.format.read_array_header_1_0(f) if version == (1, 0)
+                                   else np.lib.format.read_array_header_2_0(f))
+                header = f.tell()
+            nbytes = int(np.prod(shape, dtype=object)) * dtype.itemsize
+            if not dtype.hasobject and nbytes != info.file_size - header:
+                raise ValueError(f"member {info.filename!r} whose header says {shape} {dtype} ({nbytes} bytes) but "
+                                 f"which holds {info.file_size - header} bytes")
+            total += nbytes
+            if total > limit:
+                raise ValueError(f"arrays of {total} bytes or more from a file of {path.stat().st_size} bytes "
+                                 f"(at most {MAX_EXPANSION}x the file's size plus {EXPANSION_SLACK_BYTES >> 20} MiB "
+                                 "are read)")
+
+
+def _streams(path, d: dict, imu, unit: str, name):
+    """The streams of the arrays ``d`` of ``path`` (the layouts of :func:`read_npz`)."""
     valid = None
     if {"t_s", "gyro_counts", "gyro_lsb_per_dps"} <= d.keys():
         t = np.asarray(d["t_s"], dtype=np.float64)
@@ -97,7 +146,7 @@ def read_npz(path, imu: int | None = None, *, unit: str = "rad/s", name: str | N
 
     if imu is None:
         return tuple(stream(k) for k in range(n_imu))
-    k = int(imu)
+    k = int(imu) if isinstance(imu, (int, np.integer)) and not isinstance(imu, bool) else -1
     if not 0 <= k < n_imu:
-        raise InputError(f"{path.name}: expected imu in 0..{n_imu - 1} (0-based), got {imu}")
+        raise InputError(f"{path.name}: expected imu in 0..{n_imu - 1} (0-based), got {imu!r}")
     return stream(k)

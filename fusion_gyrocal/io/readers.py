@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..errors import InputError
+from ..errors import FormatError, InputError
 from ..units import RATE_UNITS, TIME_UNITS
 from .csv import PLAUSIBLE_RATE_HZ, read_csv
 from .npz import read_npz
@@ -88,6 +88,16 @@ def read_imu(path, *, format: str = "auto", **options) -> ImuStream:
     """
     if format not in FORMATS:
         raise InputError(f"format: expected one of {FORMATS}, got {format!r}")
+    try:
+        return _read(path, format, options)
+    except OSError as exc:   # EIO, a file that vanished or became unreadable while read: a FormatError naming it
+        raise FormatError(f"{path}: expected a readable file, got an error reading it (could not read: "
+                          f"{exc.strerror or exc})") from exc
+    except RecursionError:
+        raise FormatError(f"{path}: expected an IMU log, got data nested too deeply to read") from None
+
+
+def _read(path, format: str, options: dict) -> ImuStream:
     fmt = detect_format(path) if format == "auto" else format
     if fmt in ("csv", "euroc"):
         return read_csv(path, **options)

@@ -8,6 +8,7 @@ and integer timestamps to float seconds without losing digits (:func:`int_time_t
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -114,6 +115,9 @@ def input_path(path, what: str = "file", *, folder: bool = False) -> Path:
         kind = "a folder" if p.is_dir() else "a FIFO" if p.is_fifo() else "a device" if p.is_char_device() or \
             p.is_block_device() else "a socket" if p.is_socket() else "not a regular file"
         raise FormatError(f"{p}: expected a regular {what.replace('file or folder', 'file or a folder')}, got {kind}")
+    if not os.access(p, os.R_OK | (os.X_OK if p.is_dir() else 0)):
+        raise FormatError(f"{p}: expected a {what} we may read, got one "
+                          "without read permission (could not read: permission denied)")
     return p
 
 

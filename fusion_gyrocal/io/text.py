@@ -1,6 +1,8 @@
 """Delimited text at the edge: reading the head of a file, cutting a spreadsheet's trailer, parsing float columns.
 
-Text is read as UTF-8 with or without a byte-order mark (UTF-16/32 is refused). Lines without any
+Text is read as UTF-8 with or without a byte-order mark (UTF-16/32 is refused); a header that is not
+UTF-8 is read as Windows-1252 (Excel's default on Western systems, so ``°/s`` is the degree sign). Lines
+longer than :data:`MAX_LINE_BYTES` are refused before any parser splits them. Lines without any
 number after the last data row (what spreadsheets leave: empty rows, rows of delimiters, a text
 line) are cut by :func:`data_end` and named by :func:`dropped_note`; such lines between data rows
 are refused by the parser. Files of :data:`PANDAS_MIN_BYTES` or more with a one-character delimiter
@@ -99,16 +101,64 @@ def _open_text(path: Path, end: int | None = None):
     return io.TextIOWrapper(io.BufferedReader(raw), encoding=_ENCODING, errors="replace", newline=None)
 
 
+#: Longest line (bytes) of a text table: an IMU log's row is some hundred bytes; longer lines are refused before
+#: anything splits them into fields (a 50 MB line would otherwise cost gigabytes).
+MAX_LINE_BYTES = 1 << 20
+#: Encoding of a header that is not UTF-8: Windows-1252 (Excel's "CSV" on Western systems, a superset of the
+#: printable Latin-1), so ``°/s`` in such a file is the degree sign.
+FALLBACK_ENCODING = "cp1252"
+
+
+def decode_header(raw: bytes) -> tuple[str, str]:
+    """``(text, encoding)``: ``raw`` as UTF-8 (a byte-order mark dropped), else as :data:`FALLBACK_ENCODING`."""
+    try:
+        return raw.decode(_ENCODING), "utf-8"
+    except UnicodeDecodeError:
+        return raw.decode(FALLBACK_ENCODING, errors="replace"), FALLBACK_ENCODING
+
+
 def head_lines(path: Path, n: int = 64) -> list[str]:
-    """The first ``n`` lines of a text file, without their line ends (UTF-16/32 refused)."""
+    """The first ``n`` lines of a text file, without their line ends (UTF-16/32 refused).
+
+    The lines are decoded as UTF-8, or as Windows-1252 when they are not UTF-8 (:func:`decode_header`); a line
+    longer than :data:`MAX_LINE_BYTES` is refused (:class:`FormatError`).
+    """
     _check_text(path)
-    lines = []
-    with _open_text(path) as f:
-        for line in f:
-            lines.append(line.rstrip("\n").rstrip("\r"))
-            if len(lines) >= n:
+    raw = []
+    with open(path, "rb") as f:
+        while len(raw) < n:
+            line = f.readline(MAX_LINE_BYTES + 1)
+            if not line:
                 break
-    return lines
+            if len(line) > MAX_LINE_BYTES and b"\r" not in line:
+                raise FormatError(f"{path.name}: expected rows of a text table, got line {len(raw) + 1} longer than "
+                                  f"{MAX_LINE_BYTES} bytes")
+            raw.append(line)
+    text, _ = decode_header(b"".join(raw))
+    lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+    if lines and lines[-1] == "":
+        lines.pop()
+    return lines[:n]
+
+
+def check_line_lengths(path: Path, end: int | None = None) -> None:
+    """Refuse a file with a line longer than twice :data:`MAX_LINE_BYTES` before a parser splits it into fields.
+
+    Such a line holds a whole aligned block of :data:`MAX_LINE_BYTES` without a line end; each block is
+    searched from its start (memory-mapped; the search stops at the first line end, so a few bytes per block
+    are read).
+    """
+    size = path.stat().st_size if end is None else end
+    if size <= 2 * MAX_LINE_BYTES:
+        return
+    import mmap
+
+    with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+        for lo in range(0, size - MAX_LINE_BYTES + 1, MAX_LINE_BYTES):
+            hi = lo + MAX_LINE_BYTES
+            if mm.find(b"\n", lo, hi) < 0 and mm.find(b"\r", lo, hi) < 0:
+                raise FormatError(f"{path.name}: expected rows of a text table, got a line longer than "
+                                  f"{MAX_LINE_BYTES} bytes (at byte {lo})")
 
 
 def data_end(path: Path, delimiter: str | None, first_data_line: int) -> tuple[int | None, list[str]]:
@@ -319,6 +369,7 @@ def read_columns(path: Path, *, skiprows: int, delimiter: str | None, k_t: int, 
     through ``np.loadtxt`` (:func:`_load_columns`), which only takes plain integers as int64
     (pandas would also take ``6.0``).
     """
+    check_line_lengths(path, end)
     kw = dict(skiprows=skiprows, delimiter=delimiter, end=end)
     if int_time:
         t = _load_columns(path, usecols=[k_t], dtype=np.int64, **kw)[:, 0]

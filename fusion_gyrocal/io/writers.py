@@ -2,7 +2,11 @@
 
 Every writer is atomic: the bytes go to a temporary file in the destination folder, are flushed
 and fsync'ed, and only then renamed over the destination with :func:`os.replace`. A crash or an
-exception mid-write leaves the previous file untouched and no half-written file behind.
+exception mid-write leaves the previous file untouched and no half-written file behind. The files of
+one run written inside :func:`output_group` are replaced together or not at all (a commit journal; a
+run killed mid-commit is finished, and its temp files cleaned, by the next write into the folder:
+:func:`recover_outputs`). A character device (``/dev/null``) or a FIFO is written in place, never
+replaced by a regular file; ``"-"`` is standard output.
 
 Which file for which consumer
 -----------------------------
@@ -52,9 +56,15 @@ Frame and time conventions of the YAML exports (``ARCHITECTURE.md``)
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import io
 import json
 import os
+import re
+import secrets
+import stat
+import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -108,6 +118,15 @@ class ImuNoise:
 
 
 # ----------------------------------------------------------------------------- atomic writes
+#: The output path that means standard output (the string ``"-"``; ``Path("-")`` is a file named ``-``).
+STDOUT = "-"
+#: Temp files are ``.<name>.gyrocal-<pid>-<random>.tmp`` beside their destination; commit journals of a
+#: group of outputs (:func:`output_group`) ``.gyrocal-commit-<pid>-<random>.json``.
+_TMP = re.compile(r"^\..+\.gyrocal-(\d+)-[^.]+\.tmp$")
+_JOURNAL = re.compile(r"^\.gyrocal-commit-(\d+)-[^.]+\.json$")
+_GROUP: contextvars.ContextVar = contextvars.ContextVar("fusion_gyrocal_output_group", default=None)
+
+
 def _umask() -> int:
     try:
         with open("/proc/self/status") as f:
@@ -138,28 +157,123 @@ def os_reason(exc: OSError) -> str:
     return exc.strerror or str(exc) or type(exc).__name__
 
 
-def atomic_write(path, data: bytes | str) -> Path:
-    """Write ``data`` to ``path`` atomically (temp file in the same folder, fsync, ``os.replace``).
+def _alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True   # exists, owned by someone else
+    return True
 
-    The one mechanism for every file the library writes, text (``str``, UTF-8) and binary (``bytes``,
-    e.g. a PNG rendered in memory) alike: a reader never sees a half-written file. The file keeps the
-    permissions of the file it replaces (new files get ``0o666 & ~umask``).
 
-    Raises
-    ------
-    FormatError
-        When the folder does not exist or the write fails (the old file is left as it was); the message
-        names the file and the cause (``"cal.json: could not write: Permission denied"``).
+def _unlink(p) -> None:
+    try:
+        os.unlink(p)
+    except OSError:
+        pass
+
+
+def recover_outputs(folder) -> None:
+    """Finish or undo what a killed writer left in ``folder``: the next run's first step.
+
+    A commit journal of a dead process (:func:`output_group`) whose copies all exist is rolled forward (its
+    remaining temp files renamed over their destinations: the group is replaced as a whole); one whose copies
+    do not all exist was being written when the process died, before any rename, and is rolled back (its temp
+    files deleted). Then the temp files of dead processes that no journal names are deleted. Errors are ignored
+    (a folder we may not write is left as it is).
     """
-    path = Path(path).expanduser()
-    if isinstance(data, str):
-        data = data.encode("utf-8")
+    folder = Path(folder)
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return
+    named = set()
+    for name in names:
+        m = _JOURNAL.match(name)
+        if not m or _alive(int(m.group(1))):
+            continue
+        try:
+            with open(folder / name, encoding="utf-8") as f:
+                journal = json.load(f)
+            renames, copies = journal["renames"], journal["journals"]
+        except (OSError, ValueError, KeyError, TypeError):
+            _unlink(folder / name)
+            continue
+        complete = all(os.path.exists(c) for c in copies)
+        for tmp, dest in renames:
+            named.add(os.path.abspath(tmp))
+            if os.path.exists(tmp):
+                try:
+                    os.replace(tmp, dest) if complete else os.unlink(tmp)
+                except OSError:
+                    pass
+        for d in {os.path.dirname(dest) for _, dest in renames}:
+            fsync_dir(Path(d))
+        for c in copies:
+            _unlink(c)
+    for name in names:
+        m = _TMP.match(name)
+        if m and not _alive(int(m.group(1))) and os.path.abspath(folder / name) not in named:
+            _unlink(folder / name)
+
+
+def _target(path) -> tuple[Path | None, str]:
+    """Where ``path`` writes and how: ``(None, "stdout")``, ``(p, "direct")`` for a character device or a FIFO
+    (written in place: a rename would replace the device node), else ``(p, "atomic")`` with symbolic links
+    resolved (the file they point at is replaced, the link kept). Folders, block devices and sockets are refused."""
+    if isinstance(path, str) and path == STDOUT:
+        return None, "stdout"
+    p = Path(path).expanduser()
+    try:
+        st = os.stat(p)
+    except FileNotFoundError:
+        st = None
+    except OSError as exc:
+        raise FormatError(f"{p}: could not write: {os_reason(exc)}") from exc
+    if st is None:
+        if p.is_symlink():   # a dangling link: write the file it names
+            p = Path(os.path.realpath(p))
+        return p, "atomic"
+    if stat.S_ISCHR(st.st_mode) or stat.S_ISFIFO(st.st_mode):
+        return p, "direct"
+    if stat.S_ISDIR(st.st_mode):
+        raise FormatError(f"{p}: expected a file to write, got a folder")
+    if not stat.S_ISREG(st.st_mode):
+        kind = "a block device" if stat.S_ISBLK(st.st_mode) else "a socket" if stat.S_ISSOCK(st.st_mode) else \
+            "not a regular file"
+        raise FormatError(f"{p}: expected a regular file, a character device or a FIFO to write, got {kind}")
+    return (Path(os.path.realpath(p)) if p.is_symlink() else p), "atomic"
+
+
+def _write_direct(path: Path | None, data: bytes) -> None:
+    """``data`` to standard output (``path`` None) or into a character device / FIFO, in place."""
+    if path is None:
+        out = getattr(sys.stdout, "buffer", None)
+        if out is None:
+            sys.stdout.write(data.decode("utf-8"))
+        else:
+            out.write(data)
+        sys.stdout.flush()
+        return
+    try:
+        with open(path, "wb") as f:
+            f.write(data)
+    except OSError as exc:
+        raise FormatError(f"{path}: could not write: {os_reason(exc)}") from exc
+
+
+def _stage(path: Path, data: bytes) -> str:
+    """``data`` in a fsync'ed temp file beside ``path`` with the permissions of the file it will replace."""
     folder = path.parent
     if not folder.is_dir():
         raise FormatError(f"{path}: folder {folder} does not exist")
+    recover_outputs(folder)
     try:
         mode = (os.stat(path).st_mode & 0o7777) if path.exists() else (0o666 & ~_umask())
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.gyrocal-{os.getpid()}-", suffix=".tmp", dir=folder)
     except OSError as exc:
         raise FormatError(f"{path}: could not write: {os_reason(exc)}") from exc
     try:
@@ -168,17 +282,121 @@ def atomic_write(path, data: bytes | str) -> Path:
             f.flush()
             os.fsync(f.fileno())
         os.chmod(tmp, mode)
-        os.replace(tmp, path)
     except BaseException as exc:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
+        _unlink(tmp)
         if isinstance(exc, OSError):
             raise FormatError(f"{path}: could not write: {os_reason(exc)}") from exc
         raise
-    fsync_dir(folder)
-    return path
+    return tmp
+
+
+def atomic_write(path, data: bytes | str) -> Path:
+    """Write ``data`` to ``path`` atomically (temp file in the same folder, fsync, ``os.replace``).
+
+    The one mechanism for every file the library writes, text (``str``, UTF-8) and binary (``bytes``,
+    e.g. a PNG rendered in memory) alike: a reader never sees a half-written file. The file keeps the
+    permissions of the file it replaces (new files get ``0o666 & ~umask``); a symbolic link is kept and
+    the file it points at replaced. A character device (``/dev/null``) or a FIFO is written in place,
+    never replaced; the string ``"-"`` (:data:`STDOUT`) writes to standard output. Inside
+    :func:`output_group` the file is replaced together with the group's other files. What a killed
+    writer left in the folder is finished or undone first (:func:`recover_outputs`).
+
+    Raises
+    ------
+    FormatError
+        When the folder does not exist, the path is a folder, a block device or a socket, or the write
+        fails (the old file is left as it was); the message names the file and the cause
+        (``"cal.json: could not write: Permission denied"``).
+    """
+    target, how = _target(path)
+    shown = Path(STDOUT) if target is None else Path(path).expanduser()   # what the caller named
+    if isinstance(data, str):
+        data = data.encode("utf-8")
+    group = _GROUP.get()
+    if how != "atomic":
+        if group is not None:
+            group.append((None, target, data))
+        else:
+            _write_direct(target, data)
+        return shown
+    tmp = _stage(target, data)
+    if group is not None:
+        group.append((tmp, target, None))
+        return shown
+    try:
+        os.replace(tmp, target)
+    except OSError as exc:
+        _unlink(tmp)
+        raise FormatError(f"{target}: could not write: {os_reason(exc)}") from exc
+    fsync_dir(target.parent)
+    return shown
+
+
+@contextlib.contextmanager
+def output_group():
+    """Every file :func:`atomic_write` writes inside the block is replaced together, or none is.
+
+    The files are staged (temp files, fsync'ed) while the block runs; when it ends without an exception a
+    commit journal naming every rename is written into each folder involved, the renames are made and the
+    journals deleted. An exception in the block deletes the staged files and leaves every old file as it was;
+    a process killed during the renames leaves the journals, and the next write into one of those folders
+    finishes the renames (:func:`recover_outputs`). Standard output and devices are written at the commit.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> d = pathlib.Path(tempfile.mkdtemp())
+    >>> with output_group():
+    ...     _ = atomic_write(d / "a.txt", "new a"), atomic_write(d / "b.txt", "new b")
+    >>> sorted(p.name for p in d.iterdir())
+    ['a.txt', 'b.txt']
+    """
+    staged: list = []
+    token = _GROUP.set(staged)
+    try:
+        yield staged
+    except BaseException:
+        for tmp, _, _ in staged:
+            if tmp is not None:
+                _unlink(tmp)
+        raise
+    finally:
+        _GROUP.reset(token)
+    _commit(staged)
+
+
+def _commit(staged: list) -> None:
+    """The renames of an :func:`output_group`, behind a journal when there are several."""
+    files = [(tmp, dest) for tmp, dest, _ in staged if tmp is not None]
+    folders = sorted({str(dest.parent) for _, dest in files})
+    copies = []
+    try:
+        if len(files) > 1:
+            tag = f"{os.getpid()}-{secrets.token_hex(4)}"
+            copies = [os.path.join(f, f".gyrocal-commit-{tag}.json") for f in folders]
+            text = json.dumps({"renames": [[os.path.abspath(t), str(d)] for t, d in files], "journals": copies})
+            for c in copies:
+                with open(c, "w", encoding="utf-8") as f:
+                    f.write(text)
+                    f.flush()
+                    os.fsync(f.fileno())
+            for f in folders:
+                fsync_dir(Path(f))
+        for tmp, dest in files:
+            os.replace(tmp, dest)
+    except OSError as exc:
+        for tmp, _ in files:
+            _unlink(tmp)
+        for c in copies:
+            _unlink(c)
+        raise FormatError(f"{files[0][1]}: could not write: {os_reason(exc)}") from exc
+    for f in folders:
+        fsync_dir(Path(f))
+    for c in copies:
+        _unlink(c)
+    for tmp, target, data in staged:
+        if tmp is None:
+            _write_direct(target, data)
 
 
 # ----------------------------------------------------------------------------- JSON
@@ -220,16 +438,30 @@ def read_json(path):
     except json.JSONDecodeError as exc:
         raise FormatError(f"{p.name}: expected JSON, got a syntax error at line {exc.lineno} column {exc.colno}: "
                           f"{exc.msg}") from None
+    except RecursionError:
+        raise FormatError(f"{p.name}: expected a calibration written by write_json, got JSON nested too deeply to "
+                          "read") from None
     if not isinstance(d, dict):
         raise FormatError(f"{p.name}: expected a JSON object, got {type(d).__name__}")
     try:
-        if d.get("kind") == ARRAY_KIND:
-            return ArrayCalibration.from_dict(d)
-        return PairCalibration.from_dict(d)
+        cal = ArrayCalibration.from_dict(d) if d.get("kind") == ARRAY_KIND else PairCalibration.from_dict(d)
     except FormatError as exc:
         raise FormatError(f"{p.name}: {exc}") from None
-    except (TypeError, ValueError, KeyError) as exc:
+    except (TypeError, ValueError, KeyError, AttributeError, IndexError, RecursionError) as exc:
         raise FormatError(f"{p.name}: expected a calibration written by write_json, {exc}") from None
+    rotations = [("R_1_2", cal.R_1_2)] if isinstance(cal, PairCalibration) else \
+        [(f"R_ref_k[{k}]", R) for k, R in enumerate(cal.R_ref_k)]
+    for name, R in rotations:
+        R = np.asarray(R, dtype=float)
+        if R.shape != (3, 3) or not np.isfinite(R).all() or np.abs(R.T @ R - np.eye(3)).max() > _ROTATION_TOL \
+                or abs(np.linalg.det(R) - 1.0) > _ROTATION_TOL:
+            raise FormatError(f"{p.name}: expected {name} to be a rotation (orthonormal, det +1, within "
+                              f"{_ROTATION_TOL:g}), got {np.round(R, 6).tolist()}")
+    return cal
+
+
+#: How far a rotation read from JSON may be from orthonormal (the file's 17 digits give ~1e-15).
+_ROTATION_TOL = 1e-6
 
 
 # ----------------------------------------------------------------------------- streams

@@ -384,6 +384,8 @@ def _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, min_correlation, max_eval)
             raise TimeAlignmentError(f"{name}: expected at least 8 valid samples to align, got {int(ok.sum())}")
     t_ref = t1[ok1][0]
     t1, t2 = t1 - t_ref, t2 - t_ref  # relative times: keeps spline and grid arithmetic exact
+    # no offset beyond both spans together can overlap: the lag grid is bounded by the data, not the option
+    max_offset_s = min(float(max_offset_s), float(t1[-1] - t1[0] + t2[-1] - t2[0]))
     p1, p2 = _nominal_period(t1), _nominal_period(t2)
     gap1, gap2 = DEFAULT_GAP_PERIODS * p1, DEFAULT_GAP_PERIODS * p2
     h = min(p1, p2)
@@ -517,14 +519,25 @@ class AlignedPair:
         return Moments.from_samples(self.omega_1, self.omega_2, mask=keep)
 
 
-def _grid(t1, lo: float, hi: float, rate_hz):
+#: A uniform ``rate_hz`` grid may hold at most this many times the samples of the densest recording (plus
+#: :data:`_GRID_SLACK`): resampling beyond that adds no information, only memory.
+MAX_GRID_UPSAMPLING = 4
+_GRID_SLACK = 64
+
+
+def _grid(t1, lo: float, hi: float, rate_hz, n_data: int | None = None):
     """The common time grid over ``[lo, hi]`` on gyro 1's clock: gyro 1's own instants (``keep`` selects them)
-    or a uniform ``rate_hz`` grid (``keep`` None)."""
+    or a uniform ``rate_hz`` grid (``keep`` None), of at most :data:`MAX_GRID_UPSAMPLING` times the samples of
+    the densest recording (``n_data``, default gyro 1's)."""
     if rate_hz is None:
         keep = (t1 >= lo) & (t1 <= hi)
         return t1[keep], keep
     if not (np.isfinite(rate_hz) and rate_hz > 0):
         raise OptionError(f"rate_hz: expected a positive rate, got {rate_hz!r}")
+    limit = MAX_GRID_UPSAMPLING * int(n_data or len(t1)) + _GRID_SLACK
+    if (hi - lo) * rate_hz + 1 > limit:
+        raise OptionError(f"rate_hz: expected at most {(limit - 1) / (hi - lo):.6g} Hz ({MAX_GRID_UPSAMPLING}x the "
+                          f"samples of the densest recording over the common {hi - lo:.6g} s), got {rate_hz!r}")
     return lo + np.arange(int(np.floor((hi - lo) * rate_hz + 1e-9)) + 1) / float(rate_hz), None
 
 
@@ -577,7 +590,7 @@ def align_streams(t_1, omega_1, t_2, omega_2, *, time_offset_s: float | None = N
     if not hi > lo:
         raise TimeAlignmentError(f"the streams do not overlap after applying the offset {tau:+.6g} s: gyro 1 covers "
                                  f"[{t1[0]:.6g}, {t1[-1]:.6g}] s, gyro 2 [{t2[0] + tau:.6g}, {t2[-1] + tau:.6g}] s")
-    grid, keep = _grid(t1, lo, hi, rate_hz)
+    grid, keep = _grid(t1, lo, hi, rate_hz, max(len(t1), len(t2)))
     if keep is not None:
         o1 = w1[keep].astype(np.float64, copy=False)
         v1 = ok1[keep]
@@ -658,7 +671,7 @@ def align_to_reference(ts, omegas, *, time_offset_s=None, max_offset_s: float = 
     if not hi > lo:
         raise TimeAlignmentError(f"the {n} recordings have no common time span after applying the offsets "
                                  f"{np.round(tau, 6).tolist()} s")
-    grid, keep = _grid(t1, lo, hi, rate_hz)
+    grid, keep = _grid(t1, lo, hi, rate_hz, max(len(t) for t in ts))
     if keep is not None:
         cols, oks, start = [np.asarray(w[0][keep])], [ok[0][keep]], 1
     else:

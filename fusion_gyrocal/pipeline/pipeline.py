@@ -21,6 +21,7 @@ from ..errors import InputError, NotRigidError, OptionError
 from ..options import TIMESTAMP_OPTIONS, Options
 from .bias import BiasModel
 from .flex import GLITCH_FACTOR, gate, gross_outliers, subsample_rate_norms
+from ..units import check_unit_evidence
 from .streams import grid_rate
 
 PLAUSIBILITY_QUANTILE = 0.99  # of the rate norm: isolated glitches do not decide the unit
@@ -171,6 +172,8 @@ def check_rate_units(w1, w2, mask=None, *, limit: float = 100.0) -> None:
     InputError
         Naming the rate level and the unit the values look like (deg/s, or counts).
     """
+    if len(w1) == 0:
+        raise InputError("omega_1 and omega_2: expected at least 4 samples (Lemma 1), got 0")
     levels = []
     norms = subsample_rate_norms(w1, w2, mask)
     for name, flag, n, w in zip(("omega_1", "omega_2"), ("--unit1", "--unit2"), norms, (w1, w2)):
@@ -189,6 +192,7 @@ def check_rate_units(w1, w2, mask=None, *, limit: float = 100.0) -> None:
         raise InputError(f"omega_1 and omega_2: expected rates in rad/s (at most {limit:g} rad/s, above "
                          f"any MEMS gyro's range), got rate norms of {levels[0]:.4g} and {levels[1]:.4g} at the 99th "
                          f"percentile; they look like {looks} (--unit1/--unit2)")
+    check_unit_evidence(w1, w2, mask, limit)
 
 
 def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Options | None = None,
