@@ -16,15 +16,21 @@ public names; each format has its own module:
   :mod:`fusion_gyrocal.io.xsens`);
 * ``.npz`` archives with ``t`` and ``omega`` (or ``gyro``) arrays, and the MIMU4444 array layout
   (``t_s``, ``gyro_counts`` N x M x 3, ``gyro_lsb_per_dps``) (:func:`read_npz`, :mod:`fusion_gyrocal.io.npz`);
-* ROS1 / ROS2 bags with ``sensor_msgs/msg/Imu`` (:mod:`fusion_gyrocal.io.bags`, loaded on first use);
+* ROS1 / ROS2 bags with ``sensor_msgs/msg/Imu``, a ROS2 ``.db3`` / ``.mcap`` storage file on its own too
+  (:mod:`fusion_gyrocal.io.bags`, loaded on first use);
+* PX4 ULog ``.ulg`` flight logs, every gyro instance (:mod:`fusion_gyrocal.io.ulog`, loaded on first use);
 * :class:`ImuStream` and what every reader shares: :mod:`fusion_gyrocal.io.stream`.
+
+Binary files that are none of these (a ``.mat``, an executable, a ``.ulg`` given as CSV, anything with NUL bytes
+in its first block) are refused by name before any parser sees them (:func:`refuse_binary`); no byte of them is
+ever printed.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from ..errors import InputError
+from ..errors import FormatError, InputError
 from ..units import RATE_UNITS, TIME_UNITS
 from .csv import PLAUSIBLE_RATE_HZ, read_csv
 from .npz import read_npz
@@ -32,14 +38,51 @@ from .stream import ImuStream, input_path
 from .text import PANDAS_MIN_BYTES, head_lines
 from .xsens import XSENS_FINE_TICKS_PER_S, looks_like_xsens, read_xsens
 
+ULOG_MAGIC = b"ULog\x01\x12\x35"
+"""The first 7 bytes of every PX4 ULog file (then the format version and the start time, in us)."""
+
 __all__ = ["ImuStream", "FORMATS", "detect_format", "read_imu", "read_csv", "read_xsens", "read_npz",
            "RATE_UNITS", "TIME_UNITS", "PLAUSIBLE_RATE_HZ", "PANDAS_MIN_BYTES", "XSENS_FINE_TICKS_PER_S"]
 
-FORMATS = ("auto", "csv", "euroc", "xsens", "npz", "bag")
+FORMATS = ("auto", "csv", "euroc", "xsens", "npz", "bag", "ulog")
+
+# Known binary layouts by their first bytes (what the file is, what to do with it).
+_BINARY_MAGIC = (
+    (b"MATLAB 5.0 MAT-file", "a MATLAB .mat file (v5-v7.2)", "export the gyro columns to CSV, or load it with "
+     "scipy.io.loadmat and pass the arrays to calibrate_pair"),
+    (b"\x89HDF\r\n\x1a\n", "an HDF5 file (e.g. MATLAB .mat v7.3)", "export the gyro columns to CSV, or load it "
+     "with h5py and pass the arrays to calibrate_pair"),
+    (b"\x93NUMPY", "a NumPy .npy array", "save t and omega together with numpy.savez (an .npz)"),
+    (b"\x7fELF", "an executable", "pass the recording instead"),
+    (b"\x1f\x8b", "a gzip archive", "decompress it first"),
+    (b"\x89PNG", "a PNG image", "pass the recording instead"),
+    (b"%PDF", "a PDF document", "pass the recording instead"),
+    (b"\x89MCAP", "an MCAP file without the '.mcap' suffix", "rename it to '.mcap'"),
+    (b"SQLite format 3\x00", "an SQLite database (a ROS2 .db3?)", "rename it to '.db3' if it is a ROS2 bag"),
+)
+
+
+def refuse_binary(path: Path, head: bytes, fmt: str) -> None:
+    """Raise a :class:`FormatError` naming what ``path`` is when its first bytes ``head`` are binary.
+
+    ``fmt`` is the format the file was about to be read as. Recognised layouts are named with what to do;
+    any other file with a NUL byte in ``head`` is refused as binary. The message never quotes the bytes.
+    """
+    what, advice = next(((w, a) for magic, w, a in _BINARY_MAGIC if head.startswith(magic)), (None, None))
+    if what is None and b"\x00" in head:
+        what, advice = "a binary file (NUL bytes in its first block)", "pass a text export or a supported format"
+    if what is not None:
+        raise FormatError(f"{path.name}: expected {fmt} text, got {what}; {advice}")
 
 
 def detect_format(path) -> str:
-    """Guess the layout of ``path``: one of ``"csv"``, ``"euroc"``, ``"xsens"``, ``"npz"``, ``"bag"``."""
+    """Guess the layout of ``path``: ``"csv"``, ``"euroc"``, ``"xsens"``, ``"npz"``, ``"bag"`` or ``"ulog"``.
+
+    Raises
+    ------
+    FormatError
+        For a binary file of no supported format (:func:`refuse_binary`), before any parser reads it.
+    """
     p = input_path(path, "file or folder", folder=True)
     if p.is_dir():
         if (p / "metadata.yaml").is_file() or any(p.glob("*.db3")) or any(p.glob("*.mcap")):
@@ -50,12 +93,17 @@ def detect_format(path) -> str:
         return "bag"
     if suffix == ".npz":
         return "npz"
+    if suffix == ".ulg":
+        return "ulog"
     with open(p, "rb") as f:
-        magic = f.read(13)
-    if magic.startswith(b"#ROSBAG V2.0"):
+        head = f.read(4096)
+    if head.startswith(b"#ROSBAG V2.0"):
         return "bag"
-    if magic.startswith(b"PK"):
+    if head.startswith(b"PK"):
         return "npz"
+    if head.startswith(ULOG_MAGIC):
+        return "ulog"
+    refuse_binary(p, head, "CSV or Xsens")
     lines = head_lines(p, 256)
     if looks_like_xsens(lines):
         return "xsens"
@@ -72,13 +120,13 @@ def read_imu(path, *, format: str = "auto", **options) -> ImuStream:
     ----------
     path : str or Path
         A CSV/TSV/text file, an EuRoC ``imu0`` folder, an Xsens export, an ``.npz``, a ROS1
-        ``.bag`` or a ROS2 bag folder.
-    format : {"auto", "csv", "euroc", "xsens", "npz", "bag"}
+        ``.bag``, a ROS2 bag folder or ``.db3`` / ``.mcap`` storage file, or a PX4 ``.ulg``.
+    format : {"auto", "csv", "euroc", "xsens", "npz", "bag", "ulog"}
         Force a reader instead of :func:`detect_format`.
     **options
         Passed to the reader: :func:`read_csv` (``columns``, ``unit``, ``time_unit``, ...),
         :func:`read_xsens` (``unit``, ``rate_hz``), :func:`read_npz` (``imu``, ``unit``),
-        :func:`fusion_gyrocal.io.read_bag` (``topic``).
+        :func:`fusion_gyrocal.io.read_bag` (``topic``), :func:`fusion_gyrocal.io.read_ulog` (``topic``, ``imu``).
 
     Raises
     ------
@@ -89,6 +137,13 @@ def read_imu(path, *, format: str = "auto", **options) -> ImuStream:
     if format not in FORMATS:
         raise InputError(f"format: expected one of {FORMATS}, got {format!r}")
     fmt = detect_format(path) if format == "auto" else format
+    if fmt in ("csv", "euroc", "xsens") and Path(path).is_file():
+        with open(path, "rb") as f:
+            head = f.read(4096)
+        if head.startswith(ULOG_MAGIC):
+            raise FormatError(f"{Path(path).name}: expected {fmt} text, got a PX4 ULog file; read it with "
+                              "format='ulog' (or 'auto')")
+        refuse_binary(Path(path), head, fmt)
     if fmt in ("csv", "euroc"):
         return read_csv(path, **options)
     if fmt == "xsens":
@@ -102,5 +157,8 @@ def read_imu(path, *, format: str = "auto", **options) -> ImuStream:
             return streams[0]
         raise InputError(f"{Path(path).name}: holds {len(streams)} IMUs; pass imu=0..{len(streams) - 1} "
                          "to choose one")
+    if fmt == "ulog":
+        from .ulog import read_ulog
+        return read_ulog(path, **options)
     from .bags import read_bag
     return read_bag(path, **options)
