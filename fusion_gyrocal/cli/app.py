@@ -80,7 +80,7 @@ def one_line(text: str) -> str:
     return " ".join(" ".join(line.split()) for line in str(text).splitlines()
                     if line.strip() and not _CARETS.match(line))
 
-COMMANDS = ("calibrate", "report", "demo", "compare", "fleet")
+COMMANDS = ("calibrate", "report", "demo", "compare", "fleet", "track")
 """The command modules of this package, in the order ``gyrocal --help`` lists them."""
 
 EXAMPLES = """examples:
@@ -92,6 +92,7 @@ EXAMPLES = """examples:
   gyrocal calibrate exp_1.npz --output array.json --openvins kalibr_imu_chain.yaml   (all IMUs, jointly)
   gyrocal calibrate a.csv b.csv c.csv --time-unit ms,s,s --kalibr kalibr/            (N recordings, jointly)
   gyrocal report imu_a.csv imu_b.csv --out report/
+  gyrocal track pair.csv --seed cal.json --follow                                    (live drift, JSON lines)
 
 """ + textwrap.fill("exit codes: " + "; ".join(f"{code} {meaning}" for code, meaning in EXIT_MEANINGS),
                     width=118, break_on_hyphens=False) + "\n"

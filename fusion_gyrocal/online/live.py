@@ -368,3 +368,109 @@ class LivePair:
         except GyroCalError as exc:   # too little motion in the window yet: said, not raised
             out["window_note"] = " ".join(str(exc).split())[:200]
         return out
+
+
+# ---------------------------------------------------------------------------------------------- text lines
+LINE_FORMATS = ("auto", "pair", "tagged", "ros2")
+"""Layouts of the text lines :class:`LineReader` reads:
+
+* ``pair``: ``t, w1x, w1y, w1z, w2x, w2y, w2z`` (both gyros sampled together);
+* ``tagged``: ``gyro, t, wx, wy, wz`` with ``gyro`` 1 / 2 or a name given as ``names``;
+* ``ros2``: the rows of ``ros2 topic echo --csv <topic>`` for ``sensor_msgs/msg/Imu`` (``stamp.sec``,
+  ``stamp.nanosec``, ``frame_id``, orientation (4), its covariance (9), angular velocity (3), ...), the gyro told
+  by ``frame_id`` (``names``).
+"""
+
+_ROS2_OMEGA = slice(16, 19)   # angular_velocity.x..z in a flattened sensor_msgs/msg/Imu row
+
+
+class LineReader:
+    """Text lines of a live source -> ``(gyro, t, omega)`` samples.
+
+    Parameters
+    ----------
+    format : {"auto", "pair", "tagged", "ros2"}
+        See :data:`LINE_FORMATS`; ``auto`` decides on the first data line (7 numbers: pair; 5 fields: tagged;
+        19 or more with a text third field: ros2).
+    names : (str, str), optional
+        The tags (``tagged``) or frame ids (``ros2``) of gyro 1 and gyro 2; default ``("1", "2")`` for tagged,
+        and for ros2 the first two frame ids seen, in order.
+    time_scale : float
+        Factor of the timestamps to seconds (``pair`` and ``tagged``; 1e-9 for nanoseconds).
+
+    Lines that are empty or comments (``#``) are skipped, and one header line before the data; a line that
+    does not parse after that raises an :class:`InputError` naming the line number and what was expected.
+    """
+
+    def __init__(self, format: str = "auto", *, names=None, time_scale: float = 1.0):
+        if format not in LINE_FORMATS:
+            raise OptionError(f"format: expected one of {LINE_FORMATS}, got {format!r}")
+        if names is not None and (len(names) != 2 or names[0] == names[1]):
+            raise OptionError(f"names: expected two different names of gyro 1 and gyro 2, got {names!r}")
+        if not (math.isfinite(time_scale) and time_scale > 0):
+            raise OptionError(f"time_scale: expected a positive factor to seconds, got {time_scale!r}")
+        self.format, self.time_scale = format, float(time_scale)
+        self.names = None if names is None else tuple(str(n) for n in names)
+        self.line_no = 0
+        self.skipped = 0
+        self._seen: list[str] = []         # frame ids in order of appearance (ros2 without names)
+        self._header_seen = self._data_seen = False
+
+    def _gyro(self, tag: str) -> int | None:
+        if self.names is None:
+            if self.format == "tagged":
+                self.names = ("1", "2")
+            else:
+                if tag not in self._seen and len(self._seen) < 2:
+                    self._seen.append(tag)
+                return self._seen.index(tag) + 1 if tag in self._seen else None
+        return self.names.index(tag) + 1 if tag in self.names else None
+
+    def samples(self, line: str) -> list[tuple[int, float, np.ndarray]]:
+        """The samples of one line (two for ``pair``, one otherwise, none for a skipped line)."""
+        self.line_no += 1
+        text = line.strip()
+        if not text or text.startswith("#"):
+            return []
+        fields = [f.strip() for f in text.split(",")] if "," in text else text.split()
+        fmt = self.format
+        if fmt == "auto":
+            fmt = ("pair" if len(fields) == 7 else "tagged" if len(fields) == 5 else
+                   "ros2" if len(fields) >= 19 else None)
+            if fmt is None:
+                raise InputError(f"line {self.line_no}: expected 7 fields (t and both gyros' rates), 5 (gyro, t, "
+                                 f"wx, wy, wz) or a 'ros2 topic echo --csv' Imu row, got {len(fields)} fields")
+        try:
+            if fmt == "pair":
+                v = [float(f) for f in fields[:7]]
+                if len(fields) != 7:
+                    raise ValueError
+                t = v[0] * self.time_scale
+                self.format, self._data_seen = fmt, True
+                return [(1, t, np.array(v[1:4])), (2, t, np.array(v[4:7]))]
+            if fmt == "tagged":
+                if len(fields) != 5:
+                    raise ValueError
+                t = float(fields[1]) * self.time_scale
+                w = np.array([float(f) for f in fields[2:5]])
+                self.format = fmt
+                gyro = self._gyro(fields[0])
+            else:
+                if len(fields) < 19:
+                    raise ValueError
+                t = int(fields[0]) + int(fields[1]) * 1e-9
+                w = np.array([float(f) for f in fields[_ROS2_OMEGA]])
+                self.format = fmt
+                gyro = self._gyro(fields[2])
+        except ValueError:
+            if not self._header_seen and not self._data_seen:   # one header line before the data
+                self._header_seen = True
+                self.skipped += 1
+                return []
+            raise InputError(f"line {self.line_no}: expected a {fmt} row of numbers ({LINE_FORMATS} layouts), got "
+                             f"{text[:80]!r}") from None
+        self._data_seen = True
+        if gyro is None:
+            self.skipped += 1
+            return []
+        return [(gyro, t, w)]
