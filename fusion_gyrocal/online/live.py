@@ -232,7 +232,7 @@ class LivePair:
         Default: the tracker's ``config.block_size``.
     max_gap_s : float, optional
         A larger step between aligned samples is a gap (no block straddles it). Default: 5 times the median
-        interval of the seed window (or of the first block, with a given tracker).
+        interval of the seed window (with a given tracker: of the first block, held back until complete).
     time_offset_s : float, optional
         Added to gyro 2's clock (default: the tracker's seed offset, else 0).
     max_buffer : int
@@ -274,6 +274,12 @@ class LivePair:
 
     def close(self) -> list[dict]:
         """End of the streams: the samples held back for the last block reach the tracker."""
+        if self._blocks is None and self.tracker is not None and len(self._seed[0]) > 1:
+            t, w1, w2 = (np.array(x) for x in self._seed)
+            self._seed = ([], [], [])
+            self._start_blocks(t)
+            for block in self._blocks.push(t, w1, w2):
+                self._update(*block)
         if self._blocks is not None:
             for block in self._blocks.close():
                 self._update(*block)
@@ -301,7 +307,15 @@ class LivePair:
             t, w1, w2 = t[k:], w1[k:], w2[k:]
             if not len(t):
                 return
-        if self._blocks is None:
+        if self._blocks is None:        # a given tracker: the first samples set the default gap
+            st, s1, s2 = self._seed
+            st.extend(t.tolist())
+            s1.extend(w1)
+            s2.extend(w2)
+            if self._max_gap_s is None and len(st) < self._size() + 1:
+                return
+            self._seed = ([], [], [])
+            t, w1, w2 = np.array(st), np.array(s1), np.array(s2)
             self._start_blocks(t)
         if self.mode == "sample":
             for k in range(len(t)):
@@ -320,12 +334,12 @@ class LivePair:
         self._events.append({"type": "seeded", "t": float(t[-1]), "samples": int(len(t)),
                              "configuration": self.tracker.configuration.name})
 
+    def _size(self) -> int:
+        return self.tracker.config.block_size if self._block_size is None else self._block_size
+
     def _start_blocks(self, t):
-        size = self.tracker.config.block_size if self._block_size is None else self._block_size
-        gap = self._max_gap_s
-        if gap is None:
-            gap = 5.0 * float(np.median(np.diff(t))) if len(t) > 1 else math.inf
-        self._blocks = LiveBlocks(1 if self.mode == "sample" else size, gap)
+        gap = self._max_gap_s if self._max_gap_s is not None else 5.0 * float(np.median(np.diff(t)))
+        self._blocks = LiveBlocks(1 if self.mode == "sample" else self._size(), gap)
 
     def _update(self, t, w1, w2):
         if self.mode == "sample":
