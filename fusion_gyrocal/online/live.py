@@ -245,6 +245,8 @@ class LivePair:
     def __init__(self, *, tracker=None, seed_s: float = 30.0, calibrator=None, window_s: float = 60.0,
                  mode: str = "fast", block_size: int | None = None, max_gap_s: float | None = None,
                  time_offset_s: float | None = None, max_buffer: int = 4096, **tracker_options):
+        from .tracker import GyroPairTracker   # filterpy (extra [track]): refused here, before any sample
+
         if mode not in ("fast", "sample"):
             raise OptionError(f"mode: expected 'fast' or 'sample', got {mode!r}")
         if tracker is None and not (math.isfinite(seed_s) and seed_s > 0):
@@ -255,6 +257,7 @@ class LivePair:
         offset = time_offset_s if time_offset_s is not None else (tracker.time_offset_s if tracker else 0.0)
         self.aligner = LiveAligner(time_offset_s=offset, max_buffer=max_buffer)
         self.tracker, self.calibrator, self.mode, self.seed_s = tracker, calibrator, mode, float(seed_s)
+        self._tracker_cls = GyroPairTracker
         self._block_size, self._max_gap_s = block_size, max_gap_s
         tracker_options.setdefault("history_max_rows", 2000)
         self._tracker_options = tracker_options
@@ -325,10 +328,8 @@ class LivePair:
             self._update(*block)
 
     def _seed_tracker(self, t, w1, w2):
-        from .tracker import GyroPairTracker
-
         self._seed = ([], [], [])
-        self.tracker = GyroPairTracker.from_samples(t, w1, w2, **self._tracker_options)
+        self.tracker = self._tracker_cls.from_samples(t, w1, w2, **self._tracker_options)
         self.calibrator.update(w1, w2, t=t)
         self._start_blocks(t)
         self._events.append({"type": "seeded", "t": float(t[-1]), "samples": int(len(t)),
