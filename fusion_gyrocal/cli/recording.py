@@ -232,7 +232,7 @@ def gyro_sources(args) -> list[GyroSource]:
             n = 1
         if n < 2:
             raise InputError(f"{Path(paths[0]).name}: expected a second gyro: a second recording, or --topic1/--topic2 "
-                             "(bag) or --imu1/--imu2 (npz) to take both gyros from one file")
+                             "(bag, .ulg) or --imu1/--imu2 (npz, .ulg, a CSV with an instance column) to take both gyros from one file")
         paths = paths * n
     sources = [GyroSource(p, _for_gyro(lists, args, k, n)) for k, p in enumerate(paths)]
     seen = {}
