@@ -68,6 +68,8 @@ def refuse_binary(path: Path, head: bytes, fmt: str) -> None:
     ``fmt`` is the format the file was about to be read as. Recognised layouts are named with what to do;
     any other file with a NUL byte in ``head`` is refused as binary. The message never quotes the bytes.
     """
+    if head[:2] in (b"\xff\xfe", b"\xfe\xff") or head[:4] == b"\x00\x00\xfe\xff":
+        return   # UTF-16/32 text: the text reader refuses it with the fix (save as 'CSV UTF-8')
     what, advice = next(((w, a) for magic, w, a in _BINARY_MAGIC if head.startswith(magic)), (None, None))
     if what is None and b"\x00" in head:
         what, advice = "a binary file (NUL bytes in its first block)", "pass a text export or a supported format"

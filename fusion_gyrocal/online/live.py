@@ -51,7 +51,7 @@ class LiveAligner:
     Examples
     --------
     >>> a = LiveAligner()
-    >>> a.push(2, 0.0, [0, 0, 1.0]); a.push(2, 0.1, [0, 0, 2.0])
+    >>> _ = a.push(2, 0.0, [0, 0, 1.0]), a.push(2, 0.1, [0, 0, 2.0])
     >>> t, w1, w2 = a.push(1, 0.05, [1.0, 0, 0])
     >>> float(t[0]), w2[0].tolist()
     (0.05, [0.0, 0.0, 1.5])
