@@ -266,3 +266,52 @@ def test_ros2_node_logic_publishes_states_and_equals_batch():
     bt = _batch(tn, w1, w2, 10.0, "fast")
     final = json.loads(published[-1])
     np.testing.assert_allclose(final["R_1_2"], bt.R_1_2, rtol=0, atol=1e-9)
+
+
+def test_cli_track_follows_a_growing_file(tmp_path):
+    t, w1, w2 = _pair(n=2000)
+    src = tmp_path / "growing.csv"
+    rows = [",".join(repr(float(x)) for x in (t[k], *w1[k], *w2[k])) + "\n" for k in range(len(t))]
+    src.write_text("".join(rows[:1200]) + rows[1200][:10])        # the last line still being written
+    out = tmp_path / "follow.jsonl"
+    th = threading.Thread(target=main, args=(["track", str(src), "--follow", "--idle-timeout", "3", "--seed-s", "5",
+                                              "-o", str(out)],))
+    th.start()
+    time.sleep(0.5)
+    with open(src, "a") as f:
+        f.write(rows[1200][10:])
+        f.writelines(rows[1201:])
+    th.join(120)
+    final = _final(out)[-1]
+    assert final["aligned"] == 2000
+    bt = _batch(t, w1, w2, 5.0, "fast")
+    np.testing.assert_allclose(final["R_1_2"], bt.R_1_2, rtol=0, atol=1e-9)
+
+
+def test_cli_track_zmq_without_pyzmq_says_so(capsys):
+    try:
+        import zmq  # noqa: F401
+        pytest.skip("pyzmq is installed: the zmq source is available")
+    except ImportError:
+        pass
+    assert main(["track", "zmq+tcp://127.0.0.1:5999"]) == 1
+    err = capsys.readouterr().err
+    assert "a ZeroMQ source needs pyzmq" in err and "Traceback" not in err
+
+
+def test_cli_track_zmq_source(tmp_path):
+    zmq = pytest.importorskip("zmq")
+    t, w1, w2 = _pair(n=1500)
+    ctx = zmq.Context.instance()
+    pub = ctx.socket(zmq.PUB)
+    port = pub.bind_to_random_port("tcp://127.0.0.1")
+    out = tmp_path / "zmq.jsonl"
+    th = threading.Thread(target=main, args=(["track", f"zmq+tcp://127.0.0.1:{port}", "--format", "pair",
+                                              "--seed-s", "5", "--idle-timeout", "2", "-o", str(out)],))
+    th.start()
+    time.sleep(1.0)                    # a SUB socket misses what is published before it connects
+    for k in range(len(t)):
+        pub.send((",".join(repr(float(x)) for x in (t[k], *w1[k], *w2[k]))).encode())
+    th.join(60)
+    pub.close(0)
+    assert _final(out)[-1]["aligned"] == len(t)
