@@ -315,3 +315,14 @@ def test_cli_track_zmq_source(tmp_path):
     th.join(60)
     pub.close(0)
     assert _final(out)[-1]["aligned"] == len(t)
+
+
+def test_live_pair_refuses_tracker_options_beside_a_tracker():
+    from fusion_gyrocal import calibrate_pair
+    from fusion_gyrocal.errors import OptionError
+    t, w1, w2 = _pair(n=600)
+    tracker = GyroPairTracker(calibrate_pair(w1, w2), t0=t[-1])
+    with pytest.raises(OptionError, match="cusum_threshold: tracker options configure"):
+        LivePair(tracker=tracker, cusum_threshold=9.0)
+    with pytest.raises(InputError, match="expected a GyroPairTracker, got dict"):
+        LivePair(tracker={})

@@ -251,6 +251,11 @@ class LivePair:
 
         if mode not in ("fast", "sample"):
             raise OptionError(f"mode: expected 'fast' or 'sample', got {mode!r}")
+        if tracker is not None and not isinstance(tracker, GyroPairTracker):
+            raise InputError(f"tracker: expected a GyroPairTracker, got {type(tracker).__name__}")
+        if tracker is not None and tracker_options:
+            raise OptionError(f"{', '.join(sorted(tracker_options))}: tracker options configure the tracker LivePair "
+                              "seeds; expected them without tracker=, got a tracker too (use tracker.reconfigured)")
         if tracker is None and not (math.isfinite(seed_s) and seed_s > 0):
             raise OptionError(f"seed_s: expected a positive duration in seconds, got {seed_s!r}")
         if calibrator is None:
