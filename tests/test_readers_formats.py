@@ -276,3 +276,14 @@ def test_read_csv_imu_without_instance_column_is_input_error(tmp_path):
     p = _write(tmp_path / "plain.csv", "t,gx,gy,gz", [(k * 0.01, 0.1, 0.2, 0.3) for k in range(50)])
     with pytest.raises(InputError, match="no instance column"):
         read_imu(p, imu=1)
+
+
+def test_read_csv_profile_units_named_in_the_header_win(tmp_path):
+    w = _rates(n=100)
+    ms = [5000 + 5 * k for k in range(100)]
+    p = _write(tmp_path / "vn.csv", "TimeStartup [ms],GyroX [deg/s],GyroY [deg/s],GyroZ [deg/s]",
+               [(ms[k], *w[k]) for k in range(100)])
+    s = read_imu(p)
+    np.testing.assert_allclose(s.omega, w * DEG, rtol=1e-15)
+    np.testing.assert_allclose(s.t, np.array(ms) * 1e-3, rtol=0, atol=1e-12)
+    assert any("vectornav layout" in n and "UncompGyro is preferred" in n for n in s.notes)

@@ -206,7 +206,8 @@ def read_csv(path, *, time_column=None, columns=None, unit: str | None = None, s
         p_t, p_w, k_inst = profile.columns(header_keys(layout.header))
         time_column = p_t if time_column is None else time_column
         columns = p_w if columns is None else columns
-        time_unit, unit = time_unit or profile.time_unit, unit or profile.unit
+        if time_unit is None and not _time_unit_from_header(layout.header[p_t]):
+            time_unit = profile.time_unit    # a unit the header names wins; the rate unit is read as usual
     k_t = _time_column(time_column, layout, fname)
     k_w = _gyro_columns(columns, layout, fname)
     time_unit, how, unit = _units(layout, k_t, k_w, time_unit, unit, fname)

@@ -1,7 +1,8 @@
 """Header profiles: CSV layouts of common loggers, recognised from their header so no flag is needed.
 
-Each :class:`CsvProfile` names the time column, the x, y, z rate columns, their units, and where a log interleaves
-several IMUs, the instance column (rows are then kept for one instance, ``imu=``). The layouts, as their writers
+Each :class:`CsvProfile` names the time column and its unit (when the header names none), the x, y, z rate columns
+(rad/s in every layout here; a unit the header names, or ``unit=``, still wins), and where a log interleaves several
+IMUs, the instance column (rows are then kept for one instance, ``imu=``). The layouts, as their writers
 document or emit them:
 
 * ``uzh-fpv``: the UZH-FPV drone racing dataset's ``imu.txt``, ``# id timestamp ang_vel_x ang_vel_y ang_vel_z
@@ -48,8 +49,7 @@ class CsvProfile:
     requires: tuple          # keys the header must hold
     time: tuple              # time column keys, first present wins
     gyro: tuple              # (x, y, z) key triples, first complete one wins
-    time_unit: str
-    unit: str = "rad/s"
+    time_unit: str           # when the header names none
     instance: str | None = None
     note: str = ""
 
