@@ -177,6 +177,11 @@ def test_read_imu_refuses_binary_by_name_without_printing_it(tmp_path, capsys):
     with pytest.raises(FormatError, match=r"log.csv: expected CSV or Xsens text, got a MATLAB .mat file") as e:
         read_imu(mat)
     assert len(str(e.value)) < 300 and "\x00" not in str(e.value) and "Platform" not in str(e.value)
+    from fusion_gyrocal.io import read_csv, read_xsens
+    for reader in (read_csv, read_xsens):           # the readers themselves refuse it too
+        with pytest.raises(FormatError, match="got a MATLAB .mat file") as e:
+            reader(mat)
+        assert "Platform" not in str(e.value)
     junk = tmp_path / "data.txt"
     junk.write_bytes(b"t,gx,gy,gz\n" + b"\x00\x01\x02" * 100)
     with pytest.raises(FormatError, match="binary file"):
@@ -191,8 +196,10 @@ def test_read_imu_ulog_renamed_csv_detected_and_forced_csv_refused(tmp_path):
     path, w, _ = _px4_log(tmp_path)
     renamed = path.rename(tmp_path / "flight.csv")
     assert detect_format(renamed) == "ulog"
-    with pytest.raises(FormatError, match="expected csv text, got a PX4 ULog file"):
+    with pytest.raises(FormatError, match="expected CSV text, got a PX4 ULog file; read it with read_imu"):
         read_imu(renamed, format="csv")
+    with pytest.raises(FormatError, match="expected Xsens text, got a PX4 ULog file"):
+        read_imu(renamed, format="xsens")
 
 
 # ---------------------------------------------------------------------------------------------- CSV profiles

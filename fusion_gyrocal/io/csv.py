@@ -22,6 +22,7 @@ import numpy as np
 from ..errors import FormatError, InputError
 from ..units import RATE_UNIT_LABELS, RATE_UNITS, TIME_UNIT_LABELS, TIME_UNITS
 from .stream import ImuStream, input_path, int_time_to_seconds, rate_factor
+from .binary import check_text_file
 from .profiles import header_keys, match_profile, select_instance
 from .text import data_end, dropped_note, head_lines, is_number, read_columns, sniff_delimiter, split_fields
 
@@ -198,6 +199,7 @@ def read_csv(path, *, time_column=None, columns=None, unit: str | None = None, s
         or timestamps that are not strictly increasing.
     """
     path = _euroc_csv(input_path(path, "file or folder", folder=True))
+    check_text_file(path, "CSV")             # a binary file is refused by name, before any parsing
     fname = path.name if path.name != "data.csv" else f"{path.parent.name}/{path.name}"
     layout = _layout(path, fname, delimiter)
     profile = match_profile(layout.header) if layout.header is not None else None

@@ -22,60 +22,27 @@ public names; each format has its own module:
 * :class:`ImuStream` and what every reader shares: :mod:`fusion_gyrocal.io.stream`.
 
 Binary files that are none of these (a ``.mat``, an executable, a ``.ulg`` given as CSV, anything with NUL bytes
-in its first block) are refused by name before any parser sees them (:func:`refuse_binary`); no byte of them is
-ever printed.
+in its first block) are refused by name before any parser sees them (:mod:`fusion_gyrocal.io.binary`); no byte of
+them is ever printed.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from ..errors import FormatError, InputError
+from ..errors import InputError
 from ..units import RATE_UNITS, TIME_UNITS
 from .csv import PLAUSIBLE_RATE_HZ, read_csv
 from .npz import read_npz
 from .stream import ImuStream, input_path
 from .text import PANDAS_MIN_BYTES, head_lines
+from .binary import HEAD_BYTES, ULOG_MAGIC, refuse_binary
 from .xsens import XSENS_FINE_TICKS_PER_S, looks_like_xsens, read_xsens
-
-ULOG_MAGIC = b"ULog\x01\x12\x35"
-"""The first 7 bytes of every PX4 ULog file (then the format version and the start time, in us)."""
 
 __all__ = ["ImuStream", "FORMATS", "detect_format", "read_imu", "read_csv", "read_xsens", "read_npz",
            "RATE_UNITS", "TIME_UNITS", "PLAUSIBLE_RATE_HZ", "PANDAS_MIN_BYTES", "XSENS_FINE_TICKS_PER_S"]
 
 FORMATS = ("auto", "csv", "euroc", "xsens", "npz", "bag", "ulog")
-
-# Known binary layouts by their first bytes (what the file is, what to do with it).
-_BINARY_MAGIC = (
-    (b"MATLAB 5.0 MAT-file", "a MATLAB .mat file (v5-v7.2)", "export the gyro columns to CSV, or load it with "
-     "scipy.io.loadmat and pass the arrays to calibrate_pair"),
-    (b"\x89HDF\r\n\x1a\n", "an HDF5 file (e.g. MATLAB .mat v7.3)", "export the gyro columns to CSV, or load it "
-     "with h5py and pass the arrays to calibrate_pair"),
-    (b"\x93NUMPY", "a NumPy .npy array", "save t and omega together with numpy.savez (an .npz)"),
-    (b"\x7fELF", "an executable", "pass the recording instead"),
-    (b"\x1f\x8b", "a gzip archive", "decompress it first"),
-    (b"\x89PNG", "a PNG image", "pass the recording instead"),
-    (b"%PDF", "a PDF document", "pass the recording instead"),
-    (b"\x89MCAP", "an MCAP file without the '.mcap' suffix", "rename it to '.mcap'"),
-    (b"SQLite format 3\x00", "an SQLite database (a ROS2 .db3?)", "rename it to '.db3' if it is a ROS2 bag"),
-)
-
-
-def refuse_binary(path: Path, head: bytes, fmt: str) -> None:
-    """Raise a :class:`FormatError` naming what ``path`` is when its first bytes ``head`` are binary.
-
-    ``fmt`` is the format the file was about to be read as. Recognised layouts are named with what to do;
-    any other file with a NUL byte in ``head`` is refused as binary. The message never quotes the bytes.
-    """
-    if head[:2] in (b"\xff\xfe", b"\xfe\xff") or head[:4] == b"\x00\x00\xfe\xff":
-        return   # UTF-16/32 text: the text reader refuses it with the fix (save as 'CSV UTF-8')
-    what, advice = next(((w, a) for magic, w, a in _BINARY_MAGIC if head.startswith(magic)), (None, None))
-    if what is None and b"\x00" in head:
-        what, advice = "a binary file (NUL bytes in its first block)", "pass a text export or a supported format"
-    if what is not None:
-        raise FormatError(f"{path.name}: expected {fmt} text, got {what}; {advice}")
-
 
 def detect_format(path) -> str:
     """Guess the layout of ``path``: ``"csv"``, ``"euroc"``, ``"xsens"``, ``"npz"``, ``"bag"`` or ``"ulog"``.
@@ -83,7 +50,7 @@ def detect_format(path) -> str:
     Raises
     ------
     FormatError
-        For a binary file of no supported format (:func:`refuse_binary`), before any parser reads it.
+        For a binary file of no supported format (:mod:`~fusion_gyrocal.io.binary`), before any parser reads it.
     """
     p = input_path(path, "file or folder", folder=True)
     if p.is_dir():
@@ -98,7 +65,7 @@ def detect_format(path) -> str:
     if suffix == ".ulg":
         return "ulog"
     with open(p, "rb") as f:
-        head = f.read(4096)
+        head = f.read(HEAD_BYTES)
     if head.startswith(b"#ROSBAG V2.0"):
         return "bag"
     if head.startswith(b"PK"):
@@ -139,13 +106,6 @@ def read_imu(path, *, format: str = "auto", **options) -> ImuStream:
     if format not in FORMATS:
         raise InputError(f"format: expected one of {FORMATS}, got {format!r}")
     fmt = detect_format(path) if format == "auto" else format
-    if fmt in ("csv", "euroc", "xsens") and Path(path).is_file():
-        with open(path, "rb") as f:
-            head = f.read(4096)
-        if head.startswith(ULOG_MAGIC):
-            raise FormatError(f"{Path(path).name}: expected {fmt} text, got a PX4 ULog file; read it with "
-                              "format='ulog' (or 'auto')")
-        refuse_binary(Path(path), head, fmt)
     if fmt in ("csv", "euroc"):
         return read_csv(path, **options)
     if fmt == "xsens":
