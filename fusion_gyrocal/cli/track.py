@@ -155,7 +155,7 @@ def run(args) -> int:
     out = open(args.output, "w", encoding="utf-8") if args.output else sys.stdout
     try:
         def emit(obj):
-            out.write(json.dumps(obj) + "\n")
+            out.write(json.dumps(obj, allow_nan=False) + "\n")
             out.flush()
 
         next_t, last_n = None, 0

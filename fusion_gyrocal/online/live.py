@@ -209,8 +209,14 @@ class LiveBlocks:
         return out
 
 
+def _num(v) -> float | None:
+    """A float for JSON: None where it is not finite (strict JSON has no NaN or Infinity)."""
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
 def _vec(x) -> list:
-    return [float(v) for v in np.asarray(x).reshape(-1)]
+    return [_num(v) for v in np.asarray(x).reshape(-1)]
 
 
 class LivePair:
@@ -357,18 +363,20 @@ class LivePair:
         self.calibrator.update(w1, w2, t=t)
         alarm = self.tracker.open_alarm
         if alarm is not None and alarm != self._alarm_seen:
-            self._events.append({"type": "alarm", "t_detected": alarm[0], "onset": alarm[1]})
+            self._events.append({"type": "alarm", "t_detected": _num(alarm[0]), "onset": _num(alarm[1])})
         self._alarm_seen = alarm
         events = self.tracker._track.reseeder.events
         for ev in events[self._reseeds_seen:]:
-            self._events.append({"type": "reseed", "t_detected": ev.t_detected, "t_onset": ev.t_onset,
-                                 "t_applied": ev.t_applied, "accepted": bool(ev.accepted),
-                                 "statistic": ev.statistic, "threshold": ev.threshold, "reason": ev.reason})
+            self._events.append({"type": "reseed", "t_detected": _num(ev.t_detected), "t_onset": _num(ev.t_onset),
+                                 "t_applied": _num(ev.t_applied), "accepted": bool(ev.accepted),
+                                 "statistic": _num(ev.statistic), "threshold": _num(ev.threshold),
+                                 "reason": ev.reason})
         self._reseeds_seen = len(events)
 
     # ------------------------------------------------------------------ output
     def state(self) -> dict:
-        """The tracked state now, JSON-ready: time, samples, ``R_1_2`` (matrix and rotation vector in deg), scale
+        """The tracked state now, JSON-ready (strict JSON: a value that is not finite, e.g. the std of a scale factor
+        no data determine, is None): time, samples, ``R_1_2`` (matrix and rotation vector in deg), scale
         factors, combined bias, their 1-sigma, the open alarm, the streaming calibrator's rotation, the aligner's
         drop counts. ``{"type": "state", "seeded": False, ...}`` before the tracker is seeded."""
         a = self.aligner
