@@ -326,3 +326,22 @@ def test_live_pair_refuses_tracker_options_beside_a_tracker():
         LivePair(tracker=tracker, cusum_threshold=9.0)
     with pytest.raises(InputError, match="expected a GyroPairTracker, got dict"):
         LivePair(tracker={})
+
+
+def test_live_pair_seed_waits_for_motion():
+    t, w1, w2 = _pair(n=4000)
+    w1 = w1.copy()
+    w2 = w2.copy()
+    rng = np.random.default_rng(9)
+    w1[:1500] = 1e-3 * rng.normal(size=(1500, 3))             # 15 s at rest first: nothing to seed from
+    w2[:1500] = 1e-3 * rng.normal(size=(1500, 3))
+    live, events = LivePair(seed_s=10.0), []
+    for k in range(len(t)):
+        events += live.push(1, t[k], w1[k])
+        events += live.push(2, t[k], w2[k])
+    events += live.close()
+    kinds = [e["type"] for e in events]
+    assert kinds[0] == "seed_failed" and "seeded" in kinds
+    seeded = next(e for e in events if e["type"] == "seeded")
+    assert seeded["t"] > t[1500] and live.n_aligned == len(t)
+    assert live.tracker.n_samples == int(np.sum(t > seeded["t"]))

@@ -4,7 +4,8 @@ The source is text lines (:class:`~fusion_gyrocal.online.live.LineReader`: ``pai
 echo --csv`` rows) from a file (``--follow``: keep reading while it grows), standard input (``-``), a UDP socket
 (``udp://HOST:PORT``: each datagram one or more lines) or a ZeroMQ SUB socket (``zmq+tcp://HOST:PORT``, when
 ``pyzmq`` is installed). Samples go through :class:`~fusion_gyrocal.online.live.LivePair` (aligner, tracker,
-streaming calibrator). Output, one JSON object per line: ``{"type": "seeded" | "alarm" | "reseed", ...}`` when
+streaming calibrator). Output, one JSON object per line: ``{"type": "seeded" | "seed_failed" | "alarm" | "reseed",
+...}`` when
 they happen, ``{"type": "state", ...}`` every ``--every`` seconds of stream time, and ``{"type": "final", ...}``
 at the end of the source.
 """

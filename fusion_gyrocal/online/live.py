@@ -228,7 +228,9 @@ class LivePair:
         A seeded tracker to continue. Without it the tracker is seeded by
         :meth:`GyroPairTracker.from_samples` on the first ``seed_s`` seconds of aligned samples.
     seed_s : float
-        Seconds of aligned samples that seed the tracker when ``tracker`` is None.
+        Seconds of aligned samples that seed the tracker when ``tracker`` is None. When that solve fails (too little
+        motion yet: a ``"seed_failed"`` event says why), the window slides: the last ``seed_s / 2`` seconds are
+        kept and the seed is tried again ``seed_s / 2`` seconds later, until it succeeds.
     calibrator : StreamingCalibrator, optional
         Fed every block too (default: a sliding window of ``window_s``); its estimate is in :meth:`state`.
     window_s : float
@@ -275,6 +277,7 @@ class LivePair:
         tracker_options.setdefault("history_max_rows", 2000)
         self._tracker_options = tracker_options
         self._seed = ([], [], [])           # aligned samples before the tracker is seeded
+        self._next_try_t = -math.inf         # after a failed seed attempt: when to try again
         self._blocks: LiveBlocks | None = None
         self._events: list[dict] = []
         self._alarm_seen = None
@@ -283,8 +286,8 @@ class LivePair:
 
     # ------------------------------------------------------------------ input
     def push(self, gyro: int, t: float, omega) -> list[dict]:
-        """Take one sample of gyro 1 or 2; return the events it caused (``{"type": "seeded" | "alarm" |
-        "reseed", ...}``, JSON-ready)."""
+        """Take one sample of gyro 1 or 2; return the events it caused (``{"type": "seeded" | "seed_failed" |
+        "alarm" | "reseed", ...}``, JSON-ready)."""
         self._feed(*self.aligner.push(gyro, t, omega))
         return self._take_events()
 
@@ -312,14 +315,18 @@ class LivePair:
         if self.tracker is None:
             st, s1, s2 = self._seed
             k = 0
-            while k < len(t) and not (st and st[-1] - st[0] >= self.seed_s):
+            while k < len(t) and not (st and st[-1] - st[0] >= self.seed_s and st[-1] >= self._next_try_t):
                 st.append(float(t[k]))
                 s1.append(w1[k])
                 s2.append(w2[k])
                 k += 1
-            if not (st[-1] - st[0] >= self.seed_s):
+            if not (st[-1] - st[0] >= self.seed_s and st[-1] >= self._next_try_t):
                 return
-            self._seed_tracker(np.array(st), np.array(s1), np.array(s2))
+            try:
+                self._seed_tracker(np.array(st), np.array(s1), np.array(s2))
+            except GyroCalError as exc:      # e.g. no motion yet: slide the window and try again
+                self._seed_failed(exc)
+                return self._feed_rest(t[k:], w1[k:], w2[k:])
             t, w1, w2 = t[k:], w1[k:], w2[k:]
             if not len(t):
                 return
@@ -340,9 +347,25 @@ class LivePair:
         for block in self._blocks.push(t, w1, w2):
             self._update(*block)
 
+    def _feed_rest(self, t, w1, w2):
+        """Samples of a batch that follow a failed seed attempt (not counted again)."""
+        if len(t):
+            self.n_aligned -= len(t)
+            self._feed(t, w1, w2)
+
+    def _seed_failed(self, exc) -> None:
+        """A seed attempt failed: say why, keep the last ``seed_s / 2`` seconds, try again ``seed_s / 2`` later."""
+        st, s1, s2 = self._seed
+        t_end = st[-1]
+        self._events.append({"type": "seed_failed", "t": t_end, "samples": len(st),
+                             "reason": " ".join(str(exc).split())[:300]})
+        keep = int(np.searchsorted(np.asarray(st), t_end - 0.5 * self.seed_s))
+        del st[:keep], s1[:keep], s2[:keep]
+        self._next_try_t = t_end + 0.5 * self.seed_s
+
     def _seed_tracker(self, t, w1, w2):
-        self._seed = ([], [], [])
         self.tracker = self._tracker_cls.from_samples(t, w1, w2, **self._tracker_options)
+        self._seed = ([], [], [])
         self.calibrator.update(w1, w2, t=t)
         self._start_blocks(t)
         self._events.append({"type": "seeded", "t": float(t[-1]), "samples": int(len(t)),
