@@ -5,9 +5,8 @@ echo --csv`` rows) from a file (``--follow``: keep reading while it grows), stan
 (``udp://HOST:PORT``: each datagram one or more lines) or a ZeroMQ SUB socket (``zmq+tcp://HOST:PORT``, when
 ``pyzmq`` is installed). Samples go through :class:`~fusion_gyrocal.online.live.LivePair` (aligner, tracker,
 streaming calibrator). Output, one JSON object per line: ``{"type": "seeded" | "seed_failed" | "alarm" | "reseed",
-...}`` when
-they happen, ``{"type": "state", ...}`` every ``--every`` seconds of stream time, and ``{"type": "final", ...}``
-at the end of the source.
+...}`` when they happen, ``{"type": "state", ...}`` every ``--every`` seconds of stream time, and
+``{"type": "final", ...}`` at the end of the source.
 """
 
 from __future__ import annotations
