@@ -134,9 +134,8 @@ def test_read_bag_ros2_storage_file_given_directly(tmp_path):
     lone = tmp_path / "lone"
     lone.mkdir()
     shutil.copy(db3, lone / db3.name)
-    with pytest.raises(FormatError, match=r"a ROS2 bag is read from its folder with metadata\.yaml, and .*lone "
-                                          r"has none; pass the bag folder"):
-        read_bag(lone / db3.name)
+    # without metadata.yaml the storage file is read on its own (issue 24: no 'ros2 bag reindex' needed)
+    np.testing.assert_array_equal(read_bag(lone / db3.name).omega, read_imu(folder).omega)
 
 
 # ----------------------------------------------------------------------------- broken inputs
@@ -160,7 +159,7 @@ def _broken_inputs(tmp_path):
         "array.npz": r"array\.npz: expected a numpy \.npz archive \(zip\), got a \.npy array",
         "objects.npz": r"objects\.npz: expected a complete numpy \.npz archive of numeric arrays, got an object array",
         "short.csv": r"short\.csv: expected numeric data in columns \[0, 1, 2, 3\], .*row 2",
-        "stray.db3": r"stray\.db3: a ROS2 bag is read from its folder with metadata\.yaml",
+        "stray.db3": r"stray\.db3: could not read the bag: .*file is not a database",   # read alone (issue 24)
         "norows.txt": r"norows\.txt: expected data rows after the header row, got none",
         "badrate.txt": r"badrate\.txt: expected a positive rate in Hz in the line '// Update Rate: 1eHz'",
     }

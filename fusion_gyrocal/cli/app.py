@@ -80,7 +80,7 @@ def one_line(text: str) -> str:
     return " ".join(" ".join(line.split()) for line in str(text).splitlines()
                     if line.strip() and not _CARETS.match(line))
 
-COMMANDS = ("calibrate", "report", "noise", "demo", "compare", "fleet")
+COMMANDS = ("calibrate", "report", "noise", "demo", "compare", "fleet", "track")
 """The command modules of this package, in the order ``gyrocal --help`` lists them."""
 
 EXAMPLES = """examples:
@@ -94,6 +94,7 @@ EXAMPLES = """examples:
   gyrocal report imu_a.csv imu_b.csv --out report/
   gyrocal calibrate exp_1.npz --nominal "180 deg about (1,-1,0)" --ros ros/ --noise imu.yaml --openvins chain.yaml
   gyrocal noise static.csv --kalibr imu.yaml --plot allan.png          (Allan analysis of a static recording)
+  gyrocal track pair.csv --seed cal.json --follow                                    (live drift, JSON lines)
 
 """ + textwrap.fill("exit codes: " + "; ".join(f"{code} {meaning}" for code, meaning in EXIT_MEANINGS),
                     width=118, break_on_hyphens=False) + "\n"

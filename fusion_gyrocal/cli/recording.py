@@ -25,9 +25,9 @@ RECORDING_OPTIONS = applying_to("recordings")
 """Every option that acts on recordings before a solve (``applies_to`` ``"recordings"``): what ``compare`` takes
 for its recording pair (the alignment options and the masks ``--saturation-limit``, ``--max-rate``)."""
 
-READER_OPTIONS = {"csv": {"columns", "unit", "sensitivity", "time_column", "time_unit"},
+READER_OPTIONS = {"csv": {"columns", "unit", "sensitivity", "time_column", "time_unit", "imu"},
                   "euroc": {"columns", "unit", "sensitivity", "time_column", "time_unit"},
-                  "xsens": {"unit", "rate_hz"}, "npz": {"imu", "unit"}, "bag": {"topic"}}
+                  "xsens": {"unit", "rate_hz"}, "npz": {"imu", "unit"}, "bag": {"topic"}, "ulog": {"topic", "imu"}}
 """The keywords of :func:`fusion_gyrocal.io.read_imu` that each detected format accepts."""
 
 # reader keyword -> (per-gyro flag stem, flag for every gyro, separator of its per-gyro list)
@@ -60,7 +60,8 @@ def add_recording_args(p: argparse.ArgumentParser, *, optional: bool = False, ma
     The alignment flags (``--offset``, ``--max-offset``, ``--rate``) are options
     (:data:`ALIGNMENT_OPTIONS`), added with the others by :func:`fusion_gyrocal.options.add_option_arguments`.
     """
-    kinds = ("CSV, EuRoC imu0 folder or data.csv, Xsens export, .npz, ROS1 .bag or ROS2 bag folder")
+    kinds = ("CSV, EuRoC imu0 folder or data.csv, Xsens export, .npz, ROS1 .bag, ROS2 bag folder or .db3/.mcap, "
+             "PX4 .ulg")
     if many:
         what = ("recordings of gyro 1 (the reference), gyro 2, ...: one per gyro, or one file holding several "
                 "(an npz: all its IMUs unless --imus/--imu1/--imu2 pick; a bag: --topics or --topic1/--topic2); "
@@ -73,8 +74,10 @@ def add_recording_args(p: argparse.ArgumentParser, *, optional: bool = False, ma
     g = p.add_argument_group("reading the recordings", "per gyro (FLAG1, FLAG2) or for every gyro (one value, or "
                              "one per gyro separated by commas; --columns by ';'); a per-gyro flag wins")
     for k in ("1", "2"):
-        g.add_argument(f"--topic{k}", help=f"sensor_msgs/Imu topic of gyro {k} in a bag")
-        g.add_argument(f"--imu{k}", type=int, help=f"IMU index (from 0) of gyro {k} in a multi-IMU npz")
+        g.add_argument(f"--topic{k}", help=f"sensor_msgs/Imu topic of gyro {k} in a bag, or its gyro in a PX4 .ulg "
+                                           "(sensor_gyro/1, sensor_combined/0)")
+        g.add_argument(f"--imu{k}", type=int, help=f"IMU index (from 0) of gyro {k} in a multi-IMU npz, a PX4 .ulg "
+                                                   "or a CSV log with an instance column (ArduPilot)")
         g.add_argument(f"--unit{k}", choices=RATE_UNITS, help=f"rate unit of gyro {k} (CSV, Xsens, npz)")
         g.add_argument(f"--sensitivity{k}", type=float, help=f"LSB per deg/s of gyro {k} with --unit{k} counts")
         g.add_argument(f"--columns{k}", help=f"comma-separated rate columns of gyro {k} in a CSV (names or indices)")
@@ -229,7 +232,7 @@ def gyro_sources(args) -> list[GyroSource]:
             n = 1
         if n < 2:
             raise InputError(f"{Path(paths[0]).name}: expected a second gyro: a second recording, or --topic1/--topic2 "
-                             "(bag) or --imu1/--imu2 (npz) to take both gyros from one file")
+                             "(bag, .ulg) or --imu1/--imu2 (npz, .ulg, a CSV with an instance column) to take both gyros from one file")
         paths = paths * n
     sources = [GyroSource(p, _for_gyro(lists, args, k, n)) for k, p in enumerate(paths)]
     seen = {}

@@ -65,7 +65,9 @@ def plot_rmse_vs_snr(sweeps, path=None, *, metrics=("rotation", "scale"), estima
     -------
     matplotlib.figure.Figure
     """
-    import matplotlib
+    from ..extras import require
+
+    matplotlib = require("matplotlib", "plots", "the comparison figures")
     if path is not None:
         matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
@@ -137,7 +139,9 @@ def plot_residual_vs_rate(scenarios, path=None, *, estimator: str = "direct", ma
     noise at every rate, a flexing pair residuals that grow with the rate norm. A binned median is
     drawn over the scatter (at most ``max_points`` points per panel).
     """
-    import matplotlib
+    from ..extras import require
+
+    matplotlib = require("matplotlib", "plots", "the comparison figures")
     if path is not None:
         matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt

@@ -40,10 +40,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import partial
 
-import gtsam
 import numpy as np
 
 from ..core.gauge import Gauge
+from ..extras import require
+
+gtsam = require("gtsam", "graph", "the factor-graph calibration (calibrate_pair_graph)")
 from ..core.moments import Moments
 from ..core.observability import A_of, dA_dp
 from ..errors import InputError

@@ -33,7 +33,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import gtsam
 import numpy as np
 
 from ..core.gauge import Gauge, null_directions, oblique_projector
@@ -43,7 +42,7 @@ from ..core.observability import A_of, per_axis_snr, seed_configuration
 from ..core.solve import solve
 from ..errors import ConfigurationError, InputError, OptionError
 from ..options import Options
-from .factors import WindowStatistics, gauge_factor, gyro_pair_factor, rotation_increment_factor
+from .factors import gtsam, WindowStatistics, gauge_factor, gyro_pair_factor, rotation_increment_factor
 from .preintegration import (PreintegratedRotations, RotationIncrements, fit_global_scale_and_bias,
                              preintegrate_rotations)
 

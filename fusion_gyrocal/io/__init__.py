@@ -4,7 +4,8 @@ Readers return :class:`ImuStream` (``t`` in s, ``omega`` in rad/s, float64, ``no
 the reader dropped or chose): :func:`read_imu` (any format, picked from suffix and content),
 :func:`read_csv` (generic and EuRoC / ASL ``imu0/data.csv``), :func:`read_xsens` (MT Manager exports of
 every version and delimiter; ``rate_hz`` for exports that state none), :func:`read_npz` (generic and
-the MIMU array layout), :func:`read_bag` / :func:`list_imu_topics` (ROS1 and ROS2, via ``rosbags``).
+the MIMU array layout), :func:`read_bag` / :func:`list_imu_topics` (ROS1 and ROS2, a lone ``.db3`` / ``.mcap``
+too, via ``rosbags``), :func:`read_ulog` / :func:`list_ulog_gyros` (PX4 ULog, via ``pyulog``).
 Every failure to read a file is a :class:`~fusion_gyrocal.errors.FormatError` naming the file.
 One module per format (:mod:`~fusion_gyrocal.io.csv`, :mod:`~fusion_gyrocal.io.xsens`,
 :mod:`~fusion_gyrocal.io.npz`, :mod:`~fusion_gyrocal.io.bags`), the text parsing they share in
@@ -29,11 +30,13 @@ from .xsens import read_xsens
 __all__ = [
     "ImuStream", "ImuNoise",
     "read_imu", "detect_format", "read_csv", "read_xsens", "read_npz", "read_bag", "list_imu_topics",
+    "read_ulog", "list_ulog_gyros",
     "write_json", "read_json", "write_kalibr_imu_configs", "write_kalibr_imu_chain", "write_openvins_imu_chain",
     "write_csv", "write_npz", "write_imu_bag",
 ]
 
 _BAGS = ("list_imu_topics", "read_bag", "write_imu_bag")   # rosbags loads on first use of a bag
+_ULOG = ("read_ulog", "list_ulog_gyros")                   # pyulog loads on first use of a ULog file
 
 
 def __getattr__(name):
@@ -41,4 +44,8 @@ def __getattr__(name):
         from . import bags
 
         return getattr(bags, name)
+    if name in _ULOG:
+        from . import ulog
+
+        return getattr(ulog, name)
     raise AttributeError(f"module 'fusion_gyrocal.io' has no attribute {name!r}")

@@ -3,7 +3,8 @@
 Everything goes through the pure-Python ``rosbags`` package (no ROS installation needed):
 ``rosbags.highlevel.AnyReader`` for reading both generations, ``rosbags.rosbag1.Writer`` and
 ``rosbags.rosbag2.Writer`` with the ``ROS1_NOETIC`` / ``ROS2_HUMBLE`` type stores for writing.
-``rosbags`` is imported lazily, so importing :mod:`fusion_gyrocal.io` stays light.
+``rosbags`` is imported lazily, so importing :mod:`fusion_gyrocal.io` stays light (and works without it:
+extra ``[ros]``).
 
 Timestamps are the messages' ``header.stamp`` (the sensor's clock), not the bag's receive time;
 a topic whose header stamps are all zero (some drivers never fill them) falls back to the receive
@@ -33,7 +34,9 @@ def _bag_path(path) -> tuple[Path, int]:
     """The path AnyReader wants and the bag generation (1 or 2).
 
     A ROS2 storage file (``.db3`` / ``.mcap``) given directly is read through its folder when that
-    folder holds the bag's ``metadata.yaml``; ``rosbags`` reads ROS2 bags only with it.
+    folder holds the bag's ``metadata.yaml`` (the bag may span several storage files), else on its own:
+    ``rosbags`` reads a lone storage file's topics and types from the file itself (the common case
+    when one file of a bag is shared).
     """
     p = Path(path).expanduser()
     if not p.exists():
@@ -45,17 +48,18 @@ def _bag_path(path) -> tuple[Path, int]:
     if p.suffix.lower() in (".db3", ".mcap"):
         if (p.parent / "metadata.yaml").is_file():
             return p.parent, 2
-        raise FormatError(f"{p}: a ROS2 bag is read from its folder with metadata.yaml, and {p.parent} has none; "
-                          f"pass the bag folder (or recreate metadata.yaml with 'ros2 bag reindex {p.parent}')")
+        return p, 2
     if p.suffix.lower() == ".bag":
         return p, 1
-    raise FormatError(f"{p}: expected a ROS1 '.bag' file or a ROS2 bag folder (with metadata.yaml), got "
-                      f"a file with suffix {p.suffix!r}")
+    raise FormatError(f"{p}: expected a ROS1 '.bag' file, a ROS2 bag folder or a ROS2 storage file "
+                      f"('.db3' / '.mcap'), got a file with suffix {p.suffix!r}")
 
 
 def _open_reader(path):
     """``(path, AnyReader)``; every error of opening the bag is a :class:`FormatError`."""
-    from rosbags.highlevel import AnyReader
+    from ..extras import require
+
+    AnyReader = require("rosbags.highlevel", "ros", "reading ROS bags").AnyReader
     from rosbags.typesys import Stores, get_typestore
 
     p, version = _bag_path(path)
@@ -84,7 +88,7 @@ def _reader_errors():
 
 
 def list_imu_topics(path) -> tuple[str, ...]:
-    """Topics carrying ``sensor_msgs/msg/Imu`` in a ROS1 ``.bag`` or a ROS2 bag folder, sorted."""
+    """Topics carrying ``sensor_msgs/msg/Imu`` in a ROS1 ``.bag``, a ROS2 bag folder or storage file, sorted."""
     p, reader = _open_reader(path)
     try:
         with reader:
@@ -101,9 +105,9 @@ def read_bag(path, topic: str | None = None, *, name: str | None = None) -> ImuS
     Parameters
     ----------
     path : str or Path
-        ROS1 ``.bag`` file, or ROS2 bag folder (a ``.db3`` / ``.mcap`` file inside it also works when
-        the folder holds the bag's ``metadata.yaml``; a lone storage file is refused with a FormatError
-        saying so).
+        ROS1 ``.bag`` file, ROS2 bag folder, or a ROS2 storage file (``.db3`` / ``.mcap``): read through
+        its folder when that holds the bag's ``metadata.yaml``, else on its own (no ``ros2 bag reindex``
+        needed).
     topic : str, optional
         The Imu topic. May be omitted when the bag holds exactly one Imu topic.
     name : str, optional
@@ -186,7 +190,8 @@ def _stamp(t: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 def write_imu_bag(path, streams: Mapping[str, ImuStream], *, version: int = 1,
-                  frame_ids: Mapping[str, str] | None = None, overwrite: bool = False) -> Path:
+                  frame_ids: Mapping[str, str] | None = None, overwrite: bool = False,
+                  storage: str = "sqlite3") -> Path:
     """Write gyro streams as ``sensor_msgs/msg/Imu`` messages into a ROS1 or ROS2 bag.
 
     Only the angular velocity is known: ``orientation_covariance[0]`` and
@@ -202,7 +207,7 @@ def write_imu_bag(path, streams: Mapping[str, ImuStream], *, version: int = 1,
     ----------
     path : str or Path
         ROS1: the ``.bag`` file (suffix ``.bag`` required so readers recognise it).
-        ROS2: the bag folder to create (sqlite3 storage, rosbag2 format version 9).
+        ROS2: the bag folder to create (rosbag2 format version 9, storage per ``storage``).
     streams : mapping of topic -> ImuStream
     version : {1, 2}
         ROS generation.
@@ -210,12 +215,17 @@ def write_imu_bag(path, streams: Mapping[str, ImuStream], *, version: int = 1,
         ``header.frame_id`` per topic (default: the topic without slashes).
     overwrite : bool
         Replace an existing bag at ``path`` (refused by default, like ``rosbag record``).
+    storage : {"sqlite3", "mcap"}
+        ROS2 storage file format (``<name>.db3`` or ``<name>.mcap`` in the folder); ROS1 ignores it.
 
     Returns
     -------
     Path
         The written bag.
     """
+    from ..extras import require
+
+    require("rosbags", "ros", "writing ROS bags")
     from rosbags.typesys import Stores, get_typestore
 
     path = Path(path).expanduser()
@@ -223,6 +233,8 @@ def write_imu_bag(path, streams: Mapping[str, ImuStream], *, version: int = 1,
         raise InputError(f"version: expected 1 (ROS1 .bag) or 2 (ROS2 folder), got {version!r}")
     if version == 1 and path.suffix != ".bag":
         raise InputError(f"{path}: a ROS1 bag needs the suffix '.bag', got {path.suffix!r}")
+    if storage not in ("sqlite3", "mcap"):
+        raise InputError(f"storage: expected 'sqlite3' or 'mcap', got {storage!r}")
     if not streams:
         raise InputError("streams: expected at least one topic -> ImuStream, got none")
     for topic, s in streams.items():
@@ -264,8 +276,9 @@ def write_imu_bag(path, streams: Mapping[str, ImuStream], *, version: int = 1,
             from rosbags.rosbag1 import Writer
             writer = Writer(tmp)
         else:
-            from rosbags.rosbag2 import Writer
-            writer = Writer(tmp, version=9)
+            from rosbags.rosbag2 import StoragePlugin, Writer
+            plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+            writer = Writer(tmp, version=9, storage_plugin=plugin)
         with writer:
             conns = [writer.add_connection(tp, IMU_MSGTYPE, typestore=store) for tp in topics]
             frames = [(frame_ids or {}).get(tp, tp.strip("/").replace("/", "_") or "imu") for tp in topics]

@@ -22,6 +22,8 @@ import numpy as np
 from ..errors import FormatError, InputError
 from ..units import RATE_UNIT_HINTS, RATE_UNIT_LABELS, RATE_UNITS, TIME_UNIT_LABELS, TIME_UNITS
 from .stream import ImuStream, input_path, int_time_to_seconds, rate_factor
+from .binary import check_text_file
+from .profiles import header_keys, match_profile, select_instance
 from .text import data_end, dropped_note, head_lines, is_number, read_columns, sniff_delimiter, split_fields
 
 # Recognised gyro column triples (normalised names, see _norm) in order of preference.
@@ -166,7 +168,8 @@ def _resolve_column(spec, header: list[str] | None, ncols: int, what: str, fname
 
 
 def read_csv(path, *, time_column=None, columns=None, unit: str | None = None, sensitivity=None,
-             time_unit: str | None = None, delimiter: str | None = None, name: str | None = None) -> ImuStream:
+             time_unit: str | None = None, delimiter: str | None = None, name: str | None = None,
+             imu: int | None = None) -> ImuStream:
     """Read a gyro stream from a delimited text file (generic CSV, or EuRoC / ASL ``imu0/data.csv``).
 
     Parameters
@@ -195,6 +198,11 @@ def read_csv(path, *, time_column=None, columns=None, unit: str | None = None, s
         Field separator. Default: sniffed from the first data row (``,`` tab ``;`` or whitespace).
     name : str, optional
         Stream name. Default: the file stem (the folder name for EuRoC ``data.csv``).
+    imu : int, optional
+        The IMU instance to keep in a log that interleaves several (an instance column, e.g. ArduPilot's ``I``).
+
+    The headers of common loggers (UZH-FPV, Kalibr, Sensor Logger, MARS logger, PX4 ``ulog2csv``, VectorNav,
+    ArduPilot) set the columns and units not given (:mod:`fusion_gyrocal.io.profiles`).
 
     Returns
     -------
@@ -209,8 +217,17 @@ def read_csv(path, *, time_column=None, columns=None, unit: str | None = None, s
         or timestamps that are not strictly increasing.
     """
     path = _euroc_csv(input_path(path, "file or folder", folder=True))
+    check_text_file(path, "CSV")             # a binary file is refused by name, before any parsing
     fname = path.name if path.name != "data.csv" else f"{path.parent.name}/{path.name}"
     layout = _layout(path, fname, delimiter)
+    profile = match_profile(layout.header) if layout.header is not None else None
+    k_inst = None
+    if profile is not None:                  # a known logger's layout fills what was not given
+        p_t, p_w, k_inst = profile.columns(header_keys(layout.header))
+        time_column = p_t if time_column is None else time_column
+        columns = p_w if columns is None else columns
+        if time_unit is None and not _time_unit_from_header(layout.header[p_t]):
+            time_unit = profile.time_unit    # a unit the header names wins; the rate unit is read as usual
     k_t = _time_column(time_column, layout, fname)
     k_w = _gyro_columns(columns, layout, fname)
     time_unit, how, unit = _units(layout, k_t, k_w, time_unit, unit, fname)
@@ -226,6 +243,18 @@ def read_csv(path, *, time_column=None, columns=None, unit: str | None = None, s
     notes += [dropped_note(dropped)] if dropped else []
 
     raw, w = _read_rows(path, layout, k_t, k_w, end, fname)
+    if profile is not None:
+        notes.append(f"read as the {profile.name} layout" + (f" ({profile.note})" if profile.note else ""))
+    if imu is not None and k_inst is None:
+        raise InputError(f"{fname}: imu={imu} picks an IMU instance, but the file has no instance column "
+                         f"(header {layout.header})")
+    if k_inst is not None:
+        inst, _ = read_columns(path, skiprows=layout.skip, delimiter=layout.delim, k_t=k_inst, k_w=k_w,
+                               int_time=False, end=end)
+        keep = select_instance(inst, imu, fname, layout.header[k_inst])
+        if not keep.all():
+            raw, w = raw[keep], w[keep]
+            notes.append(f"IMU instance {imu}: {int(keep.sum())} of {keep.size} rows")
     column = layout.header[k_t] if layout.header is not None else f"#{k_t}"
     _check_time_unit(raw, time_unit, how, fname, column)
     if raw.dtype.kind == "i":

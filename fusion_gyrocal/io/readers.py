@@ -16,8 +16,14 @@ public names; each format has its own module:
   :mod:`fusion_gyrocal.io.xsens`);
 * ``.npz`` archives with ``t`` and ``omega`` (or ``gyro``) arrays, and the MIMU4444 array layout
   (``t_s``, ``gyro_counts`` N x M x 3, ``gyro_lsb_per_dps``) (:func:`read_npz`, :mod:`fusion_gyrocal.io.npz`);
-* ROS1 / ROS2 bags with ``sensor_msgs/msg/Imu`` (:mod:`fusion_gyrocal.io.bags`, loaded on first use);
+* ROS1 / ROS2 bags with ``sensor_msgs/msg/Imu``, a ROS2 ``.db3`` / ``.mcap`` storage file on its own too
+  (:mod:`fusion_gyrocal.io.bags`, loaded on first use);
+* PX4 ULog ``.ulg`` flight logs, every gyro instance (:mod:`fusion_gyrocal.io.ulog`, loaded on first use);
 * :class:`ImuStream` and what every reader shares: :mod:`fusion_gyrocal.io.stream`.
+
+Binary files that are none of these (a ``.mat``, an executable, a ``.ulg`` given as CSV, anything with NUL bytes
+in its first block) are refused by name before any parser sees them (:mod:`fusion_gyrocal.io.binary`); no byte of
+them is ever printed.
 """
 
 from __future__ import annotations
@@ -30,16 +36,22 @@ from .csv import PLAUSIBLE_RATE_HZ, read_csv
 from .npz import read_npz
 from .stream import ImuStream, input_path
 from .text import PANDAS_MIN_BYTES, head_lines
+from .binary import HEAD_BYTES, ULOG_MAGIC, refuse_binary
 from .xsens import XSENS_FINE_TICKS_PER_S, looks_like_xsens, read_xsens
 
 __all__ = ["ImuStream", "FORMATS", "detect_format", "read_imu", "read_csv", "read_xsens", "read_npz",
            "RATE_UNITS", "TIME_UNITS", "PLAUSIBLE_RATE_HZ", "PANDAS_MIN_BYTES", "XSENS_FINE_TICKS_PER_S"]
 
-FORMATS = ("auto", "csv", "euroc", "xsens", "npz", "bag")
-
+FORMATS = ("auto", "csv", "euroc", "xsens", "npz", "bag", "ulog")
 
 def detect_format(path) -> str:
-    """Guess the layout of ``path``: one of ``"csv"``, ``"euroc"``, ``"xsens"``, ``"npz"``, ``"bag"``."""
+    """Guess the layout of ``path``: ``"csv"``, ``"euroc"``, ``"xsens"``, ``"npz"``, ``"bag"`` or ``"ulog"``.
+
+    Raises
+    ------
+    FormatError
+        For a binary file of no supported format (:mod:`~fusion_gyrocal.io.binary`), before any parser reads it.
+    """
     p = input_path(path, "file or folder", folder=True)
     if p.is_dir():
         if (p / "metadata.yaml").is_file() or any(p.glob("*.db3")) or any(p.glob("*.mcap")):
@@ -50,12 +62,17 @@ def detect_format(path) -> str:
         return "bag"
     if suffix == ".npz":
         return "npz"
+    if suffix == ".ulg":
+        return "ulog"
     with open(p, "rb") as f:
-        magic = f.read(13)
-    if magic.startswith(b"#ROSBAG V2.0"):
+        head = f.read(HEAD_BYTES)
+    if head.startswith(b"#ROSBAG V2.0"):
         return "bag"
-    if magic.startswith(b"PK"):
+    if head.startswith(b"PK"):
         return "npz"
+    if head.startswith(ULOG_MAGIC):
+        return "ulog"
+    refuse_binary(p, head, "CSV or Xsens")
     lines = head_lines(p, 256)
     if looks_like_xsens(lines):
         return "xsens"
@@ -72,13 +89,13 @@ def read_imu(path, *, format: str = "auto", **options) -> ImuStream:
     ----------
     path : str or Path
         A CSV/TSV/text file, an EuRoC ``imu0`` folder, an Xsens export, an ``.npz``, a ROS1
-        ``.bag`` or a ROS2 bag folder.
-    format : {"auto", "csv", "euroc", "xsens", "npz", "bag"}
+        ``.bag``, a ROS2 bag folder or ``.db3`` / ``.mcap`` storage file, or a PX4 ``.ulg``.
+    format : {"auto", "csv", "euroc", "xsens", "npz", "bag", "ulog"}
         Force a reader instead of :func:`detect_format`.
     **options
         Passed to the reader: :func:`read_csv` (``columns``, ``unit``, ``time_unit``, ...),
         :func:`read_xsens` (``unit``, ``rate_hz``), :func:`read_npz` (``imu``, ``unit``),
-        :func:`fusion_gyrocal.io.read_bag` (``topic``).
+        :func:`fusion_gyrocal.io.read_bag` (``topic``), :func:`fusion_gyrocal.io.read_ulog` (``topic``, ``imu``).
 
     Raises
     ------
@@ -112,5 +129,8 @@ def _read(path, format: str, options: dict) -> ImuStream:
             return streams[0]
         raise InputError(f"{Path(path).name}: holds {len(streams)} IMUs; pass imu=0..{len(streams) - 1} "
                          "to choose one")
+    if fmt == "ulog":
+        from .ulog import read_ulog
+        return read_ulog(path, **options)
     from .bags import read_bag
     return read_bag(path, **options)

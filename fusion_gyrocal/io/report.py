@@ -19,8 +19,9 @@ from ..core.robust import CovarianceBasis
 
 
 def _figure(nrows=1, ncols=1, **kw):
-    import matplotlib
+    from ..extras import require
 
+    matplotlib = require("matplotlib", "plots", "the report's figures")
     matplotlib.use("Agg", force=False)
     from matplotlib.figure import Figure
 

@@ -14,6 +14,7 @@ import numpy as np
 
 from ..core.moments import finite_rows
 from ..errors import FormatError, InputError, OptionError
+from .binary import check_text_file
 from .stream import ImuStream, input_path, int_time_to_seconds, rate_factor
 from .text import data_end, dropped_note, head_lines, read_floats
 
@@ -99,6 +100,7 @@ def read_xsens(path, *, unit: str = "rad/s", rate_hz: float | None = None, name:
         On a ``rate_hz`` that is not a positive finite number.
     """
     path = input_path(path)
+    check_text_file(path, "Xsens")           # a binary file is refused by name, before any parsing
     fname = path.name
     lines = head_lines(path, 256)
     rate, k = None, 0

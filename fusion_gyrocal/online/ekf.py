@@ -37,11 +37,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from filterpy.kalman import ExtendedKalmanFilter
-from filterpy.kalman import update as kalman_update
 
 from ..core.model import BIAS, ROT
 from ..core.moments import Moments
+from ..extras import require
+
+_kalman = require("filterpy.kalman", "track", "the online tracker (GyroPairTracker, gyrocal track)")
+ExtendedKalmanFilter, kalman_update = _kalman.ExtendedKalmanFilter, _kalman.update
 from ..core.observability import A_of
 from ..errors import InputError
 from ..lie import exp3

@@ -26,7 +26,9 @@ def plot_history(history: TrackHistory, *, title: str | None = None):
     -------
     matplotlib.figure.Figure
     """
-    from matplotlib.figure import Figure
+    from ..extras import require
+
+    Figure = require("matplotlib.figure", "plots", "the tracker's figures").Figure
 
     deg = 180.0 / np.pi
     fig = Figure(figsize=(9, 8), layout="constrained")
