@@ -36,7 +36,8 @@ RATE_UNIT_HINTS = ("/", "^-1", "rad", "deg", "dps", "°", "º", "rpm", "rps", "l
 TIME_UNITS = {"s": 0, "ms": 3, "us": 6, "ns": 9}
 #: Spellings of the time units in a column header's brackets: ``[ns]``, ``[sec]``, ``[µs]``, ...
 TIME_UNIT_LABELS = {**{u: u for u in TIME_UNITS}, "sec": "s", "seconds": "s", "µs": "us", "μs": "us",
-                    "usec": "us", "msec": "ms", "nsec": "ns"}
+                    "usec": "us", "msec": "ms", "nsec": "ns", "nanosec": "ns", "microsec": "us", "millisec": "ms",
+                    "second": "s"}
 
 
 # ----------------------------------------------------------------------------- is it rad/s?
