@@ -115,7 +115,13 @@ class PairCalibration:
     iterations : int
         Iterations of the refinement (0 for the direct solution).
     time_offset_s, time_offset_std_s : float
-        Offset added to gyro 2's timestamps, and its standard deviation (0 when given aligned).
+        Offset added to gyro 2's timestamps, and its standard deviation (0 when given aligned); with a clock
+        drift, the offset at the middle of the overlap.
+    clock_drift_ppm, clock_drift_std_ppm : float
+        Drift of gyro 2's clock against gyro 1's (how fast the offset grows, 1e-6 s per s) and its std, when
+        it was estimated and compensated (0 otherwise).
+    timestamp_quality : tuple of str
+        The timestamp diagnosis of each timestamped stream (rate histogram, jitter, bursts, drops).
     skew_rotation_covariance : ndarray (3, 3)
         Rotation error covariance implied by the stated skew uncertainty (Appendix D, Eq. 40-41);
         already included in ``covariance``'s rotation block.
@@ -222,6 +228,9 @@ class PairCalibration:
     timing_delay_s: float = 0.0
     timing_delay_std_s: float = 0.0
     timing_explained: float = 0.0
+    clock_drift_ppm: float = 0.0
+    clock_drift_std_ppm: float = 0.0
+    timestamp_quality: tuple = ()
     noise_model: Any = None
     notes: tuple = ()
 
@@ -232,6 +241,7 @@ class PairCalibration:
         if self.configuration not in CONFIGURATIONS:
             raise InputError(f"configuration: expected one of {CONFIGURATIONS}, got {self.configuration!r}")
         object.__setattr__(self, "notes", tuple(self.notes))
+        object.__setattr__(self, "timestamp_quality", tuple(self.timestamp_quality))
         object.__setattr__(self, "timing_tones_hz", tuple(float(f) for f in self.timing_tones_hz))
         object.__setattr__(self, "covariance_kind", CovarianceBasis(self.covariance_kind))
 

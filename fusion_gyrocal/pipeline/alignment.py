@@ -333,8 +333,8 @@ def _offset_std(spl2: _RunSplines, x1, y1, tau: float, h: float) -> float:
     return float(np.sqrt(var_u) / half_curv)
 
 
-def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.0, valid_1=None, valid_2=None,
-                         min_correlation: float = 0.5, max_eval: int | None = MAX_EVAL) -> TimeOffset:
+def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float | None = None, valid_1=None,
+                         valid_2=None, min_correlation: float = 0.5, max_eval: int | None = MAX_EVAL) -> TimeOffset:
     """Estimate the time offset between two rigidly mounted gyroscopes from their rates alone.
 
     1. Coarse: the rate norms ``|omega_i|`` (invariant to the unknown rotation, as in the paper's
@@ -342,8 +342,11 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.
        one uniform grid (step = the shorter nominal sample period of the two streams, so
        different rates are handled) and cross-correlated by FFT, each lag normalised over the
        grid points valid in both streams (gaps and masks allowed). The peak in
-       ``[-max_offset_s, max_offset_s]`` is located to a fraction of a step by parabolic
-       interpolation. When several separate lobes come close to the peak (norms of periodic
+       ``[-max_offset_s, max_offset_s]`` (by default every lag that keeps half the shorter record
+       overlapping) is located to a fraction of a step by parabolic interpolation. When the grid and
+       the lags together exceed 2^18 points, the norms are first averaged in coarser bins (at least two
+       samples of the slower stream each) and each lobe's peak is found again at full rate within
+       +-3 bins, on gyro 1's 2^16-step stretch whose norm varies most. When several separate lobes come close to the peak (norms of periodic
        motion repeat), each is refined as in step 2 and the one with the smallest rigid-model
        misfit wins; if the misfits are within a factor of 1.5 the offset is ambiguous.
     2. Fine: the offset minimises the residual sum of squares of the rigid-pair model
@@ -363,6 +366,13 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.
        differences); the variance of the numerator is estimated from its sums over 0.25 s
        blocks (a sandwich estimate: the residuals of interpolated neighbours are correlated,
        and model errors are included).
+    4. Clock drift: the overlap is cut into up to 8 stretches of at least 15 s; each stretch's offset is
+       found as in 1-3 (within ``+-1e-3`` of the overlap's length of the whole-record offset) and a line
+       weighted by their variances gives the drift (ppm) and the offset at the overlap's middle. The drift
+       is compensated (``drift_compensated``; ``offset_s`` then holds at ``reference_time_s``) when it
+       exceeds 4 stds and moves the offset by more than ``std_s`` over half the overlap; the stds are scaled
+       up by the stretches' scatter about the line. A whole-record refinement smeared by a large drift
+       falls back to the line.
 
     Parameters
     ----------
@@ -370,8 +380,9 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.
         Timestamps (s) of gyro 1 and gyro 2, each on its own clock.
     omega_1, omega_2 : array_like, shape (N_1, 3), (N_2, 3)
         Measured rates (rad/s); gyro 2 may be rotated, scaled and biased w.r.t. gyro 1.
-    max_offset_s : float
-        Largest offset magnitude searched.
+    max_offset_s : float or None
+        Largest offset magnitude searched; None (default): every offset that leaves at least half of the
+        shorter recording overlapping (independent clocks: seconds to hours apart).
     valid_1, valid_2 : array_like of bool, optional
         Samples that may be used (e.g. ``~saturation_mask(omega)``); non-finite samples are
         always excluded.
@@ -735,6 +746,15 @@ class AlignedPair:
         """:class:`Moments` of the valid samples (and of ``mask``, e.g. :func:`informative_mask`)."""
         keep = self.valid if mask is None else self.valid & np.asarray(mask, dtype=bool)
         return Moments.from_samples(self.omega_1, self.omega_2, mask=keep)
+
+    def calibration_fields(self, notes: tuple = ()) -> dict:
+        """What the alignment adds to a :class:`~fusion_gyrocal.core.model.PairCalibration`: the clock drift, the
+        timestamp diagnosis and its notes after ``notes``."""
+        est = self.time_offset
+        return {"clock_drift_ppm": self.clock_drift_ppm,
+                "clock_drift_std_ppm": est.drift_std_ppm if est is not None and self.clock_drift_ppm else 0.0,
+                "timestamp_quality": tuple(q.summary() for q in self.timestamp_quality),
+                "notes": tuple(notes) + tuple(n for n in self.notes if n not in notes)}
 
 
 def _grid(t1, lo: float, hi: float, rate_hz):

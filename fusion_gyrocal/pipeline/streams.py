@@ -113,15 +113,13 @@ class TimestampQuality:
 def _quality(name: str, step: np.ndarray, n: int) -> TimestampQuality:
     """:class:`TimestampQuality` from the steps of ``n`` timestamps (any order)."""
     pos = step[step > 0]
-    med = float(np.median(pos)) if pos.size else float("nan")
-    period = med
-    if pos.size and np.count_nonzero(step < BURST_STEP * med) < BURST_FRACTION * step.size:
-        pass
-    else:   # packets: the median is the step inside one; the mean step outside the long gaps is the period
-        mean = float(np.sum(pos)) / max(step.size, 1)
-        if pos.size and np.isfinite(mean) and mean > 0:
-            period = float(np.sum(step[(step > 0) & (step <= 20.0 * mean)])) / max(
-                np.count_nonzero(step <= 20.0 * mean), 1)
+    period = float(np.median(pos)) if pos.size else float("nan")
+    mean = float(np.mean(pos)) if pos.size else float("nan")
+    for _ in range(2):      # the mean step without the long pauses (a regular stream's is its median step)
+        if np.isfinite(mean) and mean > 0:
+            mean = float(np.mean(pos[pos <= 50.0 * mean]))
+    if np.isfinite(mean) and np.count_nonzero(step < BURST_STEP * mean) >= BURST_FRACTION * step.size:
+        period = mean       # packets: the median is the step inside one, the mean step outside pauses the period
     if not (np.isfinite(period) and period > 0):
         return TimestampQuality(name, n, float("nan"), (int(step.size),) + (0,) * 6, float("nan"), 0.0, 0, 0,
                                 0.0, int(step.size))
@@ -381,6 +379,8 @@ def _out_of_place(t: np.ndarray) -> np.ndarray:
         bad[1:-1] = (prev < nxt) & ~((prev < this) & (this < nxt))
         bad[0] = t[0] >= t[1] and t[1] < t[2]
         bad[-1] = t[-1] <= t[-2] and t[-3] < t[-2]
+        same = np.flatnonzero(bad[:-1] & bad[1:] & (t[:-1] == t[1:]))
+        bad[same] = False       # a repeated stamp: the later sample repeats the earlier one
     return bad
 
 
