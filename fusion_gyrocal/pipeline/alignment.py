@@ -35,6 +35,7 @@ _NORM_BLOCK = 1 << 16          # grid points (and samples) per block of the norm
 MAX_EVAL = 1 << 17             # refinement instants: longer logs use their most excited windows
 _COARSE_BINS = 1 << 18         # grid points and lags of the coarse correlation: beyond, the norms are binned coarser
 _LOCAL_POINTS = 1 << 16        # full-rate grid points of the search near a coarse lobe
+_SEGMENT_POINTS = 1 << 13      # half the full-rate grid points of a drift stretch's own search
 _DRIFT_SEGMENTS = 8            # stretches of the overlap whose offsets give the clock drift
 _DRIFT_MIN_S = 15.0            # shortest stretch (s): records under 45 s get no drift estimate
 _MAX_DRIFT = 1e-3              # largest clock drift searched (1000 ppm: crystal clocks are within 100 ppm)
@@ -525,7 +526,7 @@ def _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, min_correlation, max_eval,
         if on_edge(i):
             raise boundary_error(i)
         if drift and starts[best] is not None:   # a drifting clock smears the whole-log misfit: per stretch
-            line = _drift_line(t1, w1, ok1, t2, w2, ok2, starts[best], h, gap1, gap2, max_eval)
+            line = _drift_line(t1, w1, ok1, t2, w2, ok2, starts[best], h, gap1, gap2, max_eval, (spl2, x1, y1))
             if line is not None:
                 return _drift_offset(line, t_ref, lags, r, float(r[i]), compensated=True)
         raise failures[best]
@@ -545,7 +546,7 @@ def _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, min_correlation, max_eval,
     peak = float(r[i])
     tau, xe, ye, _ = fits[best]
     std = _offset_std(spl2, x1, y1, tau, h)
-    line = _drift_line(t1, w1, ok1, t2, w2, ok2, tau, h, gap1, gap2, max_eval) if drift else None
+    line = _drift_line(t1, w1, ok1, t2, w2, ok2, tau, h, gap1, gap2, max_eval, (spl2, x1, y1)) if drift else None
     if line is not None:
         mid, tau_mid, sd_mid, ppm, sd_ppm, (lo, hi), _ = line
         half = 0.5 * (hi - lo)
@@ -571,11 +572,18 @@ def _binned_norms(t, w, ok, k_lo: int, k_hi: int, hc: float):
     size = k_hi - k_lo + 1
     s = np.zeros(size)
     c = np.zeros(size)
-    for lo in range(0, t.size, _NORM_BLOCK):
-        k = np.floor(t[lo:lo + _NORM_BLOCK] / hc + 0.5).astype(np.int64) - k_lo
-        use = ok[lo:lo + _NORM_BLOCK] & (k >= 0) & (k < size)
-        s += np.bincount(k[use], weights=row_norms(w[lo:lo + _NORM_BLOCK][use]), minlength=size)
-        c += np.bincount(k[use], minlength=size)
+    for lo in range(0, t.size, _NORM_BLOCK):   # t increases: each block's bins are one stretch of the grid
+        k = np.floor(t[lo:lo + _NORM_BLOCK] * (1.0 / hc) + 0.5).astype(np.int64)
+        k -= k_lo
+        a, b = max(int(k[0]), 0), min(int(k[-1]), size - 1)
+        if b < a:
+            continue
+        np.clip(k, a - 1, b + 1, out=k)
+        k -= a - 1
+        okb = ok[lo:lo + _NORM_BLOCK]
+        s[a:b + 1] += np.bincount(k, weights=np.where(okb, row_norms(w[lo:lo + _NORM_BLOCK]), 0.0),
+                                  minlength=b - a + 3)[1:b - a + 2]
+        c[a:b + 1] += np.bincount(k, weights=okb, minlength=b - a + 3)[1:b - a + 2]
     inside = c > 0
     x = np.zeros(size)
     x[inside] = s[inside] / c[inside]
@@ -642,14 +650,16 @@ def _instants(t1, w1, ok1, t2, w2, ok2, he, h, gap1, gap2, max_eval, starts):
     return spl1, spl2, x1, y1
 
 
-def _drift_line(t1, w1, ok1, t2, w2, ok2, tau: float, h: float, gap1, gap2, max_eval):
+def _drift_line(t1, w1, ok1, t2, w2, ok2, tau: float, h: float, gap1, gap2, max_eval, fitted):
     """Clock drift: the offset refined on ``_DRIFT_SEGMENTS`` stretches of the overlap and a weighted line through
     them, ``offset(t) = tau_mid + drift (t - mid)`` on gyro 1's clock.
 
     Returns ``(mid, tau_mid, std_mid, drift_ppm, drift_std_ppm, (lo, hi), n_instants)`` or None when the overlap
     is shorter than ``_DRIFT_MIN_S`` per stretch or fewer than 3 stretches give an offset. Each stretch's offset is
-    searched at full rate within ``tau +- _MAX_DRIFT x`` the overlap, then refined and its std estimated as the
-    whole record's (:func:`_refine`, :func:`_offset_std`); the line's stds are scaled up by the scatter of the
+    refined from ``tau`` on the whole record's instants in it (``fitted``: gyro 2's splines, the instants and gyro
+    1's rates there) or, when it lies further, searched at full rate within ``tau +- _MAX_DRIFT x`` the overlap
+    and refined on instants and splines of its own; its std is estimated as the whole record's
+    (:func:`_refine`, :func:`_offset_std`); the line's stds are scaled up by the scatter of the
     stretches about it when that exceeds their own stds.
     """
     lo, hi = max(t1[0], t2[0] + tau), min(t1[-1], t2[-1] + tau)
@@ -665,16 +675,34 @@ def _drift_line(t1, w1, ok1, t2, w2, ok2, tau: float, h: float, gap1, gap2, max_
         s1 = (t1[i0:i1], w1[i0:i1], ok1[i0:i1])
         if np.count_nonzero(s1[2]) < 64:
             continue
-        start = _local_peak(*s1, t2, w2, ok2, (a, b), tau, width, h, gap1, gap2)
-        if start is None:
+        per = None if max_eval is None else max(1024, int(max_eval) // (2 * n_seg))
+        fit = None
+        for attempt in range(2):   # from the whole record's offset; if it lies too far, from the local peak
+            if attempt:
+                c = 0.5 * (a + b)
+                start = _local_peak(*s1, t2, w2, ok2, (c - _SEGMENT_POINTS * h, c + _SEGMENT_POINTS * h), tau, width,
+                                    h, gap1, gap2)
+                if start is None:
+                    break
+                try:
+                    spl1, spl2, x, y = _instants(*s1, t2, w2, ok2, he, h, gap1, gap2, per, [start])
+                except TimeAlignmentError:
+                    break
+            else:   # the whole record's instants in this stretch, its splines (built for offsets near tau)
+                start, spl2 = tau, fitted[0]
+                j0, j1 = np.searchsorted(fitted[1], [a, b])
+                x, y = fitted[1][j0:j1], fitted[2][j0:j1]
+                if x.size < 64:
+                    continue
+            try:
+                tk, xe, _, _ = _refine(spl2, x, y, start, h)
+                fit = (tk, xe, _offset_std(spl2, x, y, tk, h))
+                break
+            except TimeAlignmentError:
+                continue
+        if fit is None:
             continue
-        per = None if max_eval is None else max(1024, int(max_eval) // n_seg)
-        try:
-            spl1, spl2, x, y = _instants(*s1, t2, w2, ok2, he, h, gap1, gap2, per, [start])
-            tk, xe, _, _ = _refine(spl2, x, y, start, h)
-            sk = _offset_std(spl2, x, y, tk, h)
-        except TimeAlignmentError:
-            continue
+        tk, xe, sk = fit
         if not (np.isfinite(sk) and sk > 0):
             continue
         mids.append(float(xe.mean()))

@@ -111,27 +111,33 @@ class TimestampQuality:
 
 
 def _quality(name: str, step: np.ndarray, n: int) -> TimestampQuality:
-    """:class:`TimestampQuality` from the steps of ``n`` timestamps (any order)."""
-    pos = step[step > 0]
-    period = float(np.median(pos)) if pos.size else float("nan")
-    mean = float(np.mean(pos)) if pos.size else float("nan")
+    """:class:`TimestampQuality` from the steps of ``n`` timestamps (any order): a few passes over the steps, the
+    jitter from a bounded subsample of them."""
+    lo = float(step.min()) if step.size else float("nan")
+    pos = step if lo > 0 else step[step > 0]
+    if not pos.size:
+        return TimestampQuality(name, n, float("nan"), (int(step.size),) + (0,) * 6, float("nan"), 0.0, 0, 0,
+                                0.0, int(step.size))
+    period = float(np.median(pos))
+    longest = float(pos.max())
+    mean = float(np.mean(pos))
     for _ in range(2):      # the mean step without the long pauses (a regular stream's is its median step)
-        if np.isfinite(mean) and mean > 0:
+        if longest > 50.0 * mean:
             mean = float(np.mean(pos[pos <= 50.0 * mean]))
-    if np.isfinite(mean) and np.count_nonzero(step < BURST_STEP * mean) >= BURST_FRACTION * step.size:
+    if np.count_nonzero(step < BURST_STEP * mean) >= BURST_FRACTION * step.size:
         period = mean       # packets: the median is the step inside one, the mean step outside pauses the period
     if not (np.isfinite(period) and period > 0):
         return TimestampQuality(name, n, float("nan"), (int(step.size),) + (0,) * 6, float("nan"), 0.0, 0, 0,
                                 0.0, int(step.size))
-    x = step / period
-    hist = [int(np.count_nonzero(x <= 0))]
-    hist += [int(np.count_nonzero((x > 0) & (x >= a) & (x < b))) for a, b in zip(_STEP_BINS[:-1], _STEP_BINS[1:])]
-    regular = x[(x >= 0.75) & (x < 1.25)]
+    edges = np.array(_STEP_BINS[1:-1]) * period
+    counts = np.bincount(np.searchsorted(edges, pos, side="right"), minlength=len(_STEP_BINS) - 1)
+    hist = [int(step.size - pos.size)] + [int(c) for c in counts]
+    sub = pos[::max(1, pos.size // (1 << 16))] / period
+    regular = sub[(sub >= 0.75) & (sub < 1.25)]
     jitter = float(1.4826 * np.median(np.abs(regular - np.median(regular)))) if regular.size else float("nan")
-    big = x[x > DROP_STEP]
-    return TimestampQuality(name, n, period, tuple(hist), jitter,
-                            float(np.count_nonzero((x > 0) & (x < BURST_STEP))) / max(x.size, 1), int(big.size),
-                            int(np.sum(np.rint(big) - 1)), float(step.max()) if step.size else 0.0, hist[0])
+    big = pos[pos > DROP_STEP * period] / period
+    return TimestampQuality(name, n, period, tuple(hist), jitter, float(hist[1]) / max(step.size, 1),
+                            int(big.size), int(np.sum(np.rint(big) - 1)), longest, hist[0])
 
 
 def timestamp_quality(name: str, t) -> TimestampQuality:
