@@ -302,8 +302,9 @@ def _refine(spl2: _RunSplines, x1, y1, tau0: float, h: float):
                              f"{tau0:+.4f} s (last {tau:+.6f} s)")
 
 
-def _offset_std(spl2: _RunSplines, x1, y1, tau: float, h: float) -> float:
-    """Standard deviation of the refined offset: a sandwich estimate on the profiled misfit ``C``.
+def _offset_std(spl2: _RunSplines, x1, y1, tau: float, h: float, newton: bool = False):
+    """Standard deviation of the refined offset: a sandwich estimate on the profiled misfit ``C``
+    (``newton``: also the Newton step ``-C'/C'' = -sum u / (C''/2)`` towards the minimum, as ``(std, step)``).
 
     At the minimum, ``tau_hat - tau ~ -sum_m u_m / (C''/2)`` with ``u_m = d_m . r_m``,
     ``d_m = P A d/dt omega_2(x_m - tau)`` (``P`` projects out the directions of the profiled ``A``
@@ -321,7 +322,7 @@ def _offset_std(spl2: _RunSplines, x1, y1, tau: float, h: float) -> float:
     at_tau = float(np.trace(m.S11) - np.trace(A @ m.S12.T))   # cost(tau), from the fit needed below anyway
     half_curv = 0.5 * (cost(tau + delta) - 2.0 * at_tau + cost(tau - delta)) / delta**2
     if not half_curv > 0:
-        return float("inf")
+        return (float("inf"), float("nan")) if newton else float("inf")
     dw2 = spl2(xe - tau, nu=1, inside=inside)[0]
     resid = (ye - m.mean_1) - (w2 - m.mean_2) @ A.T
     md = Moments.from_samples(dw2, w2)  # project d/dt omega_2 on the regressors [omega_2, 1]
@@ -331,7 +332,8 @@ def _offset_std(spl2: _RunSplines, x1, y1, tau: float, h: float) -> float:
     sums = np.bincount(block, weights=u)[np.bincount(block) > 0]
     nb = sums.size
     var_u = float(np.sum(sums**2)) * nb / max(nb - 1, 1)
-    return float(np.sqrt(var_u) / half_curv)
+    std = float(np.sqrt(var_u) / half_curv)
+    return (std, -float(sums.sum()) / half_curv) if newton else std
 
 
 def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float | None = None, valid_1=None,
@@ -688,12 +690,23 @@ def _drift_line(t1, w1, ok1, t2, w2, ok2, tau: float, h: float, gap1, gap2, max_
                     spl1, spl2, x, y = _instants(*s1, t2, w2, ok2, he, h, gap1, gap2, per, [start])
                 except TimeAlignmentError:
                     break
-            else:   # the whole record's instants in this stretch, its splines (built for offsets near tau)
-                start, spl2 = tau, fitted[0]
+            else:   # the whole record's instants in this stretch, its splines (built for offsets near tau):
+                start, spl2 = tau, fitted[0]   # Newton steps on the profiled misfit while they stay small
                 j0, j1 = np.searchsorted(fitted[1], [a, b])
                 x, y = fitted[1][j0:j1], fitted[2][j0:j1]
                 if x.size < 64:
                     continue
+                tk = tau
+                for _ in range(4):
+                    sk, step = _offset_std(spl2, x, y, tk, h, newton=True)
+                    if not (np.isfinite(step) and abs(step) <= 0.5 * h):
+                        break
+                    tk += step
+                    if abs(step) <= max(0.1 * sk, 1e-3 * h):   # the next step: ~step^2 / h, far below the std
+                        fit = (tk, x, sk)
+                        break
+                if fit is not None:
+                    break
             try:
                 tk, xe, _, _ = _refine(spl2, x, y, start, h)
                 fit = (tk, xe, _offset_std(spl2, x, y, tk, h))
