@@ -142,3 +142,12 @@ def test_calibrate_array_one_rate_glitch_is_masked():
     assert any("rate glitch" in n for n in pair.notes)
     cal = calibrate_streams([t1, t2], [w1, w2])
     assert cal.time_offset_s[1] == pytest.approx(0.07, abs=1e-4)
+
+
+def test_align_streams_gyro_1_is_a_read_only_view_not_a_copy():
+    t1, w1, t2, w2, _, _ = _clocks(10, duration=30.0, tau_mid=0.02, ppm=0.0)
+    pair = align_streams(t1, w1, t2, w2)
+    assert np.shares_memory(pair.omega_1, w1) and np.shares_memory(pair.t, t1)
+    assert not pair.omega_1.flags.writeable and w1.flags.writeable and t1.flags.writeable
+    resampled = align_streams(t1, w1, t2, w2, rate_hz=150.0)      # a grid of its own: owned arrays
+    assert not np.shares_memory(resampled.omega_1, w1)

@@ -745,7 +745,9 @@ class AlignedPair:
     t : ndarray, shape (M,)
         Grid instants on gyro 1's clock (s).
     omega_1, omega_2 : ndarray, shape (M, 3)
-        Rates (rad/s) of gyro 1 and gyro 2 at ``t`` (NaN where a stream has no value there).
+        Rates (rad/s) of gyro 1 and gyro 2 at ``t`` (NaN where a stream has no value there). On gyro 1's own
+        timestamps (no ``rate_hz``), ``t`` and ``omega_1`` are read-only views of the caller's float64 arrays
+        (no copy of a long record): changing those arrays later changes them.
     valid : ndarray of bool, shape (M,)
         True where both streams are valid.
     time_offset : TimeOffset or None
@@ -776,7 +778,7 @@ class AlignedPair:
     notes: tuple = ()
 
     def __post_init__(self):
-        _freeze(self, ("t", "omega_1", "omega_2", "valid"))
+        _freeze(self, ("t", "omega_1", "omega_2", "valid"), views=("t", "omega_1"))
 
     @property
     def n_valid(self) -> int:
@@ -925,8 +927,8 @@ def align_streams(t_1, omega_1, t_2, omega_2, *, time_offset_s: float | None = N
         raise TimeAlignmentError(f"the streams do not overlap after applying the offset {tau:+.6g} s: gyro 1 covers "
                                  f"[{t1[0]:.6g}, {t1[-1]:.6g}] s, gyro 2 [{t2[0] + tau:.6g}, {t2[-1] + tau:.6g}] s")
     grid, keep = _grid(t1, lo, hi, rate_hz)
-    if keep is not None:
-        o1 = w1[keep].astype(np.float64)        # the one copy gyro 1 needs (the result owns its arrays)
+    if keep is not None:                    # gyro 1 on its own timestamps: read-only views, no copy of the record
+        o1 = w1[keep]
         v1 = ok1[keep]
     else:
         o1, v1 = _resample_checked(t1, w1, ok1, grid, DEFAULT_GAP_PERIODS * p1)
@@ -934,9 +936,7 @@ def align_streams(t_1, omega_1, t_2, omega_2, *, time_offset_s: float | None = N
     o2, v2 = _resample_checked(t2, w2, ok2, query, DEFAULT_GAP_PERIODS * p2)
     del query
     v2 &= v1
-    if keep is not None:
-        grid = grid.copy()                        # the result owns its grid (not a view of the caller's t_1)
-    for arr in (grid, o1, o2, v2):       # ours alone: frozen in place, not copied
+    for arr in (grid, o1, o2, v2):       # ours or read-only views (the caller's arrays stay writeable)
         arr.flags.writeable = False
     return AlignedPair(grid, o1, o2, v2, est, tau, drift, ref, quality, tuple(notes))
 

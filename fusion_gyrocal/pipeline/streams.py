@@ -18,16 +18,16 @@ CORRUPT_SPAN_FACTOR = 10.0     # ... that stretches the span beyond this many ti
 _TIME_UNITS = tuple((u, 10.0 ** -d) for u, d in TIME_UNITS.items() if d)   # ms, us, ns: unit in s
 
 
-def _freeze(obj, names, dtype=None) -> None:
+def _freeze(obj, names, dtype=None, views=()) -> None:
     """Replace the array fields ``names`` of a frozen dataclass by read-only copies.
 
     An array that is already read-only and owns its data (the library's own results, e.g. of
     :func:`~fusion_gyrocal.pipeline.alignment.align_streams`) is kept as it is: no second copy of a
-    long record.
+    long record; so is a read-only view for the fields ``views`` (gyro 1's samples on its own timestamps).
     """
     for name in names:
         arr = getattr(obj, name)
-        if not (isinstance(arr, np.ndarray) and arr.base is None and not arr.flags.writeable
+        if not (isinstance(arr, np.ndarray) and (arr.base is None or name in views) and not arr.flags.writeable
                 and (dtype is None or arr.dtype == dtype)):
             arr = np.array(arr, dtype=dtype)
             arr.flags.writeable = False
