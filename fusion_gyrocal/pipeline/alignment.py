@@ -349,8 +349,8 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float | No
        overlapping) is located to a fraction of a step by parabolic interpolation. When the grid and
        the lags together exceed 2^18 points, the norms are first averaged in coarser bins (at least two
        samples of the slower stream each) and each lobe's peak is found again at full rate within
-       +-3 bins, on gyro 1's 2^16-step stretch whose norm varies most. When several separate lobes come close to the peak (norms of periodic
-       motion repeat), each is refined as in step 2 and the one with the smallest rigid-model
+       +-3 bins, on gyro 1's 2^16-step stretch whose norm varies most. When several separate lobes
+       come close to the peak (norms of periodic motion repeat), each is refined as in step 2 and the one with the smallest rigid-model
        misfit wins; if the misfits are within a factor of 1.5 the offset is ambiguous.
     2. Fine: the offset minimises the residual sum of squares of the rigid-pair model
        ``omega_1(x) = A omega_2(x - offset) + b`` (Eq. 3-5 with ``A = S_1 C S_2^-1``), both gyros
@@ -868,7 +868,8 @@ def _offset_of(s1, s2, time_offset_s, max_offset_s, max_eval, notes: list):
     if not est.drift_compensated:
         return est.offset_s, 0.0, 0.0, est
     notes.append(f"clock drift {est.drift_ppm:+.3f} +- {est.drift_std_ppm:.3f} ppm between the gyros' clocks "
-                 f"compensated (the offset {1e3 * est.offset_s:+.4f} ms holds at gyro-1 time {est.reference_time_s:.6g} s)")
+                 f"compensated (the offset {1e3 * est.offset_s:+.4f} ms holds at gyro-1 time "
+                 f"{est.reference_time_s:.6g} s)")
     return est.offset_s, est.drift_ppm, est.reference_time_s, est
 
 
