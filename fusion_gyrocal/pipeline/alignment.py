@@ -530,6 +530,7 @@ def _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, min_correlation, max_eval,
         if drift and starts[best] is not None:   # a drifting clock smears the whole-log misfit: per stretch
             line = _drift_line(t1, w1, ok1, t2, w2, ok2, starts[best], h, gap1, gap2, max_eval, (spl2, x1, y1))
             if line is not None:
+                line = _drift_again(t1, w1, ok1, t2, w2, ok2, line, h, gap1, gap2, max_eval)
                 return _drift_offset(line, t_ref, lags, r, float(r[i]), compensated=True)
         raise failures[best]
     if on_edge(i) or not lags[0] - hc <= fits[best][0] <= lags[-1] + hc:
@@ -553,11 +554,35 @@ def _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, min_correlation, max_eval,
         mid, tau_mid, sd_mid, ppm, sd_ppm, (lo, hi), _ = line
         half = 0.5 * (hi - lo)
         if abs(ppm) > _DRIFT_SIGMAS * sd_ppm and abs(ppm) * 1e-6 * half > std:   # it matters: compensated
+            line = _drift_again(t1, w1, ok1, t2, w2, ok2, line, h, gap1, gap2, max_eval)
             return _drift_offset(line, t_ref, lags, r, peak, compensated=True)
         return TimeOffset(float(tau), std, lags, r, peak, int(xe.size), drift_ppm=ppm, drift_std_ppm=sd_ppm,
                           reference_time_s=float(mid + t_ref))
     mid = 0.5 * (max(t1[0], t2[0] + tau) + min(t1[-1], t2[-1] + tau))
     return TimeOffset(float(tau), std, lags, r, peak, int(xe.size), reference_time_s=float(mid + t_ref))
+
+
+def _drift_again(t1, w1, ok1, t2, w2, ok2, line, h: float, gap1, gap2, max_eval):
+    """The drift line estimated again on gyro 2's timestamps with the first line's drift taken out.
+
+    Each stretch's offset changes by ``drift x`` its length inside it (15 ms over 75 s at 200 ppm), which smears
+    its misfit; on timestamps mapped to gyro 1's clock by the first line, ``s' = t(s) - tau_mid``, the stretches
+    see a constant offset and the residual drift is small. The two drifts add (to first order in the drift);
+    the offset at the middle is the second line's. The first line is kept when the second cannot be fitted.
+    """
+    mid, tau_mid, _, ppm, _, span, _ = line
+    k = 1e-6 * ppm
+    t2c = (t2 + tau_mid - k * mid) / (1.0 - k) - tau_mid
+    he = h * _EVAL_STEP
+    try:
+        _, spl2, x1, y1 = _instants(t1, w1, ok1, t2c, w2, ok2, he, h, gap1, gap2, max_eval, [tau_mid])
+        tau, _, _, _ = _refine(spl2, x1, y1, tau_mid, h)
+    except TimeAlignmentError:
+        return line
+    again = _drift_line(t1, w1, ok1, t2c, w2, ok2, tau, h, gap1, gap2, max_eval, (spl2, x1, y1))
+    if again is None:
+        return line
+    return (again[0], again[1], again[2], ppm + again[3], again[4], span, again[6])
 
 
 def _drift_offset(line, t_ref, lags, r, peak, *, compensated: bool) -> TimeOffset:
