@@ -13,12 +13,24 @@ coarse norm-correlation peak with parabolic interpolation; the same refined by m
 norms with a gain and an offset instead of the full rigid model), the time per alignment and
 the time of one plain FFT cross-correlation of the two raw norm series.
 
-Run: ``python benchmarks/alignment.py [--runs 100] [--seed 1]``.
+Then (issue 24) independent clocks: 10-minute pairs at 200 Hz with gyro 2's clock seconds to an hour off and
+drifting by 10-200 ppm, the defaults (the whole overlap searched): the drift error (ppm) against its std and
+the offset error at the log's middle (ms).
+
+Then (issue 25) the timestamped pipeline against what a user would write by hand, in a fresh process per N
+(``benchmarks/scaling.py``'s 200 Hz inputs, gyro 2 35 ms behind): ``run_pipeline(omega_1, omega_2, t_1=...,
+t_2=...)`` against ``np.interp`` of gyro 2's three axes at gyro 1's instants (the offset known) plus
+``X.T @ X`` of the stacked (N, 6) samples, timed in the same process, and the pipeline's peak memory beyond the
+inputs (peak RSS reset through ``/proc/self/clear_refs``) in bytes per sample.
+
+Run: ``python benchmarks/alignment.py [--runs 100] [--seed 1] [--clocks-only | --pipeline-only] [--n 1e7]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import sys
 import time
 
 import numpy as np
@@ -26,8 +38,11 @@ from scipy.interpolate import CubicSpline
 from scipy.optimize import minimize_scalar
 from scipy.signal import correlate
 
-from fusion_gyrocal.pipeline.alignment import _parabolic_peak, estimate_time_offset
-from fusion_gyrocal.evaluate.sim import simulate_streams
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))   # benchmarks/scaling.py's inputs
+sys.path.insert(1, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))   # this checkout's package
+
+from fusion_gyrocal.pipeline.alignment import _parabolic_peak, estimate_time_offset  # noqa: E402
+from fusion_gyrocal.evaluate.sim import simulate_streams  # noqa: E402
 
 
 def coarse_offset(est) -> float:
@@ -90,16 +105,108 @@ def run(scenario: str, runs: int, rng, *, duration: float, rms: float, rates=((1
           f"(plain FFT correlation of the raw norms: {1e3 * np.mean(t_fft):.2f} ms)")
 
 
+def clocks(seed: int = 0) -> None:
+    """Offsets of seconds to an hour and 10-200 ppm of drift recovered with the defaults."""
+    from fusion_gyrocal.evaluate.sim import PAPER_NOISE_STD, HumanMotion, random_rotation
+    from fusion_gyrocal.pipeline.alignment import align_streams
+
+    print("\nindependent clocks: 600 s at 200 Hz, offset at the middle tau, drift ppm (defaults: whole overlap)")
+    print(f"  {'tau s':>8} {'ppm':>6} {'drift err ppm':>14} {'drift std':>10} {'offset err ms':>14} {'std ms':>8} "
+          f"{'time s':>7}")
+    rng = np.random.default_rng(seed)
+    for tau, ppm in ((2.0, 10.0), (-15.0, 50.0), (300.0, -100.0), (3600.0, 200.0)):
+        motion, R = HumanMotion(1.0, rng=rng), random_rotation(rng)
+        t1 = np.arange(0, 600.0, 1 / 200.0)
+        s = -tau + np.arange(t1.size) / 200.0
+        d = 1e-6 * ppm
+        w1 = motion(t1) + rng.normal(0, PAPER_NOISE_STD, (t1.size, 3))
+        w2 = motion((s + tau - d * 300.0) / (1 - d)) @ R + rng.normal(0, PAPER_NOISE_STD, (s.size, 3))
+        t0 = time.perf_counter()
+        est = align_streams(t1, w1, s, w2).time_offset
+        dt = time.perf_counter() - t0
+        print(f"  {tau:8g} {ppm:6g} {est.drift_ppm - ppm:+14.3f} {est.drift_std_ppm:10.3f} "
+              f"{1e3 * (float(est.offset_at(300.0)) - tau):+14.5f} {1e3 * est.std_s:8.5f} {dt:7.2f}")
+
+
+def pipeline_child(n: int) -> dict:
+    """One process: the reference, the pipeline, the reference again; the pipeline's peak RSS beyond the inputs."""
+    from pathlib import Path
+
+    from scaling import _hwm, _rss, make_inputs
+
+    from fusion_gyrocal.pipeline.pipeline import run_pipeline
+
+    t1, w1, t2, w2, offset = make_inputs(n)
+
+    def reference():
+        t0, c0 = time.perf_counter(), time.process_time()
+        s2 = t2 + offset
+        X = np.hstack([w1] + [np.interp(t1, s2, w2[:, a])[:, None] for a in range(3)])
+        X.T @ X
+        return time.perf_counter() - t0, time.process_time() - c0
+
+    refs = [reference()]
+    base = _rss()
+    Path("/proc/self/clear_refs").write_text("5")
+    t0, c0 = time.perf_counter(), time.process_time()
+    run = run_pipeline(w1, w2, t_1=t1, t_2=t2)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    peak = _hwm() - base
+    refs.append(reference())
+    return {"n": n, "pipeline_s": wall, "pipeline_cpu_s": cpu, "reference_s": [r[0] for r in refs],
+            "reference_cpu_s": [r[1] for r in refs], "peak_bytes": peak,
+            "offset_err_us": 1e6 * (run.aligned.time_offset_s - offset)}
+
+
+def pipeline(ns) -> None:
+    import json
+    import subprocess
+    import sys
+
+    print("\ntimestamped pipeline (run_pipeline with t_1, t_2) against np.interp x 3 + X.T @ X (the offset known), "
+          "one process per N")
+    print(f"  {'N':>10} {'pipeline s':>11} {'reference s':>16} {'ratio':>7} {'CPU s':>7} {'ref CPU s':>10} "
+          f"{'CPU ratio':>9} {'peak B/sample':>14} {'offset err us':>14}")
+    for n in ns:
+        out = subprocess.run([sys.executable, __file__, "--child", str(int(n))], capture_output=True, text=True)
+        if out.returncode:
+            print(f"  {int(n):10d} failed: {out.stderr.strip().splitlines()[-1] if out.stderr else out.returncode}")
+            continue
+        r = json.loads(out.stdout.strip().splitlines()[-1])
+        refs, cpus = r["reference_s"], r["reference_cpu_s"]
+        print(f"  {r['n']:10d} {r['pipeline_s']:11.2f} {min(refs):7.2f} ({max(refs):5.2f}) "
+              f"{r['pipeline_s'] / min(refs):7.2f} {r['pipeline_cpu_s']:7.2f} {min(cpus):10.2f} "
+              f"{r['pipeline_cpu_s'] / min(cpus):9.2f} {r['peak_bytes'] / r['n']:14.1f} {r['offset_err_us']:14.3f}")
+    print("  (ratios to the faster of the two reference runs, wall and CPU time (all threads); the references' "
+          "spread shows the machine's load; target <= 4.5, peak <= 60 B/sample)")
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=100)
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--clocks-only", action="store_true")
+    parser.add_argument("--pipeline-only", action="store_true")
+    parser.add_argument("--n", type=float, nargs="+", default=[1e6, 1e7])
+    parser.add_argument("--child", type=int, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.child is not None:
+        import json
+        print(json.dumps(pipeline_child(args.child)))
+        return
+    if args.clocks_only:
+        clocks(args.seed)
+        return
+    if args.pipeline_only:
+        pipeline(args.n)
+        return
     rng = np.random.default_rng(args.seed)
     run("paper's motion", args.runs, rng, duration=60.0, rms=1.0)
     run("slow motion", args.runs, rng, duration=60.0, rms=0.2)
     run("short recording", args.runs, rng, duration=10.0, rms=1.0)
     run("equal rates, slow motion", args.runs, rng, duration=60.0, rms=0.2, rates=((200.0, 200.0),))
+    clocks(args.seed)
+    pipeline(args.n)
 
 
 if __name__ == "__main__":

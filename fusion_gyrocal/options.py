@@ -327,9 +327,11 @@ class Options(FrozenOptions):
         "Known time offset (s), ADDED to gyro 2's timestamps (N gyros: to every other gyro's) to put them on "
         "gyro 1's clock; default: estimated (timestamped input only).",
         "--offset", type=float, help="known time offset (s) added to gyro 2's timestamps; default: estimated")
-    max_offset_s: float = _option(
-        1.0, _positive, _RECORDING, "Search range (s) of the time-offset estimate.",
-        "--max-offset", type=float, help="offset search range in s (default 1.0)")
+    max_offset_s: float | None = _option(
+        None, _optional(_positive), _RECORDING,
+        "Search range (s) of the time-offset estimate; default: every offset that leaves half the shorter "
+        "recording overlapping (independent clocks may differ by hours).",
+        "--max-offset", type=float, help="offset search range in s (default: the whole overlap)")
     rate_hz: float | None = _option(
         None, _optional(_positive), _RECORDING,
         "Resample both streams onto a uniform grid at this rate (Hz); default: gyro 1's timestamps.",

@@ -63,7 +63,7 @@ BAD_VALUES = {
     "on_not_rigid": ["ignore", True],
     "target_snr": [0, -1.0],
     "time_offset_s": [math.nan, math.inf, "x"],
-    "max_offset_s": [0, -1.0, None],
+    "max_offset_s": [0, -1.0, math.inf],
     "rate_hz": [0, -100.0, math.nan],
     "saturation_limit": [0, -1.0, [1.0, 2.0, 3.0]],
     "bias_window": [1, 0, -5, 2.5, True, math.nan, "3.5"],

@@ -74,6 +74,10 @@ def summary_table(cal, truth=None):
     t.add_row("per-axis SNR", *[f"{x:.0f}" for x in cal.snr])
     t.caption = (f"time offset {cal.time_offset_s * 1e3:+.4f} +- {cal.time_offset_std_s * 1e3:.4f} ms"
                  + (f" (truth {truth['time_offset_s'] * 1e3:+.4f} ms)" if truth is not None else "")
+                 + (f", clock drift {cal.clock_drift_ppm:+.3f} +- {cal.clock_drift_std_ppm:.3f} ppm (offset at the "
+                    "overlap's middle)" if getattr(cal, "clock_drift_ppm", 0.0) else "")
+                 + "".join(f"; timestamps {q.split(':')[0]} regular" if q.endswith("; regular")
+                           else f"; timestamps {q}" for q in getattr(cal, "timestamp_quality", ()))
                  + f"; gauge: {cal.gauge}; unexplained {100 * cal.unexplained_fraction:.3g}%, "
                    f"rejected {100 * cal.rejected_fraction:.2f}%; model: {MODELS[cal.linear_map]}"
                  + (f"; gyro 2's delay beyond the offset: std {cal.timing_delay_std_s * 1e3:.3g} ms, tones "

@@ -196,7 +196,13 @@ class PairCalibration:
     iterations : int
         Iterations of the refinement (0 for the direct solution).
     time_offset_s, time_offset_std_s : float
-        Offset added to gyro 2's timestamps, and its standard deviation (0 when given aligned).
+        Offset added to gyro 2's timestamps, and its standard deviation (0 when given aligned); with a clock
+        drift, the offset at the middle of the overlap.
+    clock_drift_ppm, clock_drift_std_ppm : float
+        Drift of gyro 2's clock against gyro 1's (how fast the offset grows, 1e-6 s per s) and its std, when
+        it was estimated and compensated (0 otherwise).
+    timestamp_quality : tuple of str
+        The timestamp diagnosis of each timestamped stream (rate histogram, jitter, bursts, drops).
     skew_rotation_covariance : ndarray (3, 3)
         Rotation error covariance implied by the stated skew uncertainty (Appendix D, Eq. 40-41);
         already included in ``covariance``'s rotation block.
@@ -314,6 +320,9 @@ class PairCalibration:
     scale_ratio_std: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
     nominal_R_1_2: np.ndarray | None = None
     provenance: Any = None
+    clock_drift_ppm: float = 0.0
+    clock_drift_std_ppm: float = 0.0
+    timestamp_quality: tuple = ()
     noise_model: Any = None
     notes: tuple = ()
 
@@ -324,6 +333,7 @@ class PairCalibration:
         if self.configuration not in CONFIGURATIONS:
             raise InputError(f"configuration: expected one of {CONFIGURATIONS}, got {self.configuration!r}")
         object.__setattr__(self, "notes", tuple(self.notes))
+        object.__setattr__(self, "timestamp_quality", tuple(self.timestamp_quality))
         object.__setattr__(self, "timing_tones_hz", tuple(float(f) for f in self.timing_tones_hz))
         object.__setattr__(self, "covariance_kind", CovarianceBasis(self.covariance_kind))
         if np.isnan(self.scale_ratio_std).all():   # not given: from the covariance where it keeps the ratios

@@ -22,8 +22,8 @@ import numpy as np
 
 from ..core.moments import Moments, row_norms
 from ..errors import OptionError, TimeAlignmentError
-from .resample import _MARGIN, _RunSplines, _runs, resample
-from .streams import DEFAULT_GAP_PERIODS, _freeze, _nominal_period, _stream, valid_mask
+from .resample import _MARGIN, _RunSplines, _resample_checked, _runs, resample
+from .streams import DEFAULT_GAP_PERIODS, _freeze, _nominal_period, _stream, timed_stream, valid_mask
 
 _AMBIGUITY_RATIO = 1.5         # a second lobe with misfit (1 - r) below this times the peak's is ambiguous
 _MIN_OVERLAP_FRACTION = 0.5    # lags overlapping fewer valid grid points than this fraction are ignored
@@ -33,6 +33,14 @@ _XC_ONE_FFT = 1 << 17          # grid points up to which the coarse correlation 
 _XC_BLOCK = 1 << 13            # beyond: blocks of f of this length (small FFTs, measured fastest)
 _NORM_BLOCK = 1 << 16          # grid points (and samples) per block of the norms and the window scores
 MAX_EVAL = 1 << 17             # refinement instants: longer logs use their most excited windows
+_COARSE_BINS = 1 << 18         # grid points and lags of the coarse correlation: beyond, the norms are binned coarser
+_LOCAL_POINTS = 1 << 16        # full-rate grid points of the search near a coarse lobe
+_SEGMENT_POINTS = 1 << 13      # half the full-rate grid points of a drift stretch's own search
+_DRIFT_SEGMENTS = 8            # stretches of the overlap whose offsets give the clock drift
+_DRIFT_MIN_S = 15.0            # shortest stretch (s): records under 45 s get no drift estimate
+_MAX_DRIFT = 1e-3              # largest clock drift searched (1000 ppm: crystal clocks are within 100 ppm)
+_DRIFT_SIGMAS = 4.0            # a drift is compensated beyond this many stds (and when it moves the offset more
+                               # than the offset's std over half the overlap)
 
 
 # ---------------------------------------------------------------------------------------------- time offset
@@ -57,6 +65,15 @@ class TimeOffset:
     n_samples : int
         Instants compared in the sub-sample refinement (gyro 1 interpolated about 1.6 times per
         sample of the faster stream).
+    drift_ppm, drift_std_ppm : float
+        Clock drift: how fast the offset grows along gyro 1's clock, in 1e-6 (s per s), and its std, from the
+        offsets of stretches of the overlap (0 for records too short to tell, under 45 s).
+    reference_time_s : float
+        The instant on gyro 1's clock (the middle of the overlap) where ``offset_s`` holds when the drift is
+        compensated: the offset at gyro-1 time ``t`` is ``offset_s + drift_ppm 1e-6 (t - reference_time_s)``.
+    drift_compensated : bool
+        Whether the drift is applied (beyond 4 stds, and moving the offset by more than ``std_s`` over half the
+        overlap); otherwise ``offset_s`` is the one offset of the whole record.
     """
 
     offset_s: float
@@ -65,6 +82,16 @@ class TimeOffset:
     correlation: np.ndarray = field(repr=False)
     peak_correlation: float
     n_samples: int
+    drift_ppm: float = 0.0
+    drift_std_ppm: float = 0.0
+    reference_time_s: float = 0.0
+    drift_compensated: bool = False
+
+    def offset_at(self, t):
+        """The offset (s) to add to gyro 2's timestamps at gyro-1 time(s) ``t``."""
+        if not self.drift_compensated:
+            return np.full(np.shape(t), self.offset_s)
+        return self.offset_s + 1e-6 * self.drift_ppm * (np.asarray(t, dtype=float) - self.reference_time_s)
 
     def __post_init__(self):
         _freeze(self, ("lags_s", "correlation"), np.float64)
@@ -80,7 +107,7 @@ def _masked_correlation(f, mf, g, mg, d_lo, d_hi, min_overlap):
     """
     d = np.arange(d_lo, d_hi + 1)
     nf, ng = f.size, g.size
-    if nf + ng - 1 <= _XC_ONE_FFT:
+    if nf + ng - 1 <= _XC_ONE_FFT or d.size > _XC_BLOCK:   # short, or lags spanning much of the record
         spans = [(0, nf, 0, ng)]
     else:
         spans = [(k0, min(k0 + _XC_BLOCK, nf), max(0, k0 - d_hi), min(ng, min(k0 + _XC_BLOCK, nf) - d_lo))
@@ -94,19 +121,23 @@ def _masked_correlation(f, mf, g, mg, d_lo, d_hi, min_overlap):
         a, b = f[k0:k1], g[j0:j1]
         lag = d - (k0 - j0)                    # lag within the block pair: sum_m a[m] b[m - lag]
         sel = np.mod(lag, nfft)
-        whole = len(spans) > 1 and lag.max() <= 0 and la - lag.min() <= lb   # every lag sees all of a
-        if whole and mf[k0:k1].all() and mg[j0:j1].all():
+        if mf[k0:k1].all() and mg[j0:j1].all():
             # a block without masked samples (the usual case): only the cross sum needs an FFT; the
-            # counts, sums and sums of squares are those of a and of sliding windows of b (cumsums)
+            # counts, sums and sums of squares are those of the overlapping stretches of a and b (cumsums)
             xc = np.fft.irfft(np.fft.rfft(a, nfft) * np.conj(np.fft.rfft(b, nfft)), nfft)
+            m0 = np.clip(lag, 0, la)                    # a[m0:m1] meets b[m0 - lag:m1 - lag]
+            m1 = np.clip(lb + lag, m0, la)
+            ca = np.concatenate(([0.0], np.cumsum(a)))
+            qa = np.concatenate(([0.0], np.cumsum(a * a)))
             cb = np.concatenate(([0.0], np.cumsum(b)))
             cq = np.concatenate(([0.0], np.cumsum(b * b)))
-            acc[0] += la
-            acc[1] += a.sum()
-            acc[2] += cb[la - lag] - cb[-lag]
-            acc[3] += (a * a).sum()
-            acc[4] += cq[la - lag] - cq[-lag]
-            acc[5] += xc[sel]
+            n0, n1 = np.clip(m0 - lag, 0, lb), np.clip(m1 - lag, 0, lb)
+            acc[0] += m1 - m0
+            acc[1] += ca[m1] - ca[m0]
+            acc[2] += cb[n1] - cb[n0]
+            acc[3] += qa[m1] - qa[m0]
+            acc[4] += cq[n1] - cq[n0]
+            acc[5] += np.where(m1 > m0, xc[sel], 0.0)
             continue
         ma, mb = mf[k0:k1].astype(float), mg[j0:j1].astype(float)
         F = np.fft.rfft(np.stack((ma, a, a * a)), nfft)
@@ -271,8 +302,9 @@ def _refine(spl2: _RunSplines, x1, y1, tau0: float, h: float):
                              f"{tau0:+.4f} s (last {tau:+.6f} s)")
 
 
-def _offset_std(spl2: _RunSplines, x1, y1, tau: float, h: float) -> float:
-    """Standard deviation of the refined offset: a sandwich estimate on the profiled misfit ``C``.
+def _offset_std(spl2: _RunSplines, x1, y1, tau: float, h: float, newton: bool = False):
+    """Standard deviation of the refined offset: a sandwich estimate on the profiled misfit ``C``
+    (``newton``: also the Newton step ``-C'/C'' = -sum u / (C''/2)`` towards the minimum, as ``(std, step)``).
 
     At the minimum, ``tau_hat - tau ~ -sum_m u_m / (C''/2)`` with ``u_m = d_m . r_m``,
     ``d_m = P A d/dt omega_2(x_m - tau)`` (``P`` projects out the directions of the profiled ``A``
@@ -290,7 +322,7 @@ def _offset_std(spl2: _RunSplines, x1, y1, tau: float, h: float) -> float:
     at_tau = float(np.trace(m.S11) - np.trace(A @ m.S12.T))   # cost(tau), from the fit needed below anyway
     half_curv = 0.5 * (cost(tau + delta) - 2.0 * at_tau + cost(tau - delta)) / delta**2
     if not half_curv > 0:
-        return float("inf")
+        return (float("inf"), float("nan")) if newton else float("inf")
     dw2 = spl2(xe - tau, nu=1, inside=inside)[0]
     resid = (ye - m.mean_1) - (w2 - m.mean_2) @ A.T
     md = Moments.from_samples(dw2, w2)  # project d/dt omega_2 on the regressors [omega_2, 1]
@@ -300,11 +332,12 @@ def _offset_std(spl2: _RunSplines, x1, y1, tau: float, h: float) -> float:
     sums = np.bincount(block, weights=u)[np.bincount(block) > 0]
     nb = sums.size
     var_u = float(np.sum(sums**2)) * nb / max(nb - 1, 1)
-    return float(np.sqrt(var_u) / half_curv)
+    std = float(np.sqrt(var_u) / half_curv)
+    return (std, -float(sums.sum()) / half_curv) if newton else std
 
 
-def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.0, valid_1=None, valid_2=None,
-                         min_correlation: float = 0.5, max_eval: int | None = MAX_EVAL) -> TimeOffset:
+def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float | None = None, valid_1=None,
+                         valid_2=None, min_correlation: float = 0.5, max_eval: int | None = MAX_EVAL) -> TimeOffset:
     """Estimate the time offset between two rigidly mounted gyroscopes from their rates alone.
 
     1. Coarse: the rate norms ``|omega_i|`` (invariant to the unknown rotation, as in the paper's
@@ -312,9 +345,12 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.
        one uniform grid (step = the shorter nominal sample period of the two streams, so
        different rates are handled) and cross-correlated by FFT, each lag normalised over the
        grid points valid in both streams (gaps and masks allowed). The peak in
-       ``[-max_offset_s, max_offset_s]`` is located to a fraction of a step by parabolic
-       interpolation. When several separate lobes come close to the peak (norms of periodic
-       motion repeat), each is refined as in step 2 and the one with the smallest rigid-model
+       ``[-max_offset_s, max_offset_s]`` (by default every lag that keeps half the shorter record
+       overlapping) is located to a fraction of a step by parabolic interpolation. When the grid and
+       the lags together exceed 2^18 points, the norms are first averaged in coarser bins (at least two
+       samples of the slower stream each) and each lobe's peak is found again at full rate within
+       +-3 bins, on gyro 1's 2^16-step stretch whose norm varies most. When several separate lobes
+       come close to the peak (norms of periodic motion repeat), each is refined as in step 2 and the one with the smallest rigid-model
        misfit wins; if the misfits are within a factor of 1.5 the offset is ambiguous.
     2. Fine: the offset minimises the residual sum of squares of the rigid-pair model
        ``omega_1(x) = A omega_2(x - offset) + b`` (Eq. 3-5 with ``A = S_1 C S_2^-1``), both gyros
@@ -333,6 +369,13 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.
        differences); the variance of the numerator is estimated from its sums over 0.25 s
        blocks (a sandwich estimate: the residuals of interpolated neighbours are correlated,
        and model errors are included).
+    4. Clock drift: the overlap is cut into up to 8 stretches of at least 15 s; each stretch's offset is
+       found as in 1-3 (within ``+-1e-3`` of the overlap's length of the whole-record offset) and a line
+       weighted by their variances gives the drift (ppm) and the offset at the overlap's middle. The drift
+       is compensated (``drift_compensated``; ``offset_s`` then holds at ``reference_time_s``) when it
+       exceeds 4 stds and moves the offset by more than ``std_s`` over half the overlap; the stds are scaled
+       up by the stretches' scatter about the line. A whole-record refinement smeared by a large drift
+       falls back to the line.
 
     Parameters
     ----------
@@ -340,8 +383,9 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.
         Timestamps (s) of gyro 1 and gyro 2, each on its own clock.
     omega_1, omega_2 : array_like, shape (N_1, 3), (N_2, 3)
         Measured rates (rad/s); gyro 2 may be rotated, scaled and biased w.r.t. gyro 1.
-    max_offset_s : float
-        Largest offset magnitude searched.
+    max_offset_s : float or None
+        Largest offset magnitude searched; None (default): every offset that leaves at least half of the
+        shorter recording overlapping (independent clocks: seconds to hours apart).
     valid_1, valid_2 : array_like of bool, optional
         Samples that may be used (e.g. ``~saturation_mask(omega)``); non-finite samples are
         always excluded.
@@ -374,85 +418,108 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float = 1.
     return _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, min_correlation, max_eval)
 
 
-def _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, min_correlation, max_eval) -> TimeOffset:
+def _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, min_correlation, max_eval, periods=None,
+              drift: bool = True) -> TimeOffset:
     """:func:`estimate_time_offset` on checked streams (``_stream``), so a caller that has checked them
-    (:func:`align_streams`) does not pay for the checks twice."""
-    if not (np.isfinite(max_offset_s) and max_offset_s > 0):
-        raise OptionError(f"max_offset_s: expected a positive duration in seconds, got {max_offset_s!r}")
+    (:func:`align_streams`) does not pay for the checks twice (``periods``: their nominal sample periods)."""
+    if max_offset_s is not None and not (np.isfinite(max_offset_s) and max_offset_s > 0):
+        raise OptionError(f"max_offset_s: expected a positive duration in seconds or None (every offset), "
+                          f"got {max_offset_s!r}")
     for name, ok in (("omega_1", ok1), ("omega_2", ok2)):
-        if ok.sum() < 8:
-            raise TimeAlignmentError(f"{name}: expected at least 8 valid samples to align, got {int(ok.sum())}")
-    t_ref = t1[ok1][0]
+        if np.count_nonzero(ok) < 8:
+            raise TimeAlignmentError(f"{name}: expected at least 8 valid samples to align, got "
+                                     f"{int(np.count_nonzero(ok))}")
+    t_ref = t1[int(np.argmax(ok1))]
     t1, t2 = t1 - t_ref, t2 - t_ref  # relative times: keeps spline and grid arithmetic exact
-    # no offset beyond both spans together can overlap: the lag grid is bounded by the data, not the option
-    max_offset_s = min(float(max_offset_s), float(t1[-1] - t1[0] + t2[-1] - t2[0]))
-    p1, p2 = _nominal_period(t1), _nominal_period(t2)
+    if max_offset_s is not None:   # no offset beyond both spans together can overlap: the lag grid is bounded by
+        max_offset_s = min(float(max_offset_s), float(t1[-1] - t1[0] + t2[-1] - t2[0]))   # the data, not the option
+    p1, p2 = (_nominal_period(t1), _nominal_period(t2)) if periods is None else periods
     gap1, gap2 = DEFAULT_GAP_PERIODS * p1, DEFAULT_GAP_PERIODS * p2
     h = min(p1, p2)
+    whole = max_offset_s is None
+    reach = np.inf if whole else float(max_offset_s)
+    what = ("every offset that leaves half the shorter recording overlapping" if whole
+            else f"max_offset_s={max_offset_s:g} s")
 
-    # ---- coarse: masked normalised FFT cross-correlation of the norms on a common grid
-    k1_lo, k1_hi = int(np.ceil(t1[0] / h)), int(np.floor(t1[-1] / h))
-    k2_lo = int(np.ceil(max(t2[0], t1[0] - max_offset_s) / h))
-    k2_hi = int(np.floor(min(t2[-1], t1[-1] + max_offset_s) / h))
+    # ---- coarse: masked normalised FFT cross-correlation of the norms on a common grid (binned on a
+    # coarser grid when the record is long: the peak is then found again at full rate near each lobe)
+    span2 = min(t2[-1], t1[-1] + reach) - max(t2[0], t1[0] - reach)
+    n_grid = (t1[-1] - t1[0] + max(span2, 0.0) + 2.0 * min(reach, t1[-1] - t1[0] + t2[-1] - t2[0])) / h
+    hc = h if n_grid <= _COARSE_BINS else h * float(np.ceil(n_grid / _COARSE_BINS))
+    if hc > h:
+        hc = max(hc, 2.0 * max(p1, p2))
+    k1_lo, k1_hi = int(np.ceil(t1[0] / hc)), int(np.floor(t1[-1] / hc))
+    k2_lo = int(np.ceil(max(t2[0], t1[0] - reach) / hc))
+    k2_hi = int(np.floor(min(t2[-1], t1[-1] + reach) / hc))
     if k2_hi - k2_lo < 8:
         raise TimeAlignmentError(
-            f"the streams do not overlap within max_offset_s={max_offset_s:g} s: gyro 1 covers "
+            f"the streams do not overlap within {what}: gyro 1 covers "
             f"[{t1[0]:.6g}, {t1[-1]:.6g}] s and gyro 2 [{t2[0]:.6g}, {t2[-1]:.6g}] s relative to gyro 1's first "
             "valid sample (pass a larger max_offset_s or shift t_2 first)")
-    f, mf = _norm_on_grid(t1, w1, ok1, k1_lo, k1_hi, h, gap1)
-    g, mg = _norm_on_grid(t2, w2, ok2, k2_lo, k2_hi, h, gap2)
-    L = int(np.ceil(max_offset_s / h))
+    if hc == h:
+        f, mf = _norm_on_grid(t1, w1, ok1, k1_lo, k1_hi, h, gap1)
+        g, mg = _norm_on_grid(t2, w2, ok2, k2_lo, k2_hi, h, gap2)
+    else:
+        f, mf = _binned_norms(t1, w1, ok1, k1_lo, k1_hi, hc)
+        g, mg = _binned_norms(t2, w2, ok2, k2_lo, k2_hi, hc)
     # gyro 2 at own time t - tau matches gyro 1 at t: index j = k - lag  ->  d = lag + (k2_lo - k1_lo)
     shift = k2_lo - k1_lo
-    min_overlap = max(8.0, _MIN_OVERLAP_FRACTION * min(mf.sum(), mg.sum()))
-    r = _masked_correlation(f, mf, g, mg, -L + shift, L + shift, min_overlap)
-    lags = np.arange(-L, L + 1) * h
+    if whole:
+        lag_lo, lag_hi = k1_lo - k2_hi, k1_hi - k2_lo
+    else:
+        L = int(np.ceil(max_offset_s / hc))
+        lag_lo, lag_hi = -L, L
+    min_overlap = max(8.0, _MIN_OVERLAP_FRACTION * min(np.count_nonzero(mf), np.count_nonzero(mg)))
+    r = _masked_correlation(f, mf, g, mg, lag_lo + shift, lag_hi + shift, min_overlap)
+    lags = np.arange(lag_lo, lag_hi + 1) * hc
     if not np.isfinite(r).any():
-        raise TimeAlignmentError("no trial offset within max_offset_s overlaps enough valid samples of both "
+        raise TimeAlignmentError(f"no trial offset within {what} overlaps enough valid samples of both "
                                  f"streams (need {int(min_overlap)} common grid points)")
     rr = np.where(np.isfinite(r), r, -np.inf)
     top = float(rr.max())
     if top < min_correlation:
         raise TimeAlignmentError(
             f"weak correlation of the rate norms: peak {top:.3f} at {lags[int(np.argmax(rr))]:+.4f} s (need >= "
-            f"{min_correlation:g}); too little motion, an offset beyond max_offset_s={max_offset_s:g} s, or streams "
-            "that are not from one rigid body")
+            f"{min_correlation:g}) within {what}; too little motion, "
+            + ("" if whole else "an offset beyond it, ") + "streams that are not from one rigid body, or "
+            "timestamps that do not follow the samples (see the timestamp diagnosis)")
     # lobes: contiguous lag ranges whose misfit (1 - r) is within _AMBIGUITY_RATIO of the best
     thr = 1.0 - _AMBIGUITY_RATIO * (1.0 - top)
     above = np.r_[False, rr >= thr, False].astype(np.int8)
     edges = np.flatnonzero(np.diff(above))
     cands = [int(lo + np.argmax(rr[lo:hi])) for lo, hi in zip(edges[::2], edges[1::2])]
+    if hc == h:
+        starts = [lags[i] + _parabolic_peak(rr, i) * h for i in cands]
+    else:   # each lobe's peak again at full rate, on gyro 1's most moving stretch
+        win = _moving_window(f, mf, k1_lo, hc, _LOCAL_POINTS * h)
+        starts = [_local_peak(t1, w1, ok1, t2, w2, ok2, win, lags[i], 3.0 * hc, h, gap1, gap2)
+                  for i in cands]
 
     # evaluation instants: gyro 1 spline-interpolated at a step incommensurate with both sample
     # periods, so their phases w.r.t. gyro 2's samples stay uniformly spread for every trial offset
     # and the variance of the interpolated noise (lowest between samples) cannot pull the offset
     he = h * _EVAL_STEP
-    j_lo, j_hi = int(np.ceil(t1[0] / he)), int(np.floor(t1[-1] / he)) + 1
-    if max_eval is None or j_hi - j_lo <= max_eval:
-        spl1 = _RunSplines(t1, w1, ok1, gap1)
-        spl2 = _RunSplines(t2, w2, ok2, gap2)
-        x1 = np.arange(j_lo, j_hi) * he
-    else:  # the most excited windows carry the offset information: a bounded subsample of them
-        x1 = _excited_instants(t1, w1, ok1, he, int(max_eval))
-        reach = np.array([lags[c] for c in cands])
-        pad = 12.0 * h                                     # room for the refinement bracket to move (6 x 1.5 steps)
-        spl1 = _RunSplines(*_near(t1, w1, ok1, x1, x1), gap1)
-        spl2 = _RunSplines(*_near(t2, w2, ok2, x1 - reach.max() - pad, x1 - reach.min() + pad), gap2)
-    x1 = x1[spl1.run_of(x1) >= 0]
-    y1 = spl1(x1, inside=np.ones(x1.size, dtype=bool))[0]
+    spl1, spl2, x1, y1 = _instants(t1, w1, ok1, t2, w2, ok2, he, h, gap1, gap2, max_eval,
+                                   [s for s in starts if s is not None])
 
     def on_edge(i):
         return i == 0 or i == lags.size - 1 or not (np.isfinite(r[i - 1]) and np.isfinite(r[i + 1]))
 
     def boundary_error(i):
+        more = ("a larger max_offset_s" if not whole else
+                "recordings that overlap more (the lag leaves less than half the shorter one overlapping)")
         return TimeAlignmentError(
             f"the correlation peak ({r[i]:.3f}) lies on the search boundary at {lags[i]:+.4f} s; the offset may "
-            f"exceed max_offset_s={max_offset_s:g} s: pass a larger max_offset_s")
+            f"lie beyond {what}: pass {more}")
 
     fits, failures = [], []
-    for i in cands:
+    for start in starts:
+        if start is None:
+            fits.append(None)
+            failures.append(TimeAlignmentError("the full-rate correlation found no peak near a coarse lobe"))
+            continue
         try:
-            fits.append(_refine(spl2, x1, y1, lags[i] + _parabolic_peak(rr, i) * h, h))
+            fits.append(_refine(spl2, x1, y1, start, h))
         except TimeAlignmentError as exc:  # e.g. a lobe on the boundary whose minimum lies outside
             fits.append(None)
             failures.append(exc)
@@ -460,8 +527,15 @@ def _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, min_correlation, max_eval)
     best = int(np.argmin(score))
     i = cands[best]
     if not np.isfinite(score[best]):
-        raise boundary_error(i) if on_edge(i) else failures[0]
-    if on_edge(i) or abs(fits[best][0]) > lags[-1] + h:
+        if on_edge(i):
+            raise boundary_error(i)
+        if drift and starts[best] is not None:   # a drifting clock smears the whole-log misfit: per stretch
+            line = _drift_line(t1, w1, ok1, t2, w2, ok2, starts[best], h, gap1, gap2, max_eval, (spl2, x1, y1))
+            if line is not None:
+                line = _drift_again(t1, w1, ok1, t2, w2, ok2, line, h, gap1, gap2, max_eval)
+                return _drift_offset(line, t_ref, lags, r, float(r[i]), compensated=True)
+        raise failures[best]
+    if on_edge(i) or not lags[0] - hc <= fits[best][0] <= lags[-1] + hc:
         raise boundary_error(i)
     for j, c in enumerate(cands):  # a lobe on the boundary may hide a better offset outside the range
         if on_edge(c) and not score[j] >= _AMBIGUITY_RATIO * score[best]:
@@ -476,7 +550,216 @@ def _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, min_correlation, max_eval)
                 "know it (time_offset_s), or a max_offset_s that leaves the other lobe out")
     peak = float(r[i])
     tau, xe, ye, _ = fits[best]
-    return TimeOffset(float(tau), _offset_std(spl2, x1, y1, tau, h), lags, r, peak, int(xe.size))
+    std = _offset_std(spl2, x1, y1, tau, h)
+    line = _drift_line(t1, w1, ok1, t2, w2, ok2, tau, h, gap1, gap2, max_eval, (spl2, x1, y1)) if drift else None
+    if line is not None:
+        mid, tau_mid, sd_mid, ppm, sd_ppm, (lo, hi), _ = line
+        half = 0.5 * (hi - lo)
+        if abs(ppm) > _DRIFT_SIGMAS * sd_ppm and abs(ppm) * 1e-6 * half > std:   # it matters: compensated
+            line = _drift_again(t1, w1, ok1, t2, w2, ok2, line, h, gap1, gap2, max_eval)
+            return _drift_offset(line, t_ref, lags, r, peak, compensated=True)
+        return TimeOffset(float(tau), std, lags, r, peak, int(xe.size), drift_ppm=ppm, drift_std_ppm=sd_ppm,
+                          reference_time_s=float(mid + t_ref))
+    mid = 0.5 * (max(t1[0], t2[0] + tau) + min(t1[-1], t2[-1] + tau))
+    return TimeOffset(float(tau), std, lags, r, peak, int(xe.size), reference_time_s=float(mid + t_ref))
+
+
+def _drift_again(t1, w1, ok1, t2, w2, ok2, line, h: float, gap1, gap2, max_eval):
+    """The drift line estimated again on gyro 2's timestamps with the first line's drift taken out.
+
+    Each stretch's offset changes by ``drift x`` its length inside it (15 ms over 75 s at 200 ppm), which smears
+    its misfit; on timestamps mapped to gyro 1's clock by the first line, ``s' = t(s) - tau_mid``, the stretches
+    see a constant offset and the residual drift is small. The two drifts add (to first order in the drift);
+    the offset at the middle is the second line's. The first line is kept when the second cannot be fitted.
+    """
+    mid, tau_mid, _, ppm, _, span, _ = line
+    k = 1e-6 * ppm
+    t2c = (t2 + tau_mid - k * mid) / (1.0 - k) - tau_mid
+    he = h * _EVAL_STEP
+    try:
+        _, spl2, x1, y1 = _instants(t1, w1, ok1, t2c, w2, ok2, he, h, gap1, gap2, max_eval, [tau_mid])
+        tau, _, _, _ = _refine(spl2, x1, y1, tau_mid, h)
+    except TimeAlignmentError:
+        return line
+    again = _drift_line(t1, w1, ok1, t2c, w2, ok2, tau, h, gap1, gap2, max_eval, (spl2, x1, y1))
+    if again is None:
+        return line
+    return (again[0], again[1], again[2], ppm + again[3], again[4], span, again[6])
+
+
+def _drift_offset(line, t_ref, lags, r, peak, *, compensated: bool) -> TimeOffset:
+    """The :class:`TimeOffset` of a fitted drift line (the offset at the middle of the overlap)."""
+    mid, tau_mid, sd_mid, ppm, sd_ppm, _, n = line[0], line[1], line[2], line[3], line[4], line[5], line[6]
+    return TimeOffset(float(tau_mid), float(sd_mid), lags, r, peak, int(n), drift_ppm=float(ppm),
+                      drift_std_ppm=float(sd_ppm), reference_time_s=float(mid + t_ref),
+                      drift_compensated=compensated)
+
+
+def _binned_norms(t, w, ok, k_lo: int, k_hi: int, hc: float):
+    """Standardised mean rate norm of the valid samples in each bin ``[(k - 1/2) hc, (k + 1/2) hc)``,
+    ``k_lo <= k <= k_hi``, and the mask of bins holding a sample (one chunked pass, no per-sample copy)."""
+    size = k_hi - k_lo + 1
+    s = np.zeros(size)
+    c = np.zeros(size)
+    for lo in range(0, t.size, _NORM_BLOCK):   # t increases: each block's bins are one stretch of the grid
+        k = np.floor(t[lo:lo + _NORM_BLOCK] * (1.0 / hc) + 0.5).astype(np.int64)
+        k -= k_lo
+        a, b = max(int(k[0]), 0), min(int(k[-1]), size - 1)
+        if b < a:
+            continue
+        np.clip(k, a - 1, b + 1, out=k)
+        k -= a - 1
+        okb = ok[lo:lo + _NORM_BLOCK]
+        s[a:b + 1] += np.bincount(k, weights=np.where(okb, row_norms(w[lo:lo + _NORM_BLOCK]), 0.0),
+                                  minlength=b - a + 3)[1:b - a + 2]
+        c[a:b + 1] += np.bincount(k, weights=okb, minlength=b - a + 3)[1:b - a + 2]
+    inside = c > 0
+    x = np.zeros(size)
+    x[inside] = s[inside] / c[inside]
+    if np.count_nonzero(inside) < 2:
+        return x, inside
+    xin = x[inside]
+    mu, sd = xin.mean(), xin.std()
+    x -= mu
+    x /= sd if sd > 0 else 1.0
+    x[~inside] = 0.0
+    return x, inside
+
+
+def _moving_window(f, mf, k_lo: int, hc: float, length: float) -> tuple[float, float]:
+    """The stretch ``(start, stop)`` (s) of about ``length`` seconds where the coarse norm ``f`` varies most."""
+    n = max(2, min(f.size, int(length / hc)))
+    x = np.where(mf, f, 0.0)
+    c1 = np.concatenate(([0.0], np.cumsum(x)))
+    c2 = np.concatenate(([0.0], np.cumsum(x * x)))
+    cn = np.concatenate(([0.0], np.cumsum(mf)))
+    cnt = cn[n:] - cn[:-n]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        var = (c2[n:] - c2[:-n]) - (c1[n:] - c1[:-n]) ** 2 / cnt
+    var[~(cnt > 0.5 * n)] = -np.inf
+    a = int(np.argmax(var))
+    return (k_lo + a) * hc, (k_lo + a + n) * hc
+
+
+def _local_peak(t1, w1, ok1, t2, w2, ok2, win, tau_c: float, half_width: float, h: float, gap1, gap2):
+    """The norm-correlation peak at full rate (grid step ``h``) over offsets ``tau_c +- half_width``, on gyro 1's
+    stretch ``win`` (s); None when no lag there has enough overlap."""
+    k1_lo, k1_hi = int(np.ceil(max(win[0], t1[0]) / h)), int(np.floor(min(win[1], t1[-1]) / h))
+    k2_lo = int(np.ceil(max(t2[0], k1_lo * h - tau_c - half_width) / h))
+    k2_hi = int(np.floor(min(t2[-1], k1_hi * h - tau_c + half_width) / h))
+    if k1_hi - k1_lo < 8 or k2_hi - k2_lo < 8:
+        return None
+    f, mf = _norm_on_grid(t1, w1, ok1, k1_lo, k1_hi, h, gap1)
+    g, mg = _norm_on_grid(t2, w2, ok2, k2_lo, k2_hi, h, gap2)
+    L0, L1 = int(np.floor((tau_c - half_width) / h)), int(np.ceil((tau_c + half_width) / h))
+    min_overlap = max(8.0, _MIN_OVERLAP_FRACTION * min(np.count_nonzero(mf), np.count_nonzero(mg)))
+    r = _masked_correlation(f, mf, g, mg, L0 + k2_lo - k1_lo, L1 + k2_lo - k1_lo, min_overlap)
+    if not np.isfinite(r).any():
+        return None
+    rr = np.where(np.isfinite(r), r, -np.inf)
+    i = int(np.argmax(rr))
+    return (L0 + i + _parabolic_peak(rr, i)) * h
+
+
+def _instants(t1, w1, ok1, t2, w2, ok2, he, h, gap1, gap2, max_eval, starts):
+    """Gyro 1's splines, gyro 2's, the refinement instants (multiples of ``he`` inside gyro 1's runs) and gyro 1's
+    rates there; long records: the most excited windows, splines built near them and the offsets ``starts``."""
+    j_lo, j_hi = int(np.ceil(t1[0] / he)), int(np.floor(t1[-1] / he)) + 1
+    if max_eval is None or j_hi - j_lo <= max_eval or not starts:
+        spl1 = _RunSplines(t1, w1, ok1, gap1)
+        spl2 = _RunSplines(t2, w2, ok2, gap2)
+        x1 = np.arange(j_lo, j_hi) * he
+    else:  # the most excited windows carry the offset information: a bounded subsample of them
+        x1 = _excited_instants(t1, w1, ok1, he, int(max_eval))
+        pad = 12.0 * h                                     # room for the refinement bracket to move (6 x 1.5 steps)
+        spl1 = _RunSplines(*_near(t1, w1, ok1, x1, x1), gap1)
+        spl2 = _RunSplines(*_near(t2, w2, ok2, x1 - max(starts) - pad, x1 - min(starts) + pad), gap2)
+    x1 = x1[spl1.run_of(x1) >= 0]
+    y1 = spl1(x1, inside=np.ones(x1.size, dtype=bool))[0]
+    return spl1, spl2, x1, y1
+
+
+def _drift_line(t1, w1, ok1, t2, w2, ok2, tau: float, h: float, gap1, gap2, max_eval, fitted):
+    """Clock drift: the offset refined on ``_DRIFT_SEGMENTS`` stretches of the overlap and a weighted line through
+    them, ``offset(t) = tau_mid + drift (t - mid)`` on gyro 1's clock.
+
+    Returns ``(mid, tau_mid, std_mid, drift_ppm, drift_std_ppm, (lo, hi), n_instants)`` or None when the overlap
+    is shorter than ``_DRIFT_MIN_S`` per stretch or fewer than 3 stretches give an offset. Each stretch's offset is
+    refined from ``tau`` on the whole record's instants in it (``fitted``: gyro 2's splines, the instants and gyro
+    1's rates there) or, when it lies further, searched at full rate within ``tau +- _MAX_DRIFT x`` the overlap
+    and refined on instants and splines of its own; its std is estimated as the whole record's
+    (:func:`_refine`, :func:`_offset_std`); the line's stds are scaled up by the scatter of the
+    stretches about it when that exceeds their own stds.
+    """
+    lo, hi = max(t1[0], t2[0] + tau), min(t1[-1], t2[-1] + tau)
+    n_seg = min(_DRIFT_SEGMENTS, int((hi - lo) / _DRIFT_MIN_S))
+    if n_seg < 3:
+        return None
+    width = _MAX_DRIFT * (hi - lo) + 3.0 * h
+    he = h * _EVAL_STEP
+    edges = np.linspace(lo, hi, n_seg + 1)
+    mids, taus, sds, n_used = [], [], [], 0
+    for a, b in zip(edges[:-1], edges[1:]):
+        i0, i1 = int(np.searchsorted(t1, a)), int(np.searchsorted(t1, b))
+        s1 = (t1[i0:i1], w1[i0:i1], ok1[i0:i1])
+        if np.count_nonzero(s1[2]) < 64:
+            continue
+        per = None if max_eval is None else max(1024, int(max_eval) // (2 * n_seg))
+        fit = None
+        for attempt in range(2):   # from the whole record's offset; if it lies too far, from the local peak
+            if attempt:
+                c = 0.5 * (a + b)
+                start = _local_peak(*s1, t2, w2, ok2, (c - _SEGMENT_POINTS * h, c + _SEGMENT_POINTS * h), tau, width,
+                                    h, gap1, gap2)
+                if start is None:
+                    break
+                try:
+                    spl1, spl2, x, y = _instants(*s1, t2, w2, ok2, he, h, gap1, gap2, per, [start])
+                except TimeAlignmentError:
+                    break
+            else:   # the whole record's instants in this stretch, its splines (built for offsets near tau):
+                start, spl2 = tau, fitted[0]   # Newton steps on the profiled misfit while they stay small
+                j0, j1 = np.searchsorted(fitted[1], [a, b])
+                x, y = fitted[1][j0:j1], fitted[2][j0:j1]
+                if x.size < 64:
+                    continue
+                tk = tau
+                for _ in range(4):
+                    sk, step = _offset_std(spl2, x, y, tk, h, newton=True)
+                    if not (np.isfinite(step) and abs(step) <= 0.5 * h):
+                        break
+                    tk += step
+                    if abs(step) <= max(0.1 * sk, 1e-3 * h):   # the next step: ~step^2 / h, far below the std
+                        fit = (tk, x, sk)
+                        break
+                if fit is not None:
+                    break
+            try:
+                tk, xe, _, _ = _refine(spl2, x, y, start, h)
+                fit = (tk, xe, _offset_std(spl2, x, y, tk, h))
+                break
+            except TimeAlignmentError:
+                continue
+        if fit is None:
+            continue
+        tk, xe, sk = fit
+        if not (np.isfinite(sk) and sk > 0):
+            continue
+        mids.append(float(xe.mean()))
+        taus.append(tk)
+        sds.append(sk)
+        n_used += xe.size
+    if len(taus) < 3:
+        return None
+    m, y, wgt = np.array(mids), np.array(taus), 1.0 / np.square(sds)
+    mid = 0.5 * (lo + hi)
+    X = np.c_[np.ones_like(m), m - mid]
+    cov = np.linalg.inv(X.T @ (wgt[:, None] * X))
+    coef = cov @ (X.T @ (wgt * y))
+    chi2 = float(np.sum(wgt * (y - X @ coef) ** 2)) / (len(y) - 2)
+    cov *= max(1.0, chi2)
+    return (mid, float(coef[0]), float(np.sqrt(cov[0, 0])), 1e6 * float(coef[1]), 1e6 * float(np.sqrt(cov[1, 1])),
+            (lo, hi), n_used)
 
 
 # ---------------------------------------------------------------------------------------------- alignment
@@ -489,13 +772,25 @@ class AlignedPair:
     t : ndarray, shape (M,)
         Grid instants on gyro 1's clock (s).
     omega_1, omega_2 : ndarray, shape (M, 3)
-        Rates (rad/s) of gyro 1 and gyro 2 at ``t`` (NaN where a stream has no value there).
+        Rates (rad/s) of gyro 1 and gyro 2 at ``t`` (NaN where a stream has no value there). On gyro 1's own
+        timestamps (no ``rate_hz``), ``t`` and ``omega_1`` are read-only views of the caller's float64 arrays
+        (no copy of a long record): changing those arrays later changes them.
     valid : ndarray of bool, shape (M,)
         True where both streams are valid.
     time_offset : TimeOffset or None
         The estimated offset (None when it was given).
     time_offset_s : float
-        The offset applied: gyro 2's own time ``t - time_offset_s`` was sampled for grid time ``t``.
+        The offset applied: gyro 2's own time ``t - time_offset_s`` was sampled for grid time ``t`` (at
+        ``reference_time_s`` when a clock drift is applied).
+    clock_drift_ppm : float
+        The clock drift applied (1e-6 s per s; 0 when none): gyro 2 is sampled at its own time
+        ``t - time_offset_s - clock_drift_ppm 1e-6 (t - reference_time_s)``.
+    reference_time_s : float
+        Where ``time_offset_s`` holds on gyro 1's clock (the middle of the overlap).
+    timestamp_quality : tuple of TimestampQuality
+        The diagnosis of each stream's timestamps (:func:`~fusion_gyrocal.pipeline.streams.timestamp_quality`).
+    notes : tuple of str
+        What was repaired or masked before the alignment (out-of-place or bursty timestamps, rate glitches).
     """
 
     t: np.ndarray = field(repr=False)
@@ -504,9 +799,13 @@ class AlignedPair:
     valid: np.ndarray = field(repr=False)
     time_offset: TimeOffset | None
     time_offset_s: float
+    clock_drift_ppm: float = 0.0
+    reference_time_s: float = 0.0
+    timestamp_quality: tuple = ()
+    notes: tuple = ()
 
     def __post_init__(self):
-        _freeze(self, ("t", "omega_1", "omega_2", "valid"))
+        _freeze(self, ("t", "omega_1", "omega_2", "valid"), views=("t", "omega_1"))
 
     @property
     def n_valid(self) -> int:
@@ -518,6 +817,15 @@ class AlignedPair:
         keep = self.valid if mask is None else self.valid & np.asarray(mask, dtype=bool)
         return Moments.from_samples(self.omega_1, self.omega_2, mask=keep)
 
+    def calibration_fields(self, notes: tuple = ()) -> dict:
+        """What the alignment adds to a :class:`~fusion_gyrocal.core.model.PairCalibration`: the clock drift, the
+        timestamp diagnosis and its notes after ``notes``."""
+        est = self.time_offset
+        return {"clock_drift_ppm": self.clock_drift_ppm,
+                "clock_drift_std_ppm": est.drift_std_ppm if est is not None and self.clock_drift_ppm else 0.0,
+                "timestamp_quality": tuple(q.summary() for q in self.timestamp_quality),
+                "notes": tuple(notes) + tuple(n for n in self.notes if n not in notes)}
+
 
 #: A uniform ``rate_hz`` grid may hold at most this many times the samples of the densest recording (plus
 #: :data:`_GRID_SLACK`): resampling beyond that adds no information, only memory.
@@ -526,11 +834,11 @@ _GRID_SLACK = 64
 
 
 def _grid(t1, lo: float, hi: float, rate_hz, n_data: int | None = None):
-    """The common time grid over ``[lo, hi]`` on gyro 1's clock: gyro 1's own instants (``keep`` selects them)
+    """The common time grid over ``[lo, hi]`` on gyro 1's clock: gyro 1's own instants (``keep``: the slice of them)
     or a uniform ``rate_hz`` grid (``keep`` None), of at most :data:`MAX_GRID_UPSAMPLING` times the samples of
     the densest recording (``n_data``, default gyro 1's)."""
     if rate_hz is None:
-        keep = (t1 >= lo) & (t1 <= hi)
+        keep = slice(int(np.searchsorted(t1, lo, side="left")), int(np.searchsorted(t1, hi, side="right")))
         return t1[keep], keep
     if not (np.isfinite(rate_hz) and rate_hz > 0):
         raise OptionError(f"rate_hz: expected a positive rate, got {rate_hz!r}")
@@ -541,14 +849,79 @@ def _grid(t1, lo: float, hi: float, rate_hz, n_data: int | None = None):
     return lo + np.arange(int(np.floor((hi - lo) * rate_hz + 1e-9)) + 1) / float(rate_hz), None
 
 
-def align_streams(t_1, omega_1, t_2, omega_2, *, time_offset_s: float | None = None, max_offset_s: float = 1.0,
-                  rate_hz: float | None = None, valid_1=None, valid_2=None,
+def _rate_glitches(w: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Samples whose rate norm is ``GLITCH_FACTOR`` times the 99th percentile of the stream's valid norms (a comms
+    glitch; the level from a bounded subsample, the pass chunked)."""
+    from .flex import GLITCH_FACTOR
+
+    step = max(1, w.shape[0] // (1 << 16))
+    sub = row_norms(w[::step][ok[::step]])
+    out = np.zeros(w.shape[0], dtype=bool)
+    if sub.size < 100:
+        return out
+    lim = GLITCH_FACTOR * float(np.quantile(sub, 0.99))
+    for lo in range(0, w.shape[0], _NORM_BLOCK):
+        with np.errstate(invalid="ignore"):
+            out[lo:lo + _NORM_BLOCK] = row_norms(w[lo:lo + _NORM_BLOCK]) > lim
+    out &= ok
+    return out
+
+
+def _prepared(name_t, t, name_w, omega, valid, notes: list):
+    """A stream for the alignment: checked and repaired (:func:`~fusion_gyrocal.pipeline.streams.timed_stream`),
+    gross rate glitches masked; what was done is appended to ``notes``."""
+    tt, w, ok, q, said = timed_stream(name_t, t, name_w, omega, valid)
+    notes.extend(said)
+    glitch = _rate_glitches(w, ok)
+    n = int(np.count_nonzero(glitch))
+    if n and n <= 0.01 * w.shape[0]:
+        ok = ok & ~glitch
+        notes.append(f"{name_w}: {n} rate glitch(es) (norm over 10x the stream's 99th percentile, first at sample "
+                     f"{int(np.argmax(glitch))}) masked before the alignment")
+    return tt, w, ok, q
+
+
+def _period(t, q) -> float:
+    """A prepared stream's nominal sample period (from its diagnosis; bursty streams: of the fitted clock)."""
+    return q.period_s if q is not None and not q.bursty else _nominal_period(t)
+
+
+def _offset_of(s1, s2, time_offset_s, max_offset_s, max_eval, notes: list):
+    """``(offset, drift_ppm, reference_time_s, TimeOffset or None)`` of two prepared streams ``(t, w, ok, quality)``:
+    estimated (the refusal naming the timestamp diagnosis) unless ``time_offset_s`` is given."""
+    (t1, w1, ok1, q1), (t2, w2, ok2, q2) = s1, s2
+    if time_offset_s is not None:
+        tau = float(time_offset_s)
+        if not np.isfinite(tau):
+            raise OptionError(f"time_offset_s: expected a finite offset in seconds, got {time_offset_s!r}")
+        return tau, 0.0, 0.0, None
+    quality = tuple(q for q in (q1, q2) if q is not None)
+    try:
+        est = _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, 0.5, max_eval,
+                        periods=(_period(t1, q1), _period(t2, q2)))
+    except TimeAlignmentError as exc:
+        if not quality:
+            raise
+        raise TimeAlignmentError(f"{exc}. Timestamps: " + " | ".join(q.summary() for q in quality)) from None
+    if not est.drift_compensated:
+        return est.offset_s, 0.0, 0.0, est
+    notes.append(f"clock drift {est.drift_ppm:+.3f} +- {est.drift_std_ppm:.3f} ppm between the gyros' clocks "
+                 f"compensated (the offset {1e3 * est.offset_s:+.4f} ms holds at gyro-1 time "
+                 f"{est.reference_time_s:.6g} s)")
+    return est.offset_s, est.drift_ppm, est.reference_time_s, est
+
+
+def align_streams(t_1, omega_1, t_2, omega_2, *, time_offset_s: float | None = None,
+                  max_offset_s: float | None = None, rate_hz: float | None = None, valid_1=None, valid_2=None,
                   max_eval: int | None = MAX_EVAL) -> AlignedPair:
     """Put two gyroscope streams on one time grid on gyro 1's clock.
 
-    The offset is estimated with :func:`estimate_time_offset` unless ``time_offset_s`` is given.
-    Gyro 2's sample taken at its own time ``t2`` happened at ``t2 + offset`` on gyro 1's clock,
-    so gyro 2 is resampled (:func:`resample`) at ``t - offset`` for every grid time ``t``.
+    The offset (and the clock drift) is estimated with :func:`estimate_time_offset` unless ``time_offset_s`` is
+    given. Gyro 2's sample taken at its own time ``t2`` happened at ``t2 + offset`` on gyro 1's clock,
+    so gyro 2 is resampled (:func:`resample`) at ``t - offset(t)`` for every grid time ``t``. Before that each
+    stream's timestamps are diagnosed (:class:`~fusion_gyrocal.pipeline.streams.TimestampQuality`) and repaired
+    where they can be (isolated out-of-place stamps masked, bursty ones replaced by a fitted steady clock), and
+    gross rate glitches are masked; ``notes`` says what was done.
 
     Parameters
     ----------
@@ -556,8 +929,9 @@ def align_streams(t_1, omega_1, t_2, omega_2, *, time_offset_s: float | None = N
         Timestamps (s, each on its own clock) and rates (rad/s) of both gyros.
     time_offset_s : float, optional
         Known offset (added to gyro 2's timestamps to put them on gyro 1's clock).
-    max_offset_s : float
-        Search range of the estimate.
+    max_offset_s : float or None
+        Search range of the estimate (None: every offset that leaves half the shorter recording overlapping:
+        independent clocks may differ by hours).
     rate_hz : float, optional
         Uniform grid rate; both streams are then resampled. Default: gyro 1's own timestamps
         (gyro 1 is not interpolated).
@@ -574,33 +948,36 @@ def align_streams(t_1, omega_1, t_2, omega_2, *, time_offset_s: float | None = N
     Raises
     ------
     InputError, TimeAlignmentError
-        See :func:`estimate_time_offset`; also when the streams do not overlap after alignment.
+        See :func:`estimate_time_offset`; also when the streams do not overlap after alignment. The messages
+        name the timestamp diagnosis of both streams.
     """
-    t1, w1, ok1 = _stream("t_1", t_1, "omega_1", omega_1, valid_1)
-    t2, w2, ok2 = _stream("t_2", t_2, "omega_2", omega_2, valid_2)
-    est = None
-    if time_offset_s is None:
-        est = _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, 0.5, max_eval)
-        tau = est.offset_s
-    else:
-        tau = float(time_offset_s)
-        if not np.isfinite(tau):
-            raise OptionError(f"time_offset_s: expected a finite offset in seconds, got {time_offset_s!r}")
-    lo, hi = max(t1[0], t2[0] + tau), min(t1[-1], t2[-1] + tau)
+    notes: list = []
+    t1, w1, ok1, q1 = _prepared("t_1", t_1, "omega_1", omega_1, valid_1, notes)
+    t2, w2, ok2, q2 = _prepared("t_2", t_2, "omega_2", omega_2, valid_2, notes)
+    tau, drift, ref, est = _offset_of((t1, w1, ok1, q1), (t2, w2, ok2, q2), time_offset_s, max_offset_s, max_eval,
+                                      notes)
+    p1, p2 = _period(t1, q1), _period(t2, q2)
+    quality = tuple(q for q in (q1, q2) if q is not None)
+    k = 1e-6 * drift
+    # gyro 2's own span mapped to gyro 1's clock: t = (s + tau - k ref) / (1 - k)
+    lo = max(t1[0], (t2[0] + tau - k * ref) / (1.0 - k))
+    hi = min(t1[-1], (t2[-1] + tau - k * ref) / (1.0 - k))
     if not hi > lo:
         raise TimeAlignmentError(f"the streams do not overlap after applying the offset {tau:+.6g} s: gyro 1 covers "
                                  f"[{t1[0]:.6g}, {t1[-1]:.6g}] s, gyro 2 [{t2[0] + tau:.6g}, {t2[-1] + tau:.6g}] s")
     grid, keep = _grid(t1, lo, hi, rate_hz, max(len(t1), len(t2)))
-    if keep is not None:
-        o1 = w1[keep].astype(np.float64, copy=False)
+    if keep is not None:                    # gyro 1 on its own timestamps: read-only views, no copy of the record
+        o1 = w1[keep]
         v1 = ok1[keep]
     else:
-        o1, v1 = resample(t1, w1, grid, valid=ok1)
-    o2, v2 = resample(t2, w2, grid - tau, valid=ok2)
+        o1, v1 = _resample_checked(t1, w1, ok1, grid, DEFAULT_GAP_PERIODS * p1)
+    query = grid - tau if k == 0.0 else grid - tau - k * (grid - ref)
+    o2, v2 = _resample_checked(t2, w2, ok2, query, DEFAULT_GAP_PERIODS * p2)
+    del query
     v2 &= v1
-    for arr in (grid, o1, o2, v2):       # ours alone: frozen in place, not copied
+    for arr in (grid, o1, o2, v2):       # ours or read-only views (the caller's arrays stay writeable)
         arr.flags.writeable = False
-    return AlignedPair(grid, o1, o2, v2, est, tau)
+    return AlignedPair(grid, o1, o2, v2, est, tau, drift, ref, quality, tuple(notes))
 
 
 @dataclass(frozen=True)
@@ -608,7 +985,8 @@ class AlignedArray:
     """N gyros on one grid on gyro 1's clock.
 
     ``omegas`` (M, N, 3) rad/s (zero where ``valid`` is False), ``t`` (M,) on gyro 1's clock, and per gyro
-    the offset ADDED to its timestamps, its std, and where it came from.
+    the offset ADDED to its timestamps, its std, and where it came from; the clock drift applied to each
+    (ppm, None: none) and what was repaired or masked (``notes``, as :attr:`AlignedPair.notes`).
     """
 
     t: np.ndarray
@@ -617,16 +995,18 @@ class AlignedArray:
     time_offset_s: np.ndarray
     time_offset_std_s: np.ndarray
     time_offset_source: tuple
+    clock_drift_ppm: np.ndarray | None = None
+    notes: tuple = ()
 
 
-def align_to_reference(ts, omegas, *, time_offset_s=None, max_offset_s: float = 1.0, rate_hz=None,
+def align_to_reference(ts, omegas, *, time_offset_s=None, max_offset_s: float | None = None, rate_hz=None,
                        saturation_limit=None) -> AlignedArray:
     """Put N streams on gyro 1's clock and one grid.
 
     Streams on one clock (identical timestamps, e.g. a multi-IMU npz) are sample-aligned as they are.
-    Otherwise every gyro k is aligned to gyro 1 (the reference) with :func:`align_streams` (its offset
-    estimated, or ``time_offset_s`` for every gyro) and all are resampled onto gyro 1's timestamps (or a
-    ``rate_hz`` grid) over the span every gyro covers.
+    Otherwise every stream is diagnosed and repaired as in :func:`align_streams`, every gyro k is aligned to
+    gyro 1 (the reference: its offset and clock drift estimated, or ``time_offset_s`` for every gyro) and all
+    are resampled onto gyro 1's timestamps (or a ``rate_hz`` grid) over the span every gyro covers.
 
     Parameters
     ----------
@@ -650,8 +1030,8 @@ def align_to_reference(ts, omegas, *, time_offset_s=None, max_offset_s: float = 
     ok = [valid_mask(wk, limit=lim) for wk, lim in zip(w, limits)]
     t1 = np.asarray(ts[0], dtype=float)
     if all(np.shape(t) == t1.shape and np.array_equal(t, t1) for t in ts[1:]):
-        timing = [name for name, v in (("time_offset_s", time_offset_s), ("max_offset_s", max_offset_s != 1.0),
-                                       ("rate_hz", rate_hz)) if v is not None and v is not False]
+        timing = [name for name, v in (("time_offset_s", time_offset_s), ("max_offset_s", max_offset_s),
+                                       ("rate_hz", rate_hz)) if v is not None]
         if timing:
             raise OptionError(f"{', '.join(timing)}: act on separate clocks; expected recordings with their own "
                               "timestamps, got gyros that share one clock (identical timestamps)")
@@ -659,27 +1039,33 @@ def align_to_reference(ts, omegas, *, time_offset_s=None, max_offset_s: float = 
         omegas = np.stack([np.where(valid[:, None], wk, 0.0) for wk in w], axis=1)
         return AlignedArray(t1, omegas, valid, np.zeros(n), np.zeros(n),
                             ("reference",) + ("one clock",) * (n - 1))
-    tau, std, source = np.zeros(n), np.zeros(n), ["reference"]
+    notes: list = []
+    streams = [_prepared(f"t_{k + 1}", ts[k], f"omega_{k + 1}", w[k], ok[k], notes) for k in range(n)]
+    tau, std, drift, ref, source = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), ["reference"]
     for k in range(1, n):
-        pair = align_streams(t1, w[0], ts[k], w[k], time_offset_s=time_offset_s, max_offset_s=max_offset_s,
-                             valid_1=ok[0], valid_2=ok[k])
-        tau[k] = pair.time_offset_s
-        std[k] = pair.time_offset.std_s if pair.time_offset is not None else 0.0
-        source.append("estimated" if pair.time_offset is not None else "given")
-    lo = max(t[0] + tau[k] for k, t in enumerate(ts))
-    hi = min(t[-1] + tau[k] for k, t in enumerate(ts))
+        tau[k], drift[k], ref[k], est = _offset_of(streams[0], streams[k], time_offset_s, max_offset_s, MAX_EVAL,
+                                                   notes)
+        std[k] = est.std_s if est is not None else 0.0
+        source.append("estimated" if est is not None else "given")
+    c = 1e-6 * drift
+    lo = max((t[0] + tau[k] - c[k] * ref[k]) / (1.0 - c[k]) for k, (t, *_) in enumerate(streams))
+    hi = min((t[-1] + tau[k] - c[k] * ref[k]) / (1.0 - c[k]) for k, (t, *_) in enumerate(streams))
     if not hi > lo:
         raise TimeAlignmentError(f"the {n} recordings have no common time span after applying the offsets "
                                  f"{np.round(tau, 6).tolist()} s")
-    grid, keep = _grid(t1, lo, hi, rate_hz, max(len(t) for t in ts))
+    ts1 = streams[0][0]
+    grid, keep = _grid(ts1, lo, hi, rate_hz, max(len(st[0]) for st in streams))
     if keep is not None:
-        cols, oks, start = [np.asarray(w[0][keep])], [ok[0][keep]], 1
+        cols, oks, start = [np.asarray(streams[0][1][keep])], [streams[0][2][keep]], 1
+        grid = grid.copy()
     else:
         cols, oks, start = [], [], 0
     for k in range(start, n):
-        wk, vk = resample(ts[k], w[k], grid - tau[k], valid=ok[k])
+        tk, wk, okk, qk = streams[k]
+        query = grid - tau[k] - c[k] * (grid - ref[k])
+        wk, vk = _resample_checked(tk, wk, okk, query, DEFAULT_GAP_PERIODS * _period(tk, qk))
         cols.append(wk)
         oks.append(vk)
     valid = np.logical_and.reduce(oks)
     omegas = np.stack([np.where(valid[:, None], c, 0.0) for c in cols], axis=1)
-    return AlignedArray(grid, omegas, valid, tau, std, tuple(source))
+    return AlignedArray(grid, omegas, valid, tau, std, tuple(source), drift, tuple(notes))

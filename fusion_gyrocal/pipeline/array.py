@@ -101,4 +101,4 @@ def calibrate_streams(ts, omegas, options: Options | None = None, **keywords) ->
                          if name not in applying_to("array")})
     cal = calibrate_array(aligned.omegas, joint, mask=mask, rate_hz=grid_rate(aligned.t))
     return dataclasses.replace(cal, time_offset_s=aligned.time_offset_s, time_offset_std_s=aligned.time_offset_std_s,
-                               time_offset_source=aligned.time_offset_source)
+                               time_offset_source=aligned.time_offset_source, notes=cal.notes + aligned.notes)

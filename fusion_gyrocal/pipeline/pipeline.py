@@ -289,7 +289,7 @@ def _calibrate(w1, w2, mask, pair, resampling, o: Options) -> PipelineRun:
     if o.flex_rejection is not False and cal.rigid:
         cal, mask, rejected, corr = gate(w1, w2, mask, cal, mom, bias, lambda use: solve_on(use)[0], o)
     cal = _replace(cal, time_offset_s=offset, time_offset_std_s=offset_std, rejected_fraction=rejected,
-                   rate_residual_correlation=corr)
+                   rate_residual_correlation=corr, **({} if pair is None else pair.calibration_fields(cal.notes)))
     return PipelineRun(cal, t_grid, np.asarray(w1), np.asarray(w2), valid_in, mask, pair)
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError, OptionError
-from .streams import DEFAULT_GAP_PERIODS, _nominal_period, _stream
+from .streams import DEFAULT_GAP_PERIODS, _nominal_period, _stream, timed_stream
 
 _GRID_BLOCK = 1 << 16          # grid points per block of a long resampling
 _MARGIN = 40                   # source samples beyond a block's reach: the splines' end conditions act
@@ -208,6 +208,11 @@ def resample(t_src, omega_src, t_grid, *, valid=None, max_gap_s: float | None = 
     gap = DEFAULT_GAP_PERIODS * _nominal_period(t) if max_gap_s is None else float(max_gap_s)
     if not gap > 0:
         raise OptionError(f"max_gap_s: expected a positive duration, got {max_gap_s!r}")
+    return _resample_checked(t, w, ok, grid, gap)
+
+
+def _resample_checked(t, w, ok, grid, gap: float):
+    """:func:`resample` of a checked stream (``_stream``) onto the 1-D float64 ``grid`` with the gap ``gap`` (s)."""
     t_ref = t[0]  # splines in relative time: absolute (epoch) seconds lose precision in the cubic terms
     finite_grid = np.isfinite(grid)
     if grid.size <= _GRID_BLOCK or not np.all(np.diff(grid) > 0):
@@ -258,7 +263,8 @@ def noise_factors(t_src, t_query, *, max_points: int = 1 << 16, block: int = 64,
     i0 = max(int(np.searchsorted(t, q[0])) - _MARGIN, 0)
     i1 = min(int(np.searchsorted(t, q[-1])) + _MARGIN, t.size)
     noise = np.random.default_rng(seed).standard_normal((i1 - i0, 3))
-    out, inside = resample(t[i0:i1], noise, q)
+    ts = timed_stream("t_src", t[i0:i1], "noise", noise, None)[0]   # repaired as the alignment repairs them
+    out, inside = resample(ts, noise, q)
     if not inside.all():        # a gap: the consecutive stretch before it
         stop = int(np.argmin(inside)) if inside[0] else 0
         out, q = out[:stop], q[:stop]

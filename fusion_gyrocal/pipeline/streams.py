@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..core.moments import as_rates, finite_rows
@@ -16,20 +18,149 @@ CORRUPT_SPAN_FACTOR = 10.0     # ... that stretches the span beyond this many ti
 _TIME_UNITS = tuple((u, 10.0 ** -d) for u, d in TIME_UNITS.items() if d)   # ms, us, ns: unit in s
 
 
-def _freeze(obj, names, dtype=None) -> None:
+def _freeze(obj, names, dtype=None, views=()) -> None:
     """Replace the array fields ``names`` of a frozen dataclass by read-only copies.
 
     An array that is already read-only and owns its data (the library's own results, e.g. of
     :func:`~fusion_gyrocal.pipeline.alignment.align_streams`) is kept as it is: no second copy of a
-    long record.
+    long record; so is a read-only view for the fields ``views`` (gyro 1's samples on its own timestamps).
     """
     for name in names:
         arr = getattr(obj, name)
-        if not (isinstance(arr, np.ndarray) and arr.base is None and not arr.flags.writeable
+        if not (isinstance(arr, np.ndarray) and (arr.base is None or name in views) and not arr.flags.writeable
                 and (dtype is None or arr.dtype == dtype)):
             arr = np.array(arr, dtype=dtype)
             arr.flags.writeable = False
         object.__setattr__(obj, name, arr)
+
+
+# ---------------------------------------------------------------------------------------------- timestamp quality
+BURST_STEP = 0.25              # a step shorter than this many nominal periods is inside a burst (a USB packet)
+BURST_FRACTION = 0.2           # timestamps with at least this fraction of burst steps are bursty
+DROP_STEP = 1.5                # a step longer than this many nominal periods drops samples
+_STEP_BINS = (0.0, BURST_STEP, 0.75, 1.25, DROP_STEP, 2.5, np.inf)   # the rate histogram, in nominal periods
+
+
+@dataclass(frozen=True)
+class TimestampQuality:
+    """What a stream's timestamps look like: their nominal rate, jitter, bursts and drops.
+
+    Attributes
+    ----------
+    name : str
+        The stream (e.g. ``"t_2"``).
+    n : int
+        Timestamps.
+    period_s : float
+        Nominal sample period (s): the median step, or for bursty timestamps the mean step outside the
+        gaps (the median step of packets is the step inside one packet).
+    step_histogram : tuple of int
+        Steps per bin of ``step / period_s``: ``<= 0`` (backwards or repeated), ``(0, 0.25)`` (inside a burst),
+        ``[0.25, 0.75)``, ``[0.75, 1.25)`` (regular), ``[1.25, 1.5)``, ``[1.5, 2.5)`` (one sample dropped),
+        ``>= 2.5`` (gaps).
+    jitter : float
+        Robust standard deviation of the regular steps (``[0.75, 1.25)`` periods) over ``period_s``.
+    burst_fraction : float
+        Fraction of steps shorter than 0.25 periods.
+    drops : int
+        Steps longer than 1.5 periods.
+    missing : int
+        Samples those steps leave out (``round(step / period_s) - 1`` each).
+    longest_gap_s : float
+        The longest step (s).
+    backward : int
+        Steps that go backwards or repeat a timestamp.
+    """
+
+    name: str
+    n: int
+    period_s: float
+    step_histogram: tuple
+    jitter: float
+    burst_fraction: float
+    drops: int
+    missing: int
+    longest_gap_s: float
+    backward: int
+
+    @property
+    def rate_hz(self) -> float:
+        """Nominal sample rate (Hz)."""
+        return 1.0 / self.period_s
+
+    @property
+    def bursty(self) -> bool:
+        """Samples delivered in packets (at least 20 % of the steps shorter than a quarter period)."""
+        return self.burst_fraction >= BURST_FRACTION
+
+    def summary(self) -> str:
+        """One line naming what was found (the rate histogram in nominal periods)."""
+        hist = "/".join(str(c) for c in self.step_histogram)
+        found = []
+        if self.bursty:
+            found.append(f"BURSTY ({100 * self.burst_fraction:.0f}% of steps < {BURST_STEP:g} period: samples "
+                         "delivered in packets)")
+        if self.backward:
+            found.append(f"{self.backward} step(s) backwards or repeated")
+        if self.drops:
+            found.append(f"{self.drops} drop(s), {self.missing} sample(s) missing, longest gap "
+                         f"{1e3 * self.longest_gap_s:.4g} ms")
+        return (f"{self.name}: {self.n} timestamps, {self.rate_hz:.6g} Hz nominal, jitter {100 * self.jitter:.3g}% of "
+                f"a period, steps per bin (<=0 / <0.25 / <0.75 / <1.25 / <1.5 / <2.5 / more periods) {hist}"
+                + ("; " + "; ".join(found) if found else "; regular"))
+
+
+def _quality(name: str, step: np.ndarray, n: int) -> TimestampQuality:
+    """:class:`TimestampQuality` from the steps of ``n`` timestamps (any order): a few passes over the steps, the
+    jitter from a bounded subsample of them."""
+    lo = float(step.min()) if step.size else float("nan")
+    pos = step if lo > 0 else step[step > 0]
+    if not pos.size:
+        return TimestampQuality(name, n, float("nan"), (int(step.size),) + (0,) * 6, float("nan"), 0.0, 0, 0,
+                                0.0, int(step.size))
+    period = float(np.median(pos))
+    longest = float(pos.max())
+    mean = float(np.mean(pos))
+    for _ in range(2):      # the mean step without the long pauses (a regular stream's is its median step)
+        if longest > 50.0 * mean:
+            mean = float(np.mean(pos[pos <= 50.0 * mean]))
+    if np.count_nonzero(step < BURST_STEP * mean) >= BURST_FRACTION * step.size:
+        period = mean       # packets: the median is the step inside one, the mean step outside pauses the period
+    if not (np.isfinite(period) and period > 0):
+        return TimestampQuality(name, n, float("nan"), (int(step.size),) + (0,) * 6, float("nan"), 0.0, 0, 0,
+                                0.0, int(step.size))
+    edges = np.array(_STEP_BINS[1:-1]) * period
+    counts = np.bincount(np.searchsorted(edges, pos, side="right"), minlength=len(_STEP_BINS) - 1)
+    hist = [int(step.size - pos.size)] + [int(c) for c in counts]
+    sub = pos[::max(1, pos.size // (1 << 16))] / period
+    regular = sub[(sub >= 0.75) & (sub < 1.25)]
+    jitter = float(1.4826 * np.median(np.abs(regular - np.median(regular)))) if regular.size else float("nan")
+    big = pos[pos > DROP_STEP * period] / period
+    return TimestampQuality(name, n, period, tuple(hist), jitter, float(hist[1]) / max(step.size, 1),
+                            int(big.size), int(np.sum(np.rint(big) - 1)), longest, hist[0])
+
+
+def timestamp_quality(name: str, t) -> TimestampQuality:
+    """Diagnose a stream's timestamps (s): nominal rate, rate histogram, jitter, bursts, drops, backward steps.
+
+    Nothing is refused here: :func:`check_timestamps` names the diagnosis in its refusals, and the alignment
+    (:func:`~fusion_gyrocal.pipeline.alignment.align_streams`) reports it and regularises bursty timestamps.
+
+    Parameters
+    ----------
+    name : str
+        The stream's name in the summary (e.g. ``"t_2"``).
+    t : array_like, shape (N,)
+        Timestamps (s), N >= 2.
+
+    Returns
+    -------
+    TimestampQuality
+    """
+    arr = np.asarray(t, dtype=np.float64)
+    if arr.ndim != 1 or arr.size < 2:
+        raise InputError(f"{name}: expected a 1-D array of at least 2 timestamps, got shape {arr.shape}")
+    return _quality(name, np.diff(arr), arr.size)
 
 
 # ---------------------------------------------------------------------------------------------- stream checks
@@ -76,35 +207,45 @@ def check_timestamps(name: str, t, *, length: int | None = None) -> np.ndarray:
         raise InputError(f"{name}: expected finite timestamps, got {arr[bad[0]]} at sample {bad[0]} "
                          f"({bad.size} non-finite)")
     step = np.diff(arr)
-    nonpos = np.flatnonzero(step <= 0)
-    if nonpos.size:
-        k = int(nonpos[0])
-        if step[k] == 0:
-            raise InputError(f"{name}: expected strictly increasing timestamps, got a duplicate timestamp "
-                             f"{arr[k]!r} s at samples {k} and {k + 1} ({nonpos.size} non-increasing step(s))")
-        raise InputError(f"{name}: expected strictly increasing timestamps, got a step of {step[k]:.6g} s at "
-                         f"sample {k + 1} ({nonpos.size} non-increasing step(s))")
-    _check_time_scale(name, arr, step)
+    _check_increasing(name, arr, step, None)
+    _check_time_scale(name, arr, step, _quality(name, step, arr.size))
     return arr
 
 
-def _check_time_scale(name: str, t: np.ndarray, step: np.ndarray) -> None:
-    """The median sample rate and the span of checked, increasing timestamps (see :func:`check_timestamps`)."""
-    med = float(np.median(step))
+def _check_increasing(name: str, arr: np.ndarray, step: np.ndarray, quality: TimestampQuality | None) -> None:
+    """Refuse timestamps that do not increase strictly, naming the first offending step (and the diagnosis)."""
+    nonpos = np.flatnonzero(step <= 0)
+    if not nonpos.size:
+        return
+    q = quality if quality is not None else _quality(name, step, arr.size)
+    k = int(nonpos[0])
+    if step[k] == 0:
+        raise InputError(f"{name}: expected strictly increasing timestamps, got a duplicate timestamp "
+                         f"{arr[k]!r} s at samples {k} and {k + 1} ({nonpos.size} non-increasing step(s)). "
+                         f"Timestamps: {q.summary()}")
+    raise InputError(f"{name}: expected strictly increasing timestamps, got a step of {step[k]:.6g} s at "
+                     f"sample {k + 1} ({nonpos.size} non-increasing step(s)). Timestamps: {q.summary()}")
+
+
+def _check_time_scale(name: str, t: np.ndarray, step: np.ndarray, quality: TimestampQuality) -> None:
+    """The nominal sample rate and the span of checked, increasing timestamps (see :func:`check_timestamps`)."""
+    med = quality.period_s
     rate = 1.0 / med
     if not MIN_RATE_HZ <= rate <= MAX_RATE_HZ:
         fits = [u for u, f in _TIME_UNITS if MIN_RATE_HZ <= rate / f <= MAX_RATE_HZ]
         hint = (f"they look like {fits[0]}: pass t_1/t_2 in seconds (the CLI's --time-unit1/--time-unit2 "
                 f"{fits[0]})" if fits else "pass t_1/t_2 in seconds (the CLI's --time-unit1/--time-unit2)")
+        hint += f". Timestamps: {quality.summary()}"
         raise InputError(f"{name}: expected timestamps in seconds with a sample rate of {MIN_RATE_HZ:g} Hz to "
-                         f"{MAX_RATE_HZ:g} Hz, got a median step of {med:.6g} ({rate:.6g} Hz if seconds); {hint}")
+                         f"{MAX_RATE_HZ:g} Hz, got a nominal step of {med:.6g} ({rate:.6g} Hz if seconds); {hint}")
     span = float(t[-1] - t[0])
     if span > CORRUPT_SPAN_FACTOR * t.shape[0] * med:
         k = int(np.argmax(step))
         if step[k] > CORRUPT_JUMP_STEPS * med:
             raise InputError(f"{name}: expected timestamps without huge jumps, got a step of {step[k]:.6g} s "
                              f"({step[k] / med:.3g} median steps) at sample {k + 1} that makes the span {span:.6g} s "
-                             f"for {t.shape[0]} samples: corrupt timestamp? Drop it or split the recording there")
+                             f"for {t.shape[0]} samples: corrupt timestamp? Drop it or split the recording there. "
+                             f"Timestamps: {quality.summary()}")
 
 
 def to_rad_per_s(x, unit: str, sensitivity: float | None = None) -> np.ndarray:
@@ -230,6 +371,90 @@ def _stream(name_t, t, name_w, omega, valid) -> tuple[np.ndarray, np.ndarray, np
     w = as_rates(name_w, omega)
     tt = check_timestamps(name_t, t, length=w.shape[0])
     return tt, w, _and_valid(finite_rows(w), valid, f"valid mask for {name_w}")
+
+
+MAX_GLITCH_FRACTION = 0.01    # out-of-place timestamps beyond this fraction are not glitches: refused
+
+
+def _out_of_place(t: np.ndarray) -> np.ndarray:
+    """Samples whose timestamp is not strictly between its neighbours while the neighbours are in order
+    (one corrupt timestamp, forwards or backwards, or a repeated one); the first and last against the next two."""
+    bad = np.zeros(t.size, dtype=bool)
+    if t.size >= 3:
+        prev, this, nxt = t[:-2], t[1:-1], t[2:]
+        bad[1:-1] = (prev < nxt) & ~((prev < this) & (this < nxt))
+        bad[0] = t[0] >= t[1] and t[1] < t[2]
+        bad[-1] = t[-1] <= t[-2] and t[-3] < t[-2]
+        same = np.flatnonzero(bad[:-1] & bad[1:] & (t[:-1] == t[1:]))
+        bad[same] = False       # a repeated stamp: the later sample repeats the earlier one
+    return bad
+
+
+def _regular_times(t: np.ndarray, period: float) -> np.ndarray:
+    """Bursty timestamps replaced by the least-squares line of time against sample index, per stretch between
+    gaps longer than 20 periods (packets carry samples taken at a steady rate; their arrival times do not)."""
+    cut = np.flatnonzero(np.diff(t) > 20.0 * period) + 1
+    out = np.empty(t.size)
+    for a, b in zip(np.r_[0, cut], np.r_[cut, t.size]):
+        k = np.arange(b - a, dtype=float)
+        if b - a < 2:
+            out[a:b] = t[a:b]
+            continue
+        kc, tc = k - k.mean(), t[a:b] - t[a:b].mean()
+        slope = float(kc @ tc) / float(kc @ kc)
+        out[a:b] = t[a:b].mean() + slope * kc
+    return out
+
+
+def timed_stream(name_t, t, name_w, omega, valid):
+    """Checked ``(t, omega, valid, quality, notes)`` of one timestamped stream for the alignment.
+
+    Unlike :func:`check_timestamps`, what can be repaired is repaired and said (``notes``): isolated
+    out-of-place timestamps (at most 1 % of the samples: one corrupt, backward or repeated stamp) are
+    moved between their neighbours and their samples masked; bursty timestamps (samples delivered in
+    packets, :attr:`TimestampQuality.bursty`) are replaced by a steady clock fitted to them. The rest is
+    refused as :func:`check_timestamps` does, naming the diagnosis.
+    """
+    w = as_rates(name_w, omega)
+    arr = np.asarray(t)
+    if arr.dtype.kind not in "fiu" or arr.ndim != 1 or arr.shape[0] != w.shape[0] or arr.shape[0] < 3:
+        tt = check_timestamps(name_t, t, length=w.shape[0])   # the specific refusal
+        return tt, w, _and_valid(finite_rows(w), valid, f"valid mask for {name_w}"), None, ()
+    arr = arr.astype(np.float64, copy=False)
+    if not np.isfinite(arr).all():
+        check_timestamps(name_t, arr)
+    ok = _and_valid(finite_rows(w), valid, f"valid mask for {name_w}")
+    step = np.diff(arr)
+    q = _quality(name_t, step, arr.size)
+    notes = []
+    if not q.bursty and q.backward:
+        bad = _out_of_place(arr)
+        n_bad = int(np.count_nonzero(bad))
+        if 0 < n_bad <= MAX_GLITCH_FRACTION * arr.size:
+            idx = np.flatnonzero(bad)
+            fixed = arr.copy()
+            inner = idx[(idx > 0) & (idx < arr.size - 1)]
+            fixed[inner] = 0.5 * (arr[inner - 1] + arr[inner + 1])
+            if bad[0]:
+                fixed[0] = arr[1] - (arr[2] - arr[1])
+            if bad[-1]:
+                fixed[-1] = arr[-2] + (arr[-2] - arr[-3])
+            if np.all(np.diff(fixed) > 0):
+                arr, ok = fixed, ok & ~bad
+                step = np.diff(arr)
+                notes.append(f"{name_t}: {n_bad} out-of-place timestamp(s) (first at sample {int(idx[0])}: "
+                             "corrupt, backward or repeated) moved between their neighbours and their samples masked")
+    if q.bursty:
+        if np.any(step < 0):
+            _check_increasing(name_t, arr, step, q)
+        arr = _regular_times(arr, q.period_s)
+        step = np.diff(arr)
+        notes.append(f"{name_t}: bursty timestamps ({100 * q.burst_fraction:.0f}% of the steps shorter than "
+                     f"{BURST_STEP:g} period: samples delivered in packets) replaced by a steady "
+                     f"{q.rate_hz:.6g} Hz clock fitted to them")
+    _check_increasing(name_t, arr, step, q)
+    _check_time_scale(name_t, arr, step, q)
+    return arr, w, ok, q, tuple(notes)
 
 
 def _nominal_period(t: np.ndarray) -> float:
