@@ -119,8 +119,7 @@ def noise_pair(noise_std) -> tuple[float, float]:
     return float(arr[0]), float(arr[1])
 
 
-def _default_threads() -> int:
-    return max(1, min(2, os.cpu_count() or 1))
+_THREADS = max(1, min(2, os.cpu_count() or 1))   # default worker threads of a long pass
 
 
 def _accumulate(w1, w2, mask, lo, hi, chunk_size):
@@ -134,7 +133,7 @@ def _accumulate(w1, w2, mask, lo, hi, chunk_size):
     would cost more than ~6 of 16 digits, e.g. a large drift), the range is redone chunk by chunk
     with Chan's pairwise update (:func:`_accumulate_chan`).
     """
-    buf = np.empty((7, chunk_size))
+    buf = np.empty((7, min(chunk_size, hi - lo)))
     buf[6] = 1.0
     G = np.zeros((7, 6))
     n_tot = 0
@@ -142,17 +141,21 @@ def _accumulate(w1, w2, mask, lo, hi, chunk_size):
     for start in range(lo, hi, chunk_size):
         stop = min(start + chunk_size, hi)
         keep = None if mask is None else mask[start:stop]
-        if shift is None:
+        x = buf[:, : stop - start]
+        if shift is None:                 # the first chunk with a kept sample: its mean is the shift
             if keep is not None and not keep.any():
                 continue
-            first = [np.asarray(w[start:stop] if keep is None else w[start:stop][keep]) for w in (w1, w2)]
-            shift = np.concatenate([f.mean(axis=0, dtype=np.float64) for f in first])
+            np.copyto(x[:3], w1[start:stop].T)
+            np.copyto(x[3:6], w2[start:stop].T)
+            with np.errstate(over="ignore", invalid="ignore"):
+                shift = (x[:6] if keep is None else x[:6, keep]).mean(axis=1)
             if not np.isfinite(shift).all():
                 shift = np.zeros(6)       # the non-finite sums below name the first bad row
             s1, s2 = shift[:3, None], shift[3:, None]
-        x = buf[:, : stop - start]
-        np.subtract(w1[start:stop].T, s1, out=x[:3])
-        np.subtract(w2[start:stop].T, s2, out=x[3:6])
+            x[:6] -= shift[:, None]
+        else:
+            np.subtract(w1[start:stop].T, s1, out=x[:3])
+            np.subtract(w2[start:stop].T, s2, out=x[3:6])
         if keep is not None and not keep.all():
             x = x[:, keep]
         with np.errstate(over="ignore", invalid="ignore"):   # overflow is checked once below
@@ -270,6 +273,16 @@ class Moments:
         object.__setattr__(self, "scatter", scatter)
         object.__setattr__(self, "count", float(self.count))
 
+    @classmethod
+    def _of(cls, count: float, mean: np.ndarray, scatter: np.ndarray, segments: int) -> "Moments":
+        """Moments from read-only float64 arrays of the right shapes computed here (no checks, no copies)."""
+        out = object.__new__(cls)
+        object.__setattr__(out, "count", float(count))
+        object.__setattr__(out, "mean", mean)
+        object.__setattr__(out, "scatter", scatter)
+        object.__setattr__(out, "segments", segments)
+        return out
+
     # ------------------------------------------------------------------ construction
     @classmethod
     def empty(cls) -> "Moments":
@@ -299,16 +312,19 @@ class Moments:
             On a wrong shape, unequal lengths or a non-finite sample.
         """
         w1, w2, mask = as_rate_pair(omega_1, omega_2, mask)
+        chunk_size = int(chunk_size)
+        if chunk_size < 1:
+            raise OptionError(f"chunk_size: expected a positive number of rows, got {chunk_size}")
         n = w1.shape[0]
         n_chunks = -(-n // chunk_size)
-        workers = max(1, min(threads or _default_threads(), n_chunks // 4))
-        bounds = np.linspace(0, n_chunks, workers + 1).astype(int) * chunk_size
+        workers = max(1, min(threads or _THREADS, n_chunks // 4))
         if workers == 1:
-            parts = [_accumulate(w1, w2, mask, 0, n, chunk_size)]
-        else:
-            with ThreadPoolExecutor(workers) as pool:  # numpy releases the GIL in BLAS and copies
-                parts = list(pool.map(lambda i: _accumulate(w1, w2, mask, bounds[i], min(bounds[i + 1], n),
-                                                            chunk_size), range(workers)))
+            c, mu, sc = _accumulate(w1, w2, mask, 0, n, chunk_size) if n else (0, np.zeros(6), np.zeros((6, 6)))
+            return cls(c, mu, sc, 1 if c else 0)
+        bounds = np.linspace(0, n_chunks, workers + 1).astype(int) * chunk_size
+        with ThreadPoolExecutor(workers) as pool:  # numpy releases the GIL in BLAS and copies
+            parts = list(pool.map(lambda i: _accumulate(w1, w2, mask, bounds[i], min(bounds[i + 1], n), chunk_size),
+                                  range(workers)))
         return cls.merge_all(cls(c, mu, sc, 1 if c else 0) for c, mu, sc in parts)
 
     # ------------------------------------------------------------------ algebra
@@ -342,19 +358,31 @@ class Moments:
 
     @staticmethod
     def pool_all(parts: Iterable["Moments"]) -> "Moments":
-        """Pool a sequence of per-segment moments (piecewise-constant bias)."""
-        out = Moments.empty()
-        for p in parts:
-            out = out.pool(p)
-        return out
+        """Pool a sequence of per-segment moments (piecewise-constant bias): :meth:`pool` of them all, in one
+        vectorised sum."""
+        parts = [p for p in parts if p.count != 0]
+        if len(parts) <= 1:
+            return parts[0] if parts else Moments.empty()
+        count = np.array([p.count for p in parts])
+        n = float(count.sum())
+        mean = count @ np.array([p.mean for p in parts]) / n
+        scatter = np.add.reduce([p.scatter for p in parts])
+        return Moments(n, mean, scatter, sum(p.segments for p in parts))
 
     @staticmethod
     def merge_all(parts: Iterable["Moments"]) -> "Moments":
-        """Merge a sequence of moments that share one bias (tree-free left fold)."""
-        out = Moments.empty()
-        for p in parts:
-            out = out.merge(p)
-        return out
+        """Merge a sequence of moments that share one bias: :meth:`merge` of them all, in one vectorised sum
+        (within-part scatters plus the spread of the part means about the overall mean)."""
+        parts = [p for p in parts if p.count != 0]
+        if len(parts) <= 2:
+            return parts[0].merge(parts[1]) if len(parts) == 2 else (parts[0] if parts else Moments.empty())
+        count = np.array([p.count for p in parts])
+        means = np.array([p.mean for p in parts])
+        n = float(count.sum())
+        mean = count @ means / n
+        d = means - mean
+        scatter = np.add.reduce([p.scatter for p in parts]) + (d * count[:, None]).T @ d
+        return Moments(n, mean, 0.5 * (scatter + scatter.T), max(p.segments for p in parts))
 
     def decayed(self, factor: float) -> "Moments":
         """Down-weight all samples by ``factor`` in (0, 1] (exponential forgetting)."""
@@ -395,27 +423,82 @@ class Moments:
         return cls(d["count"], np.asarray(d["mean"]), np.asarray(d["scatter"]), int(d.get("segments", 1)))
 
 
+_BLOCK_ROWS = 65536         # samples per block of the vectorised passes (a few MiB of float64 at a time)
+
+
 def window_moments(omega_1, omega_2, window: int, *, mask=None, with_starts: bool = False) -> list:
     """Moments of consecutive windows of ``window`` samples (one bias segment each).
 
     ``Moments.pool_all(window_moments(...))`` gives the statistics of a piecewise-constant
     bias; ``Moments.merge_all`` of the same list equals :meth:`Moments.from_samples`. Windows with
     fewer than two (unmasked) samples are left out; ``with_starts=True`` gives
-    ``(start sample index, Moments)`` pairs instead of the Moments alone.
+    ``(start sample index, Moments)`` pairs instead of the Moments alone. The whole windows are
+    computed a block of windows at a time (each window centred on its own mean, then its scatter:
+    two passes, exact for any bias); the partial window at the end by :meth:`Moments.from_samples`.
+
+    Raises
+    ------
+    InputError
+        On a wrong shape, unequal lengths or a non-finite sample among the used ones.
+    OptionError
+        If ``window`` is below 2.
     """
-    w1 = as_rates("omega_1", omega_1)
-    w2 = as_rates("omega_2", omega_2, length=w1.shape[0])
+    w1, w2, mask = as_rate_pair(omega_1, omega_2, mask)
+    window = int(window)
     if window < 2:
         raise OptionError(f"window: expected at least 2 samples per window, got {window}")
     n = w1.shape[0]
+    n_full = n // window if window <= _BLOCK_ROWS else 0     # longer windows: one bounded pass each, below
+    per = max(1, _BLOCK_ROWS // window)
     out = []
-    for start in range(0, n, window):
+    for lo in range(0, n_full, per):
+        hi = min(n_full, lo + per)
+        a, b = lo * window, hi * window
+        cnt, mean, scat = _window_block(w1, w2, None if mask is None else mask[a:b], a, b, window)
+        mean.flags.writeable = False      # each window's Moments holds read-only views of these
+        scat.flags.writeable = False
+        for j in np.flatnonzero(cnt > 1):
+            m = Moments._of(cnt[j], mean[j], scat[j], 1)
+            out.append(((lo + int(j)) * window, m) if with_starts else m)
+    for start in range(n_full * window, n, window):
         stop = min(start + window, n)
-        sub_mask = None if mask is None else np.asarray(mask)[start:stop]
-        m = Moments.from_samples(w1[start:stop], w2[start:stop], mask=sub_mask, chunk_size=window)
+        m = Moments.from_samples(w1[start:stop], w2[start:stop], mask=None if mask is None else mask[start:stop])
         if m.count > 1:
             out.append((start, m) if with_starts else m)
     return out
+
+
+def _window_block(w1, w2, keep, a: int, b: int, window: int):
+    """Count (W,), mean (W, 6) and centred scatter (W, 6, 6) of the whole windows of samples ``a:b`` (read-only
+    arrays); ``keep`` (b - a,) marks the used samples (None: all). Refuses a non-finite used sample."""
+    W = (b - a) // window
+    x = np.empty((W, 6, window))          # windows x channels x samples: sums run along contiguous rows
+    x[:, :3, :] = w1[a:b].reshape(W, window, 3).transpose(0, 2, 1)
+    x[:, 3:, :] = w2[a:b].reshape(W, window, 3).transpose(0, 2, 1)
+    if keep is not None and keep.all():
+        keep = None
+    if keep is not None:
+        np.copyto(x, 0.0, where=~keep.reshape(W, 1, window))  # unused samples (finite or not) count as 0
+    with np.errstate(over="ignore", invalid="ignore"):
+        if not np.isfinite(x.sum()):
+            bad = ~np.isfinite(x).all(axis=2)                 # (W, 6): which window and channel
+            w = int(np.flatnonzero(bad.any(axis=1))[0])
+            g = 0 if bad[w, :3].any() else 1
+            raise _first_bad_row(f"omega_{g + 1}", x[w, 3 * g:3 * g + 3].T, a + w * window)
+        if keep is None:
+            cnt = np.full(W, float(window))
+            mean = x.mean(axis=2)
+            x -= mean[:, :, None]
+        else:
+            m = keep.reshape(W, window)
+            cnt = m.sum(axis=1).astype(np.float64)
+            mean = x.sum(axis=2) / np.maximum(cnt, 1.0)[:, None]
+            x -= mean[:, :, None]
+            x *= m[:, None, :]
+        scat = np.matmul(x, x.transpose(0, 2, 1))
+    if not np.isfinite(scat).all():
+        raise _too_large(w1, w2, a, b)
+    return cnt, mean, 0.5 * (scat + scat.transpose(0, 2, 1))
 
 
 NOMINAL_WINDOW = 100      # samples per window (noise model, robust covariance) when the sample rate is unknown
