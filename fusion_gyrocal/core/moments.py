@@ -647,7 +647,7 @@ def random_walk_gain(bias_walk_std, noise_std) -> tuple[float, float]:
 
 def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask=None,
                              chunk_size: int = CHUNK_SIZE, settle: int | None = None,
-                             window: int | None = None) -> tuple:
+                             window: int | None = None, threads: int | None = None) -> tuple:
     """Moments for a bias that drifts as a random walk, by the Kalman innovations filter.
 
     With ``r_k = omega_1(k) - A omega_2(k) = b_k + n_k``, a random-walk bias
@@ -671,6 +671,8 @@ def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask
     window : int, optional
         Also return the :class:`WindowStats` of the innovations in windows of this many samples
         (each chunk's whole windows; for the block-robust covariance).
+    threads : int, optional
+        2 (default where the CPU count allows) filters the next block of samples while this one is reduced.
 
     Returns
     -------
@@ -682,37 +684,138 @@ def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask
     stats : WindowStats
         Only with ``window``.
     """
-    from scipy.signal import lfilter
-
-    w1 = as_rates("omega_1", omega_1)
-    w2 = as_rates("omega_2", omega_2, length=w1.shape[0])
+    w1, w2, mask = as_rate_pair(omega_1, omega_2, mask)
+    chunk_size = int(chunk_size)
+    if chunk_size < 1:
+        raise OptionError(f"chunk_size: expected a positive number of rows, got {chunk_size}")
     K, noise_scale = random_walk_gain(bias_walk_std, noise_std)
     settle = int(np.ceil(5.0 / K)) if settle is None else int(settle)
-    keep = np.ones(w1.shape[0], bool) if mask is None else np.asarray(mask, bool)
-    idx = np.flatnonzero(keep)
-    zi = None
-    out, raw = Moments.empty(), Moments.empty()
+    filt = _WalkFilter(w1, w2, mask, K, chunk_size * max(1, _BLOCK_ROWS // chunk_size))  # whole chunks per block
+    count, mean, scatter = 0, np.zeros(6), np.zeros((6, 6))
     parts = []
-    done = 0
-    for start in range(0, idx.size, chunk_size):
-        sel = idx[start:start + chunk_size]
-        x = np.hstack([w1[sel], w2[sel]]).astype(np.float64)
-        if zi is None:
-            zi = np.zeros((1, 6))
-            x0 = x[0].copy()  # the filter kills constants; starting from the first sample avoids a transient
-        raw = raw.merge(Moments.from_samples(x[:, :3], x[:, 3:]))
-        y, zi = lfilter([1.0, -1.0], [1.0, -(1.0 - K)], x - x0, axis=0, zi=zi)
-        lo = max(0, settle - done)
-        done += len(sel)
-        if lo < len(y):
-            out = out.merge(Moments.from_samples(y[lo:, :3], y[lo:, 3:]))
-            if window is not None and len(y) - lo >= window:
-                k = (len(y) - lo) // window
-                parts.append(_stats_of(y[lo:lo + k * window].reshape(k, window, 6).transpose(0, 2, 1).copy(), None,
-                                            np.full(k, start)))
-    if out.count < 4:
-        raise InputError(f"expected more than {settle} samples for the drifting-bias filter to settle, got {idx.size}")
-    moments = Moments(out.count, raw.mean, out.scatter, 1)
+    for start, y in filt.blocks(threads):
+        lo = max(0, settle - start)
+        if lo >= y.shape[1]:
+            continue
+        c, mu, sc = _centred(y[:, lo:])
+        if not np.isfinite(sc).all():
+            raise _too_large(w1, w2, 0, w1.shape[0])
+        n_new = count + c                   # Chan's update across blocks
+        delta = mu - mean
+        scatter += sc + np.outer(delta, delta) * (count * c / n_new)
+        mean += delta * (c / n_new)
+        count = n_new
+        if window is not None:
+            parts.extend(_innovation_windows(y, start, lo, chunk_size, int(window)))
+    if count < 4:
+        raise InputError(f"expected more than {settle} samples for the drifting-bias filter to settle, got {filt.n}")
+    moments = Moments(count, filt.mean(), 0.5 * (scatter + scatter.T), 1)
     if window is None:
         return moments, noise_scale
-    return moments, noise_scale, _join(parts, int(window), out.count, False)
+    return moments, noise_scale, _join(parts, int(window), float(count), False)
+
+
+class _WalkFilter:
+    """The used samples of a pair through ``G(z)`` of :func:`random_walk_bias_moments`, a block at a time.
+
+    Blocks of ``block`` used samples are gathered transposed (6, block), shifted by the first used sample and
+    filtered with the state carried from block to block; the raw sums are kept for the samples' mean.
+    """
+
+    def __init__(self, w1, w2, mask, gain: float, block: int):
+        self.w1, self.w2, self.block = w1, w2, block
+        self.idx = None if mask is None else np.flatnonzero(mask)
+        self.n = w1.shape[0] if self.idx is None else self.idx.size
+        self.b, self.a = np.array([1.0, -1.0]), np.array([1.0, -(1.0 - gain)])
+        self.zi = np.zeros((6, 1))
+        self.x0 = None
+        self.raw = np.zeros(6)               # sum of the used samples minus the first one
+
+    def filtered(self, start: int) -> np.ndarray:
+        """The filtered block of used samples ``start:start + block`` (the blocks in order, once each)."""
+        from scipy.signal import lfilter
+
+        stop = min(start + self.block, self.n)
+        x = np.empty((6, stop - start))
+        if self.idx is None:
+            np.copyto(x[:3], self.w1[start:stop].T)
+            np.copyto(x[3:], self.w2[start:stop].T)
+        else:
+            sel = self.idx[start:stop]
+            np.copyto(x[:3], self.w1[sel].T)
+            np.copyto(x[3:], self.w2[sel].T)
+        if self.x0 is None:   # the filter kills constants; starting from the first sample avoids a transient
+            self.x0 = x[:, 0].copy()
+        x -= self.x0[:, None]
+        with np.errstate(over="ignore", invalid="ignore"):
+            s = x.sum(axis=1)
+        if not np.isfinite(s).all():
+            self._refuse(start, stop)
+        self.raw += s
+        y, self.zi = lfilter(self.b, self.a, x, axis=-1, zi=self.zi)
+        return y
+
+    def blocks(self, threads: int | None = None):
+        """``(start, filtered block)`` in order; with two threads the next block is filtered while the caller
+        reduces this one (the filter's state makes the blocks themselves sequential)."""
+        starts = range(0, self.n, self.block)
+        if len(starts) < 2 or min(threads or _THREADS, 2) < 2:
+            for start in starts:
+                yield start, self.filtered(start)
+            return
+        with ThreadPoolExecutor(1) as pool:
+            ahead = pool.submit(self.filtered, starts[0])
+            for i, start in enumerate(starts):
+                y = ahead.result()
+                if i + 1 < len(starts):
+                    ahead = pool.submit(self.filtered, starts[i + 1])
+                yield start, y
+
+    def mean(self) -> np.ndarray:
+        """Mean of the used samples (after every block)."""
+        return self.x0 + self.raw / self.n
+
+    def _refuse(self, start: int, stop: int):
+        """Raise the error naming the first non-finite used sample among used samples ``start:stop``."""
+        for name, w in (("omega_1", self.w1), ("omega_2", self.w2)):
+            rows = np.asarray(w[start:stop] if self.idx is None else w[self.idx[start:stop]])
+            bad = np.flatnonzero(~finite_rows(rows))
+            if bad.size:
+                at = start + int(bad[0]) if self.idx is None else int(self.idx[start + int(bad[0])])
+                raise InputError(f"{name}: expected finite rates, got a non-finite value (NaN or inf) at sample "
+                                 f"{at} ({bad.size} non-finite row(s) in that block); mask or drop those samples first")
+        raise _too_large(self.w1, self.w2, 0, self.w1.shape[0])
+
+
+def _centred(y):
+    """Count, mean and centred scatter of the columns of ``y`` (6, m): one product with the sums, redone about
+    the mean where the mean is large against the spread (more than ~6 of 16 digits would cancel)."""
+    m = y.shape[1]
+    with np.errstate(over="ignore", invalid="ignore"):
+        s = y.sum(axis=1)
+        mu = s / m
+        sc = np.dot(y, y.T) - np.outer(s, mu)
+        if np.any(mu**2 > 1e6 * np.maximum(np.diag(sc) / m, 1e-300)):
+            yc = y - mu[:, None]
+            d = yc.sum(axis=1) / m
+            mu = mu + d
+            sc = np.dot(yc, yc.T) - np.outer(d, d) * m
+    return m, mu, sc
+
+
+def _innovation_windows(y, start: int, lo: int, chunk_size: int, window: int) -> list:
+    """``_stats_of`` parts of the filtered block ``y`` (6, m) that begins at used sample ``start``: in each chunk of
+    ``chunk_size`` samples, the whole windows from its first settled sample (``lo`` in the block), each run
+    labelled by its chunk's first sample."""
+    views, runs = [], []
+    m = y.shape[1]
+    for c0 in range(0, m, chunk_size):
+        c1 = min(c0 + chunk_size, m)
+        a = max(c0, lo)
+        k = (c1 - a) // window if c1 > a else 0
+        if k:
+            views.append(y[:, a:a + k * window].reshape(6, k, window).transpose(1, 0, 2))
+            runs.append(np.full(k, start + c0))
+    if not views:
+        return []
+    return [_stats_of(np.concatenate(views), None, np.concatenate(runs))]
