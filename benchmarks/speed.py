@@ -19,12 +19,20 @@ Then the drifting-bias row (issue 25): a 1e6-sample log whose bias walks at 100x
 same call with the noise given (``noise_std``: no identification, one constant bias), as the ratio of the two best
 times of each round, over ``--rounds`` interleaved rounds (target: <= 2.5x).
 
-    python benchmarks/speed.py [--target-only] [--drift-only]
+Then the start-up row: ``gyrocal --help`` (``python -m fusion_gyrocal.cli --help``) against
+``python -c "import numpy"``, each a fresh interpreter, interleaved, median of ``--starts`` runs (target: <= 1.5x).
+
+    python benchmarks/speed.py [--target-only] [--drift-only] [--startup-only]
 """
 
 from __future__ import annotations
 
+import statistics
+import subprocess
+import sys
+import time
 import tracemalloc
+from pathlib import Path
 
 import numpy as np
 from _timing import best_of  # noqa: E402  (benchmarks/ is the script's folder)
@@ -95,13 +103,38 @@ def drift(n=1_000_000, rounds=5, k=3):
           "target <= 2.5x)")
 
 
+def startup(runs=15):
+    """``gyrocal --help`` against ``import numpy``, fresh interpreters, interleaved."""
+    root = str(Path(__file__).resolve().parent.parent)     # this checkout's package, not an installed one
+    cmds = {"import numpy": [sys.executable, "-c", "import numpy"],
+            "gyrocal --help": [sys.executable, "-m", "fusion_gyrocal.cli", "--help"]}
+    times = {k: [] for k in cmds}
+    for _ in range(runs):
+        for name, cmd in cmds.items():
+            t0 = time.perf_counter()
+            subprocess.run(cmd, cwd=root, check=True, stdout=subprocess.DEVNULL)
+            times[name].append(time.perf_counter() - t0)
+    med = {k: statistics.median(v) for k, v in times.items()}
+    ratios = [h / n for h, n in zip(times["gyrocal --help"], times["import numpy"])]
+    print(f"\nstart-up, fresh interpreters, median of {runs} interleaved runs")
+    for k, v in med.items():
+        print(f"  {k:16} {v:8.3f} s (runs {min(times[k]):.3f}-{max(times[k]):.3f})")
+    print(f"  gyrocal --help / import numpy: {med['gyrocal --help'] / med['import numpy']:.2f}x of the medians "
+          f"(per-pair ratios {min(ratios):.2f}-{max(ratios):.2f}; target <= 1.5x)")
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--target-only", action="store_true")
     p.add_argument("--drift-only", action="store_true")
+    p.add_argument("--startup-only", action="store_true")
+    p.add_argument("--starts", type=int, default=15, help="interpreter starts of each kind in the start-up row")
     p.add_argument("--rounds", type=int, default=5, help="interleaved rounds of the drifting-bias row")
     p.add_argument("--n", type=int, default=5_000_000, help="samples of the target row (default 5e6)")
     a = p.parse_args(argv)
+    if a.startup_only:
+        startup(a.starts)
+        return
     if a.drift_only:
         drift(rounds=a.rounds)
         return
@@ -128,6 +161,7 @@ def main(argv=None):
         X = None
     target(a.n)
     drift(rounds=a.rounds)
+    startup(a.starts)
 
 
 if __name__ == "__main__":

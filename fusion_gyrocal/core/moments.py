@@ -20,7 +20,6 @@ Two ways to combine moments:
 from __future__ import annotations
 
 import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Iterable
 
@@ -321,6 +320,8 @@ class Moments:
         if workers == 1:
             c, mu, sc = _accumulate(w1, w2, mask, 0, n, chunk_size) if n else (0, np.zeros(6), np.zeros((6, 6)))
             return cls(c, mu, sc, 1 if c else 0)
+        from concurrent.futures import ThreadPoolExecutor
+
         bounds = np.linspace(0, n_chunks, workers + 1).astype(int) * chunk_size
         with ThreadPoolExecutor(workers) as pool:  # numpy releases the GIL in BLAS and copies
             parts = list(pool.map(lambda i: _accumulate(w1, w2, mask, bounds[i], min(bounds[i + 1], n), chunk_size),
@@ -763,6 +764,8 @@ class _WalkFilter:
             for start in starts:
                 yield start, self.filtered(start)
             return
+        from concurrent.futures import ThreadPoolExecutor
+
         with ThreadPoolExecutor(1) as pool:
             ahead = pool.submit(self.filtered, starts[0])
             for i, start in enumerate(starts):
