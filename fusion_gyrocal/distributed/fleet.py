@@ -5,7 +5,9 @@ Two uses of one idea (the sufficient statistics are the hinge, see ``ARCHITECTUR
 * :func:`run_fleet` maps the per-device pipeline (:func:`fusion_gyrocal.calibrate_pair`: alignment,
   saturation masks, flex gating, maximum likelihood) over many device recordings on a Dask cluster
   and returns a results table with one row per device; a device that fails gets a row with its
-  error message instead of stopping the run. :func:`write_results` writes the table as Parquet.
+  error message instead of stopping the run, and the devices that shared a worker that died are run
+  again alone, so only the device that kills its worker fails. :func:`fleet_cluster` starts a local
+  cluster of worker processes set up for it; :func:`write_results` writes the table as Parquet.
 * :func:`log_moments` splits one huge log (a Parquet file or dataset) into its row groups, computes
   :meth:`Moments.from_samples` of every row group on the workers and reduces them with a
   ``dask.bag`` tree reduction of :meth:`Moments.merge`; :func:`calibrate_log` then solves from the
