@@ -20,7 +20,6 @@ from typing import NamedTuple
 import numpy as np
 
 from ..core.moments import as_rates
-from ..online.history import PairTruth
 
 DEG = np.pi / 180.0
 PAPER_RATE_HZ = 100.0
@@ -321,6 +320,8 @@ def simulate_drifting_pair(t, R_1_2, scale_1, scale_2, *, bias_1=None, bias_2=No
     w2 = s2 * w_true_2 + b2 + rng.normal(0, sig[1], (n, 3))
     A = (s1[:, :, None] * R) / s2[:, None, :]
     bias = b1 - np.einsum("kij,kj->ki", A, b2)
+    from ..online.history import PairTruth
+
     return w1, w2, PairTruth(R, s1, s2, bias)
 
 
