@@ -132,7 +132,7 @@ def _accumulate(w1, w2, mask, lo, hi, chunk_size):
     would cost more than ~6 of 16 digits, e.g. a large drift), the range is redone chunk by chunk
     with Chan's pairwise update (:func:`_accumulate_chan`).
     """
-    buf = np.empty((7, min(chunk_size, hi - lo)))
+    buf = np.empty((7, chunk_size))
     buf[6] = 1.0
     G = np.zeros((7, 6))
     n_tot = 0
@@ -144,17 +144,13 @@ def _accumulate(w1, w2, mask, lo, hi, chunk_size):
         if shift is None:                 # the first chunk with a kept sample: its mean is the shift
             if keep is not None and not keep.any():
                 continue
-            np.copyto(x[:3], w1[start:stop].T)
-            np.copyto(x[3:6], w2[start:stop].T)
-            with np.errstate(over="ignore", invalid="ignore"):
-                shift = (x[:6] if keep is None else x[:6, keep]).mean(axis=1)
+            first = [np.asarray(w[start:stop] if keep is None else w[start:stop][keep]) for w in (w1, w2)]
+            shift = np.concatenate([f.mean(axis=0, dtype=np.float64) for f in first])
             if not np.isfinite(shift).all():
                 shift = np.zeros(6)       # the non-finite sums below name the first bad row
             s1, s2 = shift[:3, None], shift[3:, None]
-            x[:6] -= shift[:, None]
-        else:
-            np.subtract(w1[start:stop].T, s1, out=x[:3])
-            np.subtract(w2[start:stop].T, s2, out=x[3:6])
+        np.subtract(w1[start:stop].T, s1, out=x[:3])
+        np.subtract(w2[start:stop].T, s2, out=x[3:6])
         if keep is not None and not keep.all():
             x = x[:, keep]
         with np.errstate(over="ignore", invalid="ignore"):   # overflow is checked once below
@@ -359,31 +355,19 @@ class Moments:
 
     @staticmethod
     def pool_all(parts: Iterable["Moments"]) -> "Moments":
-        """Pool a sequence of per-segment moments (piecewise-constant bias): :meth:`pool` of them all, in one
-        vectorised sum."""
-        parts = [p for p in parts if p.count != 0]
-        if len(parts) <= 1:
-            return parts[0] if parts else Moments.empty()
-        count = np.array([p.count for p in parts])
-        n = float(count.sum())
-        mean = count @ np.array([p.mean for p in parts]) / n
-        scatter = np.add.reduce([p.scatter for p in parts])
-        return Moments(n, mean, scatter, sum(p.segments for p in parts))
+        """Pool a sequence of per-segment moments (piecewise-constant bias)."""
+        out = Moments.empty()
+        for p in parts:
+            out = out.pool(p)
+        return out
 
     @staticmethod
     def merge_all(parts: Iterable["Moments"]) -> "Moments":
-        """Merge a sequence of moments that share one bias: :meth:`merge` of them all, in one vectorised sum
-        (within-part scatters plus the spread of the part means about the overall mean)."""
-        parts = [p for p in parts if p.count != 0]
-        if len(parts) <= 2:
-            return parts[0].merge(parts[1]) if len(parts) == 2 else (parts[0] if parts else Moments.empty())
-        count = np.array([p.count for p in parts])
-        means = np.array([p.mean for p in parts])
-        n = float(count.sum())
-        mean = count @ means / n
-        d = means - mean
-        scatter = np.add.reduce([p.scatter for p in parts]) + (d * count[:, None]).T @ d
-        return Moments(n, mean, 0.5 * (scatter + scatter.T), max(p.segments for p in parts))
+        """Merge a sequence of moments that share one bias (tree-free left fold)."""
+        out = Moments.empty()
+        for p in parts:
+            out = out.merge(p)
+        return out
 
     def decayed(self, factor: float) -> "Moments":
         """Down-weight all samples by ``factor`` in (0, 1] (exponential forgetting)."""
@@ -424,7 +408,7 @@ class Moments:
         return cls(d["count"], np.asarray(d["mean"]), np.asarray(d["scatter"]), int(d.get("segments", 1)))
 
 
-_BLOCK_ROWS = 65536         # samples per block of the vectorised passes (a few MiB of float64 at a time)
+_BLOCK_ROWS = 65536         # samples per block of the drifting-bias filter (a few MiB of float64 at a time)
 
 
 def window_moments(omega_1, omega_2, window: int, *, mask=None, with_starts: bool = False) -> list:
