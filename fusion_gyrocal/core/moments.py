@@ -408,7 +408,7 @@ class Moments:
         return cls(d["count"], np.asarray(d["mean"]), np.asarray(d["scatter"]), int(d.get("segments", 1)))
 
 
-_BLOCK_ROWS = 65536         # samples per block of the drifting-bias filter (a few MiB of float64 at a time)
+_BLOCK_ROWS = 65536         # samples per block of the window moments and the drifting-bias filter (a few MiB)
 
 
 def window_moments(omega_1, omega_2, window: int, *, mask=None, with_starts: bool = False) -> list:
