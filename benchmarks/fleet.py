@@ -2,33 +2,39 @@
 
 Prints measured figures (nothing is hard-coded):
 
-1. ``run_fleet`` over generated Parquet devices on a ``LocalCluster`` with 1 and with 2 worker
-   processes (one thread each), and on Dask's threaded scheduler in this process: devices/s and
-   samples/s (after a warm-up run that pays the workers' imports).
+1. ``run_fleet`` over generated Parquet devices against the serial loop in this process
+   (``device_row`` of each device in turn): on ``fleet_cluster`` (what ``gyrocal fleet`` starts) with 1 and
+   with 2 worker processes (one thread each), on a ``LocalCluster`` with distributed's defaults, and on
+   Dask's threaded scheduler in this process: seconds, devices/s and each as a ratio to the serial loop,
+   over ``--rounds`` interleaved rounds (after a warm-up run that pays the workers' imports; targets:
+   2 workers <= 0.65x, 1 worker <= 1.15x).
 2. One huge Parquet log: the in-process pass (read the whole file, ``Moments.from_samples``)
    versus ``log_moments`` (one task per row group, ``dask.bag`` tree reduction of
    ``Moments.merge``) on 1 and 2 workers: samples/s, and the largest relative difference of the
    reduced statistics from the in-process ones.
 
-Run: ``python benchmarks/fleet.py [--devices 24 --device-samples 60000 --log-samples 6000000]``.
+Run: ``python benchmarks/fleet.py [--devices 24 --device-samples 60000 --log-samples 6000000] [--fleet-only]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import shutil
 import tempfile
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 from _timing import best_of  # noqa: E402  (benchmarks/ is the script's folder)
 import pyarrow as pa
 import pyarrow.parquet as pq
 from distributed import Client, LocalCluster
 
 from fusion_gyrocal import Moments
-from fusion_gyrocal.distributed.fleet import COLUMNS, log_moments, run_fleet
+from fusion_gyrocal.distributed.fleet import (COLUMNS, device_row, find_devices, fleet_cluster, log_moments,
+                                              run_fleet)
 from fusion_gyrocal.evaluate.sim import simulate_pair
 
 
@@ -50,25 +56,53 @@ def write_log(path: Path, n: int, *, seed: int, row_group_size: int, base: int =
         writer.close()
 
 
-def bench_fleet(root: Path, n_devices: int, n_samples: int, repeat: int) -> None:
+def bench_fleet(root: Path, n_devices: int, n_samples: int, repeat: int, rounds: int) -> None:
     for i in range(n_devices):
         write_log(root / f"device_{i:03d}.parquet", n_samples, seed=i, row_group_size=n_samples, base=n_samples)
+    paths = find_devices([root])
     total = n_devices * n_samples
-    print(f"\n1. fleet: {n_devices} Parquet devices x {n_samples} samples (calibrate_pair per device, method ml); "
-          f"best of {repeat} after a warm-up run")
-    print(f"   {'engine':38s} {'seconds':>8s} {'devices/s':>10s} {'Msamples/s':>11s} {'sum of task s':>14s}  rows ok")
+    print(f"\n1. fleet: {n_devices} Parquet devices x {n_samples} samples (calibrate_pair per device, defaults); "
+          f"best of {repeat} per round after a warm-up run, {rounds} interleaved rounds")
 
-    def report(label, run):
-        run()  # warm-up: imports in this process or in every worker, file cache
-        dt, df = best_of(run, repeat)
-        print(f"   {label:38s} {dt:8.2f} {n_devices / dt:10.2f} {total / dt / 1e6:11.3f} {df['seconds'].sum():14.2f}  "
-              f"{int(df['ok'].sum())}/{len(df)}")
+    def serial():
+        return pd.DataFrame([device_row(p) for p in paths])
 
-    report("threaded scheduler, this process", lambda: run_fleet(root))
-    for workers in (1, 2):
-        with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                          dashboard_address=None) as cluster, Client(cluster) as client:
-            report(f"LocalCluster, {workers} worker process(es)", lambda: run_fleet(root, client=client))
+    engines = {"serial loop, this process": (None, serial),
+               "threaded scheduler, this process": (None, lambda: run_fleet(root))}
+    clusters = []
+    try:
+        for label, make in (("fleet_cluster, 1 worker process", lambda: fleet_cluster(1)),
+                            ("fleet_cluster, 2 worker processes", lambda: fleet_cluster(2)),
+                            ("LocalCluster defaults, 2 workers", lambda: LocalCluster(
+                                n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                dashboard_address=None))):
+            cluster = make()
+            client = Client(cluster)
+            clusters.append((cluster, client))
+            engines[label] = (client, functools.partial(run_fleet, root, client=client))
+        times = {k: [] for k in engines}
+        checks = {}
+        for _, run in engines.values():
+            run()  # warm-up: imports in this process or in every worker, file cache
+        for _ in range(rounds):
+            for label, (_, run) in engines.items():
+                dt, df = best_of(run, repeat)
+                times[label].append(dt)
+                checks[label] = (int(df["ok"].sum()), len(df), float(df["seconds"].sum()))
+    finally:
+        for cluster, client in clusters:
+            client.close()
+            cluster.close()
+    ref = times["serial loop, this process"]
+    print(f"   {'engine':36s} {'seconds':>8s} {'devices/s':>10s} {'Msamples/s':>11s} {'/ serial':>9s} "
+          f"{'rounds':>13s} {'sum of task s':>14s}  rows ok")
+    for label, ts in times.items():
+        ratios = [t / r for t, r in zip(ts, ref)]
+        ok, n, task_s = checks[label]
+        dt = min(ts)
+        print(f"   {label:36s} {dt:8.2f} {n_devices / dt:10.2f} {total / dt / 1e6:11.3f} {np.median(ratios):9.2f} "
+              f"{min(ratios):6.2f}-{max(ratios):<6.2f} {task_s:14.2f}  {ok}/{n}")
+    print("   (/ serial: the median over the rounds of the engine's best time over the serial loop's in the same round)")
 
 
 def bench_log(root: Path, n: int, row_group_size: int, repeat: int) -> None:
@@ -116,14 +150,17 @@ def main(argv=None) -> None:
     p.add_argument("--log-samples", type=int, default=6_000_000)
     p.add_argument("--row-group", type=int, default=250_000)
     p.add_argument("--repeat", type=int, default=3)
+    p.add_argument("--rounds", type=int, default=3, help="interleaved rounds of the fleet engines")
+    p.add_argument("--fleet-only", action="store_true")
     args = p.parse_args(argv)
     print(f"machine: {os.cpu_count()} CPU(s); load average at start {os.getloadavg()[0]:.1f} "
           "(other processes share the CPUs: figures are only comparable at low load)")
     root = Path(tempfile.mkdtemp(prefix="gyrocal_fleet_bench_"))
     try:
         (root / "fleet").mkdir()
-        bench_fleet(root / "fleet", args.devices, args.device_samples, args.repeat)
-        bench_log(root, args.log_samples, args.row_group, args.repeat)
+        bench_fleet(root / "fleet", args.devices, args.device_samples, args.repeat, args.rounds)
+        if not args.fleet_only:
+            bench_log(root, args.log_samples, args.row_group, args.repeat)
     finally:
         shutil.rmtree(root, ignore_errors=True)
     print(f"\nload average at the end {os.getloadavg()[0]:.1f}")

@@ -6,12 +6,16 @@
    (batch: direct + ML refinement + covariance; graph: direct seed + factor construction +
    Levenberg-Marquardt + Marginals), best of 3, and the largest difference between the two
    estimates over all 12 parameters in units of the batch standard deviation.
+0. End to end at N = 1e4 and 1e6 (issue 25): ``calibrate_pair_graph(omega_1, omega_2, noise_std=...)`` (window
+   moments, direct seed, LM, Marginals; 1000-sample windows) against the closed form
+   ``calibrate_pair(omega_1, omega_2, noise_std=...)`` on the same data, as the ratio of the best times of each
+   round over ``--rounds`` interleaved rounds (target at 1e6: <= 5x).
 2. iSAM2 fed one second of 100 Hz data at a time (one window per second): wall time per
    ``update()`` (median, 95th percentile, max) over the run, with one constant bias (the merged
    pair factor replaced at each update) and with a bias random walk (one new pair factor and bias
    variable per second), and the final ``result()`` time.
 
-    python benchmarks/graph.py [--max-n 1000000] [--seconds 600]
+    python benchmarks/graph.py [--max-n 1000000] [--seconds 600] [--end-to-end-only]
 """
 
 from __future__ import annotations
@@ -23,8 +27,8 @@ import numpy as np
 from _timing import best_of  # noqa: E402  (benchmarks/ is the script's folder)
 from scipy.spatial.transform import Rotation
 
-from fusion_gyrocal import Moments, solve
-from fusion_gyrocal.graph import GyroPairGraph
+from fusion_gyrocal import Moments, calibrate_pair, solve
+from fusion_gyrocal.graph import GyroPairGraph, calibrate_pair_graph
 from fusion_gyrocal.core.moments import window_moments
 from fusion_gyrocal.evaluate.sim import PAPER_BIAS_WALK_STD, simulate_pair
 
@@ -43,6 +47,21 @@ def max_sigma_difference(a, b) -> float:
     diff = np.concatenate([dtheta, a.scale_1 - b.scale_1, a.scale_2 - b.scale_2, a.bias - b.bias])
     ok = np.isfinite(sd) & (sd > 0)
     return float(np.max(np.abs(diff[ok] / sd[ok])))
+
+
+def end_to_end(rounds: int = 3):
+    print("graph end to end against the closed form, calibrate_pair_graph / calibrate_pair (noise given), "
+          f"best of 3 per round, {rounds} interleaved rounds")
+    for n in (10**4, 10**6):
+        sim = simulate_pair(n=n, rng=1)
+        w1, w2, noise = sim.omega_1, sim.omega_2, sim.noise_std
+        ratios, tg, tc = [], [], []
+        for _ in range(rounds):
+            tg.append(best_of(lambda: calibrate_pair_graph(w1, w2, noise_std=noise))[0])
+            tc.append(best_of(lambda: calibrate_pair(w1, w2, noise_std=noise))[0])
+            ratios.append(tg[-1] / tc[-1])
+        print(f"  N = {n:8d}: graph {min(tg):.4f} s, closed form {min(tc):.4f} s, graph / closed form median "
+              f"{np.median(ratios):.2f}x (rounds {min(ratios):.2f}-{max(ratios):.2f})")
 
 
 def batch_versus_graph(max_n: int):
@@ -94,7 +113,12 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--max-n", type=int, default=10**6)
     ap.add_argument("--seconds", type=int, default=600)
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--end-to-end-only", action="store_true")
     args = ap.parse_args(argv)
+    end_to_end(args.rounds)
+    if args.end_to_end_only:
+        return
     batch_versus_graph(args.max_n)
     isam2_streaming(args.seconds)
 

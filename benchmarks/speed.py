@@ -14,12 +14,25 @@ the default pipeline: the noise model identified from the data, the block-robust
 ``X.T @ X`` of the same data stacked as (N, 6), best of 5, with each part (the moments pass, the
 noise split) and the peak memory beyond the inputs (target: >= 0.5x, <= 64 MiB).
 
-    python benchmarks/speed.py [--target-only]
+Then the drifting-bias row (issue 25): a 1e6-sample log whose bias walks at 100x the paper's rate; the default
+``calibrate_pair(omega_1, omega_2)`` (which identifies the walk and solves on the Kalman innovations) against the
+same call with the noise given (``noise_std``: no identification, one constant bias), as the ratio of the two best
+times of each round, over ``--rounds`` interleaved rounds (target: <= 2.5x).
+
+Then the start-up row: ``gyrocal --help`` (``python -m fusion_gyrocal.cli --help``) against
+``python -c "import numpy"``, each a fresh interpreter, interleaved, median of ``--starts`` runs (target: <= 1.5x).
+
+    python benchmarks/speed.py [--target-only] [--drift-only] [--startup-only]
 """
 
 from __future__ import annotations
 
+import statistics
+import subprocess
+import sys
+import time
 import tracemalloc
+from pathlib import Path
 
 import numpy as np
 from _timing import best_of  # noqa: E402  (benchmarks/ is the script's folder)
@@ -27,9 +40,9 @@ from _timing import best_of  # noqa: E402  (benchmarks/ is the script's folder)
 import argparse
 
 from fusion_gyrocal import Moments, calibrate_pair, solve
-from fusion_gyrocal.evaluate.sim import PAPER_NOISE_STD, random_rotation
+from fusion_gyrocal.evaluate.sim import PAPER_BIAS_WALK_STD, PAPER_NOISE_STD, random_rotation, simulate_pair
 from fusion_gyrocal.core.direct import solve_A
-from fusion_gyrocal.core.moments import window_stats
+from fusion_gyrocal.core.moments import random_walk_bias_moments, window_stats
 from fusion_gyrocal.core.noise import difference_noise_std, identify_noise
 
 
@@ -65,11 +78,66 @@ def target(n=5_000_000, k=5):
     print(f"  peak memory beyond the inputs (calibrate_pair): {peak:.1f} MiB (target <= 64)")
 
 
+def drift(n=1_000_000, rounds=5, k=3):
+    """Default calibrate_pair on a drifting-bias log against the same call with the noise given."""
+    sim = simulate_pair(n=n, bias_walk_std=100 * PAPER_BIAS_WALK_STD, rng=1)
+    w1, w2 = sim.omega_1, sim.omega_2
+    default = calibrate_pair(w1, w2)
+    ratios, t_def, t_known = [], [], []
+    for _ in range(rounds):
+        td = best_of(lambda: calibrate_pair(w1, w2), k)[0]
+        tk = best_of(lambda: calibrate_pair(w1, w2, noise_std=PAPER_NOISE_STD), k)[0]
+        ratios.append(td / tk)
+        t_def.append(td)
+        t_known.append(tk)
+    walk, noise = default.noise_model.bias_walk_std, default.noise_model.noise_std
+    t_rw = best_of(lambda: random_walk_bias_moments(w1, w2, walk, noise, window=100), k)[0]
+    t_mom = best_of(lambda: Moments.from_samples(w1, w2), k)[0]
+    print(f"\ndrifting bias ({n} samples, walk 100x the paper's; identified: {default.noise_model.bias_model}), "
+          f"best of {k} per round, {rounds} rounds")
+    print(f"  calibrate_pair(omega_1, omega_2) (default)      {min(t_def):8.4f} s (rounds {min(t_def):.3f}-{max(t_def):.3f})")
+    print(f"  calibrate_pair(..., noise_std=known)            {min(t_known):8.4f} s (rounds {min(t_known):.3f}-"
+          f"{max(t_known):.3f})")
+    print(f"    random_walk_bias_moments(..., window=100)     {t_rw:8.4f} s; Moments.from_samples {t_mom:.4f} s")
+    print(f"  default / noise given: median {np.median(ratios):.2f}x (rounds {min(ratios):.2f}-{max(ratios):.2f}; "
+          "target <= 2.5x)")
+
+
+def startup(runs=15):
+    """``gyrocal --help`` against ``import numpy``, fresh interpreters, interleaved."""
+    root = str(Path(__file__).resolve().parent.parent)     # this checkout's package, not an installed one
+    cmds = {"import numpy": [sys.executable, "-c", "import numpy"],
+            "gyrocal --help": [sys.executable, "-m", "fusion_gyrocal.cli", "--help"]}
+    times = {k: [] for k in cmds}
+    for _ in range(runs):
+        for name, cmd in cmds.items():
+            t0 = time.perf_counter()
+            subprocess.run(cmd, cwd=root, check=True, stdout=subprocess.DEVNULL)
+            times[name].append(time.perf_counter() - t0)
+    med = {k: statistics.median(v) for k, v in times.items()}
+    ratios = [h / n for h, n in zip(times["gyrocal --help"], times["import numpy"])]
+    print(f"\nstart-up, fresh interpreters, median of {runs} interleaved runs")
+    for k, v in med.items():
+        print(f"  {k:16} {v:8.3f} s (runs {min(times[k]):.3f}-{max(times[k]):.3f})")
+    print(f"  gyrocal --help / import numpy: {med['gyrocal --help'] / med['import numpy']:.2f}x of the medians "
+          f"(per-pair ratios {min(ratios):.2f}-{max(ratios):.2f}; target <= 1.5x)")
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--target-only", action="store_true")
+    p.add_argument("--drift-only", action="store_true")
+    p.add_argument("--startup-only", action="store_true")
+    p.add_argument("--starts", type=int, default=15, help="interpreter starts of each kind in the start-up row")
+    p.add_argument("--rounds", type=int, default=5, help="interleaved rounds of the drifting-bias row")
     p.add_argument("--n", type=int, default=5_000_000, help="samples of the target row (default 5e6)")
     a = p.parse_args(argv)
+    if a.startup_only:
+        startup(a.starts)
+        return
+    if a.drift_only:
+        drift(rounds=a.rounds)
+        return
     if a.target_only:
         target(a.n)
         return
@@ -92,6 +160,8 @@ def main(argv=None):
               f"{raw / ours:12.3f} {peak:8.2f}")
         X = None
     target(a.n)
+    drift(rounds=a.rounds)
+    startup(a.starts)
 
 
 if __name__ == "__main__":

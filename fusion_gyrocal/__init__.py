@@ -4,22 +4,18 @@ Implements T. Wang and S. I. Roumeliotis, "A Direct Algorithm for Multi-Gyroscop
 Calibration", and goes beyond it (maximum likelihood, drifting bias, priors, N gyros,
 streaming, an EKF, a GTSAM graph, fleets on Dask).
 
-The core names import eagerly; the estimators with heavy dependencies (filterpy, gtsam, dask)
-load on first use.
+Every name loads on first use (``from fusion_gyrocal import calibrate_pair`` imports the pair pipeline then),
+so that ``import fusion_gyrocal`` and the ``gyrocal`` command line start light.
 """
-
-from .core.gauge import Gauge
-from .core.model import PairCalibration
-from .core.moments import Moments
-from .core.solve import solve
-from .errors import (ConfigurationError, ConvergenceError, ExcitationError, FormatError, GyroCalError, InputError,
-                     NotRigidError, OptionError, TimeAlignmentError)
-from .options import Options
-from .pipeline.pipeline import calibrate_pair
 
 __version__ = "0.1.0"
 
 _LAZY = {
+    "calibrate_pair": "pipeline.pipeline", "solve": "core.solve", "Options": "options", "Gauge": "core.gauge",
+    "PairCalibration": "core.model", "Moments": "core.moments",
+    **{name: "errors" for name in ("GyroCalError", "InputError", "OptionError", "ExcitationError",
+                                    "ConfigurationError", "TimeAlignmentError", "NotRigidError", "FormatError",
+                                    "ConvergenceError")},
     "calibrate_array": "core.array", "ArrayCalibration": "core.array_result",
     "calibrate_streams": "pipeline.array",
     "StreamingCalibrator": "online.stream",
@@ -28,16 +24,18 @@ _LAZY = {
     "run_fleet": "distributed.fleet",
 }
 
-__all__ = [
-    "calibrate_pair", "solve", "Options", "Gauge", "PairCalibration", "Moments",
-    "GyroCalError", "InputError", "OptionError", "ExcitationError", "ConfigurationError", "TimeAlignmentError",
-    "NotRigidError", "FormatError", "ConvergenceError", "__version__", *_LAZY,
-]
+__all__ = ["__version__", *_LAZY]
 
 
 def __getattr__(name):
     if name in _LAZY:
         import importlib
 
-        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+        globals()[name] = value      # once loaded, an ordinary attribute
+        return value
     raise AttributeError(f"module 'fusion_gyrocal' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))

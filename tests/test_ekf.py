@@ -656,8 +656,8 @@ def test_run_history_max_rows_refuses_truth_and_bad_values():
     rng = np.random.default_rng(35)
     t, w1, w2, truth = scenario(rng, 15.0)
     tr = GyroPairTracker.from_samples(t[:1000], w1[:1000], w2[:1000], history_max_rows=100)
-    with pytest.raises(OptionError, match="history_max_rows"):
-        tr.run(t[1000:], w1[1000:], w2[1000:], truth=truth[1000:])
+    with pytest.raises(OptionError, match="history_max_rows"):     # 500 updates: beyond the 100 rows
+        tr.run(t[1000:], w1[1000:], w2[1000:], mode="sample", truth=truth[1000:])
     with pytest.raises(OptionError, match="history_max_rows"):
         TrackerConfig(history_max_rows=1)
 

@@ -213,15 +213,88 @@ def test_fleet_main_has_no_bias_window_flag(capsys):
     assert "unrecognized arguments: --bias-window" in capsys.readouterr().err
 
 
-def test_run_fleet_dead_worker_fails_only_its_device(tmp_path):
-    from fusion_gyrocal.distributed.fleet import _gathered
+class _KillOn(distributed.WorkerPlugin):
+    """In every (re)started worker: the device named ``stem`` kills its worker process after ``delay`` s (as an
+    out-of-memory kill would), once the worker has other devices queued."""
 
-    class Future:      # what client.map returns for a device whose worker was killed (e.g. out of memory)
-        def result(self):
-            raise RuntimeError("KilledWorker: Attempted to run task on 3 different workers, all died")
-    row = _gathered(Future(), tmp_path / "dev_x.parquet")
-    assert row["device"] == "dev_x" and row["ok"] is False
-    assert row["error_type"] == "RuntimeError" and "all died" in row["error"]
+    def __init__(self, stem, delay):
+        self.stem, self.delay = stem, delay
+
+    def setup(self, worker):
+        import os
+        import time
+        from pathlib import Path
+
+        import fusion_gyrocal.distributed.fleet as fleet
+
+        original, stem, delay = fleet.calibrate_device, self.stem, self.delay
+
+        def calibrate_device(path, options=None, **keywords):
+            if Path(path).stem == stem:
+                time.sleep(delay)
+                os._exit(1)
+            return original(path, options, **keywords)
+
+        fleet.calibrate_device = calibrate_device
+
+
+def test_run_fleet_dead_worker_fails_only_its_device(tmp_path):
+    from fusion_gyrocal.distributed.fleet import fleet_cluster
+
+    names = [f"dev_{i}" for i in range(6)]
+    for i, name in enumerate(names):
+        _write_parquet(tmp_path / f"{name}.parquet", simulate_pair(rng=40 + i, n=2000))
+    with fleet_cluster(2) as cluster, distributed.Client(cluster) as c:
+        c.register_plugin(_KillOn("dev_2", 1.0))
+        df = run_fleet(tmp_path, client=c, noise_std=PAPER_NOISE_STD).set_index("device")
+    assert sorted(df.index) == names
+    assert df.loc["dev_2", "ok"] == False and df.loc["dev_2", "error_type"] == "KilledWorker"  # noqa: E712
+    assert "worker running this device died" in df.loc["dev_2", "error"] and "alone" in df.loc["dev_2", "error"]
+    healthy = df.drop("dev_2")
+    assert healthy["ok"].all(), healthy[["error_type", "error"]]
+    assert np.isfinite(healthy["rotvec_x"].to_numpy(float)).all()
+
+
+def test_fleet_cluster_workers_keep_glibc_adaptive_malloc():
+    import os
+
+    from fusion_gyrocal.distributed.fleet import fleet_cluster
+
+    os.environ["MALLOC_TRIM_THRESHOLD_"] = "65536"     # what a default cluster's nanny leaves in this process
+    with fleet_cluster(1) as cluster, distributed.Client(cluster) as c:
+        env = c.run(lambda: (os.environ.get("MALLOC_TRIM_THRESHOLD_"), os.environ.get("OMP_NUM_THREADS")))
+    assert list(env.values()) == [(None, "1")]
+
+
+def test_run_fleet_folder_entries_that_are_no_device_get_error_rows(tmp_path):
+    import os
+
+    _write_parquet(tmp_path / "dev_a.parquet", simulate_pair(rng=50, n=2000))
+    half = tmp_path / "half"
+    half.mkdir()
+    (half / "gyro1.csv").write_text("t,wx,wy,wz\n0,0,0,0\n")
+    (tmp_path / "empty.parquet").mkdir()
+    os.symlink(tmp_path / "nowhere.parquet", tmp_path / "gone.parquet")
+    os.symlink(tmp_path / "loop", tmp_path / "loop")
+    (tmp_path / "notes.txt").write_text("not a device")
+    (tmp_path / ".cache").mkdir()
+    df = run_fleet(tmp_path).set_index("device")
+    assert sorted(df.index) == ["dev_a", "empty", "gone", "half", "loop"]
+    assert df.loc["dev_a", "ok"] and not df.drop("dev_a")["ok"].any()
+    assert (df.drop("dev_a")["error_type"] == "FormatError").all()
+    assert "missing gyro2.*" in df.loc["half", "error"] and "found gyro1.csv" in df.loc["half", "error"]
+    assert "symbolic link to" in df.loc["gone", "error"] and "does not exist" in df.loc["gone", "error"]
+    assert "symbolic link loop" in df.loc["loop", "error"]
+    assert "no .parquet part files" in df.loc["empty", "error"]
+
+
+def test_fleet_main_folder_with_half_device_exits_4(tmp_path, capsys):
+    _write_parquet(tmp_path / "dev_a.parquet", simulate_pair(rng=51, n=2000))
+    (tmp_path / "half").mkdir()
+    (tmp_path / "half" / "gyro2.csv").write_text("t,wx,wy,wz\n0,0,0,0\n")
+    code = fleet_main([str(tmp_path), "-o", str(tmp_path / "out.parquet"), "--workers", "0"])
+    out = capsys.readouterr().out
+    assert code == 4 and "half: FAILED (FormatError)" in out and "missing gyro1.*" in out
 
 
 def test_run_fleet_poisoned_timestamp_fails_only_its_device(tmp_path):

@@ -6,8 +6,8 @@ import csv
 import io
 
 from ..errors import InputError
-from ..evaluate.compare import (DEFAULT_ESTIMATORS, ESTIMATORS, SNR_FACTORS, compare, plot_rmse_vs_snr,
-                                snr_sweep)
+from ..evaluate.registry import DEFAULT_ESTIMATORS, ESTIMATORS
+from ..evaluate.scenarios import SNR_FACTORS
 from ..options import FLAGS
 from .app import EXIT_OK, run_command
 from .recording import RECORDING_OPTIONS, add_alignment_args, add_recording_args, aligned_samples, read_recording
@@ -64,6 +64,7 @@ def run(args) -> int:
     """Run ``gyrocal compare`` from parsed arguments (raises; :func:`compare_main` maps errors to exit codes)."""
     from rich.console import Console
 
+    from ..evaluate.compare import compare, plot_rmse_vs_snr, snr_sweep
     from ..io.writers import atomic_write, output_group
 
     console = Console(highlight=False)

@@ -58,15 +58,16 @@ def run(args) -> int:
     try:
         if args.scheduler or args.workers > 0:
             import dask
-            from distributed import Client, LocalCluster
+            from distributed import Client
+
+            from ..distributed.fleet import fleet_cluster
 
             # a device that kills its worker (out of memory) fails alone: not re-run on every other worker in turn
             dask.config.set({"distributed.scheduler.allowed-failures": 0})
             if args.scheduler:
                 client = Client(args.scheduler)
             else:
-                cluster = LocalCluster(n_workers=args.workers, threads_per_worker=args.threads_per_worker,
-                                       processes=True, host="127.0.0.1", dashboard_address=None)
+                cluster = fleet_cluster(args.workers, args.threads_per_worker)
                 client = Client(cluster)
         df = run_fleet(args.devices, client=client, output=args.output, chunked=args.chunked, progress=None,
                        options=options)

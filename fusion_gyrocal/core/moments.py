@@ -20,7 +20,6 @@ Two ways to combine moments:
 from __future__ import annotations
 
 import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Iterable
 
@@ -119,8 +118,7 @@ def noise_pair(noise_std) -> tuple[float, float]:
     return float(arr[0]), float(arr[1])
 
 
-def _default_threads() -> int:
-    return max(1, min(2, os.cpu_count() or 1))
+_THREADS = max(1, min(2, os.cpu_count() or 1))   # default worker threads of a long pass
 
 
 def _accumulate(w1, w2, mask, lo, hi, chunk_size):
@@ -142,7 +140,8 @@ def _accumulate(w1, w2, mask, lo, hi, chunk_size):
     for start in range(lo, hi, chunk_size):
         stop = min(start + chunk_size, hi)
         keep = None if mask is None else mask[start:stop]
-        if shift is None:
+        x = buf[:, : stop - start]
+        if shift is None:                 # the first chunk with a kept sample: its mean is the shift
             if keep is not None and not keep.any():
                 continue
             first = [np.asarray(w[start:stop] if keep is None else w[start:stop][keep]) for w in (w1, w2)]
@@ -150,7 +149,6 @@ def _accumulate(w1, w2, mask, lo, hi, chunk_size):
             if not np.isfinite(shift).all():
                 shift = np.zeros(6)       # the non-finite sums below name the first bad row
             s1, s2 = shift[:3, None], shift[3:, None]
-        x = buf[:, : stop - start]
         np.subtract(w1[start:stop].T, s1, out=x[:3])
         np.subtract(w2[start:stop].T, s2, out=x[3:6])
         if keep is not None and not keep.all():
@@ -270,6 +268,16 @@ class Moments:
         object.__setattr__(self, "scatter", scatter)
         object.__setattr__(self, "count", float(self.count))
 
+    @classmethod
+    def _of(cls, count: float, mean: np.ndarray, scatter: np.ndarray, segments: int) -> "Moments":
+        """Moments from read-only float64 arrays of the right shapes computed here (no checks, no copies)."""
+        out = object.__new__(cls)
+        object.__setattr__(out, "count", float(count))
+        object.__setattr__(out, "mean", mean)
+        object.__setattr__(out, "scatter", scatter)
+        object.__setattr__(out, "segments", segments)
+        return out
+
     # ------------------------------------------------------------------ construction
     @classmethod
     def empty(cls) -> "Moments":
@@ -299,19 +307,24 @@ class Moments:
             On a wrong shape, unequal lengths or a non-finite sample.
         """
         w1, w2, mask = as_rate_pair(omega_1, omega_2, mask)
+        chunk_size = int(chunk_size)
+        if chunk_size < 1:
+            raise OptionError(f"chunk_size: expected a positive number of rows, got {chunk_size}")
         n = w1.shape[0]
         if isinstance(chunk_size, bool) or not isinstance(chunk_size, (int, np.integer)) or chunk_size < 1:
             raise InputError(f"chunk_size: expected an integer >= 1 (rows per chunk), got {chunk_size!r}")
         chunk_size = int(min(chunk_size, max(n, 1)))   # the buffer is bounded by the data
         n_chunks = -(-n // chunk_size)
-        workers = max(1, min(threads or _default_threads(), n_chunks // 4))
-        bounds = np.linspace(0, n_chunks, workers + 1).astype(int) * chunk_size
+        workers = max(1, min(threads or _THREADS, n_chunks // 4))
         if workers == 1:
-            parts = [_accumulate(w1, w2, mask, 0, n, chunk_size)]
-        else:
-            with ThreadPoolExecutor(workers) as pool:  # numpy releases the GIL in BLAS and copies
-                parts = list(pool.map(lambda i: _accumulate(w1, w2, mask, bounds[i], min(bounds[i + 1], n),
-                                                            chunk_size), range(workers)))
+            c, mu, sc = _accumulate(w1, w2, mask, 0, n, chunk_size) if n else (0, np.zeros(6), np.zeros((6, 6)))
+            return cls(c, mu, sc, 1 if c else 0)
+        from concurrent.futures import ThreadPoolExecutor
+
+        bounds = np.linspace(0, n_chunks, workers + 1).astype(int) * chunk_size
+        with ThreadPoolExecutor(workers) as pool:  # numpy releases the GIL in BLAS and copies
+            parts = list(pool.map(lambda i: _accumulate(w1, w2, mask, bounds[i], min(bounds[i + 1], n), chunk_size),
+                                  range(workers)))
         return cls.merge_all(cls(c, mu, sc, 1 if c else 0) for c, mu, sc in parts)
 
     # ------------------------------------------------------------------ algebra
@@ -398,27 +411,82 @@ class Moments:
         return cls(d["count"], np.asarray(d["mean"]), np.asarray(d["scatter"]), int(d.get("segments", 1)))
 
 
+_BLOCK_ROWS = 65536         # samples per block of the window moments and the drifting-bias filter (a few MiB)
+
+
 def window_moments(omega_1, omega_2, window: int, *, mask=None, with_starts: bool = False) -> list:
     """Moments of consecutive windows of ``window`` samples (one bias segment each).
 
     ``Moments.pool_all(window_moments(...))`` gives the statistics of a piecewise-constant
     bias; ``Moments.merge_all`` of the same list equals :meth:`Moments.from_samples`. Windows with
     fewer than two (unmasked) samples are left out; ``with_starts=True`` gives
-    ``(start sample index, Moments)`` pairs instead of the Moments alone.
+    ``(start sample index, Moments)`` pairs instead of the Moments alone. The whole windows are
+    computed a block of windows at a time (each window centred on its own mean, then its scatter:
+    two passes, exact for any bias); the partial window at the end by :meth:`Moments.from_samples`.
+
+    Raises
+    ------
+    InputError
+        On a wrong shape, unequal lengths or a non-finite sample among the used ones.
+    OptionError
+        If ``window`` is below 2.
     """
-    w1 = as_rates("omega_1", omega_1)
-    w2 = as_rates("omega_2", omega_2, length=w1.shape[0])
+    w1, w2, mask = as_rate_pair(omega_1, omega_2, mask)
+    window = int(window)
     if window < 2:
         raise OptionError(f"window: expected at least 2 samples per window, got {window}")
     n = w1.shape[0]
+    n_full = n // window if window <= _BLOCK_ROWS else 0     # longer windows: one bounded pass each, below
+    per = max(1, _BLOCK_ROWS // window)
     out = []
-    for start in range(0, n, window):
+    for lo in range(0, n_full, per):
+        hi = min(n_full, lo + per)
+        a, b = lo * window, hi * window
+        cnt, mean, scat = _window_block(w1, w2, None if mask is None else mask[a:b], a, b, window)
+        mean.flags.writeable = False      # each window's Moments holds read-only views of these
+        scat.flags.writeable = False
+        for j in np.flatnonzero(cnt > 1):
+            m = Moments._of(cnt[j], mean[j], scat[j], 1)
+            out.append(((lo + int(j)) * window, m) if with_starts else m)
+    for start in range(n_full * window, n, window):
         stop = min(start + window, n)
-        sub_mask = None if mask is None else np.asarray(mask)[start:stop]
-        m = Moments.from_samples(w1[start:stop], w2[start:stop], mask=sub_mask, chunk_size=window)
+        m = Moments.from_samples(w1[start:stop], w2[start:stop], mask=None if mask is None else mask[start:stop])
         if m.count > 1:
             out.append((start, m) if with_starts else m)
     return out
+
+
+def _window_block(w1, w2, keep, a: int, b: int, window: int):
+    """Count (W,), mean (W, 6) and centred scatter (W, 6, 6) of the whole windows of samples ``a:b`` (read-only
+    arrays); ``keep`` (b - a,) marks the used samples (None: all). Refuses a non-finite used sample."""
+    W = (b - a) // window
+    x = np.empty((W, 6, window))          # windows x channels x samples: sums run along contiguous rows
+    x[:, :3, :] = w1[a:b].reshape(W, window, 3).transpose(0, 2, 1)
+    x[:, 3:, :] = w2[a:b].reshape(W, window, 3).transpose(0, 2, 1)
+    if keep is not None and keep.all():
+        keep = None
+    if keep is not None:
+        np.copyto(x, 0.0, where=~keep.reshape(W, 1, window))  # unused samples (finite or not) count as 0
+    with np.errstate(over="ignore", invalid="ignore"):
+        if not np.isfinite(x.sum()):
+            bad = ~np.isfinite(x).all(axis=2)                 # (W, 6): which window and channel
+            w = int(np.flatnonzero(bad.any(axis=1))[0])
+            g = 0 if bad[w, :3].any() else 1
+            raise _first_bad_row(f"omega_{g + 1}", x[w, 3 * g:3 * g + 3].T, a + w * window)
+        if keep is None:
+            cnt = np.full(W, float(window))
+            mean = x.mean(axis=2)
+            x -= mean[:, :, None]
+        else:
+            m = keep.reshape(W, window)
+            cnt = m.sum(axis=1).astype(np.float64)
+            mean = x.sum(axis=2) / np.maximum(cnt, 1.0)[:, None]
+            x -= mean[:, :, None]
+            x *= m[:, None, :]
+        scat = np.matmul(x, x.transpose(0, 2, 1))
+    if not np.isfinite(scat).all():
+        raise _too_large(w1, w2, a, b)
+    return cnt, mean, 0.5 * (scat + scat.transpose(0, 2, 1))
 
 
 NOMINAL_WINDOW = 100      # samples per window (noise model, robust covariance) when the sample rate is unknown
@@ -567,7 +635,7 @@ def random_walk_gain(bias_walk_std, noise_std) -> tuple[float, float]:
 
 def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask=None,
                              chunk_size: int = CHUNK_SIZE, settle: int | None = None,
-                             window: int | None = None) -> tuple:
+                             window: int | None = None, threads: int | None = None) -> tuple:
     """Moments for a bias that drifts as a random walk, by the Kalman innovations filter.
 
     With ``r_k = omega_1(k) - A omega_2(k) = b_k + n_k``, a random-walk bias
@@ -591,6 +659,8 @@ def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask
     window : int, optional
         Also return the :class:`WindowStats` of the innovations in windows of this many samples
         (each chunk's whole windows; for the block-robust covariance).
+    threads : int, optional
+        2 (default where the CPU count allows) filters the next block of samples while this one is reduced.
 
     Returns
     -------
@@ -602,37 +672,140 @@ def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask
     stats : WindowStats
         Only with ``window``.
     """
-    from scipy.signal import lfilter
-
-    w1 = as_rates("omega_1", omega_1)
-    w2 = as_rates("omega_2", omega_2, length=w1.shape[0])
+    w1, w2, mask = as_rate_pair(omega_1, omega_2, mask)
+    chunk_size = int(chunk_size)
+    if chunk_size < 1:
+        raise OptionError(f"chunk_size: expected a positive number of rows, got {chunk_size}")
     K, noise_scale = random_walk_gain(bias_walk_std, noise_std)
     settle = int(np.ceil(5.0 / K)) if settle is None else int(settle)
-    keep = np.ones(w1.shape[0], bool) if mask is None else np.asarray(mask, bool)
-    idx = np.flatnonzero(keep)
-    zi = None
-    out, raw = Moments.empty(), Moments.empty()
+    filt = _WalkFilter(w1, w2, mask, K, chunk_size * max(1, _BLOCK_ROWS // chunk_size))  # whole chunks per block
+    count, mean, scatter = 0, np.zeros(6), np.zeros((6, 6))
     parts = []
-    done = 0
-    for start in range(0, idx.size, chunk_size):
-        sel = idx[start:start + chunk_size]
-        x = np.hstack([w1[sel], w2[sel]]).astype(np.float64)
-        if zi is None:
-            zi = np.zeros((1, 6))
-            x0 = x[0].copy()  # the filter kills constants; starting from the first sample avoids a transient
-        raw = raw.merge(Moments.from_samples(x[:, :3], x[:, 3:]))
-        y, zi = lfilter([1.0, -1.0], [1.0, -(1.0 - K)], x - x0, axis=0, zi=zi)
-        lo = max(0, settle - done)
-        done += len(sel)
-        if lo < len(y):
-            out = out.merge(Moments.from_samples(y[lo:, :3], y[lo:, 3:]))
-            if window is not None and len(y) - lo >= window:
-                k = (len(y) - lo) // window
-                parts.append(_stats_of(y[lo:lo + k * window].reshape(k, window, 6).transpose(0, 2, 1).copy(), None,
-                                            np.full(k, start)))
-    if out.count < 4:
-        raise InputError(f"expected more than {settle} samples for the drifting-bias filter to settle, got {idx.size}")
-    moments = Moments(out.count, raw.mean, out.scatter, 1)
+    for start, y in filt.blocks(threads):
+        lo = max(0, settle - start)
+        if lo >= y.shape[1]:
+            continue
+        c, mu, sc = _centred(y[:, lo:])
+        if not np.isfinite(sc).all():
+            raise _too_large(w1, w2, 0, w1.shape[0])
+        n_new = count + c                   # Chan's update across blocks
+        delta = mu - mean
+        scatter += sc + np.outer(delta, delta) * (count * c / n_new)
+        mean += delta * (c / n_new)
+        count = n_new
+        if window is not None:
+            parts.extend(_innovation_windows(y, start, lo, chunk_size, int(window)))
+    if count < 4:
+        raise InputError(f"expected more than {settle} samples for the drifting-bias filter to settle, got {filt.n}")
+    moments = Moments(count, filt.mean(), 0.5 * (scatter + scatter.T), 1)
     if window is None:
         return moments, noise_scale
-    return moments, noise_scale, _join(parts, int(window), out.count, False)
+    return moments, noise_scale, _join(parts, int(window), float(count), False)
+
+
+class _WalkFilter:
+    """The used samples of a pair through ``G(z)`` of :func:`random_walk_bias_moments`, a block at a time.
+
+    Blocks of ``block`` used samples are gathered transposed (6, block), shifted by the first used sample and
+    filtered with the state carried from block to block; the raw sums are kept for the samples' mean.
+    """
+
+    def __init__(self, w1, w2, mask, gain: float, block: int):
+        self.w1, self.w2, self.block = w1, w2, block
+        self.idx = None if mask is None else np.flatnonzero(mask)
+        self.n = w1.shape[0] if self.idx is None else self.idx.size
+        self.b, self.a = np.array([1.0, -1.0]), np.array([1.0, -(1.0 - gain)])
+        self.zi = np.zeros((6, 1))
+        self.x0 = None
+        self.raw = np.zeros(6)               # sum of the used samples minus the first one
+
+    def filtered(self, start: int) -> np.ndarray:
+        """The filtered block of used samples ``start:start + block`` (the blocks in order, once each)."""
+        from scipy.signal import lfilter
+
+        stop = min(start + self.block, self.n)
+        x = np.empty((6, stop - start))
+        if self.idx is None:
+            np.copyto(x[:3], self.w1[start:stop].T)
+            np.copyto(x[3:], self.w2[start:stop].T)
+        else:
+            sel = self.idx[start:stop]
+            np.copyto(x[:3], self.w1[sel].T)
+            np.copyto(x[3:], self.w2[sel].T)
+        if self.x0 is None:   # the filter kills constants; starting from the first sample avoids a transient
+            self.x0 = x[:, 0].copy()
+        x -= self.x0[:, None]
+        with np.errstate(over="ignore", invalid="ignore"):
+            s = x.sum(axis=1)
+        if not np.isfinite(s).all():
+            self._refuse(start, stop)
+        self.raw += s
+        y, self.zi = lfilter(self.b, self.a, x, axis=-1, zi=self.zi)
+        return y
+
+    def blocks(self, threads: int | None = None):
+        """``(start, filtered block)`` in order; with two threads the next block is filtered while the caller
+        reduces this one (the filter's state makes the blocks themselves sequential)."""
+        starts = range(0, self.n, self.block)
+        if len(starts) < 2 or min(threads or _THREADS, 2) < 2:
+            for start in starts:
+                yield start, self.filtered(start)
+            return
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(1) as pool:
+            ahead = pool.submit(self.filtered, starts[0])
+            for i, start in enumerate(starts):
+                y = ahead.result()
+                if i + 1 < len(starts):
+                    ahead = pool.submit(self.filtered, starts[i + 1])
+                yield start, y
+
+    def mean(self) -> np.ndarray:
+        """Mean of the used samples (after every block)."""
+        return self.x0 + self.raw / self.n
+
+    def _refuse(self, start: int, stop: int):
+        """Raise the error naming the first non-finite used sample among used samples ``start:stop``."""
+        for name, w in (("omega_1", self.w1), ("omega_2", self.w2)):
+            rows = np.asarray(w[start:stop] if self.idx is None else w[self.idx[start:stop]])
+            bad = np.flatnonzero(~finite_rows(rows))
+            if bad.size:
+                at = start + int(bad[0]) if self.idx is None else int(self.idx[start + int(bad[0])])
+                raise InputError(f"{name}: expected finite rates, got a non-finite value (NaN or inf) at sample "
+                                 f"{at} ({bad.size} non-finite row(s) in that block); mask or drop those samples first")
+        raise _too_large(self.w1, self.w2, 0, self.w1.shape[0])
+
+
+def _centred(y):
+    """Count, mean and centred scatter of the columns of ``y`` (6, m): one product with the sums, redone about
+    the mean where the mean is large against the spread (more than ~6 of 16 digits would cancel)."""
+    m = y.shape[1]
+    with np.errstate(over="ignore", invalid="ignore"):
+        s = y.sum(axis=1)
+        mu = s / m
+        sc = np.dot(y, y.T) - np.outer(s, mu)
+        if np.any(mu**2 > 1e6 * np.maximum(np.diag(sc) / m, 1e-300)):
+            yc = y - mu[:, None]
+            d = yc.sum(axis=1) / m
+            mu = mu + d
+            sc = np.dot(yc, yc.T) - np.outer(d, d) * m
+    return m, mu, sc
+
+
+def _innovation_windows(y, start: int, lo: int, chunk_size: int, window: int) -> list:
+    """``_stats_of`` parts of the filtered block ``y`` (6, m) that begins at used sample ``start``: in each chunk of
+    ``chunk_size`` samples, the whole windows from its first settled sample (``lo`` in the block), each run
+    labelled by its chunk's first sample."""
+    views, runs = [], []
+    m = y.shape[1]
+    for c0 in range(0, m, chunk_size):
+        c1 = min(c0 + chunk_size, m)
+        a = max(c0, lo)
+        k = (c1 - a) // window if c1 > a else 0
+        if k:
+            views.append(y[:, a:a + k * window].reshape(6, k, window).transpose(1, 0, 2))
+            runs.append(np.full(k, start + c0))
+    if not views:
+        return []
+    return [_stats_of(np.concatenate(views), None, np.concatenate(runs))]

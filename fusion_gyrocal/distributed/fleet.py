@@ -5,7 +5,9 @@ Two uses of one idea (the sufficient statistics are the hinge, see ``ARCHITECTUR
 * :func:`run_fleet` maps the per-device pipeline (:func:`fusion_gyrocal.calibrate_pair`: alignment,
   saturation masks, flex gating, maximum likelihood) over many device recordings on a Dask cluster
   and returns a results table with one row per device; a device that fails gets a row with its
-  error message instead of stopping the run. :func:`write_results` writes the table as Parquet.
+  error message instead of stopping the run, and the devices that shared a worker that died are run
+  again alone, so only the device that kills its worker fails. :func:`fleet_cluster` starts a local
+  cluster of worker processes set up for it; :func:`write_results` writes the table as Parquet.
 * :func:`log_moments` splits one huge log (a Parquet file or dataset) into its row groups, computes
   :meth:`Moments.from_samples` of every row group on the workers and reduces them with a
   ``dask.bag`` tree reduction of :meth:`Moments.merge`; :func:`calibrate_log` then solves from the
@@ -28,6 +30,7 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -63,16 +66,19 @@ def _parquet_parts(path: Path) -> list[Path]:
     return sorted(p for p in path.glob("*.parquet") if p.is_file())
 
 
+def _gyro_hits(path: Path) -> list[list[Path]]:
+    """The files of a folder named ``gyro1.*`` and ``gyro2.*`` (or exactly ``gyro1``, ``gyro2``), in name order."""
+    children = sorted(path.iterdir())
+    return [[p for p in children if p.stem == stem or p.name == stem] for stem in GYRO_FILES]
+
+
 def _gyro_files(path: Path) -> tuple[Path, Path] | None:
     if not path.is_dir():
         return None
-    found = []
-    for stem in GYRO_FILES:
-        hits = sorted(p for p in path.iterdir() if p.stem == stem or p.name == stem)
-        if not hits:
-            return None
-        found.append(hits[0])
-    return found[0], found[1]
+    hits = _gyro_hits(path)
+    if not all(hits):
+        return None
+    return hits[0][0], hits[1][0]
 
 
 def _is_device(path: Path) -> bool:
@@ -81,11 +87,37 @@ def _is_device(path: Path) -> bool:
     return _gyro_files(path) is not None
 
 
+def _broken_link(path: Path) -> str | None:
+    """Why ``path`` is a symbolic link that leads nowhere (dangling, or a loop), or None."""
+    if not path.is_symlink():
+        return None
+    try:
+        path.resolve(strict=True)
+    except RuntimeError:                        # Python < 3.13: a loop raises RuntimeError
+        return "a symbolic link loop"
+    except OSError as exc:
+        if getattr(exc, "errno", None) == 40:   # ELOOP
+            return "a symbolic link loop"
+        return f"a symbolic link to {os.readlink(path)!r}, which does not exist"
+    return None
+
+
+def _looks_like_device(path: Path) -> bool:
+    """A child of a folder of devices that is meant as a device: a ``.parquet`` file or folder, a folder, or a
+    symbolic link that leads nowhere (its row says so). Hidden entries and other files are not."""
+    if path.name.startswith("."):
+        return False
+    return path.suffix == ".parquet" or path.is_dir() or _broken_link(path) is not None
+
+
 def find_devices(paths: Iterable) -> list[Path]:
     """Expand device paths and folders of devices into a sorted list of device paths.
 
     A path that is a device (see the module docstring) is kept; a folder that is not a device
-    contributes its children that are. Paths that do not exist are kept (their row will say so).
+    contributes its children meant as devices: ``.parquet`` files and folders, folders (one missing
+    ``gyro1.*`` or ``gyro2.*`` gets a row saying so) and symbolic links that lead nowhere; hidden entries
+    and other files are left out. Paths that do not exist are kept (their row will say so): every device
+    named gets a row.
     """
     out = []
     for p in paths:
@@ -93,11 +125,33 @@ def find_devices(paths: Iterable) -> list[Path]:
         if not p.exists() or _is_device(p):
             out.append(p)
         elif p.is_dir():
-            out.extend(sorted(c for c in p.iterdir() if _is_device(c)))
+            out.extend(sorted(c for c in p.iterdir() if _looks_like_device(c)))
+        else:
+            out.append(p)    # a file that is no device: its row says what a device is
     if not out:
         raise InputError(f"expected at least one device (a .parquet file, a <name>.parquet dataset folder or a folder "
                          f"with gyro1.* and gyro2.*), found none in {[str(p) for p in paths]}")
     return out
+
+
+def _not_a_device(path: Path) -> FormatError:
+    """The error of a path that is no device, saying what is there and what a device is."""
+    broken = _broken_link(path)
+    if broken is not None:
+        return FormatError(f"{path}: {broken}; expected a device (a .parquet file or folder, or a folder with "
+                           f"{GYRO_FILES[0]}.* and {GYRO_FILES[1]}.*)")
+    if not path.exists():
+        return FormatError(f"{path}: no such device file or folder")
+    if path.is_dir() and path.suffix == ".parquet":
+        return FormatError(f"{path}: a Parquet dataset folder with no .parquet part files")
+    if path.is_dir():
+        hits = _gyro_hits(path)
+        found = [h[0].name for h in hits if h]
+        missing = [f"{stem}.*" for stem, h in zip(GYRO_FILES, hits) if not h]
+        return FormatError(f"{path}: a device folder needs {GYRO_FILES[0]}.* and {GYRO_FILES[1]}.*; "
+                           f"{'found ' + ', '.join(found) + ', ' if found else ''}missing {' and '.join(missing)}")
+    return FormatError(f"{path}: expected a .parquet file, a <name>.parquet folder of .parquet parts or a folder "
+                       f"with {GYRO_FILES[0]}.* and {GYRO_FILES[1]}.*")
 
 
 def _check_columns(names: Sequence[str], where: Path):
@@ -169,8 +223,6 @@ def calibrate_device(path, options: Options | None = None, **keywords) -> PairCa
     """
     options = Options.of(options, **keywords).require("pair", "calibrate_device")
     path = Path(path).expanduser()
-    if not path.exists():
-        raise FormatError(f"{path}: no such device file or folder")
     gyros = _gyro_files(path)
     if gyros is not None:
         from ..io import read_imu
@@ -178,8 +230,7 @@ def calibrate_device(path, options: Options | None = None, **keywords) -> PairCa
         s1, s2 = read_imu(gyros[0]), read_imu(gyros[1])
         return calibrate_pair(s1.masked_omega, s2.masked_omega, t_1=s1.t, t_2=s2.t, options=options)
     if not _is_device(path):
-        raise FormatError(f"{path}: expected a .parquet file, a <name>.parquet folder of .parquet parts or a folder "
-                          f"with {GYRO_FILES[0]}.* and {GYRO_FILES[1]}.*")
+        raise _not_a_device(path)
     w1, w2 = _read_parquet_device(path)
     finite = finite_rows(w1) & finite_rows(w2)
     aligned = options.replace(**{n: getattr(Options(), n) for n in TIMESTAMP_OPTIONS})
@@ -246,8 +297,9 @@ def run_fleet(devices, *, client=None, output=None, chunked: bool = False, split
     devices : path or iterable of paths
         Devices or folders of devices (see the module docstring and :func:`find_devices`).
     client : distributed.Client, optional
-        Cluster to run on (tasks are sent with ``client.map``). Default: Dask's local threaded
-        scheduler in this process.
+        Cluster to run on (one task per device, ``client.map``); devices that shared a worker that died
+        are run again alone. :func:`fleet_cluster` starts a local one set up for this. Default: Dask's
+        local threaded scheduler in this process.
     output : path, optional
         Also write the table as Parquet (:func:`write_results`).
     chunked : bool
@@ -291,12 +343,7 @@ def run_fleet(devices, *, client=None, output=None, chunked: bool = False, split
         with progress_bar(progress) as bar:
             tick = functools.partial(bar.advance, bar.add_task("devices", total=len(paths)))
             if client is not None:
-                from distributed import as_completed
-
-                futures = client.map(task, [str(p) for p in paths], pure=False, retries=0)
-                for _ in as_completed(futures):
-                    tick()
-                rows = [_gathered(f, p) for f, p in zip(futures, paths)]
+                rows = _run_on_client(client, task, paths, tick)
             else:
                 import dask
                 from dask.callbacks import Callback
@@ -309,13 +356,79 @@ def run_fleet(devices, *, client=None, output=None, chunked: bool = False, split
     return df
 
 
-def _gathered(future, path: Path) -> dict:
-    """The row of one device's future; a device whose worker died (out of memory, killed) gets a failed row
-    instead of taking every other device's result down with it."""
-    try:
-        return future.result()
-    except Exception as exc:  # noqa: BLE001 - e.g. distributed.KilledWorker: recorded for this device only
-        return _row(path.stem, str(path), None, exc, float("nan"))
+def _run_on_client(client, task, paths, tick) -> list:
+    """The rows of ``task`` over ``paths`` on a distributed client, one task per device.
+
+    A worker that dies (out of memory, killed) takes the devices queued on it down with the one that killed it
+    (``KilledWorker``). Each of those is run again alone, one after the other: the healthy ones get their results,
+    and only the device that kills its worker again fails, with a row that says so.
+    """
+    from distributed import KilledWorker, as_completed
+
+    futures = client.map(task, [str(p) for p in paths], pure=False, retries=0)
+    for _ in as_completed(futures):
+        tick()
+    rows, lost = [], []
+    for i, (future, path) in enumerate(zip(futures, paths)):
+        try:
+            rows.append(future.result())
+        except KilledWorker:
+            rows.append(None)
+            lost.append(i)
+        except Exception as exc:  # noqa: BLE001 - recorded for this device only
+            rows.append(_row(path.stem, str(path), None, exc, math.nan))
+    for i in lost:
+        path = paths[i]
+        t0 = time.perf_counter()
+        try:
+            rows[i] = client.submit(task, str(path), pure=False, retries=0).result()
+        except Exception as exc:  # noqa: BLE001 - KilledWorker again: this device kills its worker
+            rows[i] = _row(path.stem, str(path), None, exc, time.perf_counter() - t0)
+            if isinstance(exc, KilledWorker):
+                rows[i]["error"] = (f"the Dask worker running this device died (out of memory, or killed), also "
+                                    f"when the device ran alone: {' '.join(str(exc).split())}")
+    return rows
+
+
+_DISTRIBUTED_TRIM = 65536     # distributed's MALLOC_TRIM_THRESHOLD_ for its workers (its nanny.pre-spawn-environ)
+
+
+def fleet_cluster(workers: int = 2, threads_per_worker: int = 1, **kwargs):
+    """A local Dask cluster of worker processes set up for :func:`run_fleet`.
+
+    Each worker is a process (the pipeline holds the GIL between numpy calls, so threads in one process
+    would queue) started without distributed's ``MALLOC_TRIM_THRESHOLD_=65536``, which fixes glibc's
+    thresholds so low that every array of a device is mapped and unmapped afresh (measured: each device
+    ~1.75x slower); with glibc's adaptive thresholds freed memory is reused from device to device. The
+    scheduler does not retry a task whose worker died (``allowed-failures`` 0): :func:`run_fleet` runs each
+    device that shared the dead worker again alone, so one device that exhausts memory cannot kill worker
+    after worker. (Each nanny also writes its variables into this process's environment, where the next
+    cluster's workers would inherit them: distributed's ``MALLOC_TRIM_THRESHOLD_`` value is removed from it.)
+
+    Parameters
+    ----------
+    workers : int
+        Worker processes (one per core is the usual choice).
+    threads_per_worker : int
+        Threads per worker process.
+    **kwargs
+        Passed to :class:`distributed.LocalCluster` (e.g. ``memory_limit``).
+
+    Returns
+    -------
+    distributed.LocalCluster
+        Use as a context manager, with ``distributed.Client(cluster)``.
+    """
+    import dask
+    from distributed import LocalCluster
+
+    settings = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+                "distributed.scheduler.allowed-failures": 0}
+    kwargs = {"host": "127.0.0.1", "dashboard_address": None, **kwargs}
+    if os.environ.get("MALLOC_TRIM_THRESHOLD_") == str(_DISTRIBUTED_TRIM):
+        del os.environ["MALLOC_TRIM_THRESHOLD_"]
+    with dask.config.set(settings):
+        return LocalCluster(n_workers=workers, threads_per_worker=threads_per_worker, processes=True, **kwargs)
 
 
 def write_results(df, path) -> Path:

@@ -15,7 +15,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..core.moments import Moments, as_rates
 from ..core.observability import A_of
@@ -129,6 +128,8 @@ def solve_appendix_c(moments: Moments, R_1_2=None, scale_1=None, scale_2=None, *
     undetermined combinations of scale errors are then set by the minimum-norm least-squares
     solution, i.e. left at their initial values, which is the paper's "fix more elements".
     """
+    from scipy.spatial.transform import Rotation
+
     C = np.eye(3) if R_1_2 is None else np.array(R_1_2, dtype=float)
     s1 = np.ones(3) if scale_1 is None else np.array(scale_1, dtype=float)
     s2 = np.ones(3) if scale_2 is None else np.array(scale_2, dtype=float)
@@ -198,6 +199,8 @@ def rotation_only(omega_1, omega_2) -> tuple[np.ndarray, np.ndarray]:
     bias : ndarray (3,)
         ``mean_1 - R_1_2 mean_2``.
     """
+    from scipy.spatial.transform import Rotation
+
     w1 = as_rates("omega_1", omega_1)
     w2 = as_rates("omega_2", omega_2, length=w1.shape[0])
     m = Moments.from_samples(w1, w2)

@@ -34,7 +34,6 @@ import re
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..errors import InputError
 from ..core.observability import cramer_rao_bound
@@ -168,6 +167,8 @@ def list_scenarios() -> tuple[str, ...]:
 def _near_parallel_rotation(rng, angle_deg: float = NEAR_PARALLEL_DEG) -> np.ndarray:
     """``Rz(a) Exp(angle * u) Rz(b)`` with ``u`` horizontal: gyro 2's z axis ``angle_deg`` from gyro 1's,
     the other axes at least 20 deg from parallel."""
+    from scipy.spatial.transform import Rotation
+
     cos_max = np.cos(np.deg2rad(MIN_PARALLEL_ANGLE_DEG))
     while True:
         a, b, phi = rng.uniform(0, 2 * np.pi, 3)
@@ -308,6 +309,8 @@ def make_scenario(name: str = "nominal", *, rng=None, snr_factor: float | None =
 def _bend(data: SimulatedPair, rng, angle: np.ndarray) -> SimulatedPair:
     """Replace gyro 2's signal by that of a mounting bent by ``angle`` (rad) about a random axis:
     ``R_1_2(k) = Exp(angle_k u) R_1_2``, ``omega_2(k) = R_1_2(k)^T omega_1(k)``."""
+    from scipy.spatial.transform import Rotation
+
     u = rng.standard_normal(3)
     u /= np.linalg.norm(u)
     R_k = Rotation.from_rotvec(angle[:, None] * u) * Rotation.from_matrix(data.R_1_2)

@@ -18,10 +18,8 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..core.moments import as_rates
-from ..online.history import PairTruth
 
 DEG = np.pi / 180.0
 PAPER_RATE_HZ = 100.0
@@ -95,6 +93,8 @@ class SimulatedPair:
 
 def random_rotation(rng=None, *, angle_deg: float | None = None) -> np.ndarray:
     """A random rotation matrix (uniform, or with the given angle about a random axis)."""
+    from scipy.spatial.transform import Rotation
+
     rng = np.random.default_rng(rng)
     if angle_deg is None:
         return Rotation.random(random_state=rng).as_matrix()
@@ -142,6 +142,8 @@ def simulate_pair(omega_true_1=None, *, n: int = 6000, rate_hz: float = PAPER_RA
         ``flex_deg`` degrees (Section VI.C); 0 for a rigid pair.
     rng : numpy.random.Generator or int, optional
     """
+    from scipy.spatial.transform import Rotation
+
     rng = np.random.default_rng(rng)
     if omega_true_1 is None:
         t = np.arange(n) / rate_hz
@@ -220,6 +222,8 @@ def simulate_streams(rng=None, *, rate_1: float = 100.0, rate_2: float = 200.0, 
 
 def rotation_error(R_hat, R_true) -> float:
     """``||Log(R_hat R_true^T)||`` in rad (Eq. 37)."""
+    from scipy.spatial.transform import Rotation
+
     return float(np.linalg.norm(Rotation.from_matrix(np.asarray(R_hat) @ np.asarray(R_true).T).as_rotvec()))
 
 
@@ -316,6 +320,8 @@ def simulate_drifting_pair(t, R_1_2, scale_1, scale_2, *, bias_1=None, bias_2=No
     w2 = s2 * w_true_2 + b2 + rng.normal(0, sig[1], (n, 3))
     A = (s1[:, :, None] * R) / s2[:, None, :]
     bias = b1 - np.einsum("kij,kj->ki", A, b2)
+    from ..online.history import PairTruth
+
     return w1, w2, PairTruth(R, s1, s2, bias)
 
 
@@ -354,6 +360,8 @@ def bend_with_rate(sim: SimulatedPair, *, start: float = 2.5, full: float = 5.0,
     InputError
         ``start``/``full`` not ``0 <= start < full``, or a zero or non-finite axis.
     """
+    from scipy.spatial.transform import Rotation
+
     from dataclasses import replace
 
     from ..errors import InputError

@@ -179,7 +179,8 @@ class GyroPairGraph:
         self._isam: gtsam.ISAM2 | None = None
 
         self._fixed_factors: list = []       # priors and between factors (never rebuilt)
-        self._pair: list = []                # (WindowStatistics, bias key, factor)
+        self._pairs: list = []               # (WindowStatistics, bias key, factor), see _pair
+        self._merged_stale = False           # constant bias: windows merged since the pair factor was built
         self._camera: list[_CameraSegment] = []
         self._camera_factors: list = []
         self._bias_keys: list[int] = []
@@ -188,7 +189,8 @@ class GyroPairGraph:
         self._n_windows = 0
         self._pair_dirty = False             # constant bias: the merged pair factor changed since the last update
         self._pair_index: int | None = None  # its index inside iSAM2
-        self._moments = Moments.empty()
+        self._all_moments = Moments.empty()  # see _moments
+        self._unmerged: list = []            # constant bias: window moments not yet merged into _all_moments
         self._pending = gtsam.NonlinearFactorGraph()
         self._pending_values = gtsam.Values()
         self._initial = gtsam.Values()
@@ -249,13 +251,14 @@ class GyroPairGraph:
         if moments.segments > 1:
             raise InputError(f"moments: expected one bias segment per window, got {moments.segments}; "
                              "add the windows one by one")
-        stats = WindowStatistics.from_moments(moments)
+        if moments.count < 2:
+            raise InputError(f"window moments: expected at least 2 samples, got {moments.count:g}")
         k = self.keys
         new_segment = self.bias_walk_std is not None or not self._bias_keys
         if new_segment:
             seg = len(self._bias_keys)
             key = k.bias(seg)
-            self._insert(key, stats.mean_1 - self.seed.A @ stats.mean_2)   # Eq. (12) at the seed's A
+            self._insert(key, moments.mean_1 - self.seed.A @ moments.mean_2)   # Eq. (12) at the seed's A
             if seg > 0 and self.bias_walk_std is not None and np.isfinite(self.bias_walk_std):
                 n_a = self._window_steps[-1]
                 n_b = float(moments.count if steps is None else steps)
@@ -270,20 +273,39 @@ class GyroPairGraph:
         self._n_windows += 1
         if self.bias_walk_std is None:
             # one shared bias: the merged moments give exactly the sum of the windows' costs, so the
-            # graph keeps ONE pair factor, replaced as windows arrive (iSAM2 removes the old one)
-            self._moments = self._moments.merge(moments)
-            stats = WindowStatistics.from_moments(self._moments)
-            factor = gyro_pair_factor(stats, self.noise_std, rotation_key=k.rotation, log_scale_key=k.log_scale,
-                                      bias_key=key)
-            self._pair = [(stats, key, factor)]
+            # graph keeps ONE pair factor, replaced as windows arrive (iSAM2 removes the old one); it is
+            # built from the merged moments when the graph is next read (:attr:`_pair`)
+            self._unmerged.append(moments)
+            self._merged_stale = True
             self._pair_dirty = True
         else:
+            stats = WindowStatistics.from_moments(moments)
             factor = gyro_pair_factor(stats, self.noise_std, rotation_key=k.rotation, log_scale_key=k.log_scale,
                                       bias_key=key)
-            self._pair.append((stats, key, factor))
+            self._pairs.append((stats, key, factor))
             self._pending.add(factor)
-            self._moments = self._moments.pool(moments)
+            self._all_moments = self._all_moments.pool(moments)
         return len(self._bias_keys) - 1
+
+    @property
+    def _moments(self) -> Moments:
+        """The moments of every window added: merged (one constant bias) or pooled (a bias per window)."""
+        if self._unmerged:
+            self._all_moments = Moments.merge_all([self._all_moments, *self._unmerged])
+            self._unmerged = []
+        return self._all_moments
+
+    @property
+    def _pair(self) -> list:
+        """The pair factors as ``(WindowStatistics, bias key, factor)``: one per window with a bias per window;
+        with one constant bias, the single factor of the merged moments (built here once per change)."""
+        if self._merged_stale:
+            stats = WindowStatistics.from_moments(self._moments)
+            factor = gyro_pair_factor(stats, self.noise_std, rotation_key=self.keys.rotation,
+                                      log_scale_key=self.keys.log_scale, bias_key=self._bias_keys[0])
+            self._pairs = [(stats, self._bias_keys[0], factor)]
+            self._merged_stale = False
+        return self._pairs
 
     def add_rotation_increments(self, omega_1, rate_hz: float, increments: RotationIncrements) -> int:
         """Add external rotation increments (e.g. camera keyframes) that fix the global scale.

@@ -31,6 +31,9 @@ from ..core.gauge import Gauge
 from ..errors import OptionError
 from ..options import FrozenOptions
 
+HISTORY_MAX_ROWS = 1 << 16
+"""Default bound on the rows of a tracker's history (:attr:`TrackerConfig.history_max_rows`)."""
+
 
 def _check_densities(obj, what: str) -> None:
     for name in ("rotation", "log_scale", "bias"):
@@ -143,9 +146,11 @@ class TrackerConfig(FrozenOptions):
         the CUSUM screens stay near 1 and the covariance covers the model error). 0: no adaptation (the
         modelled noise as it is).
     history_max_rows : int or None
-        Bound on the rows of the tracker's history (264 bytes each). When reached, every other row
-        is dropped and then only every 2nd (4th, ...) update is recorded: memory stays flat over
-        any run, the rows evenly spread over it. None (default): one row per update, unbounded.
+        Bound on the rows of the tracker's history (264 bytes each; default :data:`HISTORY_MAX_ROWS`,
+        65536 rows, 17 MiB). When reached, every other row is dropped and then only every 2nd (4th, ...)
+        update is recorded: memory stays flat over any run, the rows evenly spread over it. None: the full
+        history, one row per update, unbounded (what a run with a truth needs when it makes more updates
+        than the bound; :meth:`~fusion_gyrocal.online.tracker.GyroPairTracker.run` says so).
     gate : float
         Derived: the chi-square(3) quantile of ``gate_probability`` (not a constructor argument).
     """
@@ -169,7 +174,7 @@ class TrackerConfig(FrozenOptions):
     reseed_solver: Callable | None = None
     block_size: int = 100
     noise_memory: int = 2000
-    history_max_rows: int | None = None
+    history_max_rows: int | None = HISTORY_MAX_ROWS
     gate: float = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.model import BIAS, ROT, S1, S2
-from ..errors import InputError
+from ..errors import InputError, OptionError
 from ..lie import log
 
 __all__ = ["HistoryRecorder", "PairTruth", "ReseedEvent", "TrackHistory"]
@@ -230,6 +230,17 @@ class HistoryRecorder:
         while new.max_rows is not None and new._n > new.max_rows:
             new._decimate()
         return new
+
+    def require_every_update(self, updates: int, what: str) -> None:
+        """Refuse (:class:`~fusion_gyrocal.errors.OptionError`) when the next ``updates`` updates would not each
+        get a row: the bound would thin the history (or already has), and ``what`` needs one row per update."""
+        if self.max_rows is None or (self.every == 1 and self._n + updates <= self.max_rows):
+            return
+        done = (f"the history is already thinned to every {self.every}th update" if self.every > 1 else
+                f"{self._n} row(s) so far + {updates} update(s) of this run exceed it")
+        raise OptionError(f"{what}: needs one history row per update, but the history is bounded by "
+                          f"history_max_rows={self.max_rows} and {done}; pass history_max_rows=None (the full "
+                          "history) in the tracker's configuration")
 
     def _decimate(self) -> None:
         kept = self._buf[: self._n: 2].copy()

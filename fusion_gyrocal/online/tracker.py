@@ -494,9 +494,9 @@ class GyroPairTracker:
         t = check_timestamps("t", t)
         w1, w2 = _finite_rates(t, omega_1, omega_2, "")
         w1 = self._gyro_1(w1)
-        if truth is not None and self._track.config.history_max_rows is not None:
-            raise OptionError("truth: the truth columns need one history row per update; expected "
-                              f"history_max_rows=None, got {self._track.config.history_max_rows}")
+        if truth is not None:     # the truth columns: one history row per update of this run
+            self._track.recorder.require_every_update(
+                t.shape[0] if mode == "sample" else len(block_spans(t, B, max_gap_s)), "truth")
         if truth is not None and len(truth) != t.shape[0]:
             raise InputError(f"truth: expected {t.shape[0]} rows (one per sample), got {len(truth)}")
         _check_start(self._track.filter, t[0])
