@@ -41,7 +41,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ..errors import InputError, OptionError
-from .allan import FLICKER, allan_deviation, edf_table, fit_allan
+from .allan import (FILTERED, FIT_FACTOR, FLICKER_TERM, QUANTISATION, TERMS, WALK, WHITE, AllanFit, allan_deviation,
+                    design, edf_table, fit_allan, second_differences)
 from .moments import NOMINAL_WINDOW, as_rates, finite_rows
 
 MISFIT_SHARE = 0.1                    # rate-explained share of the residual variance that is flagged
@@ -465,6 +466,77 @@ def _steady_split(win: _Windows, rate_hz: float):
     return m1 / m2, (sd1 / m1) ** 2 + (sd2 / m2) ** 2, text, (np.sqrt(m1), np.sqrt(m2))
 
 
+class _SteadyNoise(NamedTuple):
+    """Each gyro's own noise on the steady stretches (:func:`_steady_allan`)."""
+
+    taus: np.ndarray
+    avar: tuple           # each gyro's Allan variance (gyro 2's in its own frame: divided by |A|_F^2 / 3)
+    fits: tuple           # each gyro's AllanFit
+    level: tuple          # each gyro's white level N^2 on the grid (white_level) and
+    level_sd: tuple       # its standard uncertainty
+    seconds: float
+    text: str
+
+
+STILL_FACTOR = 2.0   # a gyro's still windows: its variance within this factor of its quietest tenth
+
+
+def _steady_allan(win: _Windows, w1, aw2, a: float, rate_hz: float, first: int, window_s: float,
+                  boundary: int | None) -> _SteadyNoise | None:
+    """Each gyro's own Allan variance on its still stretches, fitted with the terms of
+    :func:`~fusion_gyrocal.core.allan.fit_allan`: the noise a static test of each sensor would give, from the log
+    itself (the static poses many logs start with, the breaks of a hand-held one).
+
+    A gyro's still windows are the steady ones (the pair's common motion below the residual's noise,
+    ``cov(omega_1, A omega_2) <= E r^2``) where its own variance is within :data:`STILL_FACTOR` of the quietest
+    tenth of them: there its stream is its noise. Runs of consecutive still windows are the stretches (never
+    across ``boundary``, the length of a joined stretch of a long log); their second differences are pooled per
+    tau. Gyro 2's stream is ``A omega_2``, divided by ``|A|_F^2 / 3``. None with fewer than
+    :data:`MIN_STEADY_WINDOWS` still windows or four taus for either gyro."""
+    steady = win.cov <= win.v_r
+    if int(steady.sum()) < MIN_STEADY_WINDOWS:
+        return None
+    fits, levels, sds, avars, seconds, taus_all = [], [], [], [], [], None
+    texts = []
+    for i, (x, var) in enumerate(((w1, win.e_1 + win.cov), (aw2, win.e_2 + win.cov))):
+        floor = np.quantile(var[steady], 0.1)
+        still = steady & (var <= STILL_FACTOR * floor)
+        if int(still.sum()) < MIN_STEADY_WINDOWS:
+            return None
+        starts = win.start[still]
+        cut = np.diff(starts) != win.length
+        if boundary:
+            cut |= (starts[1:] // boundary) != (starts[:-1] // boundary)
+        runs = np.split(starts, np.flatnonzero(cut) + 1)
+        T = int(np.floor(np.log2(max(max(len(r) for r in runs) * win.length / 4.0, 1.0)))) + 1
+        S, C, dof = np.zeros(T), np.zeros(T), np.zeros((T, 4))
+        for run in runs:
+            lo, hi = int(run[0]), int(run[-1]) + win.length
+            taus, sums, sub_n, sub_m = second_differences([x[lo:hi]], rate_hz)
+            k = taus.size
+            S[:k] += sums[0].sum(axis=1)
+            C[:k] += 3.0 * sums[-1]
+            dof[:k] += edf_table(sub_n, sub_m)
+        n = int(np.count_nonzero(C > 0))
+        if n < 4:
+            return None
+        taus = 2.0 ** np.arange(n) / rate_hz
+        v = S[:n] / C[:n] / (1.0 if i == 0 else a)
+        fit = fit_allan(taus, v, dof[:n], min(first if i == 1 else 0, n - 4))
+        level, sd = white_level(fit, window_s)
+        fits.append(fit)
+        levels.append(level)
+        sds.append(sd)
+        avars.append(v)
+        seconds.append(int(still.sum()) * win.length / rate_hz)
+        longest = max(runs, key=len)
+        texts.append(f"gyro {i + 1} {seconds[-1]:.1f} s in {len(runs)} stretch(es), longest "
+                     f"{longest[0] / rate_hz:.1f}-{(longest[-1] + win.length) / rate_hz:.1f} s")
+        taus_all = taus if taus_all is None or taus.size > taus_all.size else taus_all
+    text = "still stretches (the pair's motion below the noise, each gyro at its quietest): " + "; ".join(texts)
+    return _SteadyNoise(taus_all, tuple(avars), tuple(fits), tuple(levels), tuple(sds), min(seconds), text)
+
+
 # ---------------------------------------------------------------------------------------------- entry point
 def identify_noise(omega_1, omega_2, A, bias, *, rate_hz: float | None, mask=None, window_s: float = 1.0,
                    resampling: Resampling | None = None) -> NoiseModel:
@@ -588,12 +660,15 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0,
     notes, sources = [], {}
     mis = _misfit_test(win, valid, rate_hz, sources, notes)
     fit = _allan_fit(r, None if everything and not mis.flagged else mis.use, rate_hz, stride, resampling,
-                     mis.flagged, sources, notes)
+                     mis.flagged, window_s, sources, notes)
     walk = _bias_choice(fit, stride, rate_hz, sources, notes)
     rs = resampling or Resampling((rate_hz, rate_hz))
+    first = 0 if resampling is None else int(np.searchsorted(fit.taus, (resampling.white_from - 0.5) / rate_hz))
+    steady = _steady_allan(win, w1, aw2, float(np.sum(A * A) / 3.0), rate_hz, first, window_s,
+                           STRETCH_WINDOWS * w if stride > 1.0 else None)
     noise_std, noise_sd, dens_sq = _split(win, w1, w2, A, rate_hz, rs, fit, sources,
-                                          resampling is not None)
-    if mis.few_quiet:  # misfit in every window: even the quietest carry it; each stream's own high frequencies do not
+                                          resampling is not None, steady)
+    if mis.few_quiet and steady is None:  # misfit in every window: even the quietest carry it; each stream's own high frequencies do not
         noise_std, noise_sd, dens_sq = _own_noise(w1, w2, valid, rs, sources, (noise_std, noise_sd, dens_sq))
     a = float(np.sum(A * A) / 3.0)
     q_each = fit.q_r / np.sqrt(1.0 + a)
@@ -608,8 +683,7 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0,
         residual_walk_std=fit.q_r, residual_walk_std_uncertainty=fit.q_r_sd,
         bias_instability=fit.B, bias_instability_uncertainty=fit.B_sd,
         white_std_at_rest=float(np.sqrt(mis.v0)), misfit_gain=mis.gain, misfit_share=mis.share, noise_kind=kind,
-        taus=fit.taus, adev=fit.adev, adev_fit=np.sqrt(np.maximum(
-            np.column_stack([1.0 / fit.taus, np.full_like(fit.taus, FLICKER), fit.taus / 3.0]) @ fit.coef, 0.0)),
+        taus=fit.taus, adev=fit.adev, adev_fit=np.sqrt(np.maximum(fit.model.pred, 0.0)),
         fit_taus=fit.tau_fit, sources=sources, notes=tuple(notes),
         rates_hz=None if resampling is None else tuple(float(f) for f in rs.rates_hz),
         densities=None if resampling is None else tuple(float(np.sqrt(d)) for d in dens_sq))
@@ -667,13 +741,16 @@ class _AllanFit(NamedTuple):
 
     taus: np.ndarray
     adev: np.ndarray
-    coef: np.ndarray      # (N^2, B^2, K^2)
+    model: AllanFit       # the fit (coefficients N^2, B^2, K^2, Q^2, F^2, time constant, how well it fits)
+    coef: np.ndarray      # model.coef
     sd: np.ndarray        # their standard uncertainties
     tau_fit: tuple
     coloured: bool
     idx: np.ndarray | None   # the samples fitted (None: all of them)
     span: int                # samples from the first to the last fitted one
     kept: int                # samples fitted
+    Nsq: float               # white level the calibration sees (white_level), and its standard uncertainty
+    Nsq_sd: float
     R_r: float               # white variance per sample of the residual, and its standard uncertainty
     R_sd: float
     sigma_r: float
@@ -685,10 +762,25 @@ class _AllanFit(NamedTuple):
     B_sd: float
 
 
-def _allan_fit(r, use, rate_hz, stride, resampling, misfit: bool, sources: dict, notes: list) -> _AllanFit:
+def white_level(fit: AllanFit, window_s: float) -> tuple[float, float]:
+    """The white level ``N^2`` (rad^2/s) a calibration over windows of ``window_s`` sees in a fitted Allan
+    variance, and its standard uncertainty: the white term, the filtered term's white level below its corner
+    (``F^2``: the motion is slower than the filter) and the quantisation's white equivalent at the window,
+    ``3 Q^2 / window_s`` (it averages out over the motion's time scale); the bias terms are left to the bias
+    model."""
+    g = np.zeros(len(fit.coef))
+    g[[WHITE, FILTERED]] = 1.0
+    g[QUANTISATION] = 3.0 / window_s
+    level = float(g @ fit.coef)
+    var = float(g @ np.nan_to_num(fit.cov) @ g) if fit.coef.any() else 0.0
+    return level, float(np.sqrt(max(var, 0.0)))
+
+
+def _allan_fit(r, use, rate_hz, stride, resampling, misfit: bool, window_s: float, sources: dict,
+               notes: list) -> _AllanFit:
     """Step 2 of :func:`_identify`: the Allan deviation of the residual ``r`` on the samples ``use`` (None: all)
-    fitted with white noise, bias instability and random walk (:func:`~fusion_gyrocal.core.allan.fit_allan`). Adds ``sources["noise"]``
-    and, for coloured noise, a note."""
+    fitted with the terms of :func:`~fusion_gyrocal.core.allan.fit_allan` (white, bias instability, random walk,
+    quantisation, filtered). Adds ``sources["noise"]`` and, for coloured noise, a note."""
     n = r.shape[0]
     if use is None:
         idx, y, span = None, r, n
@@ -702,33 +794,47 @@ def _allan_fit(r, use, rate_hz, stride, resampling, misfit: bool, sources: dict,
     edf = edf_table(sub_n, sub_m)
     # an interpolated stream is smoother than white noise over its first grid samples (Resampling.white_from)
     first = 0 if resampling is None else int(np.searchsorted(taus, (resampling.white_from - 0.5) / rate_hz))
-    c, cov, lo, pred_avar = fit_allan(taus, avar, edf, first)
+    model = fit_allan(taus, avar, edf, first)
+    c, cov, lo = model.coef, model.cov, model.first
     compress = kept / (span * stride)  # joined samples: the walk per joined step covers span / size samples
-    Nsq, Bsq, Ksq = c
-    sd = np.sqrt(np.maximum(np.diag(cov), 0.0)) if np.isfinite(cov).all() else np.full(3, np.nan)
+    Bsq, Ksq = c[FLICKER_TERM], c[WALK]
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0)) if np.isfinite(cov).all() else np.full(c.size, np.nan)
+    Nsq, Nsq_sd = white_level(model, window_s)
     R_r = Nsq * rate_hz
-    R_sd = sd[0] * rate_hz
+    R_sd = Nsq_sd * rate_hz
     sigma_r = float(np.sqrt(R_r))
     sigma_r_sd = float(R_sd / (2.0 * sigma_r)) if sigma_r > 0 else float("inf")
     q2 = Ksq / rate_hz * compress
-    q2_sd = sd[2] / rate_hz * compress
+    q2_sd = sd[WALK] / rate_hz * compress
     q_r = float(np.sqrt(q2))
     q_r_sd = float(q2_sd / (2.0 * q_r)) if q_r > 0 else 0.0
     B = float(np.sqrt(Bsq))
-    B_sd = float(sd[1] / (2.0 * B)) if B > 0 else 0.0
+    B_sd = float(sd[FLICKER_TERM] / (2.0 * B)) if B > 0 else 0.0
     tau_fit = (float(taus[lo]), float(taus[-1]))
-    coloured = lo > first          # beyond what interpolation onto the grid explains
+    coloured = lo > first or c[FILTERED] > 0    # beyond what interpolation onto the grid explains
     where = "samples kept" if misfit else "valid samples"
-    sources["noise"] = (f"white rate noise (slope -1/2) of the residual's Allan fit at tau {tau_fit[0]:.3g}-"
-                        f"{tau_fit[1]:.3g} s on {kept / rate_hz:.0f} s of {where}")
+    kept_terms = [name for name, v in zip(TERMS, c) if v > 0]
+    sources["noise"] = (f"white level of the residual's Allan fit ({' + '.join(kept_terms) or 'no term'}) at tau "
+                        f"{tau_fit[0]:.3g}-{tau_fit[1]:.3g} s on {kept / rate_hz:.0f} s of {where}; the model is within "
+                        f"{model.worst:.2f}x of the points"
+                        + ("" if model.fits else f" (does NOT pass through them: more than {FIT_FACTOR:g}x off)"))
     if first > 0:
         sources["noise"] += (f" (from tau {taus[first]:.3g} s on: the interpolation onto the grid smooths the noise "
                              "over the first samples)")
-    if coloured:
-        notes.append(f"the residual is coloured below tau = {tau_fit[0]:.3g} s (its Allan deviation there is not "
-                     "that of white noise): noise_std is the white level of the longer taus, where the motion is")
-    return _AllanFit(taus, adev, c, sd, tau_fit, coloured, idx, span, kept, R_r, R_sd, sigma_r, sigma_r_sd, q2, q_r,
-                     q_r_sd, B, B_sd)
+    if c[QUANTISATION] > 0:
+        notes.append(f"the residual has a slope -1 term (quantisation, or a rate differentiated from a noisy angle "
+                     f"such as motion capture's): Q = {np.sqrt(c[QUANTISATION]):.3g} rad, per-sample std "
+                     f"{np.sqrt(2.0 * c[QUANTISATION]) * rate_hz:.3g} rad/s that averages out over the motion; the "
+                     f"white level counts only its share at tau = {window_s:g} s")
+    if c[FILTERED] > 0:
+        notes.append(f"the residual's noise is low-pass filtered (time constant {model.tc:.3g} s; its Allan deviation "
+                     "flattens below it): consecutive samples are correlated, so the per-sample spread is below the "
+                     "white level the motion sees (noise_std), and a residual chi2/dof below 1 is expected")
+    if lo > first:
+        notes.append(f"the residual is coloured below tau = {tau_fit[0]:.3g} s (its Allan deviation there fits none "
+                     "of the terms): noise_std is the white level of the longer taus, where the motion is")
+    return _AllanFit(taus, adev, model, c, sd, tau_fit, coloured, idx, span, kept, Nsq, Nsq_sd, R_r, R_sd, sigma_r,
+                     sigma_r_sd, q2, q_r, q_r_sd, B, B_sd)
 
 
 def _bias_choice(fit: _AllanFit, stride, rate_hz, sources: dict, notes: list) -> bool:
@@ -736,8 +842,8 @@ def _bias_choice(fit: _AllanFit, stride, rate_hz, sources: dict, notes: list) ->
     (:data:`WALK_Z`) and its Kalman filter settles within :data:`SETTLE_FRACTION` of the log, else constant.
     Adds ``sources["bias"]`` and, for a flicker floor, a note."""
     span = fit.span
-    Ksq, Bsq = fit.coef[2], fit.coef[1]
-    z = Ksq / fit.sd[2] if Ksq > 0 and fit.sd[2] > 0 else 0.0
+    Ksq, Bsq = fit.coef[WALK], fit.coef[FLICKER_TERM]
+    z = Ksq / fit.sd[WALK] if Ksq > 0 and fit.sd[WALK] > 0 else 0.0
     settle = np.sqrt(fit.R_r / fit.q2) if fit.q2 > 0 else np.inf  # samples: Kalman time constant of the walk
     walk = bool(z >= WALK_Z and settle <= SETTLE_FRACTION * span * stride)
     if walk:
@@ -758,20 +864,44 @@ def _bias_choice(fit: _AllanFit, stride, rate_hz, sources: dict, notes: list) ->
     return walk
 
 
-def _split(win: _Windows, w1, w2, A, rate_hz, rs: Resampling, fit: _AllanFit, sources: dict, resampled: bool):
+def _split(win: _Windows, w1, w2, A, rate_hz, rs: Resampling, fit: _AllanFit, sources: dict, resampled: bool,
+           steady: _SteadyNoise | None = None):
     """Step 4 of :func:`_identify`: the residual's white level split between the gyros by their own densities
     ``N_i``: on the grid (:class:`Resampling`) a stream's noise per sample is ``kv_i f_i N_i^2`` and its
     low-frequency density ``g_i N_i^2``, so the Allan fit's white level is ``Nsq = g_1 N_1^2 + a g_2 N_2^2``.
-    The ratio comes from the steady stretches (:func:`_steady_split`), else each stream's third differences,
-    else equal densities. Adds ``sources["split"]``; returns ``(noise_std, (sd_1, sd_2), densities^2)``."""
-    Nsq, R_r, R_sd, idx, kept = fit.coef[0], fit.R_r, fit.R_sd, fit.idx, fit.kept
+    The ratio comes from each gyro's own Allan fit on the steady stretches (:func:`_steady_allan`), else their
+    variances there (:func:`_steady_split`), else each stream's third differences, else equal densities. Where the
+    steady stretches give both levels and the residual's fit does not pass through its points, disagrees with
+    their sum by more than 1.5x, or is a misfit, the steady levels themselves are used (a static test of each
+    sensor, from the log). Adds ``sources["split"]`` (and says in ``sources["noise"]`` which was used); returns
+    ``(noise_std, (sd_1, sd_2), densities^2)``."""
+    Nsq, R_r, R_sd, idx, kept = fit.Nsq, fit.R_r, fit.R_sd, fit.idx, fit.kept
     a = float(np.sum(A * A) / 3.0)  # Var(A n_2) per axis = sigma_2^2 |A|_F^2 / 3
     kv, kd, fr, g = rs.variance, rs.diff3, rs.rates_hz, rs.density
-    split = _steady_split(win, rate_hz)
-    if split is not None:
+    split = None if steady is not None and min(steady.level) > 0 else _steady_split(win, rate_hz)
+    if steady is not None and min(steady.level) > 0:
+        lv, lv_sd = steady.level, steady.level_sd
+        rho2 = (lv[0] / g[0]) / (lv[1] / g[1])                  # N_1^2 / N_2^2, each sensor's own
+        rho2_relvar = (lv_sd[0] / lv[0]) ** 2 + (lv_sd[1] / lv[1]) ** 2
+        agree = Nsq / (lv[0] + a * lv[1])
+        sources["split"] = (steady.text + f"; each gyro's own Allan deviation there (the motion cancelled by the "
+                            f"other's): white {np.sqrt(lv[0] * rate_hz):.3g} / {np.sqrt(lv[1] * rate_hz):.3g} rad/s "
+                            "per sample")
+        direct = not (fit.model.fits and 1.0 / 2.25 <= agree <= 2.25)
+        if direct:
+            Nsq = lv[0] * 1.0 + a * lv[1]
+            R_r, R_sd = Nsq * rate_hz, float(np.hypot(lv_sd[0], a * lv_sd[1])) * rate_hz
+            sources["noise"] = (f"each gyro's own white level on the steady stretches (used: the residual's Allan fit "
+                                f"{'does not pass through its points' if not fit.model.fits else 'disagrees'}, "
+                                f"{np.sqrt(agree):.2f}x their sum in std); residual: " + sources["noise"])
+        else:
+            sources["noise"] += (f"; the steady stretches' levels agree with it ({np.sqrt(agree):.2f}x their sum in "
+                                 "std) and split it")
+    elif split is not None:
         ratio, rho2_relvar, text, _ = split
         grid2 = a * ratio                  # sigma_1^2 / sigma_2^2 per grid sample (e_2 carries |A|_F^2 / 3)
         sources["split"] = text
+        rho2 = grid2 * (kv[1] * fr[1]) / (kv[0] * fr[0])
     else:
         head = slice(0, 200_000) if idx is None else idx[:200_000]  # plenty for a noise level
         d1, d2 = difference_noise_std(w1[head]), difference_noise_std(w2[head])
@@ -783,10 +913,10 @@ def _split(win: _Windows, w1, w2, A, rate_hz, rs: Resampling, fit: _AllanFit, so
         else:
             grid2, rho2_relvar = kv[0] * fr[0] / (kv[1] * fr[1]), 0.0
             sources["split"] = "equal densities (no steady stretch, third differences unusable)"
+        rho2 = grid2 * (kv[1] * fr[1]) / (kv[0] * fr[0])         # N_1^2 / N_2^2
     if resampled:
         sources["split"] += (f"; each stream's grid noise referred to its own rate ({fr[0]:.6g} / {fr[1]:.6g} Hz; "
                              f"interpolation keeps {kv[0]:.3g} / {kv[1]:.3g} of the variance)")
-    rho2 = grid2 * (kv[1] * fr[1]) / (kv[0] * fr[0])         # N_1^2 / N_2^2
     n2_sq = Nsq / (g[0] * rho2 + a * g[1])
     dens_sq = (rho2 * n2_sq, n2_sq)
     s1_sq, s2_sq = (kv[i] * fr[i] * dens_sq[i] for i in (0, 1))   # per grid sample, what the solver weighs
