@@ -206,16 +206,16 @@ def _wls(taus, avar, edf, terms, tc=None):
     return coef, cov, chi2, pred, worst
 
 
-def _candidates(taus, terms):
+def _candidates(taus, terms, max_tc):
     """The terms not yet in ``terms`` with their time constants: the filtered term once per octave tau up to an
-    eighth of the longest (a time constant the curve shows on both sides)."""
+    eighth of the longest (a time constant the curve shows on both sides) and ``max_tc``."""
     out = [(t, None) for t in (QUANTISATION, WALK, FLICKER_TERM) if t not in terms]
     if FILTERED not in terms:
-        out += [(FILTERED, float(tc)) for tc in taus[taus <= taus[-1] / 8.0]]
+        out += [(FILTERED, float(tc)) for tc in taus[taus <= min(taus[-1] / 8.0, max_tc)]]
     return out
 
 
-def _select(t, a, e):
+def _select(t, a, e, max_tc):
     """Forward selection from white noise: the candidate (:func:`_candidates`) that lowers the chi-square most is
     added while it does so by more than :data:`SIGNIFICANT_CHI2` (times the reduced chi-square; plus
     ``2 ln k`` for the filtered term tried at ``k`` time constants, the look-elsewhere of picking the best)."""
@@ -223,7 +223,7 @@ def _select(t, a, e):
     best = _wls(t, a, e, terms)
     while True:
         trials = []
-        for term, c in _candidates(t, terms):
+        for term, c in _candidates(t, terms, max_tc):
             fit = _wls(t, a, e, terms + [term], c if term == FILTERED else tc)
             trials.append((best[2] - fit[2], term, c, fit))
         if not trials:
@@ -241,8 +241,9 @@ def _select(t, a, e):
     return best, (tc or 0.0)
 
 
-def fit_allan(taus, avar, edf, first: int = 0) -> AllanFit:
-    """Fit :data:`TERMS` to the Allan variance ``avar`` from the tau of index ``first`` on (:func:`_select`).
+def fit_allan(taus, avar, edf, first: int = 0, max_tc: float = np.inf) -> AllanFit:
+    """Fit :data:`TERMS` to the Allan variance ``avar`` from the tau of index ``first`` on (:func:`_select`; the
+    filtered term's time constant at most ``max_tc``, a filter's, not a slow disturbance's).
     While the model does not pass through the points (:attr:`AllanFit.fits`) or is off the shortest tau by more
     than a factor :data:`COLOURED_FACTOR` in variance (noise none of the terms describes there), that tau is
     dropped and the fit repeated, down to six taus; the fit that came closest is returned when none passes.
@@ -251,7 +252,7 @@ def fit_allan(taus, avar, edf, first: int = 0) -> AllanFit:
     best = None
     while True:
         t, a, e = taus[lo:], avar[lo:], edf[lo:]
-        (coef, cov, chi2, pred, worst), tc = _select(t, a, e)
+        (coef, cov, chi2, pred, worst), tc = _select(t, a, e, max_tc)
         ratio = a[0] / pred[0] if pred[0] > 0 else np.inf
         fit = AllanFit(coef, cov, lo, design(taus, tc) @ coef, tc, chi2, worst)
         good = worst <= FIT_FACTOR and 1.0 / COLOURED_FACTOR <= ratio <= COLOURED_FACTOR

@@ -478,6 +478,8 @@ class _SteadyNoise(NamedTuple):
     text: str
 
 
+MAX_FILTER_S = 1.0 / 8.0   # the filtered term's time constant, at most this fraction of the window
+STILL_TAU = 4.0     # a gyro's still stretches are fitted up to tau = this many windows (the white level's range)
 STILL_FACTOR = 2.0   # a gyro's still windows: its variance within this factor of its quietest tenth
 
 
@@ -517,12 +519,12 @@ def _steady_allan(win: _Windows, w1, aw2, a: float, rate_hz: float, first: int, 
             S[:k] += sums[0].sum(axis=1)
             C[:k] += 3.0 * sums[-1]
             dof[:k] += edf_table(sub_n, sub_m)
-        n = int(np.count_nonzero(C > 0))
+        n = min(int(np.count_nonzero(C > 0)), int(np.log2(STILL_TAU * window_s * rate_hz)) + 1)
         if n < 4:
             return None
         taus = 2.0 ** np.arange(n) / rate_hz
         v = S[:n] / C[:n] / (1.0 if i == 0 else a)
-        fit = fit_allan(taus, v, dof[:n], min(first if i == 1 else 0, n - 4))
+        fit = fit_allan(taus, v, dof[:n], min(first if i == 1 else 0, n - 4), MAX_FILTER_S * window_s)
         level, sd = white_level(fit, window_s)
         fits.append(fit)
         levels.append(level)
@@ -794,7 +796,7 @@ def _allan_fit(r, use, rate_hz, stride, resampling, misfit: bool, window_s: floa
     edf = edf_table(sub_n, sub_m)
     # an interpolated stream is smoother than white noise over its first grid samples (Resampling.white_from)
     first = 0 if resampling is None else int(np.searchsorted(taus, (resampling.white_from - 0.5) / rate_hz))
-    model = fit_allan(taus, avar, edf, first)
+    model = fit_allan(taus, avar, edf, first, MAX_FILTER_S * window_s)
     c, cov, lo = model.coef, model.cov, model.first
     compress = kept / (span * stride)  # joined samples: the walk per joined step covers span / size samples
     Bsq, Ksq = c[FLICKER_TERM], c[WALK]
@@ -887,13 +889,15 @@ def _split(win: _Windows, w1, w2, A, rate_hz, rs: Resampling, fit: _AllanFit, so
         sources["split"] = (steady.text + f"; each gyro's own Allan deviation there (the motion cancelled by the "
                             f"other's): white {np.sqrt(lv[0] * rate_hz):.3g} / {np.sqrt(lv[1] * rate_hz):.3g} rad/s "
                             "per sample")
-        direct = not (fit.model.fits and 1.0 / 2.25 <= agree <= 2.25)
+        still_fits = all(f.fits for f in steady.fits)
+        direct = True   # a static test of each sensor: the residual's level (during motion) is the check
         if direct:
             Nsq = lv[0] * 1.0 + a * lv[1]
             R_r, R_sd = Nsq * rate_hz, float(np.hypot(lv_sd[0], a * lv_sd[1])) * rate_hz
-            sources["noise"] = (f"each gyro's own white level on the steady stretches (used: the residual's Allan fit "
-                                f"{'does not pass through its points' if not fit.model.fits else 'disagrees'}, "
-                                f"{np.sqrt(agree):.2f}x their sum in std); residual: " + sources["noise"])
+            why = ("their fits pass through their points" if still_fits else "their fits are up to "
+                   f"{max(f.worst for f in steady.fits):.2f}x off their points")
+            sources["noise"] = (f"USED: each gyro's own white level on its still stretches ({why}; the residual's level "
+                                f"is {np.sqrt(agree):.2f}x their sum in std); residual: " + sources["noise"])
         else:
             sources["noise"] += (f"; the steady stretches' levels agree with it ({np.sqrt(agree):.2f}x their sum in "
                                  "std) and split it")
