@@ -35,6 +35,7 @@ NEIGHBOUR_CORRELATION = np.array([0.5, 0.7, 0.85, 0.3])
 #: a fitted model passes through the points when it is within this factor of every fitted point's Allan
 #: deviation beyond the point's own 2-sigma scatter
 FIT_FACTOR = 1.2
+MATERIAL_SHARE = 0.25                 # share of the model a quantisation or filtered term makes at some tau
 
 
 def allan_deviation(y: np.ndarray, rate_hz: float):
@@ -218,7 +219,9 @@ def _candidates(taus, terms, max_tc):
 def _select(t, a, e, max_tc):
     """Forward selection from white noise: the candidate (:func:`_candidates`) that lowers the chi-square most is
     added while it does so by more than :data:`SIGNIFICANT_CHI2` (times the reduced chi-square; plus
-    ``2 ln k`` for the filtered term tried at ``k`` time constants, the look-elsewhere of picking the best)."""
+    ``2 ln k`` for the filtered term tried at ``k`` time constants, the look-elsewhere of picking the best) and,
+    for the quantisation and filtered terms, while it makes at least :data:`MATERIAL_SHARE` of the model at some
+    fitted tau."""
     terms, tc = [WHITE], None
     best = _wls(t, a, e, terms)
     while True:
@@ -229,37 +232,42 @@ def _select(t, a, e, max_tc):
         if not trials:
             break
         n_tc = sum(1 for tr in trials if tr[1] == FILTERED)
-        drop, term, c, fit = max(trials, key=lambda tr: tr[0] - (2.0 * np.log(max(n_tc, 1)) if tr[1] == FILTERED
-                                                                else 0.0))
-        red = max(1.0, fit[2] / max(t.size - len(terms) - 1, 1))
-        need = SIGNIFICANT_CHI2 * red + (2.0 * np.log(max(n_tc, 1)) if term == FILTERED else 0.0)
-        if not (fit[0][term] > 0 and drop > need):
+        look = 2.0 * np.log(max(n_tc, 1))
+        trials.sort(key=lambda tr: tr[0] - (look if tr[1] == FILTERED else 0.0), reverse=True)
+        for drop, term, c, fit in trials:
+            red = max(1.0, fit[2] / max(t.size - len(terms) - 1, 1))
+            need = SIGNIFICANT_CHI2 * red + (look if term == FILTERED else 0.0)
+            if not (fit[0][term] > 0 and drop > need):
+                continue
+            if term in (QUANTISATION, FILTERED):   # a noise kind, not a wrinkle: a material share somewhere
+                share = np.max(design(t, c if term == FILTERED else tc)[:, term] * fit[0][term]
+                               / np.maximum(fit[3], 1e-300))
+                if share < MATERIAL_SHARE:
+                    continue
+            terms, best = terms + [term], fit
+            if term == FILTERED:
+                tc = c
             break
-        terms, best = terms + [term], fit
-        if term == FILTERED:
-            tc = c
+        else:
+            break
     return best, (tc or 0.0)
 
 
 def fit_allan(taus, avar, edf, first: int = 0, max_tc: float = np.inf) -> AllanFit:
     """Fit :data:`TERMS` to the Allan variance ``avar`` from the tau of index ``first`` on (:func:`_select`; the
-    filtered term's time constant at most ``max_tc``, a filter's, not a slow disturbance's).
-    While the model does not pass through the points (:attr:`AllanFit.fits`) or is off the shortest tau by more
-    than a factor :data:`COLOURED_FACTOR` in variance (noise none of the terms describes there), that tau is
-    dropped and the fit repeated, down to six taus; the fit that came closest is returned when none passes.
-    Returns an :class:`AllanFit`."""
+    filtered term's time constant at most ``max_tc``, a filter's, not a slow disturbance's). While the model is
+    off the shortest tau by more than a factor :data:`COLOURED_FACTOR` in variance, or off one of the three
+    shortest by more than :data:`FIT_FACTOR` beyond their scatter (noise none of the terms describes there), that
+    tau is dropped and the fit repeated, down to six taus. Returns an :class:`AllanFit`; its ``worst`` says how
+    well it passes through all the fitted points."""
     lo = min(int(first), max(taus.size - 6, 0))
-    best = None
     while True:
         t, a, e = taus[lo:], avar[lo:], edf[lo:]
         (coef, cov, chi2, pred, worst), tc = _select(t, a, e, max_tc)
         ratio = a[0] / pred[0] if pred[0] > 0 else np.inf
-        fit = AllanFit(coef, cov, lo, design(taus, tc) @ coef, tc, chi2, worst)
-        good = worst <= FIT_FACTOR and 1.0 / COLOURED_FACTOR <= ratio <= COLOURED_FACTOR
-        if best is None or worst < best.worst:
-            best = fit
-        if good:
-            return fit
-        if t.size <= 6:
-            return best
+        dof = edf[lo:lo + 3, 0]
+        head = np.abs(0.5 * np.log(np.maximum(pred[:3], 1e-300) / np.maximum(a[:3], 1e-300))) - 2.0 / np.sqrt(2 * dof)
+        good = 1.0 / COLOURED_FACTOR <= ratio <= COLOURED_FACTOR and float(np.exp(head.max())) <= FIT_FACTOR
+        if good or t.size <= 6:
+            return AllanFit(coef, cov, lo, design(taus, tc) @ coef, tc, chi2, worst)
         lo += 1

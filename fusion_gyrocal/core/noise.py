@@ -221,6 +221,17 @@ class NoiseModel:
         Each gyro's own white rate-noise density (rad/s/sqrt(Hz)) when a stream was resampled (interpolation
         changes its noise per grid sample, and aliasing its density on a coarser grid); None: ``noise_std /
         sqrt(rate_hz)``.
+    adev_worst : float
+        How far the fitted model (``adev_fit``) is from the residual's Allan deviation over the fitted taus: the
+        largest ratio (either way) beyond each point's 2-sigma scatter; NaN in files written before it.
+    quantisation : float
+        ``Q`` (rad) of the residual's slope -1 term (quantisation, or a rate differentiated from a noisy angle),
+        0 without it.
+    filter_time_s : float
+        Time constant (s) of the residual's low-pass filtered noise term, 0 without it.
+    still_noise_std : tuple of float or None
+        Each gyro's white noise per sample (rad/s) from its own still stretches (a static test from the log:
+        :func:`identify_noise`), None where the log has none; ``noise_std`` is this pair when it was used.
     """
 
     rate_hz: float
@@ -247,6 +258,10 @@ class NoiseModel:
     rate_known: bool = True
     rates_hz: tuple | None = None
     densities: tuple | None = None
+    adev_worst: float = float("nan")
+    quantisation: float = 0.0
+    filter_time_s: float = 0.0
+    still_noise_std: tuple | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "noise_kind", NoiseKind(self.noise_kind))   # a member, also when given its value
@@ -261,6 +276,12 @@ class NoiseModel:
     def is_white(self) -> bool:
         """True when the residual is white noise (with or without a bias random walk)."""
         return self.noise_kind.is_white
+
+    @property
+    def fits(self) -> bool:
+        """The fitted Allan model passes through the residual's points (``adev_worst`` at most
+        :data:`~fusion_gyrocal.core.allan.FIT_FACTOR`; True for a file that does not say)."""
+        return not self.adev_worst > FIT_FACTOR
 
     @property
     def is_misfit(self) -> bool:
@@ -331,13 +352,16 @@ class NoiseModel:
             for name in ("taus", "adev_fit", "adev"):
                 kw[name] = from_json_list(kw[name], np.float64)
             for name in ("noise_std", "noise_std_uncertainty", "misfit_gain", "fit_taus", "bias_walk_std", "rates_hz",
-                         "densities"):
+                         "densities", "still_noise_std"):
                 if kw.get(name) is not None:
                     kw[name] = tuple(num(x) for x in kw[name])
             for name in ("rate_hz", "residual_noise_std", "residual_noise_std_uncertainty", "residual_walk_std",
                          "residual_walk_std_uncertainty", "bias_instability", "bias_instability_uncertainty",
                          "white_std_at_rest", "misfit_share"):
                 kw[name] = num(kw[name])
+            for name in ("adev_worst", "quantisation", "filter_time_s"):
+                if name in kw:
+                    kw[name] = num(kw[name])
             kw["notes"] = tuple(kw.get("notes", ()))
             text = kw.pop("kind")
             kw["noise_kind"] = NoiseKind(kw["noise_kind"]) if "noise_kind" in kw else NoiseKind.from_text(text)
@@ -358,6 +382,16 @@ class NoiseModel:
             lines.append(f"bias random walk {self.bias_walk_std[0] * deg:.3g} deg/s per sample per gyro")
         else:
             lines.append("bias: constant")
+        if self.still_noise_std is not None:
+            lines.append("white noise from: " + ("each gyro's own still stretches (a static test from the log)"
+                                                 if np.allclose(self.noise_std, self.still_noise_std, rtol=1e-9) else "the residual's Allan fit"
+                                                 ) + "; still stretches give "
+                         + " / ".join(f"{v * deg:.4g}" for v in self.still_noise_std) + " deg/s per sample")
+        else:
+            lines.append("white noise from: the residual's Allan fit (no still stretch in the log)")
+        if np.isfinite(self.adev_worst):
+            lines.append(f"Allan model vs the residual's points: within {self.adev_worst:.2f}x beyond their scatter"
+                         + ("" if self.fits else f" (does NOT pass through them; more than {FIT_FACTOR:g}x off)"))
         lines += [f"{k}: {v}" for k, v in self.sources.items()]
         return "\n".join(lines + list(self.notes))
 
@@ -478,6 +512,7 @@ class _SteadyNoise(NamedTuple):
     text: str
 
 
+CONTRADICT = 1.5 ** 2    # the white level's per-sample variance over the residual's mean square, at most
 MAX_FILTER_S = 1.0 / 8.0   # the filtered term's time constant, at most this fraction of the window
 STILL_TAU = 4.0     # a gyro's still stretches are fitted up to tau = this many windows (the white level's range)
 STILL_FACTOR = 2.0   # a gyro's still windows: its variance within this factor of its quietest tenth
@@ -535,7 +570,7 @@ def _steady_allan(win: _Windows, w1, aw2, a: float, rate_hz: float, first: int, 
         texts.append(f"gyro {i + 1} {seconds[-1]:.1f} s in {len(runs)} stretch(es), longest "
                      f"{longest[0] / rate_hz:.1f}-{(longest[-1] + win.length) / rate_hz:.1f} s")
         taus_all = taus if taus_all is None or taus.size > taus_all.size else taus_all
-    text = "still stretches (the pair's motion below the noise, each gyro at its quietest): " + "; ".join(texts)
+    text = "steady stretches, each gyro at its quietest (still): " + "; ".join(texts)
     return _SteadyNoise(taus_all, tuple(avars), tuple(fits), tuple(levels), tuple(sds), min(seconds), text)
 
 
@@ -673,6 +708,8 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0,
     if mis.few_quiet and steady is None:  # misfit in every window: even the quietest carry it; each stream's own high frequencies do not
         noise_std, noise_sd, dens_sq = _own_noise(w1, w2, valid, rs, sources, (noise_std, noise_sd, dens_sq))
     a = float(np.sum(A * A) / 3.0)
+    noise_std, noise_sd, dens_sq = _within_residual(r, mis.use, a, fit,
+                                                    (noise_std, noise_sd, dens_sq), sources, notes)
     q_each = fit.q_r / np.sqrt(1.0 + a)
     bias_walk = (float(q_each), float(q_each)) if walk else None
 
@@ -688,7 +725,11 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0,
         taus=fit.taus, adev=fit.adev, adev_fit=np.sqrt(np.maximum(fit.model.pred, 0.0)),
         fit_taus=fit.tau_fit, sources=sources, notes=tuple(notes),
         rates_hz=None if resampling is None else tuple(float(f) for f in rs.rates_hz),
-        densities=None if resampling is None else tuple(float(np.sqrt(d)) for d in dens_sq))
+        densities=None if resampling is None else tuple(float(np.sqrt(d)) for d in dens_sq),
+        adev_worst=float(fit.model.worst), quantisation=float(np.sqrt(fit.coef[QUANTISATION])),
+        filter_time_s=float(fit.model.tc if fit.coef[FILTERED] > 0 else 0.0),
+        still_noise_std=None if steady is None or min(steady.level) <= 0 else tuple(
+            float(np.sqrt(rs.variance[i] * rs.rates_hz[i] * steady.level[i] / rs.density[i])) for i in (0, 1)))
 
 
 class _Misfit(NamedTuple):
@@ -796,7 +837,8 @@ def _allan_fit(r, use, rate_hz, stride, resampling, misfit: bool, window_s: floa
     edf = edf_table(sub_n, sub_m)
     # an interpolated stream is smoother than white noise over its first grid samples (Resampling.white_from)
     first = 0 if resampling is None else int(np.searchsorted(taus, (resampling.white_from - 0.5) / rate_hz))
-    model = fit_allan(taus, avar, edf, first, MAX_FILTER_S * window_s)
+    # a misfit's motion-band residue mimics filtered noise (a bump at the motion's time scale): no filtered term then
+    model = fit_allan(taus, avar, edf, first, 0.0 if misfit else MAX_FILTER_S * window_s)
     c, cov, lo = model.coef, model.cov, model.first
     compress = kept / (span * stride)  # joined samples: the walk per joined step covers span / size samples
     Bsq, Ksq = c[FLICKER_TERM], c[WALK]
@@ -886,8 +928,7 @@ def _split(win: _Windows, w1, w2, A, rate_hz, rs: Resampling, fit: _AllanFit, so
         rho2 = (lv[0] / g[0]) / (lv[1] / g[1])                  # N_1^2 / N_2^2, each sensor's own
         rho2_relvar = (lv_sd[0] / lv[0]) ** 2 + (lv_sd[1] / lv[1]) ** 2
         agree = Nsq / (lv[0] + a * lv[1])
-        sources["split"] = (steady.text + f"; each gyro's own Allan deviation there (the motion cancelled by the "
-                            f"other's): white {np.sqrt(lv[0] * rate_hz):.3g} / {np.sqrt(lv[1] * rate_hz):.3g} rad/s "
+        sources["split"] = (steady.text + f"; each gyro's own Allan deviation there: white {np.sqrt(lv[0] * rate_hz):.3g} / {np.sqrt(lv[1] * rate_hz):.3g} rad/s "
                             "per sample")
         still_fits = all(f.fits for f in steady.fits)
         direct = True   # a static test of each sensor: the residual's level (during motion) is the check
@@ -929,6 +970,28 @@ def _split(win: _Windows, w1, w2, A, rate_hz, rs: Resampling, fit: _AllanFit, so
     sd1 = np.sqrt(s1_sq) * 0.5 * np.sqrt(rel_R + f1 ** 2 * rho2_relvar)
     sd2 = np.sqrt(s2_sq) * 0.5 * np.sqrt(rel_R + f2 ** 2 * rho2_relvar)
     return (float(np.sqrt(s1_sq)), float(np.sqrt(s2_sq))), (sd1, sd2), dens_sq
+
+
+def _within_residual(r, use, a: float, fit: _AllanFit, levels, sources: dict, notes: list):
+    """The white noise never contradicts the residual: the per-sample variance it implies,
+    ``sigma_1^2 + |A|_F^2 / 3 sigma_2^2``, may not exceed the residual's own mean square on the samples ``use``
+    by more than :data:`CONTRADICT` (the residual holds the noise and more), unless the residual's fit has the
+    filtered term (low-pass noise: correlated samples spread less than the white level the motion sees, said in
+    a note). Beyond it both gyros' levels are scaled down to the residual's and ``sources["noise"]`` says so.
+    Returns ``(noise_std, noise_sd, densities^2)``."""
+    (s1, s2), sd, dens_sq = levels
+    x = r[use] if use is not None else r
+    ms = float(np.mean((x - x.mean(axis=0)) ** 2)) if x.size else 0.0
+    implied = s1 * s1 + a * s2 * s2
+    if not (ms > 0 and implied > CONTRADICT * ms) or fit.coef[FILTERED] > 0:
+        return levels
+    k = np.sqrt(ms / implied)
+    sources["noise"] += (f"; CAPPED: that level implied {np.sqrt(implied / ms):.2f}x the residual's own per-sample "
+                         f"spread (no filter to explain it): both gyros scaled by {k:.3g} to the residual's")
+    notes.append(f"the noise level first identified ({np.sqrt(implied):.3g} rad/s per sample in the residual) exceeded "
+                 f"the residual itself ({np.sqrt(ms):.3g}): it was scaled down to it")
+    return (float(s1 * k), float(s2 * k)), (float(sd[0] * k), float(sd[1] * k)), (dens_sq[0] * k * k,
+                                                                                dens_sq[1] * k * k)
 
 
 def _own_noise(w1, w2, valid, rs: Resampling, sources: dict, split):
