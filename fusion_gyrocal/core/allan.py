@@ -35,6 +35,7 @@ NEIGHBOUR_CORRELATION = np.array([0.5, 0.7, 0.85, 0.3])
 #: a fitted model passes through the points when it is within this factor of every fitted point's Allan
 #: deviation beyond the point's own 2-sigma scatter
 FIT_FACTOR = 1.2
+MAX_FILTER_SAMPLES = 32               # default longest time constant of the filtered term, in samples
 MATERIAL_SHARE = 0.25                 # share of the model a quantisation or filtered term makes at some tau
 
 
@@ -253,14 +254,16 @@ def _select(t, a, e, max_tc):
     return best, (tc or 0.0)
 
 
-def fit_allan(taus, avar, edf, first: int = 0, max_tc: float = np.inf) -> AllanFit:
+def fit_allan(taus, avar, edf, first: int = 0, max_tc: float | None = None) -> AllanFit:
     """Fit :data:`TERMS` to the Allan variance ``avar`` from the tau of index ``first`` on (:func:`_select`; the
-    filtered term's time constant at most ``max_tc``, a filter's, not a slow disturbance's). While the model is
+    filtered term's time constant at most ``max_tc``, a filter's, not a slow disturbance's: default
+    :data:`MAX_FILTER_SAMPLES` times the shortest tau). While the model is
     off the shortest tau by more than a factor :data:`COLOURED_FACTOR` in variance, or off one of the three
     shortest by more than :data:`FIT_FACTOR` beyond their scatter (noise none of the terms describes there), that
     tau is dropped and the fit repeated, down to six taus. Returns an :class:`AllanFit`; its ``worst`` says how
     well it passes through all the fitted points."""
     lo = min(int(first), max(taus.size - 6, 0))
+    max_tc = MAX_FILTER_SAMPLES * float(taus[0]) if max_tc is None else max_tc
     while True:
         t, a, e = taus[lo:], avar[lo:], edf[lo:]
         (coef, cov, chi2, pred, worst), tc = _select(t, a, e, max_tc)
@@ -269,5 +272,5 @@ def fit_allan(taus, avar, edf, first: int = 0, max_tc: float = np.inf) -> AllanF
         head = np.abs(0.5 * np.log(np.maximum(pred[:3], 1e-300) / np.maximum(a[:3], 1e-300))) - 2.0 / np.sqrt(2 * dof)
         good = 1.0 / COLOURED_FACTOR <= ratio <= COLOURED_FACTOR and float(np.exp(head.max())) <= FIT_FACTOR
         if good or t.size <= 6:
-            return AllanFit(coef, cov, lo, design(taus, tc) @ coef, tc, chi2, worst)
+            return AllanFit(coef, cov, lo, design(taus, tc) @ coef, tc if coef[FILTERED] > 0 else 0.0, chi2, worst)
         lo += 1

@@ -3,7 +3,7 @@
 The residual of a rigid pair, ``r_k = omega_1(k) - A omega_2(k) - b`` (Eq. 4-5 with ``A`` and ``b``
 from the direct solve, Eq. 12-17), removes the motion and keeps what the calibration has to weigh:
 the white noise of both gyros, ``n_1 - A n_2``, the drift of the combined bias ``b_1(k) - A b_2(k)``
-about its mean, and any model error. Three questions are answered from it, each in O(N):
+about its mean, and any model error. Four questions are answered from it, each in O(N):
 
 * **Is it noise at all?** In windows of about a second the residual variance is regressed on the
   window's mean squared rate, ``var = sigma_0^2 + c_1 |omega|^2 + c_2 |omega|^4`` (non-negative
@@ -12,19 +12,30 @@ about its mean, and any model error. Three questions are answered from it, each 
   so (:attr:`NoiseKind.RATE_MISFIT`, ``kind = "not white noise: rate-dependent misfit"``) and the noise
   is then taken from the windows where the fitted misfit is negligible.
 * **How much white noise, how much bias drift?** The overlapping Allan deviation of the residual
-  (the residual as a rate signal; checked against allantools in the tests) is fitted with the standard terms of a gyro (IEEE Std
-  952): ``AVAR(tau) = N^2 / tau + (2 ln 2 / pi) B^2 + K^2 tau / 3`` with white rate noise ``N``
-  (slope -1/2, rad/s/sqrt(Hz)), bias instability ``B`` (flat) and bias random walk ``K`` (slope +1/2,
-  rad/s^1.5), each term kept only where it lowers the chi-square significantly. The weights are the
-  equivalent degrees of freedom of each point (Greenhall's formula for the dominant noise at that
-  tau). A per-sample white std ``sigma`` is ``N sqrt(rate_hz)``; a random walk of step std ``q`` per
-  sample is ``K / sqrt(rate_hz)``. Where the standard terms do not fit the short taus (coloured
-  noise), those taus are dropped and the residual is reported as coloured.
-* **Which gyro?** The residual only sees ``sigma_1^2 + sigma_2^2``. Where both gyros are steady (the
-  motion's variance within a window below the noise's, e.g. the static poses many logs start
-  with), each gyro's own noise is observable: ``var(omega_1) - cov(omega_1, A omega_2)`` is gyro 1's
-  and ``var(A omega_2) - cov`` gyro 2's. Else each stream's third differences give the ratio, else
-  the split is equal. The bias walk is split equally (only the sum is observable).
+  (the residual as a rate signal; checked against allantools in the tests) is fitted with a gyro's noise
+  terms (IEEE Std 952, :func:`~fusion_gyrocal.core.allan.fit_allan`): ``AVAR(tau) = 3 Q^2 / tau^2 + N^2 / tau
+  + (2 ln 2 / pi) B^2 + K^2 tau / 3 + F^2 g(tau / T_c) / tau`` with quantisation or white angle noise ``Q``
+  (slope -1: a quantised angle, or a rate differentiated from a noisy orientation such as motion capture's),
+  white rate noise ``N`` (slope -1/2, rad/s/sqrt(Hz)), bias instability ``B`` (flat), bias random walk ``K``
+  (slope +1/2, rad/s^1.5) and first-order low-pass filtered white noise ``F`` (flat below its time constant
+  ``T_c``), each term kept only where it lowers the chi-square significantly (and, for ``Q`` and ``F``, makes a
+  material share of the curve). The weights are the equivalent degrees of freedom of each point. The white
+  level a calibration over windows of ``window_s`` sees (:func:`white_level`) is ``tau AVAR(tau)`` of the
+  short-term terms at ``tau = window_s``: ``N^2``, nearly all of ``F^2``, ``3 Q^2 / window_s``. A per-sample
+  white std ``sigma`` is that level times ``rate_hz``, square-rooted; a random walk of step std ``q`` per sample
+  is ``K / sqrt(rate_hz)``. Where no term fits the short taus, those taus are dropped and the residual is
+  reported as coloured; ``adev_worst`` says how far the model is from the points it fitted.
+* **Which gyro?** The residual only sees ``sigma_1^2 + sigma_2^2``. Where the log has still stretches (the
+  pair's motion below the residual's noise and each gyro at its quietest, e.g. the static poses many logs start
+  with, or the breaks of a hand-held log), each gyro's own stream there is its noise: its own Allan deviation is
+  fitted with the same terms, a static test from the log itself (:func:`_steady_allan`), and its white level is
+  used for that gyro (``still_noise_std``; the residual's level is then the check). Else the steady windows'
+  variances give the ratio (``var(omega_1) - cov(omega_1, A omega_2)`` is gyro 1's, ``var(A omega_2) - cov``
+  gyro 2's), else each stream's third differences, else the split is equal. The bias walk is split equally
+  (only the sum is observable).
+* **Never above the residual.** The per-sample variance the white noise implies may not exceed the residual's
+  own spread by more than :data:`CONTRADICT` unless the fit found filtered noise (correlated samples spread less
+  than the white level the motion sees); beyond it both levels are scaled down to the residual's, and say so.
 
 The bias model is chosen from the fit: a random walk when ``K`` is significant (z >= 3) and its
 steady-state Kalman filter settles within a twentieth of the log (otherwise the constant-bias model
@@ -807,13 +818,12 @@ class _AllanFit(NamedTuple):
 
 def white_level(fit: AllanFit, window_s: float) -> tuple[float, float]:
     """The white level ``N^2`` (rad^2/s) a calibration over windows of ``window_s`` sees in a fitted Allan
-    variance, and its standard uncertainty: the white term, the filtered term's white level below its corner
-    (``F^2``: the motion is slower than the filter) and the quantisation's white equivalent at the window,
-    ``3 Q^2 / window_s`` (it averages out over the motion's time scale); the bias terms are left to the bias
-    model."""
-    g = np.zeros(len(fit.coef))
-    g[[WHITE, FILTERED]] = 1.0
-    g[QUANTISATION] = 3.0 / window_s
+    variance, and its standard uncertainty: ``tau AVAR(tau)`` at ``tau = window_s`` of the short-term terms, i.e.
+    the white term, the filtered term's share ``F^2 g(window_s / T_c)`` (nearly all of it: the motion is slower
+    than the filter) and the quantisation's white equivalent ``3 Q^2 / window_s`` (it averages out over the
+    motion's time scale); the bias terms are left to the bias model."""
+    g = window_s * design([window_s], fit.tc or None)[0]     # each term's white equivalent at the window
+    g[[FLICKER_TERM, WALK]] = 0.0
     level = float(g @ fit.coef)
     var = float(g @ np.nan_to_num(fit.cov) @ g) if fit.coef.any() else 0.0
     return level, float(np.sqrt(max(var, 0.0)))
