@@ -178,4 +178,4 @@ def test_write_kalibr_imu_chain_noise_model_that_misses_its_points_is_flagged(tm
             value, sd = float(ln.split(":")[1].split("#")[0]), float(re.search(r"\+- ([0-9.eE+-]+)", ln).group(1))
             assert ("UNCERTAIN" in ln) is flagged
             if flagged:   # the uncertainty covers how far the model is off its points
-                assert sd >= 0.6 * value * 0.99
+                assert sd >= 0.55 * value   # 0.6 x the value, written to two digits
