@@ -218,8 +218,8 @@ def _candidates(taus, terms, max_tc):
 
 
 def _select(t, a, e, max_tc):
-    """Forward selection from white noise: the candidate (:func:`_candidates`) that lowers the chi-square most is
-    added while it does so by more than :data:`SIGNIFICANT_CHI2` (times the reduced chi-square; plus
+    """Forward selection from white noise: the candidate (:func:`_candidates`) that lowers the chi-square most (with
+    the white term still positive) is added while it does so by more than :data:`SIGNIFICANT_CHI2` (times the reduced chi-square; plus
     ``2 ln k`` for the filtered term tried at ``k`` time constants, the look-elsewhere of picking the best) and,
     for the quantisation and filtered terms, while it makes at least :data:`MATERIAL_SHARE` of the model at some
     fitted tau."""
@@ -238,7 +238,7 @@ def _select(t, a, e, max_tc):
         for drop, term, c, fit in trials:
             red = max(1.0, fit[2] / max(t.size - len(terms) - 1, 1))
             need = SIGNIFICANT_CHI2 * red + (look if term == FILTERED else 0.0)
-            if not (fit[0][term] > 0 and drop > need):
+            if not (fit[0][term] > 0 and fit[0][WHITE] > 0 and drop > need):   # white noise stays in the model
                 continue
             if term in (QUANTISATION, FILTERED):   # a noise kind, not a wrinkle: a material share somewhere
                 share = np.max(design(t, c if term == FILTERED else tc)[:, term] * fit[0][term]
@@ -259,8 +259,9 @@ def fit_allan(taus, avar, edf, first: int = 0, max_tc: float | None = None) -> A
     filtered term's time constant at most ``max_tc``, a filter's, not a slow disturbance's: default
     :data:`MAX_FILTER_SAMPLES` times the shortest tau). While the model is
     off the shortest tau by more than a factor :data:`COLOURED_FACTOR` in variance, or off one of the three
-    shortest by more than :data:`FIT_FACTOR` beyond their scatter (noise none of the terms describes there), that
-    tau is dropped and the fit repeated, down to six taus. Returns an :class:`AllanFit`; its ``worst`` says how
+    shortest by more than :data:`FIT_FACTOR` beyond their scatter (noise none of the terms describes there), or
+    has no short-term term (white, quantisation, filtered) at all, that tau is dropped and the fit repeated, down to
+    six taus. Returns an :class:`AllanFit`; its ``worst`` says how
     well it passes through all the fitted points."""
     lo = min(int(first), max(taus.size - 6, 0))
     max_tc = MAX_FILTER_SAMPLES * float(taus[0]) if max_tc is None else max_tc
@@ -270,7 +271,10 @@ def fit_allan(taus, avar, edf, first: int = 0, max_tc: float | None = None) -> A
         ratio = a[0] / pred[0] if pred[0] > 0 else np.inf
         dof = edf[lo:lo + 3, 0]
         head = np.abs(0.5 * np.log(np.maximum(pred[:3], 1e-300) / np.maximum(a[:3], 1e-300))) - 2.0 / np.sqrt(2 * dof)
-        good = 1.0 / COLOURED_FACTOR <= ratio <= COLOURED_FACTOR and float(np.exp(head.max())) <= FIT_FACTOR
+        good = (1.0 / COLOURED_FACTOR <= ratio <= COLOURED_FACTOR and float(np.exp(head.max())) <= FIT_FACTOR
+                and coef[[WHITE, QUANTISATION, FILTERED]].sum() > 0)   # a level of short-term noise, not drift alone
         if good or t.size <= 6:
+            if coef[[WHITE, QUANTISATION, FILTERED]].sum() <= 0:   # drift alone fits: white noise is what is left
+                (coef, cov, chi2, pred, worst), tc = _wls(t, a, e, [WHITE]), 0.0
             return AllanFit(coef, cov, lo, design(taus, tc) @ coef, tc if coef[FILTERED] > 0 else 0.0, chi2, worst)
         lo += 1

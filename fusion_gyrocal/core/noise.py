@@ -526,6 +526,7 @@ class _SteadyNoise(NamedTuple):
 CONTRADICT = 1.5 ** 2    # the white level's per-sample variance over the residual's mean square, at most
 MAX_FILTER_S = 1.0 / 8.0   # the filtered term's time constant, at most this fraction of the window
 STILL_TAU = 4.0     # a gyro's still stretches are fitted up to tau = this many windows (the white level's range)
+STILL_SMOOTHNESS = 10.0   # a still stream's variance over its Allan variance at one sample, at most (motion: far more)
 STILL_FACTOR = 2.0   # a gyro's still windows: its variance within this factor of its quietest tenth
 
 
@@ -540,7 +541,9 @@ def _steady_allan(win: _Windows, w1, aw2, a: float, rate_hz: float, first: int, 
     tenth of them: there its stream is its noise. Runs of consecutive still windows are the stretches (never
     across ``boundary``, the length of a joined stretch of a long log); their second differences are pooled per
     tau. Gyro 2's stream is ``A omega_2``, divided by ``|A|_F^2 / 3``. None with fewer than
-    :data:`MIN_STEADY_WINDOWS` still windows or four taus for either gyro."""
+    :data:`MIN_STEADY_WINDOWS` still windows or four taus for either gyro, or where a gyro's still stretches are
+    smooth (their variance over :data:`STILL_SMOOTHNESS` times their Allan variance at one sample: the quietest
+    windows of a log with no rest are slow motion, not noise)."""
     steady = win.cov <= win.v_r
     if int(steady.sum()) < MIN_STEADY_WINDOWS:
         return None
@@ -558,9 +561,13 @@ def _steady_allan(win: _Windows, w1, aw2, a: float, rate_hz: float, first: int, 
         runs = np.split(starts, np.flatnonzero(cut) + 1)
         T = int(np.floor(np.log2(max(max(len(r) for r in runs) * win.length / 4.0, 1.0)))) + 1
         S, C, dof = np.zeros(T), np.zeros(T), np.zeros((T, 4))
+        ss, count = 0.0, 0
         for run in runs:
             lo, hi = int(run[0]), int(run[-1]) + win.length
-            taus, sums, sub_n, sub_m = second_differences([x[lo:hi]], rate_hz)
+            xr = x[lo:hi]
+            ss += float(np.sum((xr - xr.mean(axis=0)) ** 2))
+            count += 3 * (hi - lo - 1)
+            taus, sums, sub_n, sub_m = second_differences([xr], rate_hz)
             k = taus.size
             S[:k] += sums[0].sum(axis=1)
             C[:k] += 3.0 * sums[-1]
@@ -570,6 +577,8 @@ def _steady_allan(win: _Windows, w1, aw2, a: float, rate_hz: float, first: int, 
             return None
         taus = 2.0 ** np.arange(n) / rate_hz
         v = S[:n] / C[:n] / (1.0 if i == 0 else a)
+        if ss / count / (1.0 if i == 0 else a) > STILL_SMOOTHNESS * v[0]:   # smooth: motion, not noise
+            return None
         fit = fit_allan(taus, v, dof[:n], min(first if i == 1 else 0, n - 4), MAX_FILTER_S * window_s)
         level, sd = white_level(fit, window_s)
         fits.append(fit)
@@ -710,6 +719,10 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0,
     fit = _allan_fit(r, None if everything and not mis.flagged else mis.use, rate_hz, stride, resampling,
                      mis.flagged, window_s, sources, notes)
     walk = _bias_choice(fit, stride, rate_hz, sources, notes)
+    if walk and mis.few_quiet:   # misfit in every window: the residual's Allan deviation is no drift figure either
+        walk = False
+        sources["bias"] = ("constant: the residual carries the rate-dependent misfit in every window, so its Allan "
+                           "deviation's walk term is no drift figure")
     rs = resampling or Resampling((rate_hz, rate_hz))
     first = 0 if resampling is None else int(np.searchsorted(fit.taus, (resampling.white_from - 0.5) / rate_hz))
     steady = _steady_allan(win, w1, aw2, float(np.sum(A * A) / 3.0), rate_hz, first, window_s,
