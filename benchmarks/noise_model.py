@@ -8,8 +8,14 @@
 3. The drifting-bias case: rotation and scale RMSE over ``--runs`` Monte Carlo runs of ``calibrate_pair``
    with the identified model passed explicitly, with the defaults (which identify it), and with the true
    model, as ratios to the constant-bias Cramer-Rao bound (as benchmarks/beyond_paper.py).
+4. Real logs through ``calibrate_pair`` with its defaults (timestamps given), the white noise it identified
+   (``cal.noise_model``) against a direct estimate from the same log's static stretches (the median over 1 s
+   windows of the per-axis std, at rest): BROAD (../shared/data/broad_handheld, the IMU against the rate
+   differentiated from motion capture, rest = not ``movement``) and the MIMU board's static poses (IMU 1
+   against IMUs 2, 4, 7; the static windows found from each IMU's own variance). Also how far the fitted
+   Allan model is from the residual's points (``worst``: the largest ratio beyond their 2-sigma scatter).
 
-    python benchmarks/noise_model.py [--runs 30] [--workers 2]
+    python benchmarks/noise_model.py [--runs 30] [--workers 2] [--only real]
 """
 
 from __future__ import annotations
@@ -157,14 +163,99 @@ def drifting(runs, workers):
           "one: the motion below the filter's corner (K / (2 pi dt)) carries no information once the bias walks")
 
 
+def mocap_rate(quat_wxyz: np.ndarray, rate_hz: float) -> np.ndarray:
+    """Body rate (rad/s) differentiated from a motion-capture orientation: ``log(q_k^-1 q_{k+1}) rate_hz``, NaN where
+    either quaternion is missing."""
+    from scipy.spatial.transform import Rotation
+
+    ok = np.isfinite(quat_wxyz).all(axis=1)
+    q = np.where(ok[:, None], quat_wxyz, [1.0, 0.0, 0.0, 0.0])
+    R = Rotation.from_quat(q[:, [1, 2, 3, 0]])
+    w = np.full((len(q), 3), np.nan)
+    w[:-1] = (R[:-1].inv() * R[1:]).as_rotvec() * rate_hz
+    w[:-1][~(ok[:-1] & ok[1:])] = np.nan
+    return w
+
+
+def static_std(omega: np.ndarray, still: np.ndarray, window: int) -> float:
+    """Median over the ``window``-sample windows wholly inside ``still`` of the per-axis std, averaged over axes."""
+    k = len(omega) // window
+    x = omega[:k * window].reshape(k, window, 3)
+    inside = still[:k * window].reshape(k, window).all(axis=1)
+    return float(np.median(x[inside].std(axis=1, ddof=1).mean(axis=1)))
+
+
+def _real_row(name, cal, static):
+    nm = cal.noise_model
+    ratio = [nm.noise_std[i] / static[i] for i in (0, 1)]
+    used = "still" if nm.sources.get("noise", "").startswith("USED: each gyro's own") else "residual"
+    print(f"{name:>34} {nm.noise_std[0] / DEG:8.4f} {static[0] / DEG:7.4f} {ratio[0]:6.2f} {nm.noise_std[1] / DEG:8.4f} "
+          f"{static[1] / DEG:7.4f} {ratio[1]:6.2f} {used:>8} {nm.adev_worst:6.2f} {cal.lack_of_fit:8.3g}")
+    return ratio
+
+
+def real_logs():
+    from scipy.io import loadmat
+
+    from fusion_gyrocal.io import read_npz
+
+    print("\n4. real logs, calibrate_pair defaults: identified white noise per sample (deg/s) vs the static stretches' "
+          "std; used = where the white level came from; worst = Allan model vs points; lof = residual chi2/dof")
+    head = (f"{'log':>34} {'id 1':>8} {'stat 1':>7} {'ratio':>6} {'id 2':>8} {'stat 2':>7} {'ratio':>6} {'used':>8} "
+            f"{'worst':>6} {'lof':>8}")
+    broad = shared_data_dir() / "broad_handheld" / "data_mat"
+    if broad.exists():
+        print("BROAD: gyro 1 = the IMU, gyro 2 = the motion-capture rate (differentiated orientation: not white; "
+              "its 'static' figure is the per-sample std)")
+        print(head)
+        ratios = []
+        for f in sorted(broad.glob("*.mat")):
+            d = loadmat(f, squeeze_me=True)
+            fs = float(d["sampling_rate"])
+            gyr, moc = np.asarray(d["imu_gyr"], float), mocap_rate(np.asarray(d["opt_quat"], float), fs)
+            t = np.arange(len(gyr)) / fs
+            rest = ~np.asarray(d["movement"], bool)
+            cal = calibrate_pair(gyr, moc, t_1=t, t_2=t)
+            static = (static_std(gyr, rest, int(fs)), static_std(np.nan_to_num(moc), rest & np.isfinite(moc).all(1),
+                                                                  int(fs)))
+            ratios.append(_real_row(f.stem[:34], cal, static)[0])
+        r = np.array(ratios)
+        print(f"BROAD IMU identified / static: {r.min():.2f}-{r.max():.2f} (mean {r.mean():.2f}); within 1.5x in "
+              f"{np.sum((r < 1.5) & (r > 1 / 1.5))}/{r.size}")
+    d = shared_data_dir() / "mimu_8imu_array" / "npz"
+    if d.exists():
+        print("MIMU static poses: IMU 1 vs IMU k")
+        print(head)
+        ratios = []
+        for e in range(1, 10):
+            streams = read_npz(d / f"exp_{e}.npz")
+            for k in (1, 3, 6):
+                g1, gk = streams[0], streams[k]
+                cal = calibrate_pair(g1.omega, gk.omega, t_1=g1.t, t_2=gk.t)
+                static = []
+                for g in (g1, gk):   # each IMU's static poses: its quietest 1 s windows (within 2x of the median
+                    w = 62                                                           # of the quietest tenth)
+                    k_ = len(g.omega) // w
+                    s = g.omega[:k_ * w].reshape(k_, w, 3).std(axis=1, ddof=1).mean(axis=1)
+                    still = np.repeat(s <= 2.0 * np.quantile(s, 0.1), w)
+                    static.append(static_std(g.omega, np.r_[still, np.zeros(len(g.omega) - still.size, bool)], w))
+                ratios.append(_real_row(f"exp_{e} IMU 1 vs {k + 1}", cal, static))
+        r = np.array(ratios)
+        print(f"MIMU identified / static: IMU 1 {r[:, 0].min():.2f}-{r[:, 0].max():.2f}, IMU k {r[:, 1].min():.2f}-"
+              f"{r[:, 1].max():.2f}; within 1.5x in {np.sum((r < 1.5) & (r > 1 / 1.5))}/{r.size}")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", type=int, default=30)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--only", choices=("all", "real"), default="all", help="real: only section 4")
     a = ap.parse_args(argv)
-    simulated_cases()
-    mimu()
-    drifting(a.runs, a.workers)
+    if a.only == "all":
+        simulated_cases()
+        mimu()
+        drifting(a.runs, a.workers)
+    real_logs()
 
 
 if __name__ == "__main__":

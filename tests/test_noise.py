@@ -108,7 +108,9 @@ def test_identify_noise_coloured_noise_is_flagged():
           for _ in range(2)]
     nm = _identify(sim.omega_1 + ar[0], sim.omega_2 + ar[1])
     assert nm.kind == "coloured noise" and not nm.is_white
-    assert nm.fit_taus[0] > 1.0 / RATE
+    # recognised as low-pass filtered white noise (the Allan fit's filtered term), time constant -1 / ln(rho) samples
+    truth_tc = -1.0 / np.log(rho) / RATE
+    assert truth_tc / 2.5 < nm.filter_time_s < 2.5 * truth_tc, nm.filter_time_s
     # the white level the motion sees is above the per-sample std of the AR(1) noise
     assert np.all(np.array(nm.noise_std) > 1.5 * PAPER_NOISE_STD)
 

@@ -3,7 +3,7 @@
 The residual of a rigid pair, ``r_k = omega_1(k) - A omega_2(k) - b`` (Eq. 4-5 with ``A`` and ``b``
 from the direct solve, Eq. 12-17), removes the motion and keeps what the calibration has to weigh:
 the white noise of both gyros, ``n_1 - A n_2``, the drift of the combined bias ``b_1(k) - A b_2(k)``
-about its mean, and any model error. Three questions are answered from it, each in O(N):
+about its mean, and any model error. Four questions are answered from it, each in O(N):
 
 * **Is it noise at all?** In windows of about a second the residual variance is regressed on the
   window's mean squared rate, ``var = sigma_0^2 + c_1 |omega|^2 + c_2 |omega|^4`` (non-negative
@@ -12,19 +12,30 @@ about its mean, and any model error. Three questions are answered from it, each 
   so (:attr:`NoiseKind.RATE_MISFIT`, ``kind = "not white noise: rate-dependent misfit"``) and the noise
   is then taken from the windows where the fitted misfit is negligible.
 * **How much white noise, how much bias drift?** The overlapping Allan deviation of the residual
-  (the residual as a rate signal; checked against allantools in the tests) is fitted with the standard terms of a gyro (IEEE Std
-  952): ``AVAR(tau) = N^2 / tau + (2 ln 2 / pi) B^2 + K^2 tau / 3`` with white rate noise ``N``
-  (slope -1/2, rad/s/sqrt(Hz)), bias instability ``B`` (flat) and bias random walk ``K`` (slope +1/2,
-  rad/s^1.5), each term kept only where it lowers the chi-square significantly. The weights are the
-  equivalent degrees of freedom of each point (Greenhall's formula for the dominant noise at that
-  tau). A per-sample white std ``sigma`` is ``N sqrt(rate_hz)``; a random walk of step std ``q`` per
-  sample is ``K / sqrt(rate_hz)``. Where the standard terms do not fit the short taus (coloured
-  noise), those taus are dropped and the residual is reported as coloured.
-* **Which gyro?** The residual only sees ``sigma_1^2 + sigma_2^2``. Where both gyros are steady (the
-  motion's variance within a window below the noise's, e.g. the static poses many logs start
-  with), each gyro's own noise is observable: ``var(omega_1) - cov(omega_1, A omega_2)`` is gyro 1's
-  and ``var(A omega_2) - cov`` gyro 2's. Else each stream's third differences give the ratio, else
-  the split is equal. The bias walk is split equally (only the sum is observable).
+  (the residual as a rate signal; checked against allantools in the tests) is fitted with a gyro's noise
+  terms (IEEE Std 952, :func:`~fusion_gyrocal.core.allan.fit_allan`): ``AVAR(tau) = 3 Q^2 / tau^2 + N^2 / tau
+  + (2 ln 2 / pi) B^2 + K^2 tau / 3 + F^2 g(tau / T_c) / tau`` with quantisation or white angle noise ``Q``
+  (slope -1: a quantised angle, or a rate differentiated from a noisy orientation such as motion capture's),
+  white rate noise ``N`` (slope -1/2, rad/s/sqrt(Hz)), bias instability ``B`` (flat), bias random walk ``K``
+  (slope +1/2, rad/s^1.5) and first-order low-pass filtered white noise ``F`` (flat below its time constant
+  ``T_c``), each term kept only where it lowers the chi-square significantly (and, for ``Q`` and ``F``, makes a
+  material share of the curve). The weights are the equivalent degrees of freedom of each point. The white
+  level a calibration over windows of ``window_s`` sees (:func:`white_level`) is ``tau AVAR(tau)`` of the
+  short-term terms at ``tau = window_s``: ``N^2``, nearly all of ``F^2``, ``3 Q^2 / window_s``. A per-sample
+  white std ``sigma`` is that level times ``rate_hz``, square-rooted; a random walk of step std ``q`` per sample
+  is ``K / sqrt(rate_hz)``. Where no term fits the short taus, those taus are dropped and the residual is
+  reported as coloured; ``adev_worst`` says how far the model is from the points it fitted.
+* **Which gyro?** The residual only sees ``sigma_1^2 + sigma_2^2``. Where the log has still stretches (the
+  pair's motion below the residual's noise and each gyro at its quietest, e.g. the static poses many logs start
+  with, or the breaks of a hand-held log), each gyro's own stream there is its noise: its own Allan deviation is
+  fitted with the same terms, a static test from the log itself (:func:`_steady_allan`), and its white level is
+  used for that gyro (``still_noise_std``; the residual's level is then the check). Else the steady windows'
+  variances give the ratio (``var(omega_1) - cov(omega_1, A omega_2)`` is gyro 1's, ``var(A omega_2) - cov``
+  gyro 2's), else each stream's third differences, else the split is equal. The bias walk is split equally
+  (only the sum is observable).
+* **Never above the residual.** The per-sample variance the white noise implies may not exceed the residual's
+  own spread by more than :data:`CONTRADICT` unless the fit found filtered noise (correlated samples spread less
+  than the white level the motion sees); beyond it both levels are scaled down to the residual's, and say so.
 
 The bias model is chosen from the fit: a random walk when ``K`` is significant (z >= 3) and its
 steady-state Kalman filter settles within a twentieth of the log (otherwise the constant-bias model
@@ -41,7 +52,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ..errors import InputError, OptionError
-from .allan import FLICKER, allan_deviation, edf_table, fit_allan
+from .allan import (FILTERED, FIT_FACTOR, FLICKER_TERM, QUANTISATION, TERMS, WALK, WHITE, AllanFit, allan_deviation,
+                    design, edf_table, fit_allan, second_differences)
 from .moments import NOMINAL_WINDOW, as_rates, finite_rows
 
 MISFIT_SHARE = 0.1                    # rate-explained share of the residual variance that is flagged
@@ -235,6 +247,17 @@ class NoiseModel:
         Each gyro's own white rate-noise density (rad/s/sqrt(Hz)) when a stream was resampled (interpolation
         changes its noise per grid sample, and aliasing its density on a coarser grid); None: ``noise_std /
         sqrt(rate_hz)``.
+    adev_worst : float
+        How far the fitted model (``adev_fit``) is from the residual's Allan deviation over the fitted taus: the
+        largest ratio (either way) beyond each point's 2-sigma scatter; NaN in files written before it.
+    quantisation : float
+        ``Q`` (rad) of the residual's slope -1 term (quantisation, or a rate differentiated from a noisy angle),
+        0 without it.
+    filter_time_s : float
+        Time constant (s) of the residual's low-pass filtered noise term, 0 without it.
+    still_noise_std : tuple of float or None
+        Each gyro's white noise per sample (rad/s) from its own still stretches (a static test from the log:
+        :func:`identify_noise`), None where the log has none; ``noise_std`` is this pair when it was used.
     """
 
     rate_hz: float
@@ -261,6 +284,10 @@ class NoiseModel:
     rate_known: bool = True
     rates_hz: tuple | None = None
     densities: tuple | None = None
+    adev_worst: float = float("nan")
+    quantisation: float = 0.0
+    filter_time_s: float = 0.0
+    still_noise_std: tuple | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "noise_kind", NoiseKind(self.noise_kind))   # a member, also when given its value
@@ -275,6 +302,12 @@ class NoiseModel:
     def is_white(self) -> bool:
         """True when the residual is white noise (with or without a bias random walk)."""
         return self.noise_kind.is_white
+
+    @property
+    def fits(self) -> bool:
+        """The fitted Allan model passes through the residual's points (``adev_worst`` at most
+        :data:`~fusion_gyrocal.core.allan.FIT_FACTOR`; True for a file that does not say)."""
+        return not self.adev_worst > FIT_FACTOR
 
     @property
     def is_misfit(self) -> bool:
@@ -345,13 +378,16 @@ class NoiseModel:
             for name in ("taus", "adev_fit", "adev"):
                 kw[name] = from_json_list(kw[name], np.float64)
             for name in ("noise_std", "noise_std_uncertainty", "misfit_gain", "fit_taus", "bias_walk_std", "rates_hz",
-                         "densities"):
+                         "densities", "still_noise_std"):
                 if kw.get(name) is not None:
                     kw[name] = tuple(num(x) for x in kw[name])
             for name in ("rate_hz", "residual_noise_std", "residual_noise_std_uncertainty", "residual_walk_std",
                          "residual_walk_std_uncertainty", "bias_instability", "bias_instability_uncertainty",
                          "white_std_at_rest", "misfit_share"):
                 kw[name] = num(kw[name])
+            for name in ("adev_worst", "quantisation", "filter_time_s"):
+                if name in kw:
+                    kw[name] = num(kw[name])
             kw["notes"] = tuple(kw.get("notes", ()))
             text = kw.pop("kind")
             kw["noise_kind"] = NoiseKind(kw["noise_kind"]) if "noise_kind" in kw else NoiseKind.from_text(text)
@@ -372,6 +408,16 @@ class NoiseModel:
             lines.append(f"bias random walk {self.bias_walk_std[0] * deg:.3g} deg/s per sample per gyro")
         else:
             lines.append("bias: constant")
+        if self.still_noise_std is not None:
+            lines.append("white noise from: " + ("each gyro's own still stretches (a static test from the log)"
+                                                 if np.allclose(self.noise_std, self.still_noise_std, rtol=1e-9) else "the residual's Allan fit"
+                                                 ) + "; still stretches give "
+                         + " / ".join(f"{v * deg:.4g}" for v in self.still_noise_std) + " deg/s per sample")
+        else:
+            lines.append("white noise from: the residual's Allan fit (no still stretch in the log)")
+        if np.isfinite(self.adev_worst):
+            lines.append(f"Allan model vs the residual's points: within {self.adev_worst:.2f}x beyond their scatter"
+                         + ("" if self.fits else f" (does NOT pass through them; more than {FIT_FACTOR:g}x off)"))
         lines += [f"{k}: {v}" for k, v in self.sources.items()]
         return "\n".join(lines + list(self.notes))
 
@@ -478,6 +524,89 @@ def _steady_split(win: _Windows, rate_hz: float):
             f"{len(runs)} stretch(es), longest {t0:.1f}-{t1:.1f} s")
     # ratio^2 = m1 / m2 and its relative variance (delta method)
     return m1 / m2, (sd1 / m1) ** 2 + (sd2 / m2) ** 2, text, (np.sqrt(m1), np.sqrt(m2))
+
+
+class _SteadyNoise(NamedTuple):
+    """Each gyro's own noise on the steady stretches (:func:`_steady_allan`)."""
+
+    taus: np.ndarray
+    avar: tuple           # each gyro's Allan variance (gyro 2's in its own frame: divided by |A|_F^2 / 3)
+    fits: tuple           # each gyro's AllanFit
+    level: tuple          # each gyro's white level N^2 on the grid (white_level) and
+    level_sd: tuple       # its standard uncertainty
+    seconds: float
+    text: str
+
+
+CONTRADICT = 1.5 ** 2    # the white level's per-sample variance over the residual's mean square, at most
+MAX_FILTER_S = 1.0 / 8.0   # the filtered term's time constant, at most this fraction of the window
+STILL_TAU = 4.0     # a gyro's still stretches are fitted up to tau = this many windows (the white level's range)
+STILL_SMOOTHNESS = 10.0   # a still stream's variance over its Allan variance at one sample, at most (motion: far more)
+STILL_FACTOR = 2.0   # a gyro's still windows: its variance within this factor of its quietest tenth
+
+
+def _steady_allan(win: _Windows, w1, aw2, a: float, rate_hz: float, first: int, window_s: float,
+                  boundary: int | None) -> _SteadyNoise | None:
+    """Each gyro's own Allan variance on its still stretches, fitted with the terms of
+    :func:`~fusion_gyrocal.core.allan.fit_allan`: the noise a static test of each sensor would give, from the log
+    itself (the static poses many logs start with, the breaks of a hand-held one).
+
+    A gyro's still windows are the steady ones (the pair's common motion below the residual's noise,
+    ``cov(omega_1, A omega_2) <= E r^2``) where its own variance is within :data:`STILL_FACTOR` of the quietest
+    tenth of them: there its stream is its noise. Runs of consecutive still windows are the stretches (never
+    across ``boundary``, the length of a joined stretch of a long log); their second differences are pooled per
+    tau. Gyro 2's stream is ``A omega_2``, divided by ``|A|_F^2 / 3``. None with fewer than
+    :data:`MIN_STEADY_WINDOWS` still windows or four taus for either gyro, or where a gyro's still stretches are
+    smooth (their variance over :data:`STILL_SMOOTHNESS` times their Allan variance at one sample: the quietest
+    windows of a log with no rest are slow motion, not noise)."""
+    steady = win.cov <= win.v_r
+    if int(steady.sum()) < MIN_STEADY_WINDOWS:
+        return None
+    fits, levels, sds, avars, seconds, taus_all = [], [], [], [], [], None
+    texts = []
+    for i, (x, var) in enumerate(((w1, win.e_1 + win.cov), (aw2, win.e_2 + win.cov))):
+        floor = np.quantile(var[steady], 0.1)
+        still = steady & (var <= STILL_FACTOR * floor)
+        if int(still.sum()) < MIN_STEADY_WINDOWS:
+            return None
+        starts = win.start[still]
+        cut = np.diff(starts) != win.length
+        if boundary:
+            cut |= (starts[1:] // boundary) != (starts[:-1] // boundary)
+        runs = np.split(starts, np.flatnonzero(cut) + 1)
+        T = int(np.floor(np.log2(max(max(len(r) for r in runs) * win.length / 4.0, 1.0)))) + 1
+        S, C, dof = np.zeros(T), np.zeros(T), np.zeros((T, 4))
+        ss, count = 0.0, 0
+        for run in runs:
+            lo, hi = int(run[0]), int(run[-1]) + win.length
+            xr = x[lo:hi]
+            ss += float(np.sum((xr - xr.mean(axis=0)) ** 2))
+            count += 3 * (hi - lo - 1)
+            taus, sums, sub_n, sub_m = second_differences([xr], rate_hz)
+            k = taus.size
+            S[:k] += sums[0].sum(axis=1)
+            C[:k] += 3.0 * sums[-1]
+            dof[:k] += edf_table(sub_n, sub_m)
+        n = min(int(np.count_nonzero(C > 0)), int(np.log2(STILL_TAU * window_s * rate_hz)) + 1)
+        if n < 4:
+            return None
+        taus = 2.0 ** np.arange(n) / rate_hz
+        v = S[:n] / C[:n] / (1.0 if i == 0 else a)
+        if ss / count / (1.0 if i == 0 else a) > STILL_SMOOTHNESS * v[0]:   # smooth: motion, not noise
+            return None
+        fit = fit_allan(taus, v, dof[:n], min(first if i == 1 else 0, n - 4), MAX_FILTER_S * window_s)
+        level, sd = white_level(fit, window_s)
+        fits.append(fit)
+        levels.append(level)
+        sds.append(sd)
+        avars.append(v)
+        seconds.append(int(still.sum()) * win.length / rate_hz)
+        longest = max(runs, key=len)
+        texts.append(f"gyro {i + 1} {seconds[-1]:.1f} s in {len(runs)} stretch(es), longest "
+                     f"{longest[0] / rate_hz:.1f}-{(longest[-1] + win.length) / rate_hz:.1f} s")
+        taus_all = taus if taus_all is None or taus.size > taus_all.size else taus_all
+    text = "steady stretches, each gyro at its quietest (still): " + "; ".join(texts)
+    return _SteadyNoise(taus_all, tuple(avars), tuple(fits), tuple(levels), tuple(sds), min(seconds), text)
 
 
 # ---------------------------------------------------------------------------------------------- entry point
@@ -603,14 +732,23 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0,
     notes, sources = [], {}
     mis = _misfit_test(win, valid, rate_hz, sources, notes)
     fit = _allan_fit(r, None if everything and not mis.flagged else mis.use, rate_hz, stride, resampling,
-                     mis.flagged, sources, notes)
+                     mis.flagged, window_s, sources, notes)
     walk = _bias_choice(fit, stride, rate_hz, sources, notes)
+    if walk and mis.few_quiet:   # misfit in every window: the residual's Allan deviation is no drift figure either
+        walk = False
+        sources["bias"] = ("constant: the residual carries the rate-dependent misfit in every window, so its Allan "
+                           "deviation's walk term is no drift figure")
     rs = resampling or Resampling((rate_hz, rate_hz))
+    first = 0 if resampling is None else int(np.searchsorted(fit.taus, (resampling.white_from - 0.5) / rate_hz))
+    steady = _steady_allan(win, w1, aw2, float(np.sum(A * A) / 3.0), rate_hz, first, window_s,
+                           STRETCH_WINDOWS * w if stride > 1.0 else None)
     noise_std, noise_sd, dens_sq = _split(win, w1, w2, A, rate_hz, rs, fit, sources,
-                                          resampling is not None)
-    if mis.few_quiet:  # misfit in every window: even the quietest carry it; each stream's own high frequencies do not
+                                          resampling is not None, steady)
+    if mis.few_quiet and steady is None:  # misfit in every window: even the quietest carry it; each stream's own high frequencies do not
         noise_std, noise_sd, dens_sq = _own_noise(w1, w2, valid, rs, sources, (noise_std, noise_sd, dens_sq))
     a = float(np.sum(A * A) / 3.0)
+    noise_std, noise_sd, dens_sq = _within_residual(r, mis.use, a, fit,
+                                                    (noise_std, noise_sd, dens_sq), sources, notes)
     q_each = fit.q_r / np.sqrt(1.0 + a)
     bias_walk = (float(q_each), float(q_each)) if walk else None
 
@@ -623,11 +761,14 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0,
         residual_walk_std=fit.q_r, residual_walk_std_uncertainty=fit.q_r_sd,
         bias_instability=fit.B, bias_instability_uncertainty=fit.B_sd,
         white_std_at_rest=float(np.sqrt(mis.v0)), misfit_gain=mis.gain, misfit_share=mis.share, noise_kind=kind,
-        taus=fit.taus, adev=fit.adev, adev_fit=np.sqrt(np.maximum(
-            np.column_stack([1.0 / fit.taus, np.full_like(fit.taus, FLICKER), fit.taus / 3.0]) @ fit.coef, 0.0)),
+        taus=fit.taus, adev=fit.adev, adev_fit=np.sqrt(np.maximum(fit.model.pred, 0.0)),
         fit_taus=fit.tau_fit, sources=sources, notes=tuple(notes),
         rates_hz=None if resampling is None else tuple(float(f) for f in rs.rates_hz),
-        densities=None if resampling is None else tuple(float(np.sqrt(d)) for d in dens_sq))
+        densities=None if resampling is None else tuple(float(np.sqrt(d)) for d in dens_sq),
+        adev_worst=float(fit.model.worst), quantisation=float(np.sqrt(fit.coef[QUANTISATION])),
+        filter_time_s=float(fit.model.tc if fit.coef[FILTERED] > 0 else 0.0),
+        still_noise_std=None if steady is None or min(steady.level) <= 0 else tuple(
+            float(np.sqrt(rs.variance[i] * rs.rates_hz[i] * steady.level[i] / rs.density[i])) for i in (0, 1)))
 
 
 class _Misfit(NamedTuple):
@@ -682,13 +823,16 @@ class _AllanFit(NamedTuple):
 
     taus: np.ndarray
     adev: np.ndarray
-    coef: np.ndarray      # (N^2, B^2, K^2)
+    model: AllanFit       # the fit (coefficients N^2, B^2, K^2, Q^2, F^2, time constant, how well it fits)
+    coef: np.ndarray      # model.coef
     sd: np.ndarray        # their standard uncertainties
     tau_fit: tuple
     coloured: bool
     idx: np.ndarray | None   # the samples fitted (None: all of them)
     span: int                # samples from the first to the last fitted one
     kept: int                # samples fitted
+    Nsq: float               # white level the calibration sees (white_level), and its standard uncertainty
+    Nsq_sd: float
     R_r: float               # white variance per sample of the residual, and its standard uncertainty
     R_sd: float
     sigma_r: float
@@ -700,10 +844,24 @@ class _AllanFit(NamedTuple):
     B_sd: float
 
 
-def _allan_fit(r, use, rate_hz, stride, resampling, misfit: bool, sources: dict, notes: list) -> _AllanFit:
+def white_level(fit: AllanFit, window_s: float) -> tuple[float, float]:
+    """The white level ``N^2`` (rad^2/s) a calibration over windows of ``window_s`` sees in a fitted Allan
+    variance, and its standard uncertainty: ``tau AVAR(tau)`` at ``tau = window_s`` of the short-term terms, i.e.
+    the white term, the filtered term's share ``F^2 g(window_s / T_c)`` (nearly all of it: the motion is slower
+    than the filter) and the quantisation's white equivalent ``3 Q^2 / window_s`` (it averages out over the
+    motion's time scale); the bias terms are left to the bias model."""
+    g = window_s * design([window_s], fit.tc or None)[0]     # each term's white equivalent at the window
+    g[[FLICKER_TERM, WALK]] = 0.0
+    level = float(g @ fit.coef)
+    var = float(g @ np.nan_to_num(fit.cov) @ g) if fit.coef.any() else 0.0
+    return level, float(np.sqrt(max(var, 0.0)))
+
+
+def _allan_fit(r, use, rate_hz, stride, resampling, misfit: bool, window_s: float, sources: dict,
+               notes: list) -> _AllanFit:
     """Step 2 of :func:`_identify`: the Allan deviation of the residual ``r`` on the samples ``use`` (None: all)
-    fitted with white noise, bias instability and random walk (:func:`~fusion_gyrocal.core.allan.fit_allan`). Adds ``sources["noise"]``
-    and, for coloured noise, a note."""
+    fitted with the terms of :func:`~fusion_gyrocal.core.allan.fit_allan` (white, bias instability, random walk,
+    quantisation, filtered). Adds ``sources["noise"]`` and, for coloured noise, a note."""
     n = r.shape[0]
     if use is None:
         idx, y, span = None, r, n
@@ -717,33 +875,48 @@ def _allan_fit(r, use, rate_hz, stride, resampling, misfit: bool, sources: dict,
     edf = edf_table(sub_n, sub_m)
     # an interpolated stream is smoother than white noise over its first grid samples (Resampling.white_from)
     first = 0 if resampling is None else int(np.searchsorted(taus, (resampling.white_from - 0.5) / rate_hz))
-    c, cov, lo, pred_avar = fit_allan(taus, avar, edf, first)
+    # a misfit's motion-band residue mimics filtered noise (a bump at the motion's time scale): no filtered term then
+    model = fit_allan(taus, avar, edf, first, 0.0 if misfit else MAX_FILTER_S * window_s)
+    c, cov, lo = model.coef, model.cov, model.first
     compress = kept / (span * stride)  # joined samples: the walk per joined step covers span / size samples
-    Nsq, Bsq, Ksq = c
-    sd = np.sqrt(np.maximum(np.diag(cov), 0.0)) if np.isfinite(cov).all() else np.full(3, np.nan)
+    Bsq, Ksq = c[FLICKER_TERM], c[WALK]
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0)) if np.isfinite(cov).all() else np.full(c.size, np.nan)
+    Nsq, Nsq_sd = white_level(model, window_s)
     R_r = Nsq * rate_hz
-    R_sd = sd[0] * rate_hz
+    R_sd = Nsq_sd * rate_hz
     sigma_r = float(np.sqrt(R_r))
     sigma_r_sd = float(R_sd / (2.0 * sigma_r)) if sigma_r > 0 else float("inf")
     q2 = Ksq / rate_hz * compress
-    q2_sd = sd[2] / rate_hz * compress
+    q2_sd = sd[WALK] / rate_hz * compress
     q_r = float(np.sqrt(q2))
     q_r_sd = float(q2_sd / (2.0 * q_r)) if q_r > 0 else 0.0
     B = float(np.sqrt(Bsq))
-    B_sd = float(sd[1] / (2.0 * B)) if B > 0 else 0.0
+    B_sd = float(sd[FLICKER_TERM] / (2.0 * B)) if B > 0 else 0.0
     tau_fit = (float(taus[lo]), float(taus[-1]))
-    coloured = lo > first          # beyond what interpolation onto the grid explains
+    coloured = lo > first or c[FILTERED] > 0    # beyond what interpolation onto the grid explains
     where = "samples kept" if misfit else "valid samples"
-    sources["noise"] = (f"white rate noise (slope -1/2) of the residual's Allan fit at tau {tau_fit[0]:.3g}-"
-                        f"{tau_fit[1]:.3g} s on {kept / rate_hz:.0f} s of {where}")
+    kept_terms = [name for name, v in zip(TERMS, c) if v > 0]
+    sources["noise"] = (f"white level of the residual's Allan fit ({' + '.join(kept_terms) or 'no term'}) at tau "
+                        f"{tau_fit[0]:.3g}-{tau_fit[1]:.3g} s on {kept / rate_hz:.0f} s of {where}; the model is within "
+                        f"{model.worst:.2f}x of the points"
+                        + ("" if model.fits else f" (does NOT pass through them: more than {FIT_FACTOR:g}x off)"))
     if first > 0:
         sources["noise"] += (f" (from tau {taus[first]:.3g} s on: the interpolation onto the grid smooths the noise "
                              "over the first samples)")
-    if coloured:
-        notes.append(f"the residual is coloured below tau = {tau_fit[0]:.3g} s (its Allan deviation there is not "
-                     "that of white noise): noise_std is the white level of the longer taus, where the motion is")
-    return _AllanFit(taus, adev, c, sd, tau_fit, coloured, idx, span, kept, R_r, R_sd, sigma_r, sigma_r_sd, q2, q_r,
-                     q_r_sd, B, B_sd)
+    if c[QUANTISATION] > 0:
+        notes.append(f"the residual has a slope -1 term (quantisation, or a rate differentiated from a noisy angle "
+                     f"such as motion capture's): Q = {np.sqrt(c[QUANTISATION]):.3g} rad, per-sample std "
+                     f"{np.sqrt(2.0 * c[QUANTISATION]) * rate_hz:.3g} rad/s that averages out over the motion; the "
+                     f"white level counts only its share at tau = {window_s:g} s")
+    if c[FILTERED] > 0:
+        notes.append(f"the residual's noise is low-pass filtered (time constant {model.tc:.3g} s; its Allan deviation "
+                     "flattens below it): consecutive samples are correlated, so the per-sample spread is below the "
+                     "white level the motion sees (noise_std), and a residual chi2/dof below 1 is expected")
+    if lo > first:
+        notes.append(f"the residual is coloured below tau = {tau_fit[0]:.3g} s (its Allan deviation there fits none "
+                     "of the terms): noise_std is the white level of the longer taus, where the motion is")
+    return _AllanFit(taus, adev, model, c, sd, tau_fit, coloured, idx, span, kept, Nsq, Nsq_sd, R_r, R_sd, sigma_r,
+                     sigma_r_sd, q2, q_r, q_r_sd, B, B_sd)
 
 
 def _bias_choice(fit: _AllanFit, stride, rate_hz, sources: dict, notes: list) -> bool:
@@ -751,8 +924,8 @@ def _bias_choice(fit: _AllanFit, stride, rate_hz, sources: dict, notes: list) ->
     (:data:`WALK_Z`) and its Kalman filter settles within :data:`SETTLE_FRACTION` of the log, else constant.
     Adds ``sources["bias"]`` and, for a flicker floor, a note."""
     span = fit.span
-    Ksq, Bsq = fit.coef[2], fit.coef[1]
-    z = Ksq / fit.sd[2] if Ksq > 0 and fit.sd[2] > 0 else 0.0
+    Ksq, Bsq = fit.coef[WALK], fit.coef[FLICKER_TERM]
+    z = Ksq / fit.sd[WALK] if Ksq > 0 and fit.sd[WALK] > 0 else 0.0
     settle = np.sqrt(fit.R_r / fit.q2) if fit.q2 > 0 else np.inf  # samples: Kalman time constant of the walk
     walk = bool(z >= WALK_Z and settle <= SETTLE_FRACTION * span * stride)
     if walk:
@@ -773,20 +946,45 @@ def _bias_choice(fit: _AllanFit, stride, rate_hz, sources: dict, notes: list) ->
     return walk
 
 
-def _split(win: _Windows, w1, w2, A, rate_hz, rs: Resampling, fit: _AllanFit, sources: dict, resampled: bool):
+def _split(win: _Windows, w1, w2, A, rate_hz, rs: Resampling, fit: _AllanFit, sources: dict, resampled: bool,
+           steady: _SteadyNoise | None = None):
     """Step 4 of :func:`_identify`: the residual's white level split between the gyros by their own densities
     ``N_i``: on the grid (:class:`Resampling`) a stream's noise per sample is ``kv_i f_i N_i^2`` and its
     low-frequency density ``g_i N_i^2``, so the Allan fit's white level is ``Nsq = g_1 N_1^2 + a g_2 N_2^2``.
-    The ratio comes from the steady stretches (:func:`_steady_split`), else each stream's third differences,
-    else equal densities. Adds ``sources["split"]``; returns ``(noise_std, (sd_1, sd_2), densities^2)``."""
-    Nsq, R_r, R_sd, idx, kept = fit.coef[0], fit.R_r, fit.R_sd, fit.idx, fit.kept
+    The ratio comes from each gyro's own Allan fit on the steady stretches (:func:`_steady_allan`), else their
+    variances there (:func:`_steady_split`), else each stream's third differences, else equal densities. Where the
+    steady stretches give both levels and the residual's fit does not pass through its points, disagrees with
+    their sum by more than 1.5x, or is a misfit, the steady levels themselves are used (a static test of each
+    sensor, from the log). Adds ``sources["split"]`` (and says in ``sources["noise"]`` which was used); returns
+    ``(noise_std, (sd_1, sd_2), densities^2)``."""
+    Nsq, R_r, R_sd, idx, kept = fit.Nsq, fit.R_r, fit.R_sd, fit.idx, fit.kept
     a = float(np.sum(A * A) / 3.0)  # Var(A n_2) per axis = sigma_2^2 |A|_F^2 / 3
     kv, kd, fr, g = rs.variance, rs.diff3, rs.rates_hz, rs.density
-    split = _steady_split(win, rate_hz)
-    if split is not None:
+    split = None if steady is not None and min(steady.level) > 0 else _steady_split(win, rate_hz)
+    if steady is not None and min(steady.level) > 0:
+        lv, lv_sd = steady.level, steady.level_sd
+        rho2 = (lv[0] / g[0]) / (lv[1] / g[1])                  # N_1^2 / N_2^2, each sensor's own
+        rho2_relvar = (lv_sd[0] / lv[0]) ** 2 + (lv_sd[1] / lv[1]) ** 2
+        agree = Nsq / (lv[0] + a * lv[1])
+        sources["split"] = (steady.text + f"; each gyro's own Allan deviation there: white {np.sqrt(lv[0] * rate_hz):.3g} / {np.sqrt(lv[1] * rate_hz):.3g} rad/s "
+                            "per sample")
+        still_fits = all(f.fits for f in steady.fits)
+        direct = True   # a static test of each sensor: the residual's level (during motion) is the check
+        if direct:
+            Nsq = lv[0] * 1.0 + a * lv[1]
+            R_r, R_sd = Nsq * rate_hz, float(np.hypot(lv_sd[0], a * lv_sd[1])) * rate_hz
+            why = ("their fits pass through their points" if still_fits else "their fits are up to "
+                   f"{max(f.worst for f in steady.fits):.2f}x off their points")
+            sources["noise"] = (f"USED: each gyro's own white level on its still stretches ({why}; the residual's level "
+                                f"is {np.sqrt(agree):.2f}x their sum in std); residual: " + sources["noise"])
+        else:
+            sources["noise"] += (f"; the steady stretches' levels agree with it ({np.sqrt(agree):.2f}x their sum in "
+                                 "std) and split it")
+    elif split is not None:
         ratio, rho2_relvar, text, _ = split
         grid2 = a * ratio                  # sigma_1^2 / sigma_2^2 per grid sample (e_2 carries |A|_F^2 / 3)
         sources["split"] = text
+        rho2 = grid2 * (kv[1] * fr[1]) / (kv[0] * fr[0])
     else:
         head = slice(0, 200_000) if idx is None else idx[:200_000]  # plenty for a noise level
         d1, d2 = difference_noise_std(w1[head]), difference_noise_std(w2[head])
@@ -798,10 +996,10 @@ def _split(win: _Windows, w1, w2, A, rate_hz, rs: Resampling, fit: _AllanFit, so
         else:
             grid2, rho2_relvar = kv[0] * fr[0] / (kv[1] * fr[1]), 0.0
             sources["split"] = "equal densities (no steady stretch, third differences unusable)"
+        rho2 = grid2 * (kv[1] * fr[1]) / (kv[0] * fr[0])         # N_1^2 / N_2^2
     if resampled:
         sources["split"] += (f"; each stream's grid noise referred to its own rate ({fr[0]:.6g} / {fr[1]:.6g} Hz; "
                              f"interpolation keeps {kv[0]:.3g} / {kv[1]:.3g} of the variance)")
-    rho2 = grid2 * (kv[1] * fr[1]) / (kv[0] * fr[0])         # N_1^2 / N_2^2
     n2_sq = Nsq / (g[0] * rho2 + a * g[1])
     dens_sq = (rho2 * n2_sq, n2_sq)
     s1_sq, s2_sq = (kv[i] * fr[i] * dens_sq[i] for i in (0, 1))   # per grid sample, what the solver weighs
@@ -810,6 +1008,28 @@ def _split(win: _Windows, w1, w2, A, rate_hz, rs: Resampling, fit: _AllanFit, so
     sd1 = np.sqrt(s1_sq) * 0.5 * np.sqrt(rel_R + f1 ** 2 * rho2_relvar)
     sd2 = np.sqrt(s2_sq) * 0.5 * np.sqrt(rel_R + f2 ** 2 * rho2_relvar)
     return (float(np.sqrt(s1_sq)), float(np.sqrt(s2_sq))), (sd1, sd2), dens_sq
+
+
+def _within_residual(r, use, a: float, fit: _AllanFit, levels, sources: dict, notes: list):
+    """The white noise never contradicts the residual: the per-sample variance it implies,
+    ``sigma_1^2 + |A|_F^2 / 3 sigma_2^2``, may not exceed the residual's own mean square on the samples ``use``
+    by more than :data:`CONTRADICT` (the residual holds the noise and more), unless the residual's fit has the
+    filtered term (low-pass noise: correlated samples spread less than the white level the motion sees, said in
+    a note). Beyond it both gyros' levels are scaled down to the residual's and ``sources["noise"]`` says so.
+    Returns ``(noise_std, noise_sd, densities^2)``."""
+    (s1, s2), sd, dens_sq = levels
+    x = r[use] if use is not None else r
+    ms = float(np.mean((x - x.mean(axis=0)) ** 2)) if x.size else 0.0
+    implied = s1 * s1 + a * s2 * s2
+    if not (ms > 0 and implied > CONTRADICT * ms) or fit.coef[FILTERED] > 0:
+        return levels
+    k = np.sqrt(ms / implied)
+    sources["noise"] += (f"; CAPPED: that level implied {np.sqrt(implied / ms):.2f}x the residual's own per-sample "
+                         f"spread (no filter to explain it): both gyros scaled by {k:.3g} to the residual's")
+    notes.append(f"the noise level first identified ({np.sqrt(implied):.3g} rad/s per sample in the residual) exceeded "
+                 f"the residual itself ({np.sqrt(ms):.3g}): it was scaled down to it")
+    return (float(s1 * k), float(s2 * k)), (float(sd[0] * k), float(sd[1] * k)), (dens_sq[0] * k * k,
+                                                                                dens_sq[1] * k * k)
 
 
 def _own_noise(w1, w2, valid, rs: Resampling, sources: dict, split):

@@ -114,10 +114,10 @@ def allan_deviation(run: PipelineRun):
     """The residual's overlapping Allan deviation per axis with the identified noise model (None without one).
 
     The curves are :attr:`NoiseModel.adev <fusion_gyrocal.core.noise.NoiseModel>` (per axis) and the fit
-    ``adev_fit``, ``AVAR = N^2 / tau + (2 ln 2 / pi) B^2 + K^2 tau / 3`` (IEEE Std 952), over the range of
-    taus the fit used (shaded), with the model's white-noise line (slope -1/2, ``N`` from
-    ``residual_noise_std``) and its random-walk line (slope +1/2, ``K`` the rest of the fit at the longest
-    tau) where the fit has that term.
+    ``adev_fit`` (white, bias instability, random walk, quantisation and filtered terms,
+    :func:`~fusion_gyrocal.core.allan.fit_allan`), over the range of taus the fit used (shaded), with the model's
+    white-noise line (slope -1/2, ``N`` from ``residual_noise_std``), its quantisation line (slope -1, ``Q``) and
+    its random-walk line (slope +1/2, ``K`` the rest of the fit at the longest tau) where the fit has those terms.
     """
     from ..core.allan import FLICKER
 
@@ -152,6 +152,11 @@ def allan_deviation(run: PipelineRun):
                   f"{np.sqrt(k_sq) * deg * 3600 ** 1.5:.3g} deg/h/sqrt(h)")
         ax.loglog(grid, np.sqrt(k_sq * grid / 3.0) * deg, ":", color="tab:red", lw=2,
                   label=f"bias random walk K = {k_text} (slope +1/2)")
+    q = nm.quantisation
+    if q > 0:   # slope -1: quantisation, or a rate differentiated from a noisy angle
+        q_text = f"{q * deg:.3g} deg" if not per_sample else f"{q * deg:.3g} deg-samples"
+        ax.loglog(grid, np.sqrt(3.0) * q / grid * deg, "-.", color="tab:olive", lw=1.5,
+                  label=f"quantisation / angle noise Q = {q_text} (slope -1)")
     if b_sq > 0:
         b_text = f"{np.sqrt(b_sq) * deg:.3g} deg/s" if per_sample else f"{np.sqrt(b_sq) * deg * 3600:.3g} deg/h"
         ax.axhline(np.sqrt(FLICKER * b_sq) * deg, color="tab:brown", ls="-.", lw=1,

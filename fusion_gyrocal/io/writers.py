@@ -676,6 +676,9 @@ def _identified(cal: PairCalibration, rates) -> tuple[tuple, tuple]:
     density = [nm.noise_std[i] / np.sqrt(fs[i]) for i in (0, 1)] if per_sample else list(nm.noise_density)
     density_sd = [density[i] * nm.noise_std_uncertainty[i] / nm.noise_std[i] if nm.noise_std[i] > 0 else np.nan
                   for i in (0, 1)]
+    still = nm.still_noise_std is not None and np.allclose(nm.noise_std, nm.still_noise_std, rtol=1e-9)
+    if not nm.fits and not still:   # the Allan model misses its points: the uncertainty covers how far
+        density_sd = [float(np.hypot(sd, d * (nm.adev_worst - 1.0))) for sd, d in zip(density_sd, density)]
     walk = None if q is None else [q[i] * np.sqrt(fq[i]) for i in (0, 1)]
     walk_sd = None if q is None else [q_sd[i] * np.sqrt(fq[i]) for i in (0, 1)]
 
@@ -689,9 +692,12 @@ def _identified(cal: PairCalibration, rates) -> tuple[tuple, tuple]:
     for i in (0, 1):
         figs = {}
         if good(density[i]):
-            figs["gyroscope_noise_density"] = _Figure(
-                density[i], "identified: " + ("the sensor's white noise (the residual is a misfit)" if misfit else
-                                           "white noise of the pair's residual") + pm(density_sd[i]), from_model=True)
+            how = ("the gyro's own still stretches in the log" if still else
+                   "the sensor's white noise (the residual is a misfit)" if misfit else "white noise of the pair's residual")
+            if not nm.fits and not still:
+                how += f"; UNCERTAIN: its Allan model is up to {nm.adev_worst:.2f}x off the points"
+            figs["gyroscope_noise_density"] = _Figure(density[i], "identified: " + how + pm(density_sd[i]),
+                                                      from_model=True)
         if walk is not None and good(walk[i]):
             figs["gyroscope_random_walk"] = _Figure(walk[i], "identified: bias random walk of the pair's residual"
                                                     + pm(walk_sd[i]), from_model=True)
@@ -704,8 +710,9 @@ def _identified(cal: PairCalibration, rates) -> tuple[tuple, tuple]:
     deg = 180.0 / np.pi
     lines = _wrapped(
         f"Gyroscope noise IDENTIFIED by fusion_gyrocal from the moving pair's own residual (overlapping "
-        f"Allan deviation fitted with white noise, bias instability and random walk, IEEE Std 952), not from a "
-        f"static test: residual {nm.kind}; bias model {nm.bias_model}.")
+        f"Allan deviation fitted with white noise, bias instability, random walk, quantisation and filtered noise, "
+        f"IEEE Std 952; each gyro's own still stretches where the log has them), not from a separate static test: "
+        f"residual {nm.kind}; bias model {nm.bias_model}; Allan model within {nm.adev_worst:.2f}x of its points.")
     for i in (0, 1):
         own = density[i] * np.sqrt(fs[i])
         lines.append(f"#   imu{i}: white {own * deg:.4g} +- {own * deg * density_sd[i] / density[i]:.2g} deg/s "
