@@ -52,7 +52,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..errors import InputError, OptionError
-from .allan import (FILTERED, FIT_FACTOR, FLICKER_TERM, QUANTISATION, TERMS, WALK, WHITE, AllanFit, allan_deviation,
+from .allan import (FILTERED, FIT_FACTOR, FLICKER_TERM, QUANTISATION, TERMS, WALK, AllanFit, allan_deviation,
                     design, edf_table, fit_allan, second_differences)
 from .moments import NOMINAL_WINDOW, as_rates, finite_rows
 

@@ -15,11 +15,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 from ..core.moments import as_rates
+
+if TYPE_CHECKING:
+    from ..online.history import PairTruth
 
 DEG = np.pi / 180.0
 PAPER_RATE_HZ = 100.0

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..core.moments import Moments, row_norms
 from ..errors import OptionError, TimeAlignmentError
-from .resample import _MARGIN, _RunSplines, _resample_checked, _runs, resample
+from .resample import _MARGIN, _RunSplines, _resample_checked, _runs
 from .streams import DEFAULT_GAP_PERIODS, _freeze, _nominal_period, _stream, timed_stream, valid_mask
 
 _AMBIGUITY_RATIO = 1.5         # a second lobe with misfit (1 - r) below this times the peak's is ambiguous
