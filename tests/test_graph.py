@@ -409,3 +409,25 @@ def test_calibrate_pair_graph_refuses_an_option_it_does_not_apply(keywords, refu
     sim = simulate_pair(n=600, rng=11)
     with pytest.raises(OptionError, match=rf"^calibrate_pair_graph: .* cannot apply \['{refused}'\]"):
         calibrate_pair_graph(sim.omega_1, sim.omega_2, window=100, **keywords)
+
+
+def test_calibrate_pair_graph_full_map_seed_holds_cross_axis_terms():
+    """A full-map seed (a pair with cross-axis terms) is solved with its terms held: the graph's rotation is the
+    batch's (same convention, within its repeatable sigma), its A the full map, its bias in gyro 1's frame."""
+    from fusion_gyrocal.core.observability import cross_matrix
+    from fusion_gyrocal.lie import log
+
+    sim = simulate_pair(rng=3, n=20000, R_1_2=random_rotation(np.random.default_rng(3)))
+    k = np.array([0.012, -0.008, 0.015])
+    w1 = sim.omega_1 @ (np.eye(3) + cross_matrix(k)).T
+    batch = calibrate_pair(w1, sim.omega_2, noise_std=sim.noise_std)
+    assert batch.linear_map == "full"
+    cal = calibrate_pair_graph(w1, sim.omega_2, noise_std=sim.noise_std, window=1000, seed=batch)
+    assert cal.linear_map == "full" and np.array_equal(cal.cross_axis_terms, batch.cross_axis_terms)
+    err = log(cal.R_1_2 @ batch.R_1_2.T)
+    rep = batch.covariance[:3, :3] - batch.skew_rotation_covariance
+    assert err @ np.linalg.solve(rep, err) < 1.0, err            # the same estimate, not just within the bars
+    assert np.allclose(cal.A, batch.A, atol=5e-5)
+    assert np.allclose(cal.bias, batch.bias, atol=3.0 * np.sqrt(np.diag(batch.covariance)[9:]).max())
+    rigid = calibrate_pair_graph(w1, sim.omega_2, noise_std=sim.noise_std, window=1000)
+    assert rigid.linear_map == "rigid" and not np.allclose(rigid.A, batch.A, atol=5e-5)

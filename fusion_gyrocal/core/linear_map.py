@@ -44,7 +44,7 @@ import numpy as np
 
 from ..lie import exp, skew
 from .moments import Moments
-from .observability import fisher_information, information_of_A, signal_scatter
+from .observability import cross_matrix, fisher_information, information_of_A, signal_scatter
 from .refine import cost_of_A, fisher_scoring, gradient_of_A, ml_cost, ml_gradient, retract
 
 #: 99.9 % points of the chi-square distribution with 1..9 degrees of freedom (the cross-axis test).
@@ -193,3 +193,62 @@ def refine_reference(moments: Moments, R, S2, scale_1, noise_std, *, max_iter: i
                                                      noise_std, Xi_c),
         retract=step, max_iter=max_iter, tol=tol)
     return R, S2, it, converged
+
+
+def hold_cross_axis(cal):
+    """``(rigid, unmix)``: a calibration with the full linear map as one of the paper's model (rotation + scale
+    factors, Eq. 4) on gyro 1's samples through ``unmix = (I + K)^-1``, its cross-axis terms held fixed.
+
+    The chips' cross-axis sensitivity does not change, so an estimator that follows the rotation, the scale factors
+    and the bias (the tracker, the factor graph) takes ``K`` from a full-map result and works on
+    ``unmix omega_1 = S_1 R S_2^-1 omega_2 + unmix b``: its rotation stays in the same (symmetric) convention. The
+    returned calibration drops the convention's skew budget (``skew_rotation_covariance``: constant) and has the
+    bias ``unmix b``; :func:`restore_cross_axis` undoes both. A rigid calibration is returned as it is with
+    ``unmix`` None; one with ``linear_map="reference"`` is refused.
+    """
+    import dataclasses
+
+    from ..errors import ConfigurationError
+
+    if cal.linear_map == "rigid":
+        return cal, None
+    if cal.linear_map != "full":
+        raise ConfigurationError(
+            f"calibration: expected the paper's model (rotation + scale factors, Eq. 4) or the full linear map, whose "
+            f"cross-axis terms are held fixed; got linear_map {cal.linear_map!r} (gyro 2's intrinsics from gyro 1's): "
+            "solve it with calibrate_pair(...) without intrinsics_1")
+    unmix = np.linalg.inv(np.eye(3) + cross_matrix(cal.cross_axis_terms))
+    cov = np.array(cal.covariance, dtype=float)
+    cov[:3, :3] -= np.asarray(cal.skew_rotation_covariance)
+    return dataclasses.replace(cal, linear_map="rigid", cross_axis_terms=np.zeros(3), bias=unmix @ cal.bias,
+                               covariance=_bias_transformed(cov, unmix),
+                               skew_rotation_covariance=np.zeros((3, 3))), unmix
+
+
+def restore_cross_axis(rigid, held):
+    """The result ``rigid`` of an estimator that worked on :func:`hold_cross_axis`'s samples, back in the full linear
+    map of ``held`` (the full-map calibration whose cross-axis terms were held): ``K``, its covariance, the skew
+    budget and the bias ``(I + K) b`` in gyro 1's own frame. ``rigid`` as it is when ``held`` is rigid."""
+    import dataclasses
+
+    if held.linear_map != "full":
+        return rigid
+    mix = np.eye(3) + cross_matrix(held.cross_axis_terms)
+    cov = _bias_transformed(np.array(rigid.covariance, dtype=float), mix)
+    cov[:3, :3] += np.asarray(held.skew_rotation_covariance)
+    return dataclasses.replace(rigid, linear_map="full", cross_axis_terms=np.array(held.cross_axis_terms),
+                               cross_axis_covariance=np.array(held.cross_axis_covariance), bias=mix @ rigid.bias,
+                               covariance=cov, skew_rotation_covariance=np.array(held.skew_rotation_covariance),
+                               notes=tuple(rigid.notes) + (
+                                   "cross-axis terms held at those of the full-map calibration it started from "
+                                   "(gyro 1's samples through (I + K)^-1; the bias here in gyro 1's own frame)",))
+
+
+def _bias_transformed(cov, M) -> np.ndarray:
+    """A (12, 12) covariance with its bias block taken through ``b -> M b`` (its finite rows and columns)."""
+    J = np.eye(len(cov))
+    J[9:12, 9:12] = M
+    finite = np.isfinite(cov).all(axis=1)
+    out = cov.copy()
+    out[np.ix_(finite, finite)] = (J @ np.where(np.isfinite(cov), cov, 0.0) @ J.T)[np.ix_(finite, finite)]
+    return out

@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.gauge import Gauge, null_directions, oblique_projector
+from ..core.linear_map import hold_cross_axis, restore_cross_axis
 from ..core.model import BIAS, ROT, PairCalibration, mark_undetermined
 from ..core.moments import Moments, as_rate_pair, noise_pair, window_moments
 from ..core.observability import A_of, per_axis_snr, seed_configuration
@@ -681,7 +682,10 @@ def calibrate_pair_graph(omega_1, omega_2, options: Options | None = None, *, wi
     solver : {"lm", "isam2"}
         Batch Levenberg-Marquardt, or iSAM2 updated window by window.
     seed : PairCalibration, optional
-        Initial values; default the direct solution ``solve(moments, method="direct")``.
+        Initial values; default the direct solution ``solve(moments, method="direct")``. A seed with the full
+        linear map (``linear_map="full"``, e.g. ``calibrate_pair``'s on a board with cross-axis terms) has its
+        cross-axis terms held fixed (:func:`~fusion_gyrocal.core.linear_map.hold_cross_axis`) and the result is
+        in the same full map and rotation convention.
     mask : array_like of bool (N,), optional
         Samples to use.
     **keywords
@@ -711,6 +715,11 @@ def calibrate_pair_graph(omega_1, omega_2, options: Options | None = None, *, wi
     if rotation_increments is not None and rate_hz is None:
         raise ConfigurationError("rotation_increments need rate_hz (the sample rate of omega_1), got None")
     w1, w2, mask = as_rate_pair(omega_1, omega_2, mask)
+    held = seed
+    if seed is not None:      # a full-map seed: its cross-axis terms held, gyro 1 through (I + K)^-1
+        seed, unmix = hold_cross_axis(seed)
+        if unmix is not None:
+            w1 = w1 @ unmix.T
     windows = window_moments(w1, w2, window, mask=mask, with_starts=True)
     if not windows:
         raise InputError(f"expected at least one window of >= 2 samples, got {w1.shape[0]} samples")
@@ -730,4 +739,5 @@ def calibrate_pair_graph(omega_1, omega_2, options: Options | None = None, *, wi
                 g.add_rotation_increments(w1, rate_hz, rotation_increments.subset(sel))
         if solver == "isam2" and (not glob or g._camera):
             g.update()
-    return g.result() if solver == "isam2" else g.solve()
+    result = g.result() if solver == "isam2" else g.solve()
+    return result if held is None else restore_cross_axis(result, held)

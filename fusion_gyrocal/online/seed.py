@@ -15,8 +15,8 @@ import numpy as np
 
 from ..core.model import S1, S2, PairCalibration
 from ..core.moments import as_rates, noise_pair
-from ..core.observability import cross_matrix, seed_configuration
-from ..errors import ConfigurationError, InputError
+from ..core.observability import seed_configuration
+from ..errors import InputError
 from ..pipeline.streams import check_timestamps
 from .ekf import ErrorStateEKF, inflation, misfit_coefficients
 from .hold import DIM, ScaleHold
@@ -98,36 +98,6 @@ def seed_noise(calibration: PairCalibration, noise_model):
     if not (np.isfinite(noise).all() and (noise > 0).all()):
         raise InputError(f"{what}: expected two positive rad/s values, got {noise}")
     return noise_model, (float(noise[0]), float(noise[1])), misfit
-
-
-def filter_model(cal: PairCalibration) -> tuple[PairCalibration, np.ndarray | None]:
-    """``(seed, unmix)``: ``cal`` in the filter's model (rotation + scale factors, Eq. 4) and the fixed matrix that
-    takes gyro 1's samples to it.
-
-    A seed with the full linear map (``linear_map="full"``, ``A = (I + K) S_1 R S_2^-1``) keeps its relative
-    cross-axis terms ``K`` fixed: the board's chips do not change their cross-axis sensitivity, and the tracker
-    follows the rotation in the same (symmetric) convention as the batch, with gyro 1's samples taken through
-    ``unmix = (I + K)^-1`` (so ``unmix omega_1 = S_1 R S_2^-1 omega_2 + unmix b``). The seed's covariance drops the
-    convention's skew budget (``skew_rotation_covariance``: constant, the filter tracks changes) and its bias is
-    ``unmix b``. A rigid seed is returned as it is, with ``unmix`` None.
-    """
-    if cal.linear_map == "rigid":
-        return cal, None
-    if cal.linear_map != "full":
-        raise ConfigurationError(
-            f"calibration: the tracker's model is rotation + scale factors (Eq. 4), with fixed cross-axis terms "
-            f"where the seed has them; got a seed with linear_map {cal.linear_map!r} (gyro 2's intrinsics from "
-            "gyro 1's); seed it with calibrate_pair(...) without intrinsics_1")
-    unmix = np.linalg.inv(np.eye(3) + cross_matrix(cal.cross_axis_terms))
-    J = np.eye(DIM)
-    J[9:, 9:] = unmix
-    cov = np.array(cal.covariance, dtype=float)
-    cov[:3, :3] -= np.asarray(cal.skew_rotation_covariance)
-    finite = np.isfinite(cov).all(axis=1)
-    cov[np.ix_(finite, finite)] = (J @ np.where(np.isfinite(cov), cov, 0.0) @ J.T)[np.ix_(finite, finite)]
-    seed = dataclasses.replace(cal, linear_map="rigid", cross_axis_terms=np.zeros(3), bias=unmix @ cal.bias,
-                               covariance=cov, skew_rotation_covariance=np.zeros((3, 3)))
-    return seed, unmix
 
 
 def seed_filter(cal: PairCalibration, t: float, config, noise_std, misfit, *, span_s: float = 0.0,

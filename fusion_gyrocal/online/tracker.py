@@ -62,6 +62,7 @@ import dataclasses
 
 import numpy as np
 
+from ..core.linear_map import hold_cross_axis, restore_cross_axis
 from ..core.model import S1, S2, PairCalibration
 from ..core.moments import as_rates
 from ..core.noise import NoiseModel
@@ -73,7 +74,7 @@ from .figures import plot_history, track_figure_for_report
 from .history import PairTruth, ReseedEvent, TrackHistory
 from .hold import DIM
 from .reseed import observable_chi2
-from .seed import filter_model, model_error, seed_from_samples, seed_noise
+from .seed import model_error, seed_from_samples, seed_noise
 from .stepper import Stepper
 from .steps import block_spans
 
@@ -128,7 +129,7 @@ class GyroPairTracker:
         Its ``noise_std`` (per-sample white noise of each gyro, rad/s) sets the measurement
         noise unless ``noise_model`` flags a misfit; its ``time_offset_s`` is used by :meth:`run_streams`.
         A seed with the full linear map (``linear_map="full"``) keeps its cross-axis terms fixed
-        (:attr:`cross_axis_terms`, :func:`~.seed.filter_model`): the filter tracks the rotation in the batch's
+        (:attr:`cross_axis_terms`, :func:`~fusion_gyrocal.core.linear_map.hold_cross_axis`): the filter tracks the rotation in the batch's
         convention, scale factors and bias. A seed with ``linear_map="reference"`` is refused.
     t0 : float
         Time (s) at which the seed is valid (usually the end of its data).
@@ -170,14 +171,14 @@ class GyroPairTracker:
     True
     """
 
-    __slots__ = ("_track", "_noise_model", "_time_offset_s", "_unmix", "_cross_axis_terms")
+    __slots__ = ("_track", "_noise_model", "_time_offset_s", "_unmix", "_held")
 
     def __init__(self, calibration: PairCalibration, *, t0: float = 0.0, seed_span_s: float = 0.0,
                  noise_model: NoiseModel | None | str = "seed", config: TrackerConfig | None = None, **options):
         if not isinstance(calibration, PairCalibration):
             raise InputError(f"calibration: expected a PairCalibration, got {type(calibration).__name__}")
-        seed, self._unmix = filter_model(calibration)
-        self._cross_axis_terms = np.array(calibration.cross_axis_terms if self._unmix is not None else np.zeros(3))
+        seed, self._unmix = hold_cross_axis(calibration)
+        self._held = calibration           # the seed: its cross-axis terms, when it has them, are held
         config = TrackerConfig.of(config, **options)
         noise_model, noise_std, misfit = seed_noise(calibration, noise_model)
         self._noise_model = noise_model
@@ -187,7 +188,7 @@ class GyroPairTracker:
 
     def _gyro_1(self, w1) -> np.ndarray:
         """Gyro 1's samples in the filter's model: through ``(I + K)^-1`` when the seed has cross-axis terms
-        (:func:`~.seed.filter_model`)."""
+        (:func:`~fusion_gyrocal.core.linear_map.hold_cross_axis`)."""
         return w1 if self._unmix is None else w1 @ self._unmix.T
 
     def __setattr__(self, name, value):           # the configuration's fields: a helpful refusal
@@ -228,7 +229,7 @@ class GyroPairTracker:
         """
         new = object.__new__(type(self))
         new._noise_model, new._time_offset_s = self._noise_model, self._time_offset_s
-        new._unmix, new._cross_axis_terms = self._unmix, self._cross_axis_terms
+        new._unmix, new._held = self._unmix, self._held
         new._track = self._track.reconfigured(self._track.config.replace(**changes))
         return new
 
@@ -321,7 +322,7 @@ class GyroPairTracker:
     def cross_axis_terms(self) -> np.ndarray:
         """The seed's relative cross-axis terms ``(xy, yz, zx)``, held fixed (zeros for a rigid seed). With them the
         filter's bias, history and NEES are those of gyro 1's samples through ``(I + K)^-1``."""
-        return self._cross_axis_terms.copy()
+        return np.array(self._held.cross_axis_terms) if self._unmix is not None else np.zeros(3)
 
     @property
     def error_covariance(self) -> np.ndarray:
@@ -372,19 +373,13 @@ class GyroPairTracker:
         if f.hold.prior_groups:
             notes.append("scale factors of parallel axis pairs: only their ratio is tracked; the common factor is "
                          f"held by a prior of std {tr.config.scale_prior_std:g}")
-        full = self._unmix is not None
-        if full:
-            notes.append("cross-axis terms held at the seed's (the bias is gyro 1's through (I + K)^-1 in the "
-                         "filter, here in gyro 1's own frame)")
-        return PairCalibration(
-            R_1_2=f.R, scale_1=f.s1, scale_2=f.s2, bias=f.b if not full else np.linalg.solve(self._unmix, f.b),
-            linear_map="full" if full else "rigid", cross_axis_terms=self._cross_axis_terms.copy(),
-            configuration=tr.configuration.name,
+        return restore_cross_axis(PairCalibration(
+            R_1_2=f.R, scale_1=f.s1, scale_2=f.s2, bias=f.b, configuration=tr.configuration.name,
             scale_observable=tr.configuration.scale_observable, covariance=self.covariance,
             gauge=self.gauge_description, snr=np.full(3, np.nan), n_samples=int(tr.n_samples),
             noise_std=np.array(tr.noise_std), noise_source="seed", method="ekf",
             time_offset_s=self._time_offset_s, rejected_fraction=tr.n_rejected / max(tr.n_samples, 1),
-            notes=tuple(notes))
+            notes=tuple(notes)), self._held)
 
     def express_in_gauge(self, scale_1, scale_2) -> tuple[np.ndarray, np.ndarray]:
         """Express scale factors (e.g. a ground truth) in the tracker's gauge.
