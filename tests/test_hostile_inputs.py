@@ -367,7 +367,7 @@ def _vanishing(tmp_path, monkeypatch):
 @pytest.mark.parametrize("make, error, match", [
     (_unreadable, FormatError, "could not read: permission denied"),
     (_vanishing, FormatError, "could not read: Input/output error"),
-    (lambda tmp, mp: Moments.from_samples(_sim().omega_1, _sim().omega_2, chunk_size=0), InputError, "chunk_size"),
+    (lambda tmp, mp: Moments.from_samples(_sim().omega_1, _sim().omega_2, chunk_size=0), OptionError, "chunk_size"),
     (lambda tmp, mp: calibrate_array([_sim(2000).omega_1, _sim(2000).omega_2, _sim(2000).omega_1], reference=1.5),
      OptionError, "reference: expected a gyro index"),
     (lambda tmp, mp: _deep_json(tmp), FormatError, "nested too deeply|expected"),

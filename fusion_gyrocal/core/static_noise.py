@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ExcitationError, InputError
-from .allan import allan_deviation, edf_table, fit_allan
+from .allan import FLICKER_TERM, WALK, allan_deviation, design, edf_table, fit_allan
 
 REST_SPREAD_FACTOR = 2.0     # a rest window's spread is at most this times the quiet level
 MIN_STRETCH_S = 4.0          # shorter rest stretches are not used
@@ -95,7 +95,9 @@ class StaticNoise:
     rate_hz : float
         Sample rate (Hz).
     white : ndarray (3,)
-        White rate noise ``N`` (angle random walk), rad/s/sqrt(Hz): Kalibr's ``gyroscope_noise_density``.
+        White rate noise ``N`` (angle random walk), rad/s/sqrt(Hz): Kalibr's ``gyroscope_noise_density``. Where the
+        Allan fit also keeps quantisation or filtered noise, the white level with their Allan variance at one
+        sample (what a filter that takes each sample's noise from the density needs).
     white_std : ndarray (3,)
         Its standard uncertainty.
     bias_instability, bias_instability_std : ndarray (3,)
@@ -190,7 +192,7 @@ def static_noise(omega, rate_hz: float, *, valid=None, stretches=None) -> Static
     n_taus = max(allan_deviation(omega[a:b], rate_hz)[0].size for a, b in pieces)
     num = np.zeros((n_taus, 3))
     weight = np.zeros(n_taus)
-    edf = np.zeros((n_taus, 3))
+    edf = np.zeros((n_taus, 4))
     taus = None
     for a, b in pieces:
         t, adev, sub_n, sub_m = allan_deviation(omega[a:b], rate_hz)
@@ -198,7 +200,7 @@ def static_noise(omega, rate_hz: float, *, valid=None, stretches=None) -> Static
         terms = np.maximum((b - a) - 2.0 * t * rate_hz, 1.0)   # terms of the overlapping estimator at each tau
         num[:k] += adev ** 2 * terms[:, None]
         weight[:k] += terms
-        edf[:k] += edf_table(sub_n, sub_m)
+        edf[:k] += edf_table(sub_n, sub_m, axes=1)     # one axis at a time
         if taus is None or t.size > taus.size:
             taus = t
     keep = weight > 0
@@ -210,10 +212,16 @@ def static_noise(omega, rate_hz: float, *, valid=None, stretches=None) -> Static
     fit = np.full(avar.shape, np.nan)
     first = np.zeros(3, int)
     for ax in range(3):
-        coef, cov, lo, pred = fit_allan(taus, avar[:, ax], edf / 3.0)
+        f = fit_allan(taus, avar[:, ax], edf)
+        coef, cov, lo = f.coef, f.cov, f.first
         first[ax] = lo
-        fit[lo:, ax] = np.sqrt(np.maximum(pred, 0.0))
-        white[ax], white_sd[ax] = np.sqrt(max(coef[0], 0.0)), _sd_of_root(coef[0], cov[0, 0])
+        fit[lo:, ax] = np.sqrt(np.maximum(f.pred[lo:], 0.0))
+        # the white level the samples show (white, quantisation and filtered terms at one sample, what a filter
+        # that takes each sample's noise reads from a density), its variance by first order
+        g = design([taus[0]], f.tc)[0] * taus[0]
+        g[[FLICKER_TERM, WALK]] = 0.0
+        level = float(g @ coef)
+        white[ax], white_sd[ax] = np.sqrt(max(level, 0.0)), _sd_of_root(level, float(g @ np.nan_to_num(cov) @ g))
         bias[ax], bias_sd[ax] = np.sqrt(max(coef[1], 0.0)), _sd_of_root(coef[1], cov[1, 1])
         walk[ax], walk_sd[ax] = np.sqrt(max(coef[2], 0.0)), _sd_of_root(coef[2], cov[2, 2])
     return StaticNoise(rate_hz=float(rate_hz), white=white, white_std=white_sd, bias_instability=bias,
