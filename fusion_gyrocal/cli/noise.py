@@ -89,7 +89,7 @@ def run(args) -> int:
 
     from ..core.static_noise import rest_stretches, static_noise
     from ..io import detect_format
-    from ..io.writers import atomic_write, write_kalibr_noise
+    from ..io.writers import atomic_write, output_group, write_kalibr_noise
     from ..provenance import command_line, provenance_of
     from .display import console as make_console
     from .recording import GyroSource, read_sources
@@ -130,15 +130,19 @@ def run(args) -> int:
         console.print(f"input: {line}")
     for note in stream.notes:
         console.print(f"note ({source.describe()}): {note}")
-    if args.kalibr:
-        topic = args.rostopic or args.topic or "/imu0"
-        console.print(f"wrote {write_kalibr_noise(noise, args.kalibr, rostopic=topic, provenance=prov)}")
-    if args.plot:
-        from ..io.report import static_allan_figure, write_figure
+    wrote = []
+    with output_group():   # this run's files are replaced together or not at all
+        if args.kalibr:
+            topic = args.rostopic or args.topic or "/imu0"
+            wrote.append(write_kalibr_noise(noise, args.kalibr, rostopic=topic, provenance=prov))
+        if args.plot:
+            from ..io.report import static_allan_figure, write_figure
 
-        console.print(f"wrote {write_figure(static_allan_figure(noise), args.plot, dpi=110)}")
-    if args.output:
-        d = {"kind": STATIC_NOISE_KIND, "format_version": STATIC_NOISE_FORMAT_VERSION, **noise.to_dict(),
-             "window_samples": [int(a), int(b)], "provenance": prov.to_dict()}
-        console.print(f"wrote {atomic_write(args.output, json.dumps(d, indent=2, allow_nan=False) + chr(10))}")
+            wrote.append(write_figure(static_allan_figure(noise), args.plot, dpi=110))
+        if args.output:
+            d = {"kind": STATIC_NOISE_KIND, "format_version": STATIC_NOISE_FORMAT_VERSION, **noise.to_dict(),
+                 "window_samples": [int(a), int(b)], "provenance": prov.to_dict()}
+            wrote.append(atomic_write(args.output, json.dumps(d, indent=2, allow_nan=False) + chr(10)))
+    for p in wrote:
+        console.print(f"wrote {p}")
     return EXIT_OK
