@@ -125,7 +125,9 @@ def describe_unit_evidence(figures: dict, signs, limit: float = _DEFAULT_LIMIT) 
 
 def check_unit_evidence(omega_1, omega_2, mask=None, limit: float = _DEFAULT_LIMIT) -> None:
     """Refuse a pair whose rates both look like deg/s by two or more signs of :func:`rate_unit_evidence` each
-    (or one at :data:`STRONG_SIGN` times its limit or more); warn on any sign otherwise.
+    (or one at :data:`STRONG_SIGN` times its limit or more, the noise excepted: vibration aliased at the sample
+    rate, or a rate with no smooth motion, raises the third differences without any unit in it); warn on any sign
+    otherwise.
 
     The rate level alone (the 99th percentile above ``limit``) misses deg/s logs with slow motion; the noise,
     the rate at rest and the level together do not: in deg/s each is 57.3 times what a MEMS gyro gives in
@@ -150,7 +152,7 @@ def check_unit_evidence(omega_1, omega_2, mask=None, limit: float = _DEFAULT_LIM
         own_figures, own = rate_unit_evidence((w,), mask, limit)
         own = own + joint
         return len(own) >= 2 or any(own_figures.get(k, figures[k]) >= STRONG_SIGN * MEMS_LIMITS[k] * scale
-                                    for k in own)
+                                    for k in own if k != "noise")
     # both streams: one alone in deg/s is a unit mismatch, which the solver names with both units
     if signs and deg_like(omega_1) and deg_like(omega_2):
         raise InputError(f"omega_1 and omega_2: expected rates in rad/s, got rates that look like deg/s: "

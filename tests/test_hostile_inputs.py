@@ -490,3 +490,19 @@ def test_recover_outputs_leaves_live_writers_alone(tmp_path):
     live.write_text("being written")
     recover_outputs(tmp_path)
     assert live.exists()
+
+
+def test_calibrate_pair_vibration_like_rates_not_taken_for_deg_s():
+    """Rates with no smooth motion at the sample rate (aliased vibration: third differences as large as the rates)
+    in rad/s are a warning, not a refusal: the noise sign alone says nothing about the unit."""
+    from fusion_gyrocal import calibrate_pair
+    from fusion_gyrocal.evaluate.sim import random_rotation
+    from fusion_gyrocal.lie import log
+
+    rng = np.random.default_rng(1)
+    R = random_rotation(rng)
+    w1 = rng.standard_normal((20000, 3))
+    w2 = w1 @ R + rng.normal(0.0, 1.7e-3, w1.shape) + 0.01
+    with pytest.warns(UserWarning, match="some signs say deg/s"):
+        cal = calibrate_pair(w1, w2)
+    assert np.linalg.norm(log(cal.R_1_2 @ R.T)) < 1e-3
