@@ -56,7 +56,8 @@ _QUIET_SPREAD = 1.5         # a window at rest spreads like the white noise (+-1
 _EVIDENCE_SAMPLES = 1 << 16
 
 
-def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT) -> tuple[dict, list[str]]:
+def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT, *, per_stream: list | None = None
+                       ) -> tuple[dict, list[str]]:
     """What the data say about their unit: ``(figures, signs)``, the figures in the unit they are read in.
 
     ``figures`` holds ``noise`` (white noise per sample, from the third differences, the larger of the
@@ -72,14 +73,16 @@ def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT) -> tup
     figures = {"noise": 0.0, "bias": float("nan"), "offset": float("nan"), "range": 0.0}
     sub = []
     for w in streams:
-        w = np.asarray(w, dtype=np.float64)
-        ok = np.isfinite(w).all(axis=1) if mask is None else (np.asarray(mask, bool) & np.isfinite(w).all(axis=1))
+        w = np.asarray(w)
         n = len(w)
         block = 4096
-        if n > _EVIDENCE_SAMPLES:
+        m = None if mask is None else np.asarray(mask, bool)
+        if n > _EVIDENCE_SAMPLES:    # the subsample first: nothing below reads the whole log
             starts = np.linspace(0, n - block, _EVIDENCE_SAMPLES // block).astype(int)
             idx = (starts[:, None] + np.arange(block)).ravel()
-            w, ok = w[idx], ok[idx]
+            w, m = w[idx], None if m is None else m[idx]
+        w = np.asarray(w, dtype=np.float64)
+        ok = np.isfinite(w).all(axis=1) if m is None else (m & np.isfinite(w).all(axis=1))
         sub.append((w, ok))
         if ok.sum() < 8:
             continue
@@ -88,10 +91,12 @@ def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT) -> tup
         d3 = d3[np.isfinite(d3).all(axis=1)]
         noise = float(np.sqrt(np.median(d3 ** 2) / 20.0 / 0.4549)) if len(d3) else 0.0   # median of chi2_1 = 0.4549
         norms = np.linalg.norm(good[ok], axis=1)
+        own = {"noise": noise, "bias": float("nan"), "offset": float("nan"),
+               "range": float(np.quantile(norms, 0.99))}
         figures["noise"] = max(figures["noise"], noise)
-        figures["range"] = max(figures["range"], float(np.quantile(norms, 0.99)))
-        m = (len(good) // _QUIET_WINDOW) * _QUIET_WINDOW
-        win = good[:m].reshape(-1, _QUIET_WINDOW, 3)
+        figures["range"] = max(figures["range"], own["range"])
+        whole = (len(good) // _QUIET_WINDOW) * _QUIET_WINDOW
+        win = good[:whole].reshape(-1, _QUIET_WINDOW, 3)
         full = np.isfinite(win).all(axis=(1, 2))
         if full.sum() >= _MIN_QUIET_WINDOWS and noise > 0:
             win = win[full]
@@ -100,6 +105,9 @@ def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT) -> tup
             if quiet.sum() >= _MIN_QUIET_WINDOWS:   # the floor of the rate at rest (slow turns are not rest)
                 bias = float(np.quantile(np.linalg.norm(win[quiet].mean(axis=1), axis=1), 0.1))
                 figures["bias"] = bias if np.isnan(figures["bias"]) else max(figures["bias"], bias)
+                own["bias"] = bias
+        if per_stream is not None:   # each stream's own figures and signs (``per_stream``: a list to fill)
+            per_stream.append((own, [k for k, lim in MEMS_LIMITS.items() if own[k] > lim * scale]))
     if len(sub) == 2 and len(sub[0][0]) == len(sub[1][0]):
         (w1, ok1), (w2, ok2) = sub
         both = ok1 & ok2
@@ -145,16 +153,16 @@ def check_unit_evidence(omega_1, omega_2, mask=None, limit: float = _DEFAULT_LIM
     from .errors import InputError
 
     scale = float(limit) / _DEFAULT_LIMIT
-    figures, signs = rate_unit_evidence((omega_1, omega_2), mask, limit)
+    per = []
+    figures, signs = rate_unit_evidence((omega_1, omega_2), mask, limit, per_stream=per)
     joint = ["offset"] if "offset" in signs else []
 
-    def deg_like(w) -> bool:   # one stream's own signs, with the pair's combined bias
-        own_figures, own = rate_unit_evidence((w,), mask, limit)
+    def deg_like(own_figures, own) -> bool:   # one stream's own signs, with the pair's combined bias
         own = own + joint
-        return len(own) >= 2 or any(own_figures.get(k, figures[k]) >= STRONG_SIGN * MEMS_LIMITS[k] * scale
-                                    for k in own if k != "noise")
+        return len(own) >= 2 or any((figures[k] if k == "offset" else own_figures[k]) >= STRONG_SIGN *
+                                    MEMS_LIMITS[k] * scale for k in own if k != "noise")
     # both streams: one alone in deg/s is a unit mismatch, which the solver names with both units
-    if signs and deg_like(omega_1) and deg_like(omega_2):
+    if signs and len(per) == 2 and all(deg_like(*p) for p in per):
         raise InputError(f"omega_1 and omega_2: expected rates in rad/s, got rates that look like deg/s: "
                          f"{describe_unit_evidence(figures, signs, limit)}; pass unit deg/s (--unit1/--unit2), or a "
                          f"larger max_plausible_rate for a gyro beyond these MEMS figures")
