@@ -53,7 +53,7 @@ STRONG_SIGN = 2.0
 _QUIET_WINDOW = 32          # samples per window when looking for static stretches
 _MIN_QUIET_WINDOWS = 3
 _QUIET_SPREAD = 1.5         # a window at rest spreads like the white noise (+-13 % over 32 samples)
-_EVIDENCE_SAMPLES = 1 << 16
+_EVIDENCE_SAMPLES = 1 << 14
 
 
 def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT, *, per_stream: list | None = None
