@@ -63,8 +63,9 @@ def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT, *, per
     ``figures`` holds ``noise`` (white noise per sample, from the third differences, the larger of the
     streams'), ``bias`` (the rate norm at rest: over windows whose spread is within 1.5 times the noise,
     the 10th percentile of their mean rate norms, which slow turns do not raise; the larger of the streams';
-    NaN without :data:`_MIN_QUIET_WINDOWS` such windows), ``offset`` (the norm of the combined bias ``b_1 - A b_2`` of the least-squares fit of gyro 1's
-    rates on gyro 2's, Eq. 5 and 12: two gyros' offsets, seen without any static stretch) and ``range``
+    NaN without :data:`_MIN_QUIET_WINDOWS` such windows), ``offset`` (the norm of the combined bias
+    ``b_1 - A b_2`` of the least-squares fit of gyro 1's rates on gyro 2's, Eq. 5 and 12: two gyros' offsets, seen
+    without any static stretch) and ``range``
     (the 99th percentile of the rate norm, the larger). ``signs`` names each figure above
     its MEMS limit (:data:`MEMS_LIMITS`, times ``limit / 100``): signs that the rates are in deg/s, not rad/s.
     A bounded subsample (:data:`_EVIDENCE_SAMPLES` samples in contiguous blocks spread over the log) is used.
@@ -167,5 +168,6 @@ def check_unit_evidence(omega_1, omega_2, mask=None, limit: float = _DEFAULT_LIM
                          f"{describe_unit_evidence(figures, signs, limit)}; pass unit deg/s (--unit1/--unit2), or a "
                          f"larger max_plausible_rate for a gyro beyond these MEMS figures")
     if signs:
-        warnings.warn(f"rates taken as rad/s although some signs say deg/s: {describe_unit_evidence(figures, signs, limit)}",
+        warnings.warn("rates taken as rad/s although some signs say deg/s: "
+                      f"{describe_unit_evidence(figures, signs, limit)}",
                       UserWarning, stacklevel=3)

@@ -129,8 +129,9 @@ class GyroPairTracker:
         Its ``noise_std`` (per-sample white noise of each gyro, rad/s) sets the measurement
         noise unless ``noise_model`` flags a misfit; its ``time_offset_s`` is used by :meth:`run_streams`.
         A seed with the full linear map (``linear_map="full"``) keeps its cross-axis terms fixed
-        (:attr:`cross_axis_terms`, :func:`~fusion_gyrocal.core.linear_map.hold_cross_axis`): the filter tracks the rotation in the batch's
-        convention, scale factors and bias. A seed with ``linear_map="reference"`` is refused.
+        (:attr:`cross_axis_terms`, :func:`~fusion_gyrocal.core.linear_map.hold_cross_axis`): the filter tracks
+        the rotation in the batch's convention, scale factors and bias. A seed with ``linear_map="reference"``
+        is refused.
     t0 : float
         Time (s) at which the seed is valid (usually the end of its data).
     seed_span_s : float

@@ -226,7 +226,8 @@ def _with_timing(run: PipelineRun, mask, pair, resampling, o: Options) -> Pipeli
              f"{delay.std() * unit[2]:.3g} {unit[1]}, mean" if tones else "is constant (a filter's group delay?):")
     note = (f"inter-sensor timing: gyro 2's delay against gyro 1 {shape} {delay.mean() * unit[2]:.3g} {unit[1]}; "
             f"{100 * model.explained:.0f}% of the residual's energy; gyro 2's samples were moved to the instants they "
-            f"describe and the pair calibrated again: residual RMS per axis {np.rad2deg(run.calibration.residual_rms):.4g} -> "
+            "describe and the pair calibrated again: residual RMS per axis "
+            f"{np.rad2deg(run.calibration.residual_rms):.4g} -> "
             f"{np.rad2deg(again.calibration.residual_rms):.4g} deg/s (timing_model='off': no delay beyond the time "
             "offset)")
     new = _replace(again.calibration, timing_tones_hz=model.tones_hz, timing_delay_s=float(delay.mean()),
