@@ -200,10 +200,26 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
     """:func:`calibrate_pair` returning its intermediate products too (same parameters)."""
     o = Options.of(options, **keywords).require("pair", "calibrate_pair")
     w1, w2, mask, pair = prepare_samples(omega_1, omega_2, t_1=t_1, t_2=t_2, mask=mask, options=o)
+    clipped = 0
+    if pair is None and o.saturation_limit is None:   # as on reading a recording: samples flat at an axis's
+        from .streams import saturation_mask          # extreme (clipped at the sensor range) are masked
+
+        flat = saturation_mask(w1) | saturation_mask(w2)
+        if mask is not None:
+            flat &= mask
+        clipped = int(np.count_nonzero(flat))
+        if clipped > 0.5 * (len(flat) if mask is None else np.count_nonzero(mask)):
+            clipped = 0                                # constant input, not clipping: the solver says so
+        if clipped:
+            mask = ~flat if mask is None else (mask & ~flat)
     resampling = _resampling(t_1, t_2, pair, o)
     run = _calibrate(w1, w2, mask, pair, resampling, o)
     if o.timing_model == "auto" and run.calibration.rigid:
         run = _with_timing(run, mask, pair, resampling, o)
+    if clipped:
+        note = (f"{clipped} sample(s) sit flat at an axis's extreme value (clipped at the sensor range?) and were "
+                "masked (saturation_limit names the range; mask= to decide yourself)")
+        run = _replace(run, calibration=_replace(run.calibration, notes=run.calibration.notes + (note,)))
     return run
 
 
@@ -324,6 +340,7 @@ def _resampling(t_1, t_2, pair, options: Options):
                       (f1[2], f2[2]), max(f1[3], f2[3]))
 
 
-def _replace(cal: PairCalibration, **changes) -> PairCalibration:
+def _replace(obj, **changes):
+    """``obj`` (a frozen :class:`PairCalibration` or :class:`PipelineRun`) with ``changes``."""
     import dataclasses
-    return dataclasses.replace(cal, **changes)
+    return dataclasses.replace(obj, **changes)
