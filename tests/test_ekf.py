@@ -238,7 +238,7 @@ def test_run_tracks_rotation_step_within_2sigma():
     n0 = int(30 * RATE)
     tr = GyroPairTracker.from_samples(t[:n0], w1[:n0], w2[:n0])
     h = tr.run(t[n0:], w1[n0:], w2[n0:], mode="fast", truth=truth[n0:])
-    assert len(h.reseeds) == 1
+    assert len(h.reseeds) == 1 and tr.reseeds == h.reseeds
     ev = h.reseeds[0]
     assert ev.accepted and 300.0 <= ev.t_detected <= 300.5 and abs(ev.t_onset - 300.0) <= 0.5
     e = h.normalised_error

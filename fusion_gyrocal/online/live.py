@@ -388,7 +388,7 @@ class LivePair:
         if alarm is not None and alarm != self._alarm_seen:
             self._events.append({"type": "alarm", "t_detected": _num(alarm[0]), "onset": _num(alarm[1])})
         self._alarm_seen = alarm
-        events = self.tracker._track.reseeder.events
+        events = self.tracker.reseeds
         for ev in events[self._reseeds_seen:]:
             self._events.append({"type": "reseed", "t_detected": _num(ev.t_detected), "t_onset": _num(ev.t_onset),
                                  "t_applied": _num(ev.t_applied), "accepted": bool(ev.accepted),

@@ -346,6 +346,12 @@ class GyroPairTracker:
         return self._track.filter.hold.nees_dof
 
     @property
+    def reseeds(self) -> tuple:
+        """The step alarms decided so far (:class:`~.history.ReseedEvent`, accepted re-seeds and rejected alarms),
+        oldest first; the same events as the history's ``reseeds``, without building it."""
+        return tuple(self._track.reseeder.events)
+
+    @property
     def open_alarm(self) -> tuple[float, float] | None:
         """``(t_detected, onset)`` (s) of a step alarm still open, None otherwise: a step of the mounting is
         suspected and not yet confirmed or rejected (that takes ``reseed_window_s`` of exciting motion after the
