@@ -153,12 +153,16 @@ class AllanFit(NamedTuple):
         """The model passes through the fitted points (within :data:`FIT_FACTOR` beyond their scatter)."""
         return bool(self.worst <= FIT_FACTOR)
 
+    def white_row(self, tau: float) -> np.ndarray:
+        """The linear map of the coefficients to :meth:`white_equivalent` (for its variance: ``g cov g``)."""
+        g = tau * design([tau], self.tc)[0]
+        g[[FLICKER_TERM, WALK]] = 0.0
+        return g
+
     def white_equivalent(self, tau: float) -> float:
         """``tau AVAR(tau)`` of the short-term terms (white, quantisation, filtered): the white level (N^2) that
         has their Allan variance at ``tau``, what a calibration over that time scale sees of them."""
-        c = self.coef.copy()
-        c[[FLICKER_TERM, WALK]] = 0.0
-        return float(tau * (design([tau], self.tc) @ c)[0])
+        return float(self.white_row(tau) @ self.coef)
 
 
 def _wls(taus, avar, edf, terms, tc=None):

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ExcitationError, InputError
-from .allan import FLICKER_TERM, WALK, allan_deviation, design, edf_table, fit_allan
+from .allan import allan_deviation, edf_table, fit_allan
 
 REST_SPREAD_FACTOR = 2.0     # a rest window's spread is at most this times the quiet level
 MIN_STRETCH_S = 4.0          # shorter rest stretches are not used
@@ -218,9 +218,8 @@ def static_noise(omega, rate_hz: float, *, valid=None, stretches=None) -> Static
         fit[lo:, ax] = np.sqrt(np.maximum(f.pred[lo:], 0.0))
         # the white level the samples show (white, quantisation and filtered terms at one sample, what a filter
         # that takes each sample's noise reads from a density), its variance by first order
-        g = design([taus[0]], f.tc)[0] * taus[0]
-        g[[FLICKER_TERM, WALK]] = 0.0
-        level = float(g @ coef)
+        g = f.white_row(float(taus[0]))
+        level = f.white_equivalent(float(taus[0]))
         white[ax], white_sd[ax] = np.sqrt(max(level, 0.0)), _sd_of_root(level, float(g @ np.nan_to_num(cov) @ g))
         bias[ax], bias_sd[ax] = np.sqrt(max(coef[1], 0.0)), _sd_of_root(coef[1], cov[1, 1])
         walk[ax], walk_sd[ax] = np.sqrt(max(coef[2], 0.0)), _sd_of_root(coef[2], cov[2, 2])
