@@ -292,5 +292,5 @@ def aligned_samples(s1, s2, options):
     """
     from ..pipeline.pipeline import prepare_samples
 
-    w1, w2, keep, _ = prepare_samples(s1.masked_omega, s2.masked_omega, t_1=s1.t, t_2=s2.t, options=options)
+    w1, w2, keep, _, _ = prepare_samples(s1.masked_omega, s2.masked_omega, t_1=s1.t, t_2=s2.t, options=options)
     return w1[keep], w2[keep]

@@ -108,15 +108,17 @@ def prepare_samples(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options:
 
     With timestamps: saturated and non-finite samples masked (:func:`~fusion_gyrocal.pipeline.streams.valid_mask`,
     ``saturation_limit``), the pair aligned and resampled (:func:`~fusion_gyrocal.pipeline.alignment.align_streams`).
-    Without: the timestamp options refused, ``saturation_limit`` applied to ``mask``. Then ``max_rate``
+    Without: the timestamp options refused, clipped samples masked (``saturation_limit``, else samples flat at
+    an axis's extreme). Then ``max_rate``
     (:func:`~fusion_gyrocal.pipeline.selection.informative_mask`). One place for :func:`run_pipeline` and for
     everything that must use the same samples (``gyrocal compare`` on recordings).
 
     Returns
     -------
-    (omega_1, omega_2, mask, aligned)
-        The rates (NaN where not valid with timestamps), the mask of usable samples (None: all), and the
-        :class:`~fusion_gyrocal.pipeline.alignment.AlignedPair` (None for sample-aligned input).
+    (omega_1, omega_2, mask, aligned, notes)
+        The rates (NaN where not valid with timestamps), the mask of usable samples (None: all), the
+        :class:`~fusion_gyrocal.pipeline.alignment.AlignedPair` (None for sample-aligned input) and what the
+        preparation masked, in words (the clipped samples of sample-aligned input).
     """
     o = Options.of(options)
     pair = None
@@ -141,22 +143,20 @@ def prepare_samples(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options:
                              rate_hz=o.rate_hz, valid_1=valid[0], valid_2=valid[1])
         w1, w2 = pair.omega_1, pair.omega_2     # NaN where not valid: every step below reads them through mask
         mask = pair.valid
+        notes = ()
     else:
         timing = sorted(set(o.to_dict()) & set(TIMESTAMP_OPTIONS))
         if timing:
             raise OptionError(f"{', '.join(timing)}: act on timestamps; expected t_1 and t_2 with them, got "
                               "sample-aligned input")
         w1, w2, mask = as_rate_pair(omega_1, omega_2, mask)
-        if o.saturation_limit is not None:  # the sensor ranges are known: mask the clipped samples
-            from .streams import saturation_mask
-            clipped = saturation_mask(w1, o.saturation_limit[0]) | saturation_mask(w2, o.saturation_limit[1])
-            mask = ~clipped if mask is None else (mask & ~clipped)
+        mask, notes = _unclipped(w1, w2, mask, o.saturation_limit)
     check_rate_units(w1, w2, mask, limit=o.max_plausible_rate)
     if o.max_rate is not None:
         from .selection import informative_mask
         keep = informative_mask(w1, w2, mask, 1.0, min_rate=0.0, max_rate=o.max_rate)
         mask = keep if mask is None else (mask & keep)
-    return w1, w2, mask, pair
+    return w1, w2, mask, pair, notes
 
 
 def check_rate_units(w1, w2, mask=None, *, limit: float = 100.0) -> None:
@@ -199,28 +199,34 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
                  **keywords) -> PipelineRun:
     """:func:`calibrate_pair` returning its intermediate products too (same parameters)."""
     o = Options.of(options, **keywords).require("pair", "calibrate_pair")
-    w1, w2, mask, pair = prepare_samples(omega_1, omega_2, t_1=t_1, t_2=t_2, mask=mask, options=o)
-    clipped = 0
-    if pair is None and o.saturation_limit is None:   # as on reading a recording: samples flat at an axis's
-        from .streams import saturation_mask          # extreme (clipped at the sensor range) are masked
-
-        flat = saturation_mask(w1) | saturation_mask(w2)
-        if mask is not None:
-            flat &= mask
-        clipped = int(np.count_nonzero(flat))
-        if clipped > 0.5 * (len(flat) if mask is None else np.count_nonzero(mask)):
-            clipped = 0                                # constant input, not clipping: the solver says so
-        if clipped:
-            mask = ~flat if mask is None else (mask & ~flat)
+    w1, w2, mask, pair, notes = prepare_samples(omega_1, omega_2, t_1=t_1, t_2=t_2, mask=mask, options=o)
     resampling = _resampling(t_1, t_2, pair, o)
     run = _calibrate(w1, w2, mask, pair, resampling, o)
     if o.timing_model == "auto" and run.calibration.rigid:
         run = _with_timing(run, mask, pair, resampling, o)
-    if clipped:
-        note = (f"{clipped} sample(s) sit flat at an axis's extreme value (clipped at the sensor range?) and were "
-                "masked (saturation_limit names the range; mask= to decide yourself)")
-        run = _replace(run, calibration=_replace(run.calibration, notes=run.calibration.notes + (note,)))
+    if notes:
+        run = _replace(run, calibration=_replace(run.calibration, notes=run.calibration.notes + notes))
     return run
+
+
+def _unclipped(w1, w2, mask, limits):
+    """``(mask, notes)``: sample-aligned input without its clipped samples
+    (:func:`~fusion_gyrocal.pipeline.streams.saturation_mask`: at or beyond ``limits``, the sensor ranges, when
+    given; else flat at an axis's extreme value, as on reading a recording), and what was masked. Input flat on
+    more than half its samples is constant, not clipped: left to the solver's message."""
+    from .streams import saturation_mask
+
+    lim = (None, None) if limits is None else limits
+    clipped = saturation_mask(w1, lim[0]) | saturation_mask(w2, lim[1])
+    if mask is not None:
+        clipped &= mask
+    n = int(np.count_nonzero(clipped))
+    if n == 0 or (limits is None and n > 0.5 * (len(clipped) if mask is None else np.count_nonzero(mask))):
+        return mask, ()
+    said = "reach saturation_limit (the sensor range) and were masked" if limits is not None else (
+        "sit flat at an axis's extreme value (clipped at the sensor range?) and were masked (saturation_limit "
+        "names the range; mask= to decide yourself)")
+    return (~clipped if mask is None else (mask & ~clipped)), (f"{n} sample(s) {said}",)
 
 
 def _with_timing(run: PipelineRun, mask, pair, resampling, o: Options) -> PipelineRun:
