@@ -1,22 +1,24 @@
 """Repeatability of the joint N-gyro calibration on one rigid board, and its honesty with cross-axis terms (issue 20).
 
 1. MIMU board (``../shared/data/mimu_8imu_array``, nine sessions of one soldered PCB): ``calibrate_array`` of all 8
-   IMUs per session (sample-aligned: one microcontroller samples every IMU), with ``linear_map`` "rigid" (the paper's
-   model) and the defaults (the full linear map per gyro where the data call for it). For the 14 pairs of
+   IMUs per session (sample-aligned: one microcontroller samples every IMU, the read-out's timestamps as ``t``), with
+   ``linear_map`` "rigid" (the paper's model) and the defaults (the full linear map per gyro where the data call for
+   it), each with ``timing_model`` "off" and/or "auto" (the default: every gyro's delay against the reference from
+   its pair's residual, the beat tones of each chip's sampling clock, compensated and the array solved again). For the 14 pairs of
    ``benchmarks/sensor_model.py`` the pair views (:meth:`ArrayCalibration.pair`) give per pair the RMS
    session-to-session rotation difference and the mean ``z^2`` of the differences against the two sessions'
    repeatable rotation covariances (without ``skew_rotation_covariance``, which the board's constant cross-axis
    terms make the same in every session: 3 dof, 3 is honest). Also: how far the views of pairs without the
    reference move from ``R_ref_i^T R_ref_j`` into the pair's convention, and how far they are from the pair solver
-   on the same moments (:func:`fusion_gyrocal.solve`, its own noise and windows: no timing model there either).
-   The array has no inter-sensor timing model (the pair pipeline's ``pipeline/timing.py``): these are its figures
-   without one.
+   on the same moments (:func:`fusion_gyrocal.solve`, its own noise and windows; with the timing model the moments
+   are those of the moved samples), and per gyro the delays found (tones, std of the delay, residual explained).
 2. Simulated arrays: N gyros (general rotations, or an axis-parallel board), every gyro with scale errors of 1 % and
    cross-axis terms of 0.5-2 % (each off-diagonal entry of ``I + C_k`` a random sign times U(0.5, 2) %), white noise,
    sample-aligned, the defaults: the mean ``z^2`` of every ``R_ref_k``'s error against the physical rotation and the
    reported covariance (which carries the cross-axis budget).
 
-    python benchmarks/array_sensor_model.py [--runs 20] [--no-mimu] [--no-sim]
+    python benchmarks/array_sensor_model.py [--runs 20] [--linear-map rigid auto] [--timing-model auto]
+                                            [--no-mimu] [--no-sim]
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ MDEG = DEG * 1e-3
 FLIP = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 
 
-def mimu(linear_maps) -> None:
+def mimu(linear_maps, timing_models) -> None:
     d = shared_data_dir() / "mimu_8imu_array" / "npz"
     if not d.exists():
         print("1. MIMU: ../shared/data not present, skipped")
@@ -46,16 +48,18 @@ def mimu(linear_maps) -> None:
     from fusion_gyrocal.io import read_npz
 
     sessions = [read_npz(d / f"exp_{e}.npz") for e in range(1, 10)]
-    print("1. MIMU board, 9 sessions, calibrate_array of all 8 IMUs (sample-aligned, rate_hz 62.5), pair views of "
-          "14 pairs")
-    for lm in linear_maps:
+    print("1. MIMU board, 9 sessions, calibrate_array of all 8 IMUs (sample-aligned, the read-out's timestamps), "
+          "pair views of 14 pairs")
+    for lm, tm in ((lm, tm) for lm in linear_maps for tm in timing_models):
         t0 = time.perf_counter()
-        arrays = [calibrate_array([g.omega for g in s], mask=np.all([g.valid for g in s], axis=0), rate_hz=62.5,
-                                  linear_map=lm) for s in sessions]
+        arrays = [calibrate_array([g.omega for g in s], mask=np.all([g.valid for g in s], axis=0), t=s[0].t,
+                                  linear_map=lm, timing_model=tm) for s in sessions]
         dt = time.perf_counter() - t0
         maps = [m for a in arrays for m in a.linear_map if m]
-        print(f"\nlinear_map={lm!r}: {dt:.1f} s for 9 joint solves; gyros with the full map {maps.count('full')}/"
-              f"{len(maps)}; largest |K| {100 * max(np.abs(a.cross_axis_terms).max() for a in arrays):.2f} %")
+        print(f"\nlinear_map={lm!r}, timing_model={tm!r}: {dt:.1f} s for 9 joint calibrations; gyros with the full "
+              f"map {maps.count('full')}/{len(maps)}; largest |K| "
+              f"{100 * max(np.abs(a.cross_axis_terms).max() for a in arrays):.2f} %")
+        timing_table(arrays)
         print(f"{'pair':>5} {'rms diff mdeg':>14} {'sigma mdeg':>11} {'mean z2':>8} {'max z2':>7} "
               f"{'shift mdeg':>11} {'vs solve mdeg':>14} {'solve sigma':>12}")
         rms_all, z2_all, shifts, gaps = [], [], [], []
@@ -82,6 +86,27 @@ def mimu(linear_maps) -> None:
               f"views without the reference: mean {np.mean(shifts) / MDEG:.2f}, largest {np.max(shifts) / MDEG:.2f} "
               f"mdeg; view vs the pair solver on the same moments: RMS {np.sqrt(np.mean(np.square(gaps))) / MDEG:.1f} "
               "mdeg")
+
+
+def timing_table(arrays) -> None:
+    """Per gyro over the sessions: how often a delay was found, its tones, the std and mean of the delay, the
+    residual energy it explained."""
+    n = arrays[0].n_gyros
+    found = [[a for a in arrays if a.timing_explained[g] > 0] for g in range(n)]
+    if not any(found):
+        print("timing: no delay found in any session")
+        return
+    print(f"{'gyro':>5} {'sessions':>9} {'tones Hz (first session)':>26} {'delay std ms':>13} {'mean ms':>8} "
+          f"{'explained':>10}")
+    for g in range(n):
+        if g == arrays[0].reference:
+            continue
+        f = found[g]
+        tones = ", ".join(f"{x:.4g}" for x in f[0].timing_tones_hz[g]) if f else ""
+        std = np.mean([a.timing_delay_std_s[g] for a in f]) * 1e3 if f else 0.0
+        mean = np.mean([a.timing_delay_s[g] for a in f]) * 1e3 if f else 0.0
+        expl = np.mean([a.timing_explained[g] for a in f]) if f else 0.0
+        print(f"{g + 1:>5} {len(f):>5d}/{len(arrays):<3d} {tones:>26} {std:13.3f} {mean:8.4f} {100 * expl:9.0f}%")
 
 
 def simulated_array(k: int, n: int, configuration: str) -> dict:
@@ -130,11 +155,12 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=20, help="simulated arrays per case")
     ap.add_argument("--linear-map", nargs="+", default=["rigid", "auto"], help="linear_map values for the MIMU part")
+    ap.add_argument("--timing-model", nargs="+", default=["auto"], help="timing_model values for the MIMU part")
     ap.add_argument("--no-mimu", action="store_true")
     ap.add_argument("--no-sim", action="store_true")
     a = ap.parse_args(argv)
     if not a.no_mimu:
-        mimu(a.linear_map)
+        mimu(a.linear_map, a.timing_model)
     if not a.no_sim:
         simulations(a.runs)
     return 0

@@ -364,11 +364,12 @@ class Options(FrozenOptions):
         "--noise-model", choices=NOISE_MODELS,
         help="noise when --noise-std is not given: identify (Allan fit of the residual, default) or residual")
     timing_model: str = _option(
-        "auto", _choice(TIMING_MODELS), {"pair"},
+        "auto", _choice(TIMING_MODELS), {"pair"} | _JOINT,
         "Inter-sensor timing beyond the constant offset (:mod:`~fusion_gyrocal.pipeline.timing`). ``'auto'`` "
         "(default): the delay of gyro 2's samples that follows the beat of each chip's sampling clock against the "
         "read-out, found in the residual along the rate's derivative, compensated when it explains far more than "
-        "noise would, and the pair calibrated again; ``'off'``: one constant offset only.",
+        "noise would, and the pair calibrated again (for N gyros: every gyro's delay against the reference, from "
+        "its pair's residual, and the array calibrated again); ``'off'``: one constant offset only.",
         "--timing-model", choices=TIMING_MODELS,
         help="delay beyond the constant offset: auto (beat tones of the chips' clocks, default) or off")
     flex_rejection: object = _option(

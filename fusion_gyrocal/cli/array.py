@@ -42,5 +42,24 @@ def calibrate_recordings(streams, args):
     o = array_options(args, len(streams), streams[0].rate_hz)
     cal = calibrate_streams([st.t for st in streams], [st.masked_omega for st in streams], o)
     notes = ["joint calibration: no flex/outlier gate (Eq. 42 is per pair); calibrate a suspect gyro against gyro 1 "
-             "as a pair to see its rigidity figures"]
+             "as a pair to see its rigidity figures", timing_line(cal, o.timing_model)]
     return cal, notes
+
+
+def timing_line(cal, timing_model: str) -> str:
+    """One line on every gyro's delay against the reference beyond its time offset
+    (:attr:`~fusion_gyrocal.core.array_result.ArrayCalibration.timing_delay_s`): std, mean and beat tones where one
+    was compensated, what was not found otherwise."""
+    ref = cal.reference + 1
+    if timing_model == "off":
+        return f"timing: --timing-model off, no delay beyond each gyro's time offset against gyro {ref} modelled"
+    found = [k for k in range(cal.n_gyros) if cal.timing_explained[k] > 0]
+    if not found:
+        return f"timing: no delay beyond the time offsets against gyro {ref} found in any gyro's residual"
+    parts = [(f"gyro {k + 1} std {cal.timing_delay_std_s[k] * 1e3:.3g} ms, mean {cal.timing_delay_s[k] * 1e3:+.3g} ms, "
+              f"tones {', '.join(f'{f:.4g}' for f in cal.timing_tones_hz[k])} Hz" if cal.timing_tones_hz[k]
+              else f"gyro {k + 1} constant {cal.timing_delay_s[k] * 1e3:+.3g} ms")
+             + f" ({100 * cal.timing_explained[k]:.0f}% of its residual)" for k in found]
+    rest = [k + 1 for k in range(cal.n_gyros) if k not in found and k != cal.reference]
+    return (f"timing: delays against gyro {ref} beyond the time offsets, compensated: " + "; ".join(parts)
+            + (f"; none found for gyro(s) {', '.join(map(str, rest))}" if rest else ""))

@@ -834,7 +834,7 @@ def _residual_rms(R, s, Sc, dof, noise, k=None, reference: int = 0):
 
 
 def calibrate_array(omegas, options: Options | None = None, *, reference: int = 0, mask=None,
-                    rate_hz: float | None = None, **keywords) -> ArrayCalibration:
+                    rate_hz: float | None = None, t=None, **keywords) -> ArrayCalibration:
     """Jointly calibrate N rigidly mounted gyroscopes from sample-aligned angular rates.
 
     Parameters
@@ -860,13 +860,23 @@ def calibrate_array(omegas, options: Options | None = None, *, reference: int = 
             least-squares residuals (three-cornered hat), which also carry every model error.
         ``flex_rejection``
             Accepted and without effect: the joint calibration has no flex gate (Eq. 42 is per pair).
+        ``timing_model``
+            ``"auto"`` (default): every gyro's delay against the reference beyond the time offset, found in its
+            pair's residual (:func:`~fusion_gyrocal.pipeline.timing.estimate_timing`: the beat of each chip's
+            sampling clock against the read-out, or a constant group delay), compensated, and the array
+            calibrated again; ``"off"``: none.
     reference : int
         Index of the reference gyro.
     mask : array_like of bool (n_samples,), optional
         Samples to use (e.g. False where any gyro saturates).
     rate_hz : float, optional
         Sample rate (Hz): windows of about a second for the noise model and the block-robust covariance
-        (:func:`~fusion_gyrocal.core.moments.window_samples`; per sample without it).
+        (:func:`~fusion_gyrocal.core.moments.window_samples`; per sample without it). Taken from ``t`` when
+        only ``t`` is given.
+    t : array_like (n_samples,), optional
+        The samples' instants (s, one clock, strictly increasing): the timing model's time base. Default: the
+        sample index over ``rate_hz``, or the sample index without it (delays then in samples, tones in cycles per
+        sample).
     **keywords
         Fields of :class:`~fusion_gyrocal.options.Options` (``noise_std``, ``gauge``, ``bias_window``, ...),
         applied on top of ``options``.
@@ -892,6 +902,9 @@ def calibrate_array(omegas, options: Options | None = None, *, reference: int = 
     o = Options.of(options, gyros=len(rates), **keywords).require("array", "calibrate_array")
     if isinstance(reference, bool) or not (isinstance(reference, (int, np.integer)) and 0 <= reference < len(rates)):
         raise OptionError(f"reference: expected a gyro index in [0, {len(rates)}), got {reference!r}")
+    given, clock = o, _time_base(t, len(rates[0]), rate_hz)
+    if rate_hz is None and t is not None:
+        rate_hz = (len(clock) - 1) / (clock[-1] - clock[0])
     if o.bias_window is None:
         moments = ArrayMoments.from_samples(rates, mask=mask)
     else:
@@ -903,7 +916,10 @@ def calibrate_array(omegas, options: Options | None = None, *, reference: int = 
         noise_std, source = _identified_noise(rates, moments, reference, mask, rate_hz)
         if noise_std is not None:
             o = o.replace(noise_std=noise_std)
-    return solve_array(moments, o, reference=reference, windows=windows, noise_source=source)
+    cal = solve_array(moments, o, reference=reference, windows=windows, noise_source=source)
+    if given.timing_model == "auto":
+        cal = _with_timing(cal, rates, mask, clock, given, rate_hz)
+    return cal
 
 
 def _identified_noise(rates, moments: ArrayMoments, reference: int, mask, rate_hz):
@@ -930,3 +946,80 @@ def _identified_noise(rates, moments: ArrayMoments, reference: int, mask, rate_h
     kind = max(set(kinds), key=kinds.count)
     return noise, (f"identified from each gyro's pair with the reference (core/noise.py; residuals mostly "
                    f"'{kind}'), the reference's the median over its {n - 1} pairs")
+
+
+# ---------------------------------------------------------------------------------------- inter-sensor timing
+def _time_base(t, n: int, rate_hz) -> np.ndarray:
+    """The samples' instants for the timing model: ``t`` checked, else the sample index (over ``rate_hz``)."""
+    if t is None:
+        index = np.arange(n, dtype=float)
+        return index if rate_hz is None else index / float(rate_hz)
+    clock = np.asarray(t, dtype=float)
+    if clock.shape != (n,):
+        raise InputError(f"t: expected shape ({n},) (one instant per sample), got {clock.shape}")
+    if not np.all(np.isfinite(clock)) or np.any(np.diff(clock) <= 0):
+        raise InputError("t: expected finite, strictly increasing instants (s), got "
+                         + ("non-finite values" if not np.all(np.isfinite(clock)) else
+                            f"a step of {np.min(np.diff(clock)):.3g} s at sample "
+                            f"{int(np.argmin(np.diff(clock))) + 1}"))
+    return clock
+
+
+def _with_timing(cal: ArrayCalibration, rates, mask, t, given: Options, rate_hz) -> ArrayCalibration:
+    """The array calibrated again on every gyro's samples moved to the instants the reference's describe, where
+    its pair's residual shows a delay against the reference (:func:`~fusion_gyrocal.pipeline.timing.estimate_timing`
+    on ``omega_ref - A_j omega_j - bias_j`` of the joint estimate: the beat tones of the two chips' sampling clocks
+    against the read-out, or a constant group delay); ``cal`` as it is otherwise.
+
+    A gyro is moved only when the move lowers its pair's residual at the joint estimate, and the new calibration is
+    kept only when it lowers the gyros' residuals against the common rate (the pair pipeline's rule). Every gyro then
+    describes the reference's sampling instants, so the pairs without the reference are consistent as well.
+    """
+    from ..pipeline.timing import estimate_timing
+
+    n, ref = len(rates), cal.reference
+    ok = np.ones(len(t), bool) if mask is None else mask
+    k = cal.cross_axis_terms if "full" in cal.linear_map else None
+    moved, models = list(rates), {}
+    for j in range(n):
+        if j == ref:
+            continue
+        A = _pair_map(cal.R_ref_k, cal.scale, k, ref, ref, j)
+        model = estimate_timing(t, rates[ref], rates[j], A, cal.bias[j], ok)
+        if not model.significant:
+            continue
+        w = np.where(ok[:, None], rates[j], np.nan)      # the derivative one-sided beside an unused sample
+        w_moved = model.compensate(t, w)
+        before, after = (float(np.mean(np.square(rates[ref][ok] - x[ok] @ A.T - cal.bias[j]))) for x in (w, w_moved))
+        if after < before:
+            moved[j], models[j] = w_moved, model
+    if not models:
+        return cal
+    again = calibrate_array(moved, given.replace(timing_model="off"), reference=ref, mask=mask, rate_hz=rate_hz, t=t)
+    if float(np.sum(again.residual_rms ** 2)) >= float(np.sum(cal.residual_rms ** 2)):
+        return cal                    # the compensation did not explain the residuals better: kept as it was
+    tones, mean, std, explained = [()] * n, np.zeros(n), np.zeros(n), np.zeros(n)
+    for j, model in models.items():
+        delay = model.delay(t[ok])
+        tones[j], mean[j], std[j], explained[j] = model.tones_hz, delay.mean(), delay.std(), model.explained
+    return dataclasses.replace(again, timing_tones_hz=tuple(tones), timing_delay_s=mean, timing_delay_std_s=std,
+                               timing_explained=explained,
+                               notes=again.notes + (_timing_note(cal, again, models, mean, std, rate_hz),))
+
+
+def _timing_note(before: ArrayCalibration, after: ArrayCalibration, models, mean, std, rate_hz) -> str:
+    """What the timing model found and did, per gyro, with the residuals before and after."""
+    unit = ("Hz", "ms", 1e3) if rate_hz is not None else ("cycles/sample", "samples", 1.0)
+    parts = []
+    for j, model in sorted(models.items()):
+        tones = ", ".join(f"{f:.4g}" for f in model.tones_hz)
+        shape = (f"beat tone(s) at {tones} {unit[0]}, std {std[j] * unit[2]:.3g} {unit[1]}, mean" if tones
+                 else "constant (a filter's group delay?):")
+        parts.append(f"gyro {j + 1} {shape} {mean[j] * unit[2]:.3g} {unit[1]}, {100 * model.explained:.0f}% of its "
+                     f"pair's residual energy")
+    rms = "; ".join(f"gyro {j + 1} {np.rad2deg(before.residual_rms[j]):.4g} -> {np.rad2deg(after.residual_rms[j]):.4g}"
+                    for j in range(len(mean)))
+    return (f"inter-sensor timing: delays against the reference gyro {before.reference + 1} beyond the time offset "
+            f"(each chip's sampling clock against the read-out): {'; '.join(parts)}; those gyros' samples were moved "
+            "to the instants the reference's describe and the array calibrated again: residual RMS per axis (deg/s) "
+            f"{rms} (timing_model='off': no delay beyond the time offset)")

@@ -28,14 +28,15 @@ if TYPE_CHECKING:
 
 ARRAY_KIND = "array_calibration"
 #: Format of :meth:`ArrayCalibration.to_dict` (``kind`` tells it from a pair's JSON).
-ARRAY_FORMAT_VERSION = "1.1"
+ARRAY_FORMAT_VERSION = "1.2"
 #: Versions :meth:`ArrayCalibration.from_dict` reads (1.1 adds the cross-axis fields, ``nominal_R_ref_k``,
 #: ``provenance`` and the derived ``rotations``, ``relative_scale``, ``deviation`` entries, which are recomputed on
-#: reading).
-ARRAY_READABLE_VERSIONS = ("1.0", ARRAY_FORMAT_VERSION)
+#: reading; 1.2 the timing fields ``timing_tones_hz``, ``timing_delay_s``, ``timing_delay_std_s``,
+#: ``timing_explained``, read as "no delay found" from earlier files).
+ARRAY_READABLE_VERSIONS = ("1.0", "1.1", ARRAY_FORMAT_VERSION)
 _ARRAY_FIELDS = ("R_ref_k", "scale", "bias", "scale_observable", "covariance", "snr", "noise_std", "residual_rms",
                  "time_offset_s", "time_offset_std_s", "cross_axis_terms", "cross_axis_covariance", "cross_axis_chi2",
-                 "skew_rotation_covariance")
+                 "skew_rotation_covariance", "timing_delay_s", "timing_delay_std_s", "timing_explained")
 
 
 def _json_ready(v):
@@ -132,6 +133,18 @@ class ArrayCalibration:
         between any two gyros carries its own pair's budget, as far as a covariance can); zero with the rigid
         model. Two sessions of one
         board share it, so their difference cancels it.
+    timing_tones_hz : tuple of tuple of float (N,)
+        Beat tones of every gyro's delay against the reference beyond the time offset
+        (:mod:`~fusion_gyrocal.pipeline.timing`, from its pair's residual; Hz, cycles per sample without a time
+        base); empty where none was found (a constant delay may still be). Every gyro with a delay had its samples
+        moved to the instants the reference's describe before the final solve.
+    timing_delay_s : ndarray (N,)
+        Mean of every gyro's delay beyond the time offset (s; samples without a time base); 0 for the reference
+        and where no delay was found.
+    timing_delay_std_s : ndarray (N,)
+        Standard deviation of that delay over the samples used (s; samples without a time base).
+    timing_explained : ndarray (N,)
+        Fraction of its pair's residual energy the delay explained; 0 where none was found or compensated.
     """
 
     R_ref_k: np.ndarray
@@ -166,21 +179,27 @@ class ArrayCalibration:
     cross_axis_chi2: np.ndarray | None = None
     cross_axis_dof: tuple | None = None
     skew_rotation_covariance: np.ndarray | None = None
+    timing_tones_hz: tuple | None = None
+    timing_delay_s: np.ndarray | None = None
+    timing_delay_std_s: np.ndarray | None = None
+    timing_explained: np.ndarray | None = None
 
     def __post_init__(self):
         n = np.asarray(self.scale).shape[0]
         defaults = {"linear_map": tuple("" if k == self.reference else "rigid" for k in range(n)),
                     "cross_axis_terms": np.zeros((n, 3)), "cross_axis_covariance": np.zeros((3 * n, 12 * n)),
                     "cross_axis_chi2": np.full(n, np.nan), "cross_axis_dof": (0,) * n,
-                    "skew_rotation_covariance": np.zeros((3 * n, 3 * n))}
+                    "skew_rotation_covariance": np.zeros((3 * n, 3 * n)), "timing_tones_hz": ((),) * n,
+                    "timing_delay_s": np.zeros(n), "timing_delay_std_s": np.zeros(n), "timing_explained": np.zeros(n)}
         for name, value in defaults.items():
             if getattr(self, name) is None:
                 object.__setattr__(self, name, value)
-        for name in ("linear_map", "cross_axis_dof"):
+        for name in ("linear_map", "cross_axis_dof", "timing_tones_hz"):
             if len(getattr(self, name)) != n:
                 raise InputError(f"{name}: expected {n} entries, got {len(getattr(self, name))}")
         object.__setattr__(self, "linear_map", tuple(str(x) for x in self.linear_map))
         object.__setattr__(self, "cross_axis_dof", tuple(int(x) for x in self.cross_axis_dof))
+        object.__setattr__(self, "timing_tones_hz", tuple(tuple(float(f) for f in row) for row in self.timing_tones_hz))
         if self.time_offset_s is None:
             object.__setattr__(self, "time_offset_s", np.zeros(n))
         if self.time_offset_std_s is None:
@@ -194,7 +213,8 @@ class ArrayCalibration:
                   "covariance": (9 * n, 9 * n), "snr": (3,), "noise_std": (n,), "residual_rms": (n,),
                   "time_offset_s": (n,), "time_offset_std_s": (n,), "cross_axis_terms": (n, 3),
                   "cross_axis_covariance": (3 * n, 12 * n), "cross_axis_chi2": (n,),
-                  "skew_rotation_covariance": (3 * n, 3 * n)}
+                  "skew_rotation_covariance": (3 * n, 3 * n), "timing_delay_s": (n,), "timing_delay_std_s": (n,),
+                  "timing_explained": (n,)}
         for name, shape in shapes.items():
             arr = np.array(getattr(self, name), dtype=bool if name == "scale_observable" else np.float64)
             if arr.shape != shape:
@@ -357,6 +377,16 @@ class ArrayCalibration:
             notes += (f"R_1_2 in the pair's symmetric cross-axis convention differs from R_ref_k[{i}]^T R_ref_k[{j}] "
                       f"by {np.rad2deg(shift) * 1e3:.3g} mdeg (the antisymmetric part of S^-1 K S: |K| x dscale)",)
         tested = ref in (i, j)
+        timing = {}
+        if tested and self.timing_explained[i + j - ref] > 0:   # gyro 2's delay against gyro 1: the other's, signed
+            other, sign = i + j - ref, (1.0 if i == ref else -1.0)
+            timing = dict(timing_tones_hz=self.timing_tones_hz[other],
+                          timing_delay_s=float(sign * self.timing_delay_s[other]),
+                          timing_delay_std_s=float(self.timing_delay_std_s[other]),
+                          timing_explained=float(self.timing_explained[other]))
+        elif np.any(self.timing_explained[[i, j]] > 0):
+            notes += ("both gyros' samples were moved to the instants the reference's describe (timing_delay_s of "
+                      "the joint calibration); the view's own timing fields hold only a pair with the reference",)
         return PairCalibration(
             R_1_2=Rv, scale_1=s1, scale_2=s2, bias=m.mean_1 - A @ m.mean_2,
             configuration=self.configurations[i][j], scale_observable=obs, covariance=cov,
@@ -373,7 +403,7 @@ class ArrayCalibration:
             cross_axis_covariance=P[9:, 9:] if full else np.zeros((3, 3)),
             cross_axis_chi2=float(self.cross_axis_chi2[i + j - ref]) if tested else float("nan"),
             cross_axis_dof=int(self.cross_axis_dof[i + j - ref]) if tested else 0,
-            notes=notes + self.notes)
+            notes=notes + self.notes, **timing)
 
     # ------------------------------------------------------------------ serialisation
     def to_dict(self) -> dict:
@@ -386,7 +416,10 @@ class ArrayCalibration:
                "convention": "omega_ref = R_ref_k[k] @ omega_k; omega_k_meas = diag(scale[k]) omega_k + b_k; "
                              "where linear_map[k] is 'full', omega_ref_meas = (I + K_k) diag(scale[ref]) R_ref_k[k] "
                              "diag(scale[k])^-1 omega_k_meas + bias[k], K_k the symmetric zero-diagonal matrix of "
-                             "cross_axis_terms[k] = (xy, yz, zx); time_offset_s[k] is added to gyro k's timestamps",
+                             "cross_axis_terms[k] = (xy, yz, zx); time_offset_s[k] is added to gyro k's timestamps; "
+                             "where timing_explained[k] > 0, gyro k's samples were moved to the instants the "
+                             "reference's describe (omega_k + d(omega_k)/dt delay_k(t), mean timing_delay_s[k]) "
+                             "before the solve",
                "covariance_order": "[dtheta_0..dtheta_N-1, scale_0..scale_N-1, bias_0..bias_N-1], 3 entries each"}
         for f in fields(self):
             v = getattr(self, f.name)
@@ -474,7 +507,7 @@ class ArrayCalibration:
                 v = tuple(tuple((int(g), int(a)) for g, a in group) for group in v)
             elif f.name == "configurations":
                 v = tuple(tuple(str(c) for c in row) for row in v)
-            elif f.name in ("notes", "time_offset_source", "linear_map", "cross_axis_dof"):
+            elif f.name in ("notes", "time_offset_source", "linear_map", "cross_axis_dof", "timing_tones_hz"):
                 v = tuple(v)
             elif f.name == "covariance_kind":
                 v = CovarianceBasis.read(v, "array calibration")

@@ -7,7 +7,8 @@ saturated and non-finite samples are masked (:func:`~fusion_gyrocal.pipeline.str
 otherwise each gyro's offset estimated or ``time_offset_s``, resampled onto gyro 1's timestamps or a
 ``rate_hz`` grid), ``max_rate`` drops samples as in the pair pipeline
 (:func:`~fusion_gyrocal.pipeline.selection.informative_mask`), and the kept samples are calibrated
-jointly (:func:`~fusion_gyrocal.core.array.calibrate_array`, gyro 1 the reference).
+jointly (:func:`~fusion_gyrocal.core.array.calibrate_array`, gyro 1 the reference, on the grid's instants: every
+gyro's delay beyond its offset, from its pair's residual with gyro 1, is compensated there, ``timing_model``).
 
 Unlike the pair pipeline there is no flex gate (Eq. 42 is per pair) and no check of the rates' unit
 (``max_plausible_rate``): neither applies here, and setting them is refused.
@@ -99,6 +100,6 @@ def calibrate_streams(ts, omegas, options: Options | None = None, **keywords) ->
     # what aligned and masked the samples is done: the joint solve gets the rest
     joint = o.replace(**{name: getattr(Options(gyros=n), name) for name in applying_to("streams")
                          if name not in applying_to("array")})
-    cal = calibrate_array(aligned.omegas, joint, mask=mask, rate_hz=grid_rate(aligned.t))
+    cal = calibrate_array(aligned.omegas, joint, mask=mask, rate_hz=grid_rate(aligned.t), t=aligned.t)
     return dataclasses.replace(cal, time_offset_s=aligned.time_offset_s, time_offset_std_s=aligned.time_offset_std_s,
                                time_offset_source=aligned.time_offset_source, notes=cal.notes + aligned.notes)
