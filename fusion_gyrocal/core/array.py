@@ -34,6 +34,13 @@ reference at the joint rigid estimate, then the full map for every gyro once any
 ``"full"``), with the pair's prior ``N(0, cross_axis_std^2)`` on each term and its budget for the antisymmetric
 part no data see, for every pair of gyros (:func:`_cross_budget`).
 
+Inter-sensor timing (``timing_model``, :mod:`~fusion_gyrocal.pipeline.timing`): each chip samples on its own clock,
+so beyond any constant offset gyro j's samples lag the reference's by a delay that follows the beat tones of the two
+chips' clocks against the read-out (or a constant group delay). :func:`calibrate_array` finds every gyro's delay in its
+pair's residual at the joint estimate, moves its samples to the instants the reference's describe (first order: the
+rate plus its derivative times the delay) and calibrates the array again; every gyro then describes the same
+instants, so the pairs without the reference are consistent too.
+
 Unknowns are the rotations of every non-reference gyro, the log scale factors of every gyro (and the
 cross-axis terms ``k_j``); the scale factors are determined only up to one common factor per group of linked axes
 (Theorem 2; for axis-parallel gyros, Lemma 2, one group per axis). The minimisation is Fisher
