@@ -173,7 +173,8 @@ def parallel_tilt_bias(A, R, s1, s2, config: Configuration, rotation_variance) -
     parallel axes, ``theta`` the tilt) and ``delta = log(c_i / c_j)`` for the gauge's error between two axes:
     ``G = S_1^-1 A S_2 P^T`` is then ``C Exp(theta) C^-1``, so about the third axis ``k`` the fit's tilt is
     ``theta' = theta cosh(delta)`` (the antisymmetric part of ``G``) and the symmetric part left unexplained is
-    ``e = -theta sinh(delta)``. The tilt is overstated by ``theta' - sqrt(theta'^2 - e^2)``
+    ``e = -theta sinh(delta)`` (to first order in the tilt; ``e`` is read from ``G Exp(theta')^T``, which holds
+    none of the tilt's own second-order terms). The tilt is overstated by ``theta' - sqrt(theta'^2 - e^2)``
     (``~ theta delta^2 / 2``: second order, but not averaged away by more samples). ``e^2`` is taken above its
     noise (``rotation_variance``, the variances of the rotation about each axis, which ``e`` shares), so a pair
     that is exactly parallel, or whose axes share one factor, gets nothing. Other configurations: zeros.
@@ -195,9 +196,13 @@ def parallel_tilt_bias(A, R, s1, s2, config: Configuration, rotation_variance) -
         P[i, j] = np.sign(R[i, j])
     if abs(abs(np.linalg.det(P)) - 1.0) > 1e-9:
         return np.zeros(3)
+    from ..lie import log
+
     G = (np.asarray(A, dtype=float) * (np.asarray(s2, dtype=float)[None, :] / np.asarray(s1, dtype=float)[:, None])) @ P.T
-    theta = 0.5 * np.array([G[2, 1] - G[1, 2], G[0, 2] - G[2, 0], G[1, 0] - G[0, 1]])
-    sym = 0.5 * np.array([G[2, 1] + G[1, 2], G[0, 2] + G[2, 0], G[1, 0] + G[0, 1]])
+    Q = np.asarray(R, dtype=float) @ P.T               # the fit's tilt Exp(theta')
+    theta = log(Q)
+    E = G @ Q.T                                        # the misfit relative to it (the tilt's own terms removed)
+    sym = 0.5 * np.array([E[2, 1] + E[1, 2], E[0, 2] + E[2, 0], E[1, 0] + E[0, 1]])
     e2 = np.clip(sym ** 2 - np.asarray(rotation_variance, dtype=float), 0.0, None)
     return np.abs(theta) - np.sqrt(np.clip(theta ** 2 - e2, 0.0, None))
 
