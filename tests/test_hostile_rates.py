@@ -35,9 +35,18 @@ def test_calibrate_pair_fast_gyro_1_filtered_onto_gyro_2s_rate_and_said():
     cal = calibrate_pair(s.omega_1, s.omega_2, t_1=s.t_1, t_2=s.t_2)
     assert cal.n_samples < 8.0 * 50.0 * 1.01               # solved on gyro 2's rate, not on 40,000 samples
     assert any("low-pass filtered onto a grid at gyro 2's rate" in n for n in cal.notes)
-    kept = calibrate_pair(s.omega_1, s.omega_2, t_1=s.t_1, t_2=s.t_2, noise_std=1.75e-3)   # per grid sample:
-    assert kept.n_samples > 8.0 * 5000.0 * 0.9              # the grid stays gyro 1's instants
+    given = calibrate_pair(s.omega_1, s.omega_2, t_1=s.t_1, t_2=s.t_2, noise_std=1.75e-3)
+    assert given.noise_std == pytest.approx([1.75e-3 * np.sqrt(50.0 / 5000.0), 1.75e-3], rel=0.01)
+    assert any("noise_std referred to that grid" in n for n in given.notes)
+    kept = calibrate_pair(s.omega_1, s.omega_2, t_1=s.t_1, t_2=s.t_2, bias_window=5000)   # per grid sample:
+    assert kept.n_samples > 8.0 * 5000.0 * 0.5              # the grid stays gyro 1's instants
     assert not any("low-pass" in n for n in kept.notes)
+
+
+def test_calibrate_pair_two_rates_given_noise_covariance_covers_the_error():
+    z2 = [_z2(calibrate_pair(s.omega_1, s.omega_2, t_1=s.t_1, t_2=s.t_2, noise_std=1.75e-3), s.R_1_2)
+          for s in (simulate_streams(seed, rate_1=5000.0, rate_2=50.0, duration=8.0) for seed in range(30))]
+    assert 0.75 <= np.mean(z2) <= 6.0
 
 
 def test_calibrate_pair_similar_rates_keep_gyro_1s_instants():

@@ -149,7 +149,8 @@ def prepare_samples(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options:
         mask = pair.valid
         notes = () if o.rate_hz == Options.of(options).rate_hz else (
             f"gyro 1 ({_mean_rate(t_1):.5g} Hz) was low-pass filtered onto a grid at gyro 2's rate ({o.rate_hz:.5g} "
-            "Hz): interpolated onto gyro 1's instants, gyro 2's noise would be correlated over many of them",)
+            "Hz): interpolated onto gyro 1's instants, gyro 2's noise would be correlated over many of them"
+            + ("" if o.noise_std is None else "; gyro 1's noise_std referred to that grid (x sqrt(f_2 / f_1))"),)
     else:
         timing = sorted(set(o.to_dict()) & set(TIMESTAMP_OPTIONS))
         if timing:
@@ -217,7 +218,7 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
 
 
 #: Options counted per sample of the grid: given, the grid stays gyro 1's timestamps (:func:`slow_grid`)
-PER_SAMPLE_OPTIONS = ("noise_std", "bias_window", "bias_walk_std")
+PER_SAMPLE_OPTIONS = ("bias_window", "bias_walk_std")
 
 
 def _same_instants(t_1, t_2) -> bool:
@@ -244,9 +245,11 @@ def slow_grid(t_1, t_2, o: Options) -> Options:
     ~7x too small at 10 kHz against 100 Hz). On a grid at gyro 2's rate, gyro 2 is resampled at about its own
     rate (its noise stays white) and gyro 1 is low-pass filtered onto it
     (:func:`~fusion_gyrocal.pipeline.resample._antialiased`): its noise averages down, the motion both can see
-    passes unchanged, and the pair is solved on ``f_2 / f_1`` of the samples. Left as it is with ``rate_hz``
-    given, for sample-aligned input, and with options counted per grid sample (:data:`PER_SAMPLE_OPTIONS`):
-    their meaning would change with the grid.
+    passes unchanged, and the pair is solved on ``f_2 / f_1`` of the samples. A given ``noise_std`` (per sample of
+    each gyro) is referred to that grid: gyro 1's becomes ``sigma_1 sqrt(f_2 / f_1)``, the white noise per grid
+    sample with the low-frequency density the filter keeps. Left as it is with ``rate_hz`` given, for
+    sample-aligned input, and with options counted per grid sample (:data:`PER_SAMPLE_OPTIONS`): their meaning
+    would change with the grid.
     """
     from .resample import DECIMATE_RATIO
 
@@ -259,7 +262,11 @@ def slow_grid(t_1, t_2, o: Options) -> Options:
         return o           # the alignment refuses such timestamps, naming them
     if not (np.isfinite(f1) and np.isfinite(f2) and f1 >= DECIMATE_RATIO * f2):
         return o
-    return o.replace(rate_hz=f2)
+    if o.noise_std is None:
+        return o.replace(rate_hz=f2)
+    from ..core.moments import noise_pair
+    s1, s2 = noise_pair(o.noise_std)
+    return o.replace(rate_hz=f2, noise_std=(s1 * float(np.sqrt(f2 / f1)), s2))
 
 
 def _unclipped(w1, w2, mask, limits):
