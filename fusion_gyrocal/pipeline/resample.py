@@ -330,7 +330,10 @@ def noise_factors(t_src, t_query, *, max_points: int = 1 << 16, block: int = 64,
     if q.size < 4 * block or t.size < 16:
         return 1.0, 1.0, 1.0, 1
     mid = q.size // 2
-    ratio = _query_period(q) / _nominal_period(t)
+    period = _nominal_period(t)
+    ratio = _query_period(q) / period if period > 0 else float("nan")
+    if not np.isfinite(ratio):
+        ratio = 1.0
     if ratio > 1.0:       # queries sparser than the samples: at most _MAX_SOURCE samples of noise behind them
         max_points = max(min(max_points, int(_MAX_SOURCE / ratio)), 16 * block)
     q = q[max(mid - max_points // 2, 0):mid + max_points // 2]
