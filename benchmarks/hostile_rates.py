@@ -8,7 +8,7 @@ Monte Carlo studies through :func:`fusion_gyrocal.calibrate_pair`, seeded:
 * near-parallel axes with the rigid model forced: a 4 deg tilt from axis-parallel, scale factors 5 % apart.
 
 Per study: the mean z^2 of the rotation error under the reported covariance (3 for an exact one; the
-benchmark calls it covered within [0.75, 6]), the RMSE of the rotation and the bound (the RMS of the reported
+benchmark calls it covered within [0.75, 6], over-conservative below), the RMSE of the rotation and the bound (the RMS of the reported
 std), both in mrad, and the seconds per run. ``PYTHONPATH=<other checkout>`` measures another checkout (main
 before the fixes). Usage: ``python benchmarks/hostile_rates.py [runs]`` (default 30).
 """
@@ -32,7 +32,7 @@ warnings.simplefilter("ignore")
 
 def _row(name, runs, z2, err, var, seconds):
     z2, err, var = np.array(z2), np.array(err), np.array(var)
-    covered = "covered" if 0.75 <= z2.mean() <= 6.0 else "NOT covered"
+    covered = "NOT covered" if z2.mean() > 6.0 else "covered" if z2.mean() >= 0.75 else "over-conservative"
     print(f"{name:<44} {runs:>4} {z2.mean():>9.3g} {np.median(z2):>9.3g} {1e3 * np.sqrt(np.mean(err)):>10.4g} "
           f"{1e3 * np.sqrt(np.mean(var)):>10.4g} {seconds / runs:>7.2f}  {covered}")
 

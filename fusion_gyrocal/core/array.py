@@ -240,8 +240,8 @@ def as_array_rates(omegas) -> list[np.ndarray]:
 
 
 def check_distinct(names, rates) -> None:
-    """Refuse the same stream given for two gyros: bit-identical ``rates`` (arrays of any shape) under two of
-    ``names``. Two gyros never give identical samples (their noise differs), so it is one recording passed twice;
+    """Refuse the same stream given for two gyros: bit-identical ``rates`` (arrays of any shape, at least 4
+    samples, not constant: fewer and constant ones have their own messages) under two of ``names``. Two gyros never give identical samples (their noise differs), so it is one recording passed twice;
     the pair it makes has no residual to weigh anything with.
 
     Raises
@@ -256,6 +256,8 @@ def check_distinct(names, rates) -> None:
             arrays[k] = w = np.asarray(w, dtype=np.float64)
         except (TypeError, ValueError):
             continue                       # not numbers: the rates' own check says so
+        if w.ndim == 0 or len(w) < 4 or not np.any(w != w.reshape(-1)[:1]):
+            continue                       # too few samples or constant: their own checks say so
         groups.setdefault((w.shape, w.reshape(-1)[:48].tobytes()), []).append(k)
     same = [(a, b) for g in groups.values() for a, b in itertools.combinations(g, 2)
             if np.array_equal(arrays[a], arrays[b], equal_nan=True)]
