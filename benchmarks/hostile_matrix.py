@@ -295,6 +295,44 @@ for _n in (0, 3, 4, 5, 8):
         return "correct"
 
 
+# ----------------------------------------------------------------------------- 4, 5: honest covariance
+def _mean_z2(pairs) -> float:
+    from fusion_gyrocal.lie import log
+    z2 = []
+    for cal, R in pairs:
+        d = log(R @ cal.R_1_2.T)
+        z2.append(float(d @ np.linalg.solve(cal.covariance[:3, :3], d)))
+    return float(np.mean(z2))
+
+
+@case("4 near-parallel axes", "linear_map='rigid', 4 deg tilt, scales 8 % apart (6 runs)", works=True)
+def _():
+    from fusion_gyrocal.lie import exp
+
+    def run(seed):
+        rng = np.random.default_rng(100 + seed)
+        axis = rng.standard_normal(3)
+        R = exp(np.deg2rad(4.0) * axis / np.linalg.norm(axis))
+        sim = simulate_pair(n=40_000, R_1_2=R, scale_1=1 + 0.08 * rng.standard_normal(3),
+                            scale_2=1 + 0.08 * rng.standard_normal(3), bias_walk_std=0.0, rng=seed)
+        return calibrate_pair(sim.omega_1, sim.omega_2, linear_map="rigid"), R
+    z2 = _mean_z2(run(seed) for seed in range(6))
+    if z2 > 6.0:
+        raise Wrong(f"mean z^2 {z2:.3g} (3 for an honest covariance)")
+    return "correct"
+
+
+for _rates in ((5000.0, 50.0), (50.0, 5000.0)):
+    @case("5 two rates", f"gyro 1 at {_rates[0]:g} Hz, gyro 2 at {_rates[1]:g} Hz (10 runs)", works=True)
+    def _(rates=_rates):
+        z2 = _mean_z2((calibrate_pair(s.omega_1, s.omega_2, t_1=s.t_1, t_2=s.t_2), s.R_1_2)
+                      for s in (simulate_streams(seed, rate_1=rates[0], rate_2=rates[1], duration=8.0)
+                                for seed in range(10)))
+        if z2 > 6.0:
+            raise Wrong(f"mean z^2 {z2:.3g} (3 for an honest covariance)")
+        return "correct"
+
+
 # ----------------------------------------------------------------------------- 8: memory by option or file
 def _streams():
     s = simulate_streams(5, duration=20)
@@ -422,8 +460,22 @@ def _():
 
 @case("10 foreign", "calibrate_array(reference=1.5)")
 def _():
+    sim, other = simulate_pair(n=2000, rng=9), simulate_pair(n=2000, rng=10)
+    fusion_gyrocal.calibrate_array([sim.omega_1, sim.omega_2, other.omega_2], reference=1.5)
+    raise Wrong("accepted")
+
+
+@case("10 foreign", "calibrate_array given the same stream for two gyros")
+def _():
     sim = simulate_pair(n=2000, rng=9)
-    fusion_gyrocal.calibrate_array([sim.omega_1, sim.omega_2, sim.omega_1], reference=1.5)
+    fusion_gyrocal.calibrate_array([sim.omega_1, sim.omega_2, sim.omega_1])
+    raise Wrong("accepted")
+
+
+@case("10 foreign", "calibrate_pair given one stream twice")
+def _():
+    sim = simulate_pair(n=2000, rng=9)
+    calibrate_pair(sim.omega_2, sim.omega_2.copy())
     raise Wrong("accepted")
 
 

@@ -368,7 +368,7 @@ def _vanishing(tmp_path, monkeypatch):
     (_unreadable, FormatError, "could not read: permission denied"),
     (_vanishing, FormatError, "could not read: Input/output error"),
     (lambda tmp, mp: Moments.from_samples(_sim().omega_1, _sim().omega_2, chunk_size=0), OptionError, "chunk_size"),
-    (lambda tmp, mp: calibrate_array([_sim(2000).omega_1, _sim(2000).omega_2, _sim(2000).omega_1], reference=1.5),
+    (lambda tmp, mp: calibrate_array([_sim(2000).omega_1, _sim(2000).omega_2, _sim(2000, 10).omega_2], reference=1.5),
      OptionError, "reference: expected a gyro index"),
     (lambda tmp, mp: _deep_json(tmp), FormatError, "nested too deeply|expected"),
     (lambda tmp, mp: _strings_npz(tmp), FormatError, "expected numeric arrays"),

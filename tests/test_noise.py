@@ -205,16 +205,17 @@ def test_identify_noise_long_log_on_stretches_keeps_the_walk():
 
 
 def test_identify_noise_two_rate_pair_each_sensors_own_density():
-    # gyro 1 at 100 Hz, gyro 2 at 400 Hz spline-resampled onto gyro 1's grid (a fractional offset): the grid's
-    # noise of gyro 2 is aliased (no anti-alias filter) and its per-sample level is not the sensor's; referred
-    # back through the Resampling, both densities are the sensors' own; without it gyro 2's is ~1.9x too large
+    # gyro 1 at 100 Hz, gyro 2 at 300 Hz spline-resampled onto gyro 1's grid (a fractional offset): the grid's
+    # noise of gyro 2 is aliased (3x sparser: below resample.DECIMATE_RATIO, no anti-alias filter) and its
+    # per-sample level is not the sensor's; referred back through the Resampling, both densities are the
+    # sensors' own; without it gyro 2's is ~1.7x too large
     from fusion_gyrocal.evaluate.sim import general_rotation
     from fusion_gyrocal.pipeline.pipeline import run_pipeline
 
     rng = np.random.default_rng(3)
     motion = HumanMotion(0.8, rng=rng)
     R = general_rotation(rng, 15.0)
-    sigma, rates = (0.002, 0.006), (100.0, 400.0)
+    sigma, rates = (0.002, 0.006), (100.0, 300.0)
     t1, t2 = np.arange(0, 150.0, 1 / rates[0]), np.arange(0.0031, 150.0, 1 / rates[1])
     w1 = motion(t1) + rng.normal(0, sigma[0], (t1.size, 3))
     w2 = motion(t2 + 0.0213) @ R + rng.normal(0, sigma[1], (t2.size, 3))

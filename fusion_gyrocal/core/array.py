@@ -246,9 +246,39 @@ def as_array_rates(omegas) -> list[np.ndarray]:
     return rates
 
 
+def check_distinct(names, rates) -> None:
+    """Refuse the same stream given for two gyros: bit-identical ``rates`` (arrays of any shape, at least 4
+    samples, not constant: fewer and constant ones have their own messages) under two of ``names``. Two gyros never give identical samples (their noise differs), so it is one recording passed twice;
+    the pair it makes has no residual to weigh anything with.
+
+    Raises
+    ------
+    InputError
+        Naming every duplicated pair.
+    """
+    arrays: dict = {}
+    groups: dict = {}
+    for k, w in enumerate(rates):          # cheap fingerprint first, full comparison within a group
+        try:
+            arrays[k] = w = np.asarray(w, dtype=np.float64)
+        except (TypeError, ValueError):
+            continue                       # not numbers: the rates' own check says so
+        if w.ndim == 0 or len(w) < 4 or not np.any(w != w.reshape(-1)[:1]):
+            continue                       # too few samples or constant: their own checks say so
+        groups.setdefault((w.shape, w.reshape(-1)[:48].tobytes()), []).append(k)
+    same = [(a, b) for g in groups.values() for a, b in itertools.combinations(g, 2)
+            if np.array_equal(arrays[a], arrays[b], equal_nan=True)]
+    if same:
+        pairs = ", ".join(f"{names[a]} and {names[b]}" for a, b in same)
+        raise InputError(f"{pairs}: expected one stream per gyro, got identical samples (the same recording "
+                         "given twice?)")
+
+
 def _checked_rates(omegas, mask):
-    """The rates of :func:`as_array_rates` and the mask as bool, checked: finite wherever the mask keeps."""
+    """The rates of :func:`as_array_rates` and the mask as bool, checked: finite wherever the mask keeps, no
+    stream given twice (:func:`check_distinct`)."""
     rates = as_array_rates(omegas)
+    check_distinct([f"gyro {k}" for k in range(len(rates))], rates)
     if mask is not None:
         mask = np.asarray(mask, dtype=bool)
         n = rates[0].shape[0]

@@ -164,6 +164,49 @@ def classify(R, parallel_tol_deg: float = 5.0) -> Configuration:
     return _configuration(R, n if n < 2 else 3)
 
 
+def parallel_tilt_bias(A, R, s1, s2, config: Configuration, rotation_variance) -> np.ndarray:
+    """Rotation bias per axis of gyro 1 (rad, >= 0) of the paper's model ``A = S_1 R S_2^-1`` on an
+    ``all_axes_parallel`` pair: what the unknown ratios of the axes' common scale factors do to the tilt.
+
+    With every axis parallel (Lemma 2) only each axis's ratio ``s_1 / s_2`` is determined; the common factor
+    ``c_i`` of each axis is set by the gauge. Write ``R = Exp(theta) P`` (``P`` the signed permutation of the
+    parallel axes, ``theta`` the tilt) and ``delta = log(c_i / c_j)`` for the gauge's error between two axes:
+    ``G = S_1^-1 A S_2 P^T`` is then ``C Exp(theta) C^-1``, so about the third axis ``k`` the fit's tilt is
+    ``theta' = theta cosh(delta)`` (the antisymmetric part of ``G``) and the symmetric part left unexplained is
+    ``e = -theta sinh(delta)`` (to first order in the tilt; ``e`` is read from ``G Exp(theta')^T``, which holds
+    none of the tilt's own second-order terms). The tilt is overstated by ``theta' - sqrt(theta'^2 - e^2)``
+    (``~ theta delta^2 / 2``: second order, but not averaged away by more samples). ``e^2`` is taken above its
+    noise (``rotation_variance``, the variances of the rotation about each axis, which ``e`` shares), so a pair
+    that is exactly parallel, or whose axes share one factor, gets nothing. Other configurations: zeros.
+
+    Parameters
+    ----------
+    A : ndarray (3, 3)
+        The least-squares estimate of ``A`` (Eq. 17).
+    R, s1, s2 : ndarray
+        The rigid model's fit (gauge-fixed scale factors).
+    config : Configuration
+    rotation_variance : ndarray (3,)
+        Variance of the rotation about each axis of gyro 1 (rad^2).
+    """
+    if config.name != CONFIG_ALL:
+        return np.zeros(3)
+    P = np.zeros((3, 3))
+    for i, j, _ in config.parallel_pairs:
+        P[i, j] = np.sign(R[i, j])
+    if abs(abs(np.linalg.det(P)) - 1.0) > 1e-9:
+        return np.zeros(3)
+    from ..lie import log
+
+    G = (np.asarray(A, dtype=float) * (np.asarray(s2, dtype=float)[None, :] / np.asarray(s1, dtype=float)[:, None])) @ P.T
+    Q = np.asarray(R, dtype=float) @ P.T               # the fit's tilt Exp(theta')
+    theta = log(Q)
+    E = G @ Q.T                                        # the misfit relative to it (the tilt's own terms removed)
+    sym = 0.5 * np.array([E[2, 1] + E[1, 2], E[0, 2] + E[2, 0], E[1, 0] + E[0, 1]])
+    e2 = np.clip(sym ** 2 - np.asarray(rotation_variance, dtype=float), 0.0, None)
+    return np.abs(theta) - np.sqrt(np.clip(theta ** 2 - e2, 0.0, None))
+
+
 def seed_configuration(R, name: str, parallel_tol_deg: float | None = None) -> Configuration:
     """The configuration of a seed calibration (rotation ``R``, class ``name``) for the trackers built on it.
 

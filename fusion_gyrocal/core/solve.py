@@ -24,7 +24,7 @@ from .model import BIAS, ROT, PairCalibration, mark_undetermined, scale_ratios
 from .moments import Moments, WindowStats, noise_pair
 from .noise import check_residual_dof
 from .observability import (PRIOR_GAUGE, A_of, check_excitation, check_samples, classify, dA_dp, information_of_A,
-                            per_axis_snr, prior_held_covariance, residual_weight, signal_scatter)
+                            parallel_tilt_bias, per_axis_snr, prior_held_covariance, residual_weight, signal_scatter)
 from .refine import residual_scatter, refine_ml
 from .robust import (MIN_ROBUST_WINDOWS, CovarianceBasis, bias_variance, cross_axis, effective_windows, larger,
                      reported_covariance, sandwich, score_variance, scores_of_A)
@@ -182,8 +182,11 @@ def solve(moments: Moments, options: Options | None = None, *, noise_ratio: floa
     sk = np.asarray(o.skew_std, dtype=float)
     skew_cov = (0.25 * (sk[0] ** 2 + sk[1] ** 2) + budget) * np.eye(3)   # Appendix D: theta ~ (w_1 - C w_2) / 2
     cov[ROT, ROT] += skew_cov
+    tilt = parallel_tilt_bias(A_ls, fit.R, fit.s1, fit.s2, fit.config, np.diag(cov[ROT, ROT])) \
+        if fit.model == "rigid" and fit.rigid else np.zeros(3)
+    cov[ROT, ROT] += np.diag(tilt ** 2)      # the gauge's scale ratios times the tilt (all axes parallel)
     snr = per_axis_snr(moments, noise)
-    notes += _notes(fit, P, snr, budget, o)
+    notes += _notes(fit, P, snr, budget, o) + _tilt_note(tilt, cov[ROT, ROT])
     return PairCalibration(
         R_1_2=fit.R, scale_1=fit.s1, scale_2=fit.s2, bias=bias, configuration=fit.config.name,
         scale_observable=fit.observable, covariance=cov, gauge=_gauge_text(fit, gauge, o), snr=snr,
@@ -386,6 +389,16 @@ def _notes(fit: _Fit, P, snr, budget: float, o: Options) -> list:
         notes.append(f"{fit.config.name}: {pairs}; only the ratio of those scale factors is determined (Lemma "
                      f"{'2' if fit.config.name == 'all_axes_parallel' else '3'}){held}")
     return notes
+
+
+def _tilt_note(tilt, rotation_cov) -> list:
+    """The note on :func:`~fusion_gyrocal.core.observability.parallel_tilt_bias` when it matters (a tenth of the
+    rotation's std or more)."""
+    if not np.any(tilt ** 2 >= 0.01 * np.diag(rotation_cov)):
+        return []
+    return [f"all axes parallel with the paper's model (linear_map='rigid'): the axes' undetermined scale ratios "
+            f"bias the tilt by up to {np.rad2deg(tilt.max()) * 1e3:.3g} mdeg per axis, budgeted in the covariance "
+            "(linear_map='auto' fits the symmetric cross-axis part instead)"]
 
 
 def _gauge_text(fit: _Fit, gauge, o: Options) -> str:

@@ -42,7 +42,8 @@ def calibrate_pair(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: 
         samples are masked, the time offset is estimated by correlating the rate norms and
         refined below one sample (unless ``time_offset_s`` is given), and gyro 2 is resampled
         onto gyro 1's timestamps (or a ``rate_hz`` grid) with cubic splines that never cross
-        a gap (see :mod:`fusion_gyrocal.pipeline.alignment`).
+        a gap (see :mod:`fusion_gyrocal.pipeline.alignment`); a much faster gyro 1 is low-pass filtered onto a
+        grid at gyro 2's rate instead (:func:`slow_grid`).
     mask : array_like of bool (N,), optional
         Samples to use (sample-aligned input only).
     options : Options, optional
@@ -120,10 +121,13 @@ def prepare_samples(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options:
         :class:`~fusion_gyrocal.pipeline.alignment.AlignedPair` (None for sample-aligned input) and what the
         preparation masked, in words (the clipped samples of sample-aligned input).
     """
-    o = Options.of(options)
+    o = slow_grid(t_1, t_2, Options.of(options))
     pair = None
     if (t_1 is None) != (t_2 is None):
         raise InputError("t_1 and t_2: expected both timestamps or neither (sample-aligned input)")
+    if t_1 is None or _same_instants(t_1, t_2):
+        from ..core.array import check_distinct
+        check_distinct(("omega_1", "omega_2"), (omega_1, omega_2))
     if t_1 is not None:
         from .alignment import align_streams
         from .streams import valid_mask
@@ -143,7 +147,10 @@ def prepare_samples(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options:
                              rate_hz=o.rate_hz, valid_1=valid[0], valid_2=valid[1])
         w1, w2 = pair.omega_1, pair.omega_2     # NaN where not valid: every step below reads them through mask
         mask = pair.valid
-        notes = ()
+        notes = () if o.rate_hz == Options.of(options).rate_hz else (
+            f"gyro 1 ({_mean_rate(t_1):.5g} Hz) was low-pass filtered onto a grid at gyro 2's rate ({o.rate_hz:.5g} "
+            "Hz): interpolated onto gyro 1's instants, gyro 2's noise would be correlated over many of them"
+            + ("" if o.noise_std is None else "; gyro 1's noise_std referred to that grid (x sqrt(f_2 / f_1))"),)
     else:
         timing = sorted(set(o.to_dict()) & set(TIMESTAMP_OPTIONS))
         if timing:
@@ -198,8 +205,9 @@ def check_rate_units(w1, w2, mask=None, *, limit: float = 100.0) -> None:
 def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Options | None = None,
                  **keywords) -> PipelineRun:
     """:func:`calibrate_pair` returning its intermediate products too (same parameters)."""
-    o = Options.of(options, **keywords).require("pair", "calibrate_pair")
-    w1, w2, mask, pair, notes = prepare_samples(omega_1, omega_2, t_1=t_1, t_2=t_2, mask=mask, options=o)
+    given = Options.of(options, **keywords).require("pair", "calibrate_pair")
+    w1, w2, mask, pair, notes = prepare_samples(omega_1, omega_2, t_1=t_1, t_2=t_2, mask=mask, options=given)
+    o = slow_grid(t_1, t_2, given)
     resampling = _resampling(t_1, t_2, pair, o)
     run = _calibrate(w1, w2, mask, pair, resampling, o)
     if o.timing_model == "auto" and run.calibration.rigid:
@@ -207,6 +215,58 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
     if notes:
         run = _replace(run, calibration=_replace(run.calibration, notes=run.calibration.notes + notes))
     return run
+
+
+#: Options counted per sample of the grid: given, the grid stays gyro 1's timestamps (:func:`slow_grid`)
+PER_SAMPLE_OPTIONS = ("bias_window", "bias_walk_std")
+
+
+def _same_instants(t_1, t_2) -> bool:
+    """Identical timestamps (False for any that are not numbers: the alignment refuses those)."""
+    try:
+        return bool(np.array_equal(np.asarray(t_1, dtype=np.float64), np.asarray(t_2, dtype=np.float64)))
+    except (TypeError, ValueError):
+        return False
+
+
+def _mean_rate(t) -> float:
+    """Mean sample rate (Hz) of timestamps ``t`` over their finite span (NaN without one)."""
+    t = np.asarray(t, dtype=np.float64).ravel()
+    t = t[np.isfinite(t)]
+    return float((t.size - 1) / (t[-1] - t[0])) if t.size >= 2 and t[-1] > t[0] else float("nan")
+
+
+def slow_grid(t_1, t_2, o: Options) -> Options:
+    """``o`` with ``rate_hz`` at gyro 2's mean rate when gyro 1 samples
+    :data:`~fusion_gyrocal.pipeline.resample.DECIMATE_RATIO` or more times faster; ``o`` otherwise.
+
+    On gyro 1's own instants a much slower gyro 2 is interpolated: its noise is correlated over
+    ``f_1 / f_2`` grid samples, which a white-noise model per sample cannot describe (the covariance came out
+    ~7x too small at 10 kHz against 100 Hz). On a grid at gyro 2's rate, gyro 2 is resampled at about its own
+    rate (its noise stays white) and gyro 1 is low-pass filtered onto it
+    (:func:`~fusion_gyrocal.pipeline.resample._antialiased`): its noise averages down, the motion both can see
+    passes unchanged, and the pair is solved on ``f_2 / f_1`` of the samples. A given ``noise_std`` (per sample of
+    each gyro) is referred to that grid: gyro 1's becomes ``sigma_1 sqrt(f_2 / f_1)``, the white noise per grid
+    sample with the low-frequency density the filter keeps. Left as it is with ``rate_hz`` given, for
+    sample-aligned input, and with options counted per grid sample (:data:`PER_SAMPLE_OPTIONS`): their meaning
+    would change with the grid.
+    """
+    from .resample import DECIMATE_RATIO
+
+    if t_1 is None or t_2 is None or o.rate_hz is not None or any(getattr(o, k) is not None
+                                                                  for k in PER_SAMPLE_OPTIONS):
+        return o
+    try:
+        f1, f2 = _mean_rate(t_1), _mean_rate(t_2)
+    except (TypeError, ValueError):
+        return o           # the alignment refuses such timestamps, naming them
+    if not (np.isfinite(f1) and np.isfinite(f2) and f1 >= DECIMATE_RATIO * f2):
+        return o
+    if o.noise_std is None:
+        return o.replace(rate_hz=f2)
+    from ..core.moments import noise_pair
+    s1, s2 = noise_pair(o.noise_std)
+    return o.replace(rate_hz=f2, noise_std=(s1 * float(np.sqrt(f2 / f1)), s2))
 
 
 def _unclipped(w1, w2, mask, limits):

@@ -1,7 +1,11 @@
-"""Cubic-spline resampling per contiguous run of valid samples, never across a gap.
+"""Cubic-spline resampling per contiguous run of valid samples, never across a gap, with an anti-alias
+filter when the new instants are much sparser than the samples.
 
 The paper (footnote in Section III) notes that resampling "can be done via cubic-spline
-interpolation"; :func:`resample` does it on plain arrays with a validity mask.
+interpolation"; :func:`resample` does it on plain arrays with a validity mask. A stream resampled onto
+instants :data:`DECIMATE_RATIO` or more times sparser than its own samples is first low-pass filtered
+(:func:`_antialiased`), so its white noise above the new Nyquist frequency is averaged away instead of folded
+back onto the motion band.
 """
 
 from __future__ import annotations
@@ -14,6 +18,13 @@ from .streams import DEFAULT_GAP_PERIODS, _nominal_period, _stream, timed_stream
 _GRID_BLOCK = 1 << 16          # grid points per block of a long resampling
 _MARGIN = 40                   # source samples beyond a block's reach: the splines' end conditions act
                                # on a knot k samples away as (2 - sqrt 3)^k, 0.268^40 ~ 1e-23
+#: Instants at least this many times sparser than a stream's samples get the samples low-pass filtered first
+#: (:func:`_antialiased`); below it the spline alone resamples (the noise that folds back is in
+#: :func:`noise_factors`' ``density``).
+DECIMATE_RATIO = 4.0
+_MAX_SOURCE = 1 << 20          # most source samples behind noise_factors' measurement of a downsampling
+_PASS, _STOP = 0.4, 0.5        # the filter's passband and stopband edges, in units of the instants' rate
+_ATTENUATION_DB = 100.0        # stopband attenuation and passband ripple (1e-5) of the Kaiser-window design
 
 
 # ---------------------------------------------------------------------------------------------- resampling
@@ -179,7 +190,9 @@ def resample(t_src, omega_src, t_grid, *, valid=None, max_gap_s: float | None = 
 
     A not-a-knot cubic spline (the one scipy's ``CubicSpline`` fits) is fitted to each contiguous run of
     valid samples; a run ends at a masked or non-finite sample or at a step longer than
-    ``max_gap_s``. Grid points outside every run are invalid.
+    ``max_gap_s``. Grid points outside every run are invalid. Instants :data:`DECIMATE_RATIO` or more times
+    sparser than the samples (median spacings) get the samples low-pass filtered first (:func:`_antialiased`:
+    flat to 0.4 times the instants' rate, 100 dB down from their Nyquist frequency).
 
     Parameters
     ----------
@@ -211,8 +224,63 @@ def resample(t_src, omega_src, t_grid, *, valid=None, max_gap_s: float | None = 
     return _resample_checked(t, w, ok, grid, gap)
 
 
+def _query_period(grid: np.ndarray) -> float:
+    """Median spacing (s) of the finite instants of ``grid`` in time order (NaN with fewer than two)."""
+    g = grid[np.isfinite(grid)]
+    if g.size < 2:
+        return float("nan")
+    if not np.all(np.diff(g) > 0):
+        g = np.unique(g)
+    return float(np.median(np.diff(g))) if g.size >= 2 else float("nan")
+
+
+def _lowpass(ratio: float) -> np.ndarray:
+    """Taps of :func:`_antialiased`'s filter for instants ``ratio`` times sparser than the samples."""
+    from scipy.signal import firwin, kaiserord
+
+    numtaps, beta = kaiserord(_ATTENUATION_DB, 2.0 * (_STOP - _PASS) / ratio)   # width over the source Nyquist
+    return firwin(numtaps | 1, (_PASS + _STOP) / ratio, window=("kaiser", beta))
+
+
+def _antialiased(t: np.ndarray, w: np.ndarray, ok: np.ndarray, gap: float, query_period: float):
+    """``(t, w)`` with every run of valid samples low-pass filtered when the instants (spaced ``query_period``)
+    are :data:`DECIMATE_RATIO` or more times sparser than the samples; ``(t, w)`` themselves otherwise.
+
+    The filter is a zero-phase (symmetric, odd-length) Kaiser-window FIR with unit gain at 0 Hz, flat to
+    1e-5 up to ``0.4 / query_period`` and attenuating 100 dB from the instants' Nyquist frequency
+    ``0.5 / query_period``: the motion the sparser instants can carry passes unchanged, the white noise above
+    their Nyquist frequency is removed before the spline samples it (so it averages down by about
+    ``0.9 f_query / f_src`` in variance rather than folding back). It runs along each run's samples, and on the
+    timestamps too, so a jittered sample time moves the filtered value and its time together (exact for a
+    rate linear in time). Samples within half the filter's length of a run's end stay as they are (nothing
+    is lost at gaps); a run whose filtered timestamps would not increase is left unfiltered.
+    """
+    period = _nominal_period(t) if t.size > 1 else float("nan")
+    ratio = query_period / period if period > 0 else float("nan")
+    if not ratio >= DECIMATE_RATIO:
+        return t, w
+    from scipy.signal import oaconvolve   # off the command line's start-up
+
+    h = _lowpass(ratio)
+    numtaps = h.size
+    half = numtaps // 2
+    t_out, w_out = t.copy(), w.copy()
+    for run in _runs(t, ok, gap):
+        a, b = int(run[0]), int(run[-1]) + 1            # a run is a contiguous range of samples
+        if b - a <= numtaps:
+            continue
+        tf = t[a] + oaconvolve(t[a:b] - t[a], h, mode="valid")
+        edge = np.r_[t[a + half - 1], tf, t[b - half]]
+        if not np.all(np.diff(edge) > 0):
+            continue
+        t_out[a + half:b - half] = tf
+        w_out[a + half:b - half] = oaconvolve(w[a:b], h[:, None], mode="valid", axes=0)
+    return t_out, w_out
+
+
 def _resample_checked(t, w, ok, grid, gap: float):
     """:func:`resample` of a checked stream (``_stream``) onto the 1-D float64 ``grid`` with the gap ``gap`` (s)."""
+    t, w = _antialiased(t, w, ok, gap, _query_period(grid))
     t_ref = t[0]  # splines in relative time: absolute (epoch) seconds lose precision in the cubic terms
     finite_grid = np.isfinite(grid)
     if grid.size <= _GRID_BLOCK or not np.all(np.diff(grid) > 0):
@@ -245,13 +313,16 @@ def noise_factors(t_src, t_query, *, max_points: int = 1 << 16, block: int = 64,
     * ``diff3``: that of its third differences along the queries over the 20 of white noise (the spline smooths);
     * ``density``: its low-frequency noise density there over the source's ``1 / f_src``, from the spread of
       means over ``block`` queries: 1 when upsampling (interpolation keeps a density), about ``variance f_src /
-      f_query`` when downsampling (the noise above the new Nyquist frequency folds down: no anti-alias filter).
+      f_query`` when downsampling by less than :data:`DECIMATE_RATIO` (the noise above the new Nyquist frequency
+      folds down), about 1 again from that ratio on (the anti-alias filter removes it; ``variance`` is then
+      about ``0.9 f_query / f_src``).
     * ``white_from``: the number of queries (a power of 2, at most 64) from which its overlapping Allan variance
       is within 5 % of the white line of that density (interpolated noise is smoother over the first few).
 
     :func:`~fusion_gyrocal.core.noise.identify_noise` uses them to turn what it sees on the grid into each sensor's
     own noise (two-rate pairs, fractional offsets). Measured on seeded white noise over ``max_points``
-    consecutive queries from the middle of the record (``density`` to ~2 %, the others to ~0.5 %).
+    consecutive queries from the middle of the record (fewer when downsampling: behind them at most 2^20 source
+    samples), ``density`` to ~2 % (~5 % when downsampling 100x), the others to ~0.5 %.
     """
     t = np.asarray(t_src, dtype=np.float64)
     q = np.asarray(t_query, dtype=np.float64)
@@ -259,9 +330,16 @@ def noise_factors(t_src, t_query, *, max_points: int = 1 << 16, block: int = 64,
     if q.size < 4 * block or t.size < 16:
         return 1.0, 1.0, 1.0, 1
     mid = q.size // 2
+    period = _nominal_period(t)
+    ratio = _query_period(q) / period if period > 0 else float("nan")
+    if not np.isfinite(ratio):
+        ratio = 1.0
+    if ratio > 1.0:       # queries sparser than the samples: at most _MAX_SOURCE samples of noise behind them
+        max_points = max(min(max_points, int(_MAX_SOURCE / ratio)), 16 * block)
     q = q[max(mid - max_points // 2, 0):mid + max_points // 2]
-    i0 = max(int(np.searchsorted(t, q[0])) - _MARGIN, 0)
-    i1 = min(int(np.searchsorted(t, q[-1])) + _MARGIN, t.size)
+    reach = _MARGIN + (_lowpass(ratio).size // 2 if ratio >= DECIMATE_RATIO else 0)   # the filter's too
+    i0 = max(int(np.searchsorted(t, q[0])) - reach, 0)
+    i1 = min(int(np.searchsorted(t, q[-1])) + reach, t.size)
     noise = np.random.default_rng(seed).standard_normal((i1 - i0, 3))
     ts = timed_stream("t_src", t[i0:i1], "noise", noise, None)[0]   # repaired as the alignment repairs them
     out, inside = resample(ts, noise, q)
