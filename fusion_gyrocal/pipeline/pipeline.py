@@ -246,6 +246,8 @@ def _unclipped(w1, w2, mask, limits, extremes=None):
 
     lim = (None, None) if limits is None else limits
     ext = (None, None) if extremes is None else extremes
+    if limits is None and extremes is not None and not any(e[2].any() or e[3].any() for e in extremes):
+        return mask, ()            # no extreme value repeats: nothing sits flat at one
     clipped = saturation_mask(w1, lim[0], extremes=ext[0]) | saturation_mask(w2, lim[1], extremes=ext[1])
     if mask is not None:
         clipped &= mask
