@@ -742,7 +742,8 @@ def random_walk_gain(bias_walk_std, noise_std) -> tuple[float, float]:
 
 def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask=None,
                              chunk_size: int = CHUNK_SIZE, settle: int | None = None,
-                             window: int | None = None, threads: int | None = None) -> tuple:
+                             window: int | None = None, threads: int | None = None,
+                             max_windows: int = MAX_SCORE_WINDOWS) -> tuple:
     """Moments for a bias that drifts as a random walk, by the Kalman innovations filter.
 
     With ``r_k = omega_1(k) - A omega_2(k) = b_k + n_k``, a random-walk bias
@@ -765,7 +766,9 @@ def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask
         Leading filtered samples dropped while the filter settles (default ``5 / K``).
     window : int, optional
         Also return the :class:`WindowStats` of the innovations in windows of this many samples
-        (each chunk's whole windows; for the block-robust covariance).
+        (each chunk's whole windows; for the block-robust covariance). As in :func:`window_stats`, work is
+        bounded per log: beyond ``max_windows`` windows, those of chunks spread evenly over the log (each chunk's
+        windows one run), ``max_windows`` at most.
     threads : int, optional
         2 (default where the CPU count allows) filters the next block of samples while this one is reduced.
 
@@ -788,6 +791,7 @@ def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask
     filt = _WalkFilter(w1, w2, mask, K, chunk_size * max(1, _BLOCK_ROWS // chunk_size))  # whole chunks per block
     count, mean, scatter = 0, np.zeros(6), np.zeros((6, 6))
     parts = []
+    chosen = None if window is None else _window_chunks(filt.n, chunk_size, int(window), int(max_windows))
     for start, y in filt.blocks(threads):
         lo = max(0, settle - start)
         if lo >= y.shape[1]:
@@ -801,7 +805,7 @@ def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask
         mean += delta * (c / n_new)
         count = n_new
         if window is not None:
-            parts.extend(_innovation_windows(y, start, lo, chunk_size, int(window)))
+            parts.extend(_innovation_windows(y, start, lo, chunk_size, int(window), chosen))
     if count < 4:
         raise InputError(f"expected more than {settle} samples for the drifting-bias filter to settle, got {filt.n}")
     moments = Moments(count, filt.mean(), 0.5 * (scatter + scatter.T), 1)
@@ -900,13 +904,26 @@ def _centred(y):
     return m, mu, sc
 
 
-def _innovation_windows(y, start: int, lo: int, chunk_size: int, window: int) -> list:
+def _window_chunks(n: int, chunk_size: int, window: int, max_windows: int) -> frozenset | None:
+    """Indices of the chunks whose innovation windows the block-robust covariance reads: None (every chunk) up to
+    ``max_windows`` windows, else chunks spread evenly over the ``n`` used samples, ``max_windows`` windows at most
+    (at least one chunk)."""
+    n_chunks = -(-n // chunk_size)
+    per_chunk = max(chunk_size // window, 1)
+    if n_chunks * per_chunk <= max_windows:
+        return None
+    return frozenset(np.linspace(0, n_chunks - 1, max(1, max_windows // per_chunk)).round().astype(int).tolist())
+
+
+def _innovation_windows(y, start: int, lo: int, chunk_size: int, window: int, chosen=None) -> list:
     """``_stats_of`` parts of the filtered block ``y`` (6, m) that begins at used sample ``start``: in each chunk of
-    ``chunk_size`` samples, the whole windows from its first settled sample (``lo`` in the block), each run
-    labelled by its chunk's first sample."""
+    ``chunk_size`` samples (of the chunk indices ``chosen``; None: all), the whole windows from its first settled
+    sample (``lo`` in the block), each run labelled by its chunk's first sample."""
     views, runs = [], []
     m = y.shape[1]
     for c0 in range(0, m, chunk_size):
+        if chosen is not None and (start + c0) // chunk_size not in chosen:
+            continue
         c1 = min(c0 + chunk_size, m)
         a = max(c0, lo)
         k = (c1 - a) // window if c1 > a else 0
