@@ -265,10 +265,10 @@ def _with_timing(run: PipelineRun, mask, pair, resampling, o: Options) -> Pipeli
     that follows beat tones (:mod:`~fusion_gyrocal.pipeline.timing`); the run as it is otherwise."""
     from .timing import estimate_timing
 
-    t = run.t if run.t is not None else np.arange(len(run.omega_1), dtype=float)
-    model = estimate_timing(t, run.omega_1, run.omega_2, run.calibration.A, run.calibration.bias, run.used)
+    model = estimate_timing(run.t, run.omega_1, run.omega_2, run.calibration.A, run.calibration.bias, run.used)
     if not model.significant:
         return run
+    t = run.t if run.t is not None else np.arange(len(run.omega_1), dtype=float)
     again = _calibrate(run.omega_1, model.compensate(t, run.omega_2), mask, pair, resampling, o)
     if not again.calibration.rigid or again.calibration.residual_rms >= run.calibration.residual_rms:
         return run                    # the compensation did not explain the residual better: kept as it was
