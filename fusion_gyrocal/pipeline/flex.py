@@ -81,6 +81,7 @@ def _window_means(r, used, w: int) -> np.ndarray:
     """Each sample's window mean of the used rows of ``r`` (N, 3), in consecutive windows of ``w`` rows (the last
     one partial); zero in windows without a used row. One reshaped sum over all windows, not a loop."""
     n = r.shape[0]
+    w = max(1, min(w, n))           # a window longer than the rows: one window of all of them
     nw = -(-n // w)
     x = np.zeros((nw * w, 3))
     np.multiply(r, used[:, None], out=x[:n])   # unused rows add nothing
