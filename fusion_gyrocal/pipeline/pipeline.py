@@ -120,13 +120,14 @@ def prepare_samples(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options:
         :class:`~fusion_gyrocal.pipeline.alignment.AlignedPair` (None for sample-aligned input) and what the
         preparation masked, in words (the clipped samples of sample-aligned input).
     """
-    return _prepare(omega_1, omega_2, t_1=t_1, t_2=t_2, mask=mask, options=options)[:5]
+    return _prepare(omega_1, omega_2, t_1=t_1, t_2=t_2, mask=mask, options=options, moments=False)[:5]
 
 
-def _prepare(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Options | None = None):
+def _prepare(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Options | None = None,
+             moments: bool = True):
     """:func:`prepare_samples` and, last, the moments of every prepared sample when the clipping test of
-    sample-aligned input read them in its pass (:func:`~fusion_gyrocal.core.moments.moments_with_extremes`) and
-    nothing was masked (else None)."""
+    sample-aligned input read them in its pass (:func:`~fusion_gyrocal.core.moments.moments_with_extremes`;
+    ``moments``: the caller solves on them) and nothing was masked (else None)."""
     o = Options.of(options)
     pair, base = None, None
     if (t_1 is None) != (t_2 is None):
@@ -157,7 +158,7 @@ def _prepare(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Option
             raise OptionError(f"{', '.join(timing)}: act on timestamps; expected t_1 and t_2 with them, got "
                               "sample-aligned input")
         w1, w2, mask = as_rate_pair(omega_1, omega_2, mask)
-        base = _moments_first(w1, w2, mask, o)
+        base = _moments_first(w1, w2, mask, o) if moments else None
         mask, notes = _unclipped(w1, w2, mask, o.saturation_limit, None if base is None else base[1:])
     check_rate_units(w1, w2, mask, limit=o.max_plausible_rate)
     if o.max_rate is not None:
