@@ -70,6 +70,8 @@ def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT, *, per
     its MEMS limit (:data:`MEMS_LIMITS`, times ``limit / 100``): signs that the rates are in deg/s, not rad/s.
     A bounded subsample (:data:`_EVIDENCE_SAMPLES` samples in contiguous blocks spread over the log) is used.
     """
+    from .core.moments import finite_rows
+
     scale = float(limit) / _DEFAULT_LIMIT
     figures = {"noise": 0.0, "bias": float("nan"), "offset": float("nan"), "range": 0.0}
     sub = []
@@ -80,27 +82,29 @@ def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT, *, per
         m = None if mask is None else np.asarray(mask, bool)
         if n > _EVIDENCE_SAMPLES:    # the subsample first: nothing below reads the whole log
             starts = np.linspace(0, n - block, _EVIDENCE_SAMPLES // block).astype(int)
-            idx = (starts[:, None] + np.arange(block)).ravel()
-            w, m = w[idx], None if m is None else m[idx]
+            w = np.concatenate([w[s:s + block] for s in starts])
+            m = None if m is None else np.concatenate([m[s:s + block] for s in starts])
         w = np.asarray(w, dtype=np.float64)
-        ok = np.isfinite(w).all(axis=1) if m is None else (m & np.isfinite(w).all(axis=1))
+        ok = finite_rows(w) if m is None else (m & finite_rows(w))
         sub.append((w, ok))
         if ok.sum() < 8:
             continue
-        good = np.where(ok[:, None], w, np.nan)
+        everything = bool(ok.all())      # the usual case: no copies, no NaN placeholders
+        good = w if everything else np.where(ok[:, None], w, np.nan)
         d3 = np.diff(good, n=3, axis=0)
-        d3 = d3[np.isfinite(d3).all(axis=1)]
+        finite = finite_rows(d3)
+        d3 = d3 if finite.all() else d3[finite]
         noise = float(np.sqrt(np.median(d3 ** 2) / 20.0 / 0.4549)) if len(d3) else 0.0   # median of chi2_1 = 0.4549
-        norms = np.linalg.norm(good[ok], axis=1)
+        norms = _row_norms(good if everything else good[ok])
         own = {"noise": noise, "bias": float("nan"), "offset": float("nan"),
                "range": float(np.quantile(norms, 0.99))}
         figures["noise"] = max(figures["noise"], noise)
         figures["range"] = max(figures["range"], own["range"])
         whole = (len(good) // _QUIET_WINDOW) * _QUIET_WINDOW
         win = good[:whole].reshape(-1, _QUIET_WINDOW, 3)
-        full = np.isfinite(win).all(axis=(1, 2))
+        full = np.ones(len(win), bool) if everything else np.isfinite(win).all(axis=(1, 2))
         if full.sum() >= _MIN_QUIET_WINDOWS and noise > 0:
-            win = win[full]
+            win = win if everything else win[full]
             spread = np.sqrt(win.var(axis=1).sum(axis=1) / 3.0)
             quiet = spread <= _QUIET_SPREAD * noise
             if quiet.sum() >= _MIN_QUIET_WINDOWS:   # the floor of the rate at rest (slow turns are not rest)
@@ -112,14 +116,23 @@ def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT, *, per
     if len(sub) == 2 and len(sub[0][0]) == len(sub[1][0]):
         (w1, ok1), (w2, ok2) = sub
         both = ok1 & ok2
-        sv = np.linalg.svd(w2[both] - w2[both].mean(axis=0), compute_uv=False) if both.sum() >= 16 else np.zeros(3)
+        if not both.all():
+            w1, w2 = w1[both], w2[both]
+        sv = np.linalg.svd(w2 - w2.mean(axis=0), compute_uv=False) if len(w2) >= 16 else np.zeros(3)
         if sv[-1] > 1e-6 * sv[0]:   # gyro 2 moves about every axis: the fit's offset is determined
-            X = np.column_stack([w2[both], np.ones(int(both.sum()))])
-            coef = np.linalg.lstsq(X, w1[both], rcond=None)[0]
+            X = np.column_stack([w2, np.ones(len(w2))])
+            coef = np.linalg.lstsq(X, w1, rcond=None)[0]
             if np.isfinite(coef).all():
                 figures["offset"] = float(np.linalg.norm(coef[3]))
     signs = [k for k, lim in MEMS_LIMITS.items() if figures[k] > lim * scale]
     return figures, signs
+
+
+def _row_norms(x) -> np.ndarray:
+    """``np.linalg.norm(x, axis=1)`` of an (N, 3) array, the same values (the squares added column by column in
+    the same order), without numpy's slow reduction along short rows."""
+    sq = x * x
+    return np.sqrt(sq[:, 0] + sq[:, 1] + sq[:, 2])
 
 
 def describe_unit_evidence(figures: dict, signs, limit: float = _DEFAULT_LIMIT) -> str:

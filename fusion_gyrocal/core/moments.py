@@ -59,6 +59,52 @@ def row_norms(x) -> np.ndarray:
     return np.sqrt(row_sumsq(x))
 
 
+_EXTREME_BLOCK = 1024   # rows per block of column_extremes: (1024 * k,) rows reduced element-wise, contiguous
+
+
+def column_extremes(x) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(hi, lo, hi_repeats, lo_repeats)`` of a 2-D float array: each column's largest and smallest value and
+    whether that exact value occurs in at least two rows, in two passes over the data.
+
+    A C-contiguous ``x`` is read as blocks of rows laid side by side (``(N // B, B * k)``): reducing those down
+    the long axis is element-wise and contiguous, and the position in the block of each column's extreme tells
+    where it sits, so the repeats are counted on the few block columns that hold it. A NaN anywhere makes its
+    column's ``hi`` and ``lo`` NaN (as ``max``/``min`` do).
+    """
+    x = np.asarray(x)
+    n, k = x.shape
+    if n == 0:
+        raise InputError("x: expected at least one row to take the extremes of, got 0")
+    block = _EXTREME_BLOCK
+    head = n // block * block if x.flags.c_contiguous else 0
+    his, los, h_hi, h_lo = [], [], None, None
+    if head:
+        h = x[:head].reshape(-1, block * k)
+        h_hi, h_lo = h.max(axis=0), h.min(axis=0)
+        his.append(h_hi.reshape(block, k).max(axis=0))
+        los.append(h_lo.reshape(block, k).min(axis=0))
+    tail = x[head:]
+    if len(tail):
+        his.append(np.array([tail[:, j].max() for j in range(k)]))
+        los.append(np.array([tail[:, j].min() for j in range(k)]))
+    hi, lo = np.max(his, axis=0), np.min(los, axis=0)
+    reps = []
+    for level, reduced in ((hi, h_hi), (lo, h_lo)):
+        out = np.zeros(k, dtype=bool)
+        for j in range(k):
+            count = 0
+            if head:
+                for p in np.flatnonzero(reduced[j::k] == level[j]):   # block positions holding the extreme
+                    count += int(np.count_nonzero(h[:, p * k + j] == level[j]))
+                    if count >= 2:
+                        break
+            if count < 2 and len(tail):
+                count += int(np.count_nonzero(tail[:, j] == level[j]))
+            out[j] = count >= 2
+        reps.append(out)
+    return hi, lo, reps[0], reps[1]
+
+
 def as_rates(name: str, omega, *, length: int | None = None) -> np.ndarray:
     """Return ``omega`` as a read-only ``(N, 3)`` float array (no copy when already fine).
 
@@ -121,7 +167,7 @@ def noise_pair(noise_std) -> tuple[float, float]:
 _THREADS = max(1, min(2, os.cpu_count() or 1))   # default worker threads of a long pass
 
 
-def _accumulate(w1, w2, mask, lo, hi, chunk_size):
+def _accumulate(w1, w2, mask, lo, hi, chunk_size, extremes=None):
     """Count, mean and centred scatter of rows ``lo:hi`` in one pass at memory speed.
 
     Each chunk is copied (transposed, rows contiguous, which numpy copies fastest) into a
@@ -131,13 +177,16 @@ def _accumulate(w1, w2, mask, lo, hi, chunk_size):
     sums are O(spread), not O(bias). Where the shift is poor against the spread (cancellation
     would cost more than ~6 of 16 digits, e.g. a large drift), the range is redone chunk by chunk
     with Chan's pairwise update (:func:`_accumulate_chan`).
+
+    ``extremes``: ``(hi, lo)``, two (chunks, 6) arrays (``mask`` None) that receive each chunk's largest and
+    smallest shifted value per channel, read from the cache-resident buffer (:func:`moments_with_extremes`).
     """
     buf = np.empty((7, chunk_size))
     buf[6] = 1.0
     G = np.zeros((7, 6))
     n_tot = 0
     shift = None
-    for start in range(lo, hi, chunk_size):
+    for i, start in enumerate(range(lo, hi, chunk_size)):
         stop = min(start + chunk_size, hi)
         keep = None if mask is None else mask[start:stop]
         x = buf[:, : stop - start]
@@ -151,6 +200,9 @@ def _accumulate(w1, w2, mask, lo, hi, chunk_size):
             s1, s2 = shift[:3, None], shift[3:, None]
         np.subtract(w1[start:stop].T, s1, out=x[:3])
         np.subtract(w2[start:stop].T, s2, out=x[3:6])
+        if extremes is not None:          # of the shifted values: rounding keeps their order
+            np.max(x[:6], axis=1, out=extremes[0][i])
+            np.min(x[:6], axis=1, out=extremes[1][i])
         if keep is not None and not keep.all():
             x = x[:, keep]
         with np.errstate(over="ignore", invalid="ignore"):   # overflow is checked once below
@@ -307,25 +359,7 @@ class Moments:
             On a wrong shape, unequal lengths or a non-finite sample.
         """
         w1, w2, mask = as_rate_pair(omega_1, omega_2, mask)
-        chunk_size = int(chunk_size)
-        if chunk_size < 1:
-            raise OptionError(f"chunk_size: expected a positive number of rows, got {chunk_size}")
-        n = w1.shape[0]
-        if isinstance(chunk_size, bool) or not isinstance(chunk_size, (int, np.integer)) or chunk_size < 1:
-            raise InputError(f"chunk_size: expected an integer >= 1 (rows per chunk), got {chunk_size!r}")
-        chunk_size = int(min(chunk_size, max(n, 1)))   # the buffer is bounded by the data
-        n_chunks = -(-n // chunk_size)
-        workers = max(1, min(threads or _THREADS, n_chunks // 4))
-        if workers == 1:
-            c, mu, sc = _accumulate(w1, w2, mask, 0, n, chunk_size) if n else (0, np.zeros(6), np.zeros((6, 6)))
-            return cls(c, mu, sc, 1 if c else 0)
-        from concurrent.futures import ThreadPoolExecutor
-
-        bounds = np.linspace(0, n_chunks, workers + 1).astype(int) * chunk_size
-        with ThreadPoolExecutor(workers) as pool:  # numpy releases the GIL in BLAS and copies
-            parts = list(pool.map(lambda i: _accumulate(w1, w2, mask, bounds[i], min(bounds[i + 1], n), chunk_size),
-                                  range(workers)))
-        return cls.merge_all(cls(c, mu, sc, 1 if c else 0) for c, mu, sc in parts)
+        return _moments(w1, w2, mask, chunk_size, threads)
 
     # ------------------------------------------------------------------ algebra
     def merge(self, other: "Moments") -> "Moments":
@@ -412,6 +446,79 @@ class Moments:
 
 
 _BLOCK_ROWS = 65536         # samples per block of the window moments and the drifting-bias filter (a few MiB)
+
+
+def _moments(w1, w2, mask, chunk_size, threads, extremes: bool = False):
+    """:meth:`Moments.from_samples` of checked rates; with ``extremes`` (``mask`` None) also the per-chunk
+    ``(hi, lo)`` (chunks, 6) of :func:`_accumulate`, the chunk size and the first chunk of each worker (each
+    shifts by its own mean), as ``(moments, (hi, lo), chunk_size, bounds)``."""
+    chunk_size = int(chunk_size)
+    if chunk_size < 1:
+        raise OptionError(f"chunk_size: expected a positive number of rows, got {chunk_size}")
+    n = w1.shape[0]
+    if isinstance(chunk_size, bool) or not isinstance(chunk_size, (int, np.integer)) or chunk_size < 1:
+        raise InputError(f"chunk_size: expected an integer >= 1 (rows per chunk), got {chunk_size!r}")
+    chunk_size = int(min(chunk_size, max(n, 1)))   # the buffer is bounded by the data
+    n_chunks = -(-n // chunk_size)
+    ext = (np.empty((n_chunks, 6)), np.empty((n_chunks, 6))) if extremes else None
+    workers = max(1, min(threads or _THREADS, n_chunks // 4))
+    bounds = np.linspace(0, n_chunks, workers + 1).astype(int)
+
+    def part(i):
+        lo, hi = int(bounds[i]), int(bounds[i + 1])
+        sub = None if ext is None else (ext[0][lo:hi], ext[1][lo:hi])
+        return _accumulate(w1, w2, mask, lo * chunk_size, min(hi * chunk_size, n), chunk_size, sub)
+
+    if workers == 1:
+        c, mu, sc = part(0) if n else (0, np.zeros(6), np.zeros((6, 6)))
+        out = Moments(c, mu, sc, 1 if c else 0)
+    else:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(workers) as pool:  # numpy releases the GIL in BLAS and copies
+            parts = list(pool.map(part, range(workers)))
+        out = Moments.merge_all(Moments(c, mu, sc, 1 if c else 0) for c, mu, sc in parts)
+    return out if not extremes else (out, ext, chunk_size, bounds)
+
+
+def moments_with_extremes(omega_1, omega_2, *, chunk_size: int = CHUNK_SIZE, threads: int | None = None):
+    """``(moments, extremes_1, extremes_2)``: :meth:`Moments.from_samples` of every sample and each stream's
+    :func:`column_extremes` ``(hi, lo, hi_repeats, lo_repeats)``, read in the same pass (what the clipping test
+    of :func:`~fusion_gyrocal.pipeline.streams.saturation_mask` needs, at the cost of the chunks' extremes from
+    the cache-resident buffer and a count on the few chunks that hold each extreme).
+
+    Raises
+    ------
+    InputError
+        As :meth:`Moments.from_samples` (a non-finite sample, values whose squares overflow, wrong shapes).
+    """
+    w1, w2, _ = as_rate_pair(omega_1, omega_2)
+    if w1.shape[0] == 0:
+        raise InputError("omega_1 and omega_2: expected samples to take the moments of, got 0")
+    m, (hi, lo), size, bounds = _moments(w1, w2, None, chunk_size, threads, extremes=True)
+    out = []
+    for k, w in enumerate((w1, w2)):
+        found = []
+        for per_chunk, top in ((hi, True), (lo, False)):
+            level, rep = np.empty(3), np.zeros(3, dtype=bool)
+            for j in range(3):
+                col = per_chunk[:, 3 * k + j]
+                cands = []      # chunks whose shifted extreme is their worker's: one of them holds the exact one
+                for a, b in zip(bounds[:-1], bounds[1:]):
+                    if b > a:
+                        best = col[a:b].max() if top else col[a:b].min()
+                        cands.extend(a + np.flatnonzero(col[a:b] == best))
+                rows = [w[c * size:(c + 1) * size, j] for c in cands]
+                level[j] = max(r.max() for r in rows) if top else min(r.min() for r in rows)
+                count = 0
+                for r in rows:
+                    count += int(np.count_nonzero(r == level[j]))
+                    if count >= 2:
+                        break
+                rep[j] = count >= 2
+            found.append((level, rep))
+        out.append((found[0][0], found[1][0], found[0][1], found[1][1]))
+    return m, out[0], out[1]
 
 
 def window_moments(omega_1, omega_2, window: int, *, mask=None, with_starts: bool = False) -> list:
@@ -635,7 +742,8 @@ def random_walk_gain(bias_walk_std, noise_std) -> tuple[float, float]:
 
 def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask=None,
                              chunk_size: int = CHUNK_SIZE, settle: int | None = None,
-                             window: int | None = None, threads: int | None = None) -> tuple:
+                             window: int | None = None, threads: int | None = None,
+                             max_windows: int = MAX_SCORE_WINDOWS) -> tuple:
     """Moments for a bias that drifts as a random walk, by the Kalman innovations filter.
 
     With ``r_k = omega_1(k) - A omega_2(k) = b_k + n_k``, a random-walk bias
@@ -658,7 +766,9 @@ def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask
         Leading filtered samples dropped while the filter settles (default ``5 / K``).
     window : int, optional
         Also return the :class:`WindowStats` of the innovations in windows of this many samples
-        (each chunk's whole windows; for the block-robust covariance).
+        (each chunk's whole windows; for the block-robust covariance). As in :func:`window_stats`, work is
+        bounded per log: beyond ``max_windows`` windows, those of chunks spread evenly over the log (each chunk's
+        windows one run), ``max_windows`` at most.
     threads : int, optional
         2 (default where the CPU count allows) filters the next block of samples while this one is reduced.
 
@@ -681,6 +791,7 @@ def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask
     filt = _WalkFilter(w1, w2, mask, K, chunk_size * max(1, _BLOCK_ROWS // chunk_size))  # whole chunks per block
     count, mean, scatter = 0, np.zeros(6), np.zeros((6, 6))
     parts = []
+    chosen = None if window is None else _window_chunks(filt.n, chunk_size, int(window), int(max_windows))
     for start, y in filt.blocks(threads):
         lo = max(0, settle - start)
         if lo >= y.shape[1]:
@@ -694,7 +805,7 @@ def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask
         mean += delta * (c / n_new)
         count = n_new
         if window is not None:
-            parts.extend(_innovation_windows(y, start, lo, chunk_size, int(window)))
+            parts.extend(_innovation_windows(y, start, lo, chunk_size, int(window), chosen))
     if count < 4:
         raise InputError(f"expected more than {settle} samples for the drifting-bias filter to settle, got {filt.n}")
     moments = Moments(count, filt.mean(), 0.5 * (scatter + scatter.T), 1)
@@ -793,13 +904,26 @@ def _centred(y):
     return m, mu, sc
 
 
-def _innovation_windows(y, start: int, lo: int, chunk_size: int, window: int) -> list:
+def _window_chunks(n: int, chunk_size: int, window: int, max_windows: int) -> frozenset | None:
+    """Indices of the chunks whose innovation windows the block-robust covariance reads: None (every chunk) up to
+    ``max_windows`` windows, else chunks spread evenly over the ``n`` used samples, ``max_windows`` windows at most
+    (at least one chunk)."""
+    n_chunks = -(-n // chunk_size)
+    per_chunk = max(chunk_size // window, 1)
+    if n_chunks * per_chunk <= max_windows:
+        return None
+    return frozenset(np.linspace(0, n_chunks - 1, max(1, max_windows // per_chunk)).round().astype(int).tolist())
+
+
+def _innovation_windows(y, start: int, lo: int, chunk_size: int, window: int, chosen=None) -> list:
     """``_stats_of`` parts of the filtered block ``y`` (6, m) that begins at used sample ``start``: in each chunk of
-    ``chunk_size`` samples, the whole windows from its first settled sample (``lo`` in the block), each run
-    labelled by its chunk's first sample."""
+    ``chunk_size`` samples (of the chunk indices ``chosen``; None: all), the whole windows from its first settled
+    sample (``lo`` in the block), each run labelled by its chunk's first sample."""
     views, runs = [], []
     m = y.shape[1]
     for c0 in range(0, m, chunk_size):
+        if chosen is not None and (start + c0) // chunk_size not in chosen:
+            continue
         c1 = min(c0 + chunk_size, m)
         a = max(c0, lo)
         k = (c1 - a) // window if c1 > a else 0

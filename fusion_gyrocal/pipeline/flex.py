@@ -73,12 +73,23 @@ def residual_blocks(w1, w2, A, bias, mask, window, ranges):
         if not window:
             r -= bias
         else:
-            w = int(window)
-            for k in range(0, stop - start, w):
-                u = used[k:k + w]
-                if u.any():
-                    r[k:k + w] -= r[k:k + w][u].mean(axis=0)
+            r -= _window_means(r, used, int(window))
         yield start, r, used
+
+
+def _window_means(r, used, w: int) -> np.ndarray:
+    """Each sample's window mean of the used rows of ``r`` (N, 3), in consecutive windows of ``w`` rows (the last
+    one partial); zero in windows without a used row. One reshaped sum over all windows, not a loop."""
+    n = r.shape[0]
+    w = max(1, min(w, n))           # a window longer than the rows: one window of all of them
+    nw = -(-n // w)
+    x = np.zeros((nw * w, 3))
+    np.multiply(r, used[:, None], out=x[:n])   # unused rows add nothing
+    cnt = np.zeros(nw * w)
+    cnt[:n] = used
+    cnt = cnt.reshape(nw, w).sum(axis=1)
+    means = x.reshape(nw, w, 3).sum(axis=1) / np.maximum(cnt, 1.0)[:, None]
+    return np.repeat(means, w, axis=0)[:n]
 
 
 def robust_whitener(w1, w2, A, bias, mask, window, ranges) -> np.ndarray:

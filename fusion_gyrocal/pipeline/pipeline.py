@@ -121,8 +121,16 @@ def prepare_samples(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options:
         :class:`~fusion_gyrocal.pipeline.alignment.AlignedPair` (None for sample-aligned input) and what the
         preparation masked, in words (the clipped samples of sample-aligned input).
     """
+    return _prepare(omega_1, omega_2, t_1=t_1, t_2=t_2, mask=mask, options=options, moments=False)[:5]
+
+
+def _prepare(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Options | None = None,
+             moments: bool = True):
+    """:func:`prepare_samples` and, last, the moments of every prepared sample when the clipping test of
+    sample-aligned input read them in its pass (:func:`~fusion_gyrocal.core.moments.moments_with_extremes`;
+    ``moments``: the caller solves on them) and nothing was masked (else None)."""
     o = slow_grid(t_1, t_2, Options.of(options))
-    pair = None
+    pair, base = None, None
     if (t_1 is None) != (t_2 is None):
         raise InputError("t_1 and t_2: expected both timestamps or neither (sample-aligned input)")
     if t_1 is None or _same_instants(t_1, t_2):
@@ -157,13 +165,33 @@ def prepare_samples(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options:
             raise OptionError(f"{', '.join(timing)}: act on timestamps; expected t_1 and t_2 with them, got "
                               "sample-aligned input")
         w1, w2, mask = as_rate_pair(omega_1, omega_2, mask)
-        mask, notes = _unclipped(w1, w2, mask, o.saturation_limit)
+        base = _moments_first(w1, w2, mask, o) if moments else None
+        mask, notes = _unclipped(w1, w2, mask, o.saturation_limit, None if base is None else base[1:])
     check_rate_units(w1, w2, mask, limit=o.max_plausible_rate)
     if o.max_rate is not None:
         from .selection import informative_mask
         keep = informative_mask(w1, w2, mask, 1.0, min_rate=0.0, max_rate=o.max_rate)
         mask = keep if mask is None else (mask & keep)
-    return w1, w2, mask, pair, notes
+    return w1, w2, mask, pair, notes, (base[0] if pair is None and base is not None and mask is None else None)
+
+
+def _moments_first(w1, w2, mask, o: Options):
+    """``(moments, extremes_1, extremes_2)`` of sample-aligned input read in one pass
+    (:func:`~fusion_gyrocal.core.moments.moments_with_extremes`) where the run would take the moments of every
+    sample anyway (no mask, no ``saturation_limit`` or ``max_rate``, a constant bias or an identified noise) and
+    the clipping test needs the extremes; None otherwise, or when the pass refuses the samples (the checks that
+    follow say why, in their order)."""
+    from ..core.moments import moments_with_extremes
+    from ..errors import GyroCalError
+
+    identify = o.noise_std is None and o.noise_model == "identify"
+    constant = o.bias_walk_std is None and o.bias_window is None
+    if mask is not None or o.saturation_limit is not None or o.max_rate is not None or not (identify or constant):
+        return None
+    try:
+        return moments_with_extremes(w1, w2)
+    except GyroCalError:
+        return None
 
 
 def check_rate_units(w1, w2, mask=None, *, limit: float = 100.0) -> None:
@@ -206,10 +234,10 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
                  **keywords) -> PipelineRun:
     """:func:`calibrate_pair` returning its intermediate products too (same parameters)."""
     given = Options.of(options, **keywords).require("pair", "calibrate_pair")
-    w1, w2, mask, pair, notes = prepare_samples(omega_1, omega_2, t_1=t_1, t_2=t_2, mask=mask, options=given)
+    w1, w2, mask, pair, notes, base = _prepare(omega_1, omega_2, t_1=t_1, t_2=t_2, mask=mask, options=given)
     o = slow_grid(t_1, t_2, given)
     resampling = _resampling(t_1, t_2, pair, o)
-    run = _calibrate(w1, w2, mask, pair, resampling, o)
+    run = _calibrate(w1, w2, mask, pair, resampling, o, base)
     if o.timing_model == "auto" and run.calibration.rigid:
         run = _with_timing(run, mask, pair, resampling, o)
     if notes:
@@ -269,15 +297,19 @@ def slow_grid(t_1, t_2, o: Options) -> Options:
     return o.replace(rate_hz=f2, noise_std=(s1 * float(np.sqrt(f2 / f1)), s2))
 
 
-def _unclipped(w1, w2, mask, limits):
+def _unclipped(w1, w2, mask, limits, extremes=None):
     """``(mask, notes)``: sample-aligned input without its clipped samples
     (:func:`~fusion_gyrocal.pipeline.streams.saturation_mask`: at or beyond ``limits``, the sensor ranges, when
     given; else flat at an axis's extreme value, as on reading a recording), and what was masked. Input flat on
-    more than half its samples is constant, not clipped: left to the solver's message."""
+    more than half its samples is constant, not clipped: left to the solver's message. ``extremes``: each
+    stream's column extremes when known."""
     from .streams import saturation_mask
 
     lim = (None, None) if limits is None else limits
-    clipped = saturation_mask(w1, lim[0]) | saturation_mask(w2, lim[1])
+    ext = (None, None) if extremes is None else extremes
+    if limits is None and extremes is not None and not any(e[2].any() or e[3].any() for e in extremes):
+        return mask, ()            # no extreme value repeats: nothing sits flat at one
+    clipped = saturation_mask(w1, lim[0], extremes=ext[0]) | saturation_mask(w2, lim[1], extremes=ext[1])
     if mask is not None:
         clipped &= mask
     n = int(np.count_nonzero(clipped))
@@ -294,10 +326,10 @@ def _with_timing(run: PipelineRun, mask, pair, resampling, o: Options) -> Pipeli
     that follows beat tones (:mod:`~fusion_gyrocal.pipeline.timing`); the run as it is otherwise."""
     from .timing import estimate_timing
 
-    t = run.t if run.t is not None else np.arange(len(run.omega_1), dtype=float)
-    model = estimate_timing(t, run.omega_1, run.omega_2, run.calibration.A, run.calibration.bias, run.used)
+    model = estimate_timing(run.t, run.omega_1, run.omega_2, run.calibration.A, run.calibration.bias, run.used)
     if not model.significant:
         return run
+    t = run.t if run.t is not None else np.arange(len(run.omega_1), dtype=float)
     again = _calibrate(run.omega_1, model.compensate(t, run.omega_2), mask, pair, resampling, o)
     if not again.calibration.rigid or again.calibration.residual_rms >= run.calibration.residual_rms:
         return run                    # the compensation did not explain the residual better: kept as it was
@@ -318,17 +350,18 @@ def _with_timing(run: PipelineRun, mask, pair, resampling, o: Options) -> Pipeli
     return PipelineRun(new, again.t, again.omega_1, again.omega_2, again.valid, again.used, again.aligned)
 
 
-def _calibrate(w1, w2, mask, pair, resampling, o: Options) -> PipelineRun:
-    """The calibration of prepared samples: the noise model, the bias model, the solve, the flex gate."""
+def _calibrate(w1, w2, mask, pair, resampling, o: Options, base: Moments | None = None) -> PipelineRun:
+    """The calibration of prepared samples: the noise model, the bias model, the solve, the flex gate. ``base``:
+    the moments of the samples ``mask`` when already taken."""
     t_grid = None if pair is None else pair.t
     offset = 0.0 if pair is None else pair.time_offset_s
     offset_std = pair.time_offset.std_s if pair is not None and pair.time_offset is not None else 0.0
     rate_hz = None if t_grid is None else grid_rate(t_grid)
     window = window_samples(rate_hz)   # about 1 s
     noise_model, noise_ratio = None, None
-    noise_std, base = o.noise_std, None       # the white noise the run uses; the moments of every usable sample
+    noise_std = o.noise_std       # the white noise the run uses; base: the moments of every usable sample
     if noise_std is None and o.noise_model == "identify":
-        base = Moments.from_samples(w1, w2, mask=mask)
+        base = Moments.from_samples(w1, w2, mask=mask) if base is None else base
         noise_model = _identify(w1, w2, mask, rate_hz, base, resampling)
         if noise_model is not None:
             noise_std = noise_model.noise_std

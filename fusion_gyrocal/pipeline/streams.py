@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.moments import as_rates, finite_rows
+from ..core.moments import as_rates, column_extremes, finite_rows
 from ..errors import InputError, OptionError
 from ..units import DEG, RATE_FACTORS, RATE_UNITS, TIME_UNITS  # noqa: F401  (DEG: also this module's name)
 
@@ -285,7 +285,7 @@ def to_rad_per_s(x, unit: str, sensitivity: float | None = None) -> np.ndarray:
     return np.array(arr, dtype=np.float64)
 
 
-def saturation_mask(omega, limit: float | None = None) -> np.ndarray:
+def saturation_mask(omega, limit: float | None = None, *, extremes=None) -> np.ndarray:
     """Samples at which at least one axis is saturated (clipped at the sensor range).
 
     Parameters
@@ -299,6 +299,10 @@ def saturation_mask(omega, limit: float | None = None) -> np.ndarray:
         least half the largest magnitude of the whole record (clipped data sit flat at the
         range; smooth unclipped motion almost never repeats its extreme exactly). Pass
         ``limit`` when the range is known, especially for quantised (integer count) data.
+    extremes : tuple, optional
+        :func:`~fusion_gyrocal.core.moments.column_extremes` of ``omega`` when already known (from
+        :func:`~fusion_gyrocal.core.moments.moments_with_extremes`): the heuristic then reads no more samples
+        unless a clip level repeats.
 
     Returns
     -------
@@ -306,27 +310,29 @@ def saturation_mask(omega, limit: float | None = None) -> np.ndarray:
         True where saturated. Non-finite samples are ignored here (see :func:`valid_mask`).
     """
     w = as_rates("omega", omega)
-    finite = np.isfinite(w)
     if limit is not None:
+        finite = np.isfinite(w)
         if not np.isfinite(limit) or not limit > 0:
             raise OptionError(f"limit: expected a positive sensor range, got {limit!r}")
         with np.errstate(invalid="ignore"):
             return np.any(finite & (np.abs(w) >= limit), axis=1)
     out = np.zeros(w.shape[0], dtype=bool)
-    if not finite.any():
+    if w.shape[0] < 2:
         return out
-    if finite.all():   # the usual case: each axis's extremes without copying the finite values out
-        hi = [float(w[:, a].max()) for a in range(3)]   # per column: numpy's max(axis=0) on (N, 3) is ~15x slower
-        lo = [float(w[:, a].min()) for a in range(3)]
-        biggest = max(max(abs(v) for v in hi), max(abs(v) for v in lo))
-        extremes = list(zip(hi, lo)) if w.shape[0] >= 2 else [()] * 3
+    hi, lo, hi_rep, lo_rep = column_extremes(w) if extremes is None else extremes
+    if np.isfinite(hi).all() and np.isfinite(lo).all():   # the usual case (NaN/inf there: a sample is not finite)
+        biggest = float(max(np.abs(hi).max(), np.abs(lo).max()))
+        levels = [((hi[a], bool(hi_rep[a])), (lo[a], bool(lo_rep[a]))) for a in range(3)]
     else:
+        finite = np.isfinite(w)
+        if not finite.any():
+            return out
         biggest = float(np.max(np.abs(w[finite])))
         cols = [w[finite[:, a], a] for a in range(3)]
-        extremes = [(c.max(), c.min()) if c.size >= 2 else () for c in cols]
+        levels = [((c.max(), None), (c.min(), None)) if c.size else () for c in cols]
     for a in range(3):
-        for level in extremes[a]:
-            if level == 0 or abs(level) < 0.5 * biggest:
+        for level, repeats in levels[a]:
+            if level == 0 or abs(level) < 0.5 * biggest or repeats is False:
                 continue
             hit = w[:, a] == level
             if np.count_nonzero(hit) >= 2:

@@ -168,21 +168,24 @@ def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int =
 
     Parameters
     ----------
-    t : array_like (N,)
-        The samples' instants on one uniform grid (s), or the sample index for input without timestamps.
+    t : array_like (N,) or None
+        The samples' instants on one uniform grid (s), or the sample index for input without timestamps (None:
+        the index, made only for the stretch searched).
     omega_1, omega_2 : array_like (N, 3)
         Sample-aligned rates (rad/s).
     A, bias : the calibration's map and combined bias (``omega_1 ~ A omega_2 + bias``).
     mask : array_like of bool (N,), optional
         Samples to use (the derivative is one-sided beside an invalid one).
     """
-    t = np.asarray(t, dtype=float)
     w1, w2 = np.asarray(omega_1, dtype=float), np.asarray(omega_2, dtype=float)
-    ok = np.ones(len(t), bool) if mask is None else np.asarray(mask, bool).copy()
-    if len(t) > max_samples:          # the most excited stretch of a long log (the tones are stationary)
+    n = len(w1)
+    ok = np.ones(n, bool) if mask is None else np.asarray(mask, bool).copy()
+    if n > max_samples:          # the most excited stretch of a long log (the tones are stationary)
         start = _excited_stretch(w2, ok, max_samples)
         part = slice(start, start + max_samples)
-        t, w1, w2, ok = t[part], w1[part], w2[part], ok[part]
+        t = np.arange(start, start + max_samples, dtype=float) if t is None else np.asarray(t, dtype=float)[part]
+        w1, w2, ok = w1[part], w2[part], ok[part]
+    t = np.arange(n, dtype=float) if t is None else np.asarray(t, dtype=float)
     if len(t) > DETECT_SAMPLES and not estimate_timing(t, w1, w2, A, bias, ok, max_tones=1, harmonics=harmonics,
                                                        max_samples=DETECT_SAMPLES).significant:
         return NONE                   # nothing on the most excited stretch: not worth the longer search
