@@ -235,7 +235,9 @@ def _with_timing(run: PipelineRun, mask, pair, resampling, o: Options) -> Pipeli
     from .timing import estimate_timing
 
     t = run.t if run.t is not None else np.arange(len(run.omega_1), dtype=float)
-    model = estimate_timing(t, run.omega_1, run.omega_2, run.calibration.A, run.calibration.bias, run.used)
+    # on the samples before the flex gate: the gate rejects where the delay's residual is largest, a mask that
+    # follows the beat and would put sidebands (one tone plus or minus another) into the search
+    model = estimate_timing(t, run.omega_1, run.omega_2, run.calibration.A, run.calibration.bias, run.valid)
     if not model.significant:
         return run
     again = _calibrate(run.omega_1, model.compensate(t, run.omega_2), mask, pair, resampling, o)
