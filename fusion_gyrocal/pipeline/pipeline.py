@@ -326,7 +326,9 @@ def _with_timing(run: PipelineRun, mask, pair, resampling, o: Options) -> Pipeli
     that follows beat tones (:mod:`~fusion_gyrocal.pipeline.timing`); the run as it is otherwise."""
     from .timing import estimate_timing
 
-    model = estimate_timing(run.t, run.omega_1, run.omega_2, run.calibration.A, run.calibration.bias, run.used)
+    # on the samples before the flex gate: the gate rejects where the delay's residual is largest, a mask that
+    # follows the beat and would put sidebands (one tone plus or minus another) into the search
+    model = estimate_timing(run.t, run.omega_1, run.omega_2, run.calibration.A, run.calibration.bias, run.valid)
     if not model.significant:
         return run
     t = run.t if run.t is not None else np.arange(len(run.omega_1), dtype=float)
