@@ -23,12 +23,14 @@ FLICKER = 2.0 * np.log(2.0) / np.pi   # AVAR of bias instability B: (2 ln 2 / pi
 SIGNIFICANT_CHI2 = 9.0                # chi-square drop for a term to be kept (3 sigma)
 COLOURED_FACTOR = 1.5                 # Allan variance at the shortest tau off the fit by more: coloured
 #: the terms of :func:`fit_allan`, in the order of its coefficients
-TERMS = ("white", "flicker", "walk", "quantisation", "filtered")
-WHITE, FLICKER_TERM, WALK, QUANTISATION, FILTERED = range(5)
+TERMS = ("white", "flicker", "walk", "quantisation", "filtered", "tone")
+WHITE, FLICKER_TERM, WALK, QUANTISATION, FILTERED, TONE = range(6)
+#: the short-term terms: what a calibration over a window, and each sample, sees as noise
+SHORT_TERMS = (WHITE, QUANTISATION, FILTERED, TONE)
 #: the noise type whose degrees of freedom and neighbour correlation a dominant term has (columns of
-#: :func:`edf_table`: white, flicker and random-walk rate noise, white angle noise); the filtered term is
-#: white at the taus where it matters
-TERM_NOISE = np.array([0, 1, 2, 3, 0])
+#: :func:`edf_table`: white, flicker and random-walk rate noise, white angle noise); the filtered and tone
+#: terms are white at the taus where they matter
+TERM_NOISE = np.array([0, 1, 2, 3, 0, 0])
 #: correlation of the overlapping Allan variance at neighbouring octave taus, by the dominant noise
 #: (white, flicker, random walk, white angle), measured on simulated noise
 NEIGHBOUR_CORRELATION = np.array([0.5, 0.7, 0.85, 0.3])
@@ -129,24 +131,46 @@ def filtered_shape(taus, tc: float) -> np.ndarray:
     return g / np.asarray(taus, float)
 
 
-def design(taus, tc: float | None = None) -> np.ndarray:
-    """The columns of :data:`TERMS` at ``taus``: ``1/tau``, ``2 ln 2 / pi``, ``tau / 3``, ``3 / tau^2`` and
-    :func:`filtered_shape` (zero without a time constant)."""
+def tone_shape(taus, tau0: float, freq_hz: float, rho: float) -> np.ndarray:
+    """The Allan variance at ``taus`` (multiples ``m`` of the sample period ``tau0``) of narrow-band noise of unit
+    variance per sample centred on ``freq_hz``: a sampled process whose autocovariance at lag ``k`` samples is
+    ``rho^k cos(2 pi freq_hz tau0 k)`` (a resonance, or a tone whose frequency wanders, such as a MEMS gyro's
+    drive frequency aliased to the output rate; ``1 - rho`` sets the bandwidth, about ``(1 - rho) / (pi tau0)``
+    Hz). Exact for the sampled process: with ``z = rho e^{i 2 pi freq_hz tau0}`` the phase's structure function
+    is ``V(m) = Re[m + 2 sum_{k<m} (m - k) z^k]`` (a geometric sum) and ``AVAR(m tau0) = (4 V(m) - V(2m)) /
+    (2 m^2)``. At ``m = 1`` it is ``1 - rho cos(2 pi freq_hz tau0)``; at long taus it falls as ``1 / tau^2``
+    (slope -1 in deviation, as a quantised angle)."""
+    m = np.maximum(np.rint(np.asarray(taus, float) / tau0), 1.0)
+    z = rho * np.exp(2j * np.pi * freq_hz * tau0)
+
+    def V(k):
+        return np.real(k + 2.0 * ((k - (k + 1.0) * z + z ** (k + 1.0)) / (1.0 - z) ** 2 - k))
+
+    return (4.0 * V(m) - V(2.0 * m)) / (2.0 * m * m)
+
+
+def design(taus, tc: float | None = None, tone: tuple | None = None, tau0: float | None = None) -> np.ndarray:
+    """The columns of :data:`TERMS` at ``taus``: ``1/tau``, ``2 ln 2 / pi``, ``tau / 3``, ``3 / tau^2``,
+    :func:`filtered_shape` (zero without a time constant) and :func:`tone_shape` (zero without ``tone``, its
+    ``(freq_hz, rho)``, and the sample period ``tau0``)."""
     taus = np.asarray(taus, float)
     f = filtered_shape(taus, tc) if tc else np.zeros_like(taus)
-    return np.column_stack([1.0 / taus, np.full_like(taus, FLICKER), taus / 3.0, 3.0 / taus ** 2, f])
+    k = tone_shape(taus, tau0, *tone) if tone and tone[1] > 0 and tau0 else np.zeros_like(taus)
+    return np.column_stack([1.0 / taus, np.full_like(taus, FLICKER), taus / 3.0, 3.0 / taus ** 2, f, k])
 
 
 class AllanFit(NamedTuple):
     """A fit of :func:`fit_allan`."""
 
-    coef: np.ndarray        # (5,) N^2, B^2, K^2, Q^2, F^2 (0 for a term not kept)
-    cov: np.ndarray         # (5, 5) their covariance (NaN without a term)
+    coef: np.ndarray        # (6,) N^2, B^2, K^2, Q^2, F^2, tone variance per sample (0 for a term not kept)
+    cov: np.ndarray         # (6, 6) their covariance (NaN without a term)
     first: int              # index of the first tau fitted
     pred: np.ndarray        # the model's AVAR at every tau
     tc: float               # the filtered term's time constant (0 without it)
     chi2: float
     worst: float            # largest ratio of model to point ADEV (or its inverse) beyond the points' 2-sigma
+    tone: tuple = (0.0, 0.0)   # the tone term's centre frequency (Hz) and pole radius rho ((0, 0) without it)
+    tau0: float = 0.0       # the sample period the taus are multiples of
 
     @property
     def fits(self) -> bool:
@@ -155,38 +179,57 @@ class AllanFit(NamedTuple):
 
     def white_row(self, tau: float) -> np.ndarray:
         """The linear map of the coefficients to :meth:`white_equivalent` (for its variance: ``g cov g``)."""
-        g = tau * design([tau], self.tc)[0]
+        g = tau * design([tau], self.tc, self.tone, self.tau0)[0]
         g[[FLICKER_TERM, WALK]] = 0.0
         return g
 
     def white_equivalent(self, tau: float) -> float:
-        """``tau AVAR(tau)`` of the short-term terms (white, quantisation, filtered): the white level (N^2) that
-        has their Allan variance at ``tau``, what a calibration over that time scale sees of them."""
+        """``tau AVAR(tau)`` of the short-term terms (white, quantisation, filtered, tone): the white level (N^2)
+        that has their Allan variance at ``tau``, what a calibration over that time scale sees of them."""
         return float(self.white_row(tau) @ self.coef)
 
+    def sample_row(self) -> np.ndarray:
+        """The linear map of the coefficients to :meth:`sample_variance`: each short-term term's variance per
+        sample, ``N^2 / tau0``, ``2 Q^2 / tau0^2`` (the difference of two white angle errors),
+        ``F^2 / (2 T_c)`` (a Gauss-Markov process's variance) and the tone's own variance."""
+        tau0 = self.tau0
+        g = np.zeros(len(TERMS))
+        g[WHITE], g[QUANTISATION], g[TONE] = 1.0 / tau0, 2.0 / tau0 ** 2, 1.0
+        g[FILTERED] = 1.0 / (2.0 * self.tc) if self.tc > 0 else 0.0
+        return g
 
-def _wls(taus, avar, edf, terms, tc=None):
+    def sample_variance(self) -> float:
+        """The variance per sample of the short-term noise the model describes: what the spread of a stretch of
+        samples about its mean shows (for white noise alone ``N^2 / tau0``, its Allan variance at one sample)."""
+        return float(self.sample_row() @ self.coef)
+
+
+def _wls(taus, avar, edf, terms, tc=None, tone=None, tau0=None, scatter=None, start=None, iterations: int = 5):
     """Non-negative generalised least squares of AVAR on the chosen terms (indices of :data:`TERMS`).
 
     The variance of each point is ``2 AVAR^2 / edf`` with the degrees of freedom of the dominant noise at
-    that tau; neighbouring octaves of the overlapping estimator are correlated (measured for octave taus:
-    about 0.5 for white, 0.7 for flicker, 0.85 for random-walk rate noise and 0.3 for white angle noise,
-    decaying geometrically), so the points are whitened with that correlation before the fit (without it the
-    uncertainties come out about twice too small). Iterated with the weights of the model.
+    that tau, or ``AVAR^2 scatter`` where the point's relative variance measured from the data (``scatter``,
+    :func:`allan_points`) is larger; neighbouring octaves of the overlapping estimator are correlated (measured
+    for octave taus: about 0.5 for white, 0.7 for flicker, 0.85 for random-walk rate noise and 0.3 for white
+    angle noise, decaying geometrically), so the points are whitened with that correlation before the fit
+    (without it the uncertainties come out about twice too small). Iterated ``iterations`` times with the
+    weights of the model, from those of ``start`` (a model's AVAR; default the points themselves).
     """
     from scipy.optimize import nnls
 
-    X = design(taus, tc)
+    X = design(taus, tc, tone, tau0)
     Xs = X[:, terms]
     scale = np.abs(Xs).max(axis=0)
-    pred = avar.copy()
+    pred = avar.copy() if start is None else np.asarray(start, float)
     coef = np.zeros(len(TERMS))
     T = taus.size
-    for _ in range(5):
+    extra = np.zeros(T) if scatter is None else np.nan_to_num(np.asarray(scatter, float), nan=0.0)
+    for _ in range(iterations):
         parts = X * np.where(coef > 0, coef, 0.0)
         dom = TERM_NOISE[np.argmax(parts, axis=1)] if coef.any() else np.zeros(T, int)
         e = edf[np.arange(T), dom]
-        sd = np.maximum(pred, 1e-300) * np.sqrt(2.0 / e)
+        rel = np.maximum(2.0 / e, extra)
+        sd = np.maximum(pred, 1e-300) * np.sqrt(rel)
         rho = np.minimum(NEIGHBOUR_CORRELATION[dom[:-1]], NEIGHBOUR_CORRELATION[dom[1:]])
         logc = np.concatenate([[0.0], np.cumsum(np.log(rho))])
         C = np.exp(-np.abs(logc[:, None] - logc[None, :]))  # prod of the neighbour correlations between i and j
@@ -206,79 +249,126 @@ def _wls(taus, avar, edf, terms, tc=None):
         red = max(1.0, chi2 / max(T - len(act), 1))
         cov = np.zeros((len(TERMS),) * 2)
         cov[np.ix_(act, act)] = np.linalg.pinv(J.T @ J) * red
-    # how far the model is from the points, beyond each point's own 2-sigma scatter (in deviation)
+    # how far the model is from the points, beyond each point's own 2-sigma scatter (in deviation: half the
+    # relative variance's square root)
     ratio = np.abs(0.5 * np.log(np.maximum(pred, 1e-300) / np.maximum(avar, 1e-300)))
-    worst = float(np.exp(np.max(np.maximum(ratio - 2.0 / np.sqrt(2.0 * e), 0.0))))
+    worst = float(np.exp(np.max(np.maximum(ratio - np.sqrt(rel), 0.0))))
     return coef, cov, chi2, pred, worst
 
 
-def _candidates(taus, terms, max_tc):
-    """The terms not yet in ``terms`` with their time constants: the filtered term once per octave tau up to an
-    eighth of the longest (a time constant the curve shows on both sides) and ``max_tc``."""
+#: the tone term's candidate centre frequencies (fractions of the sample rate) and pole radii
+TONE_FREQUENCIES = np.arange(0.02, 0.5001, 0.02)
+TONE_RADII = (0.75, 0.9, 0.97)
+
+
+def _candidates(taus, terms, max_tc, tau0):
+    """The terms not yet in ``terms`` with their parameters: the filtered term once per octave tau up to an eighth
+    of the longest (a time constant the curve shows on both sides) and ``max_tc``; the tone term at
+    :data:`TONE_FREQUENCIES` and :data:`TONE_RADII` where the fit starts at one sample (the tone shows in the
+    shortest taus)."""
     out = [(t, None) for t in (QUANTISATION, WALK, FLICKER_TERM) if t not in terms]
     if FILTERED not in terms:
         out += [(FILTERED, float(tc)) for tc in taus[taus <= min(taus[-1] / 8.0, max_tc)]]
+    if TONE not in terms and tau0 and abs(taus[0] - tau0) < 1e-9 * tau0:
+        out += [(TONE, (float(f / tau0), r)) for f in TONE_FREQUENCIES for r in TONE_RADII]
     return out
 
 
-def _select(t, a, e, max_tc):
+SCANNED = (FILTERED, TONE)
+SCREENED = 12   # a scan of more candidates is screened (:func:`_best_addition`) down to this many   # terms tried at several parameters (their look-elsewhere counts them)
+
+
+def _best_addition(t, a, e, tau0, scatter, terms, par, best, cands):
+    """The candidate of ``cands`` (each ``(added terms, parameter of a scanned one)``) :func:`_select` adds to
+    ``terms``, as ``(terms, fit, parameters)``, or None."""
+    trials = []
+    screen = len(cands) > SCREENED   # many parameters of a scanned term: one pass each with the current
+    for add, c in cands:             # model's weights, then the full fit of the most promising
+        p = dict(par)
+        for term in add:
+            if term in SCANNED:
+                p[term] = c
+        fit = _wls(t, a, e, terms + list(add), p[FILTERED], p[TONE], tau0, scatter,
+                   *((best[3], 1) if screen else ()))
+        trials.append((best[2] - fit[2], add, fit, p))
+    if screen:
+        trials = sorted(trials, key=lambda tr: -tr[0])[:SCREENED]
+        trials = [(best[2] - fit[2], add, fit, p) for _, add, _, p in trials
+                  for fit in [_wls(t, a, e, terms + list(add), p[FILTERED], p[TONE], tau0, scatter)]]
+    look = {k: 2.0 * np.log(max(sum(1 for add, _ in cands if k in add), 1)) for k in SCANNED}   # all tried
+    trials.sort(key=lambda tr: tr[0] - sum(look.get(k, 0.0) for k in tr[1]), reverse=True)
+    for drop, add, fit, p in trials:
+        red = max(1.0, fit[2] / max(t.size - len(terms) - len(add), 1))
+        need = sum(SIGNIFICANT_CHI2 * red + look.get(term, 0.0) for term in add)
+        if not (all(fit[0][term] > 0 for term in add) and fit[0][WHITE] > 0 and drop > need):   # white stays
+            continue
+        X = design(t, p[FILTERED], p[TONE], tau0)
+        shares = [np.max(X[:, term] * fit[0][term] / np.maximum(fit[3], 1e-300)) for term in add
+                  if term in (QUANTISATION, FILTERED, TONE)]   # a noise kind, not a wrinkle: a material share
+        if shares and min(shares) < MATERIAL_SHARE:
+            continue
+        return terms + list(add), fit, p
+    return None
+
+
+def _select(t, a, e, max_tc, tau0=None, scatter=None):
     """Forward selection from white noise: the candidate (:func:`_candidates`) that lowers the chi-square most (with
-    the white term still positive) is added while it does so by more than :data:`SIGNIFICANT_CHI2` (times the reduced chi-square; plus
-    ``2 ln k`` for the filtered term tried at ``k`` time constants, the look-elsewhere of picking the best) and,
-    for the quantisation and filtered terms, while it makes at least :data:`MATERIAL_SHARE` of the model at some
-    fitted tau."""
-    terms, tc = [WHITE], None
-    best = _wls(t, a, e, terms)
+    the white term still positive) is added while it does so by more than :data:`SIGNIFICANT_CHI2` (times the
+    reduced chi-square; plus ``2 ln k`` for a term tried at ``k`` parameters, the look-elsewhere of picking the
+    best) and, for the quantisation, filtered and tone terms, while it makes at least :data:`MATERIAL_SHARE` of
+    the model at some fitted tau."""
+    terms, par = [WHITE], {FILTERED: None, TONE: None}
+    best = _wls(t, a, e, terms, tau0=tau0, scatter=scatter)
     while True:
-        trials = []
-        for term, c in _candidates(t, terms, max_tc):
-            fit = _wls(t, a, e, terms + [term], c if term == FILTERED else tc)
-            trials.append((best[2] - fit[2], term, c, fit))
-        if not trials:
-            break
-        n_tc = sum(1 for tr in trials if tr[1] == FILTERED)
-        look = 2.0 * np.log(max(n_tc, 1))
-        trials.sort(key=lambda tr: tr[0] - (look if tr[1] == FILTERED else 0.0), reverse=True)
-        for drop, term, c, fit in trials:
-            red = max(1.0, fit[2] / max(t.size - len(terms) - 1, 1))
-            need = SIGNIFICANT_CHI2 * red + (look if term == FILTERED else 0.0)
-            if not (fit[0][term] > 0 and fit[0][WHITE] > 0 and drop > need):   # white noise stays in the model
-                continue
-            if term in (QUANTISATION, FILTERED):   # a noise kind, not a wrinkle: a material share somewhere
-                share = np.max(design(t, c if term == FILTERED else tc)[:, term] * fit[0][term]
-                               / np.maximum(fit[3], 1e-300))
-                if share < MATERIAL_SHARE:
-                    continue
-            terms, best = terms + [term], fit
-            if term == FILTERED:
-                tc = c
-            break
+        cands = [((term,), c) for term, c in _candidates(t, terms, max_tc, tau0)]
+        fixed = [c[0][0] for c in cands if c[0][0] not in SCANNED]
+        pairs = [((p, q), None) for i, p in enumerate(fixed) for q in fixed[i + 1:]]
+        # one term at a time; else two of the fixed ones together (one alone may fit worse than none: the
+        # curve needs both ends, e.g. quantisation and a random walk); the tone last: a narrow band near the
+        # Nyquist rate looks like quantisation over the octaves, the simpler term
+        for group in ([c for c in cands if c[0][0] != TONE], pairs, [c for c in cands if c[0][0] == TONE]):
+            added = _best_addition(t, a, e, tau0, scatter, terms, par, best, group)
+            if added is not None:
+                terms, best, par = added
+                break
         else:
             break
-    return best, (tc or 0.0)
+    return best, par
 
 
-def fit_allan(taus, avar, edf, first: int = 0, max_tc: float | None = None) -> AllanFit:
+def fit_allan(taus, avar, edf, first: int = 0, max_tc: float | None = None, scatter=None,
+              tau0: float | None = None) -> AllanFit:
     """Fit :data:`TERMS` to the Allan variance ``avar`` from the tau of index ``first`` on (:func:`_select`; the
     filtered term's time constant at most ``max_tc``, a filter's, not a slow disturbance's: default
-    :data:`MAX_FILTER_SAMPLES` times the shortest tau). While the model is
+    :data:`MAX_FILTER_SAMPLES` times the shortest tau). ``scatter`` is each point's relative variance measured
+    from the data (:func:`allan_points`; NaN where not measured), used where it exceeds the stationary
+    estimator's; ``tau0`` is the sample period (default the shortest tau). While the model is
     off the shortest tau by more than a factor :data:`COLOURED_FACTOR` in variance, or off one of the three
     shortest by more than :data:`FIT_FACTOR` beyond their scatter (noise none of the terms describes there), or
-    has no short-term term (white, quantisation, filtered) at all, that tau is dropped and the fit repeated, down to
-    six taus. Returns an :class:`AllanFit`; its ``worst`` says how
-    well it passes through all the fitted points."""
+    has no short-term term (white, quantisation, filtered, tone) at all, that tau is dropped and the fit repeated,
+    down to six taus. Returns an :class:`AllanFit`; its ``worst`` says how well it passes through all the fitted
+    points."""
+    taus = np.asarray(taus, float)
+    tau0 = float(taus[0]) if tau0 is None else float(tau0)
     lo = min(int(first), max(taus.size - 6, 0))
     max_tc = MAX_FILTER_SAMPLES * float(taus[0]) if max_tc is None else max_tc
+    sc = None if scatter is None else np.asarray(scatter, float)
+    short = list(SHORT_TERMS)
     while True:
         t, a, e = taus[lo:], avar[lo:], edf[lo:]
-        (coef, cov, chi2, pred, worst), tc = _select(t, a, e, max_tc)
+        s_ = None if sc is None else sc[lo:]
+        (coef, cov, chi2, pred, worst), par = _select(t, a, e, max_tc, tau0, s_)
         ratio = a[0] / pred[0] if pred[0] > 0 else np.inf
         dof = edf[lo:lo + 3, 0]
-        head = np.abs(0.5 * np.log(np.maximum(pred[:3], 1e-300) / np.maximum(a[:3], 1e-300))) - 2.0 / np.sqrt(2 * dof)
+        rel = 2.0 / dof if s_ is None else np.maximum(2.0 / dof, np.nan_to_num(s_[:3], nan=0.0))
+        head = np.abs(0.5 * np.log(np.maximum(pred[:3], 1e-300) / np.maximum(a[:3], 1e-300))) - np.sqrt(rel)
         good = (1.0 / COLOURED_FACTOR <= ratio <= COLOURED_FACTOR and float(np.exp(head.max())) <= FIT_FACTOR
-                and coef[[WHITE, QUANTISATION, FILTERED]].sum() > 0)   # a level of short-term noise, not drift alone
+                and coef[short].sum() > 0)   # a level of short-term noise, not drift alone
         if good or t.size <= 6:
-            if coef[[WHITE, QUANTISATION, FILTERED]].sum() <= 0:   # drift alone fits: white noise is what is left
-                (coef, cov, chi2, pred, worst), tc = _wls(t, a, e, [WHITE]), 0.0
-            return AllanFit(coef, cov, lo, design(taus, tc) @ coef, tc if coef[FILTERED] > 0 else 0.0, chi2, worst)
+            if coef[short].sum() <= 0:   # drift alone fits: white noise is what is left
+                (coef, cov, chi2, pred, worst), par = _wls(t, a, e, [WHITE], tau0=tau0, scatter=s_), {}
+            tc = par.get(FILTERED) or 0.0
+            tone = par.get(TONE) or (0.0, 0.0)
+            return AllanFit(coef, cov, lo, design(taus, tc, tone, tau0) @ coef, tc if coef[FILTERED] > 0 else 0.0,
+                            chi2, worst, tuple(tone) if coef[TONE] > 0 else (0.0, 0.0), tau0)
         lo += 1

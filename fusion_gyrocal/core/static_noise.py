@@ -216,10 +216,11 @@ def static_noise(omega, rate_hz: float, *, valid=None, stretches=None) -> Static
         coef, cov, lo = f.coef, f.cov, f.first
         first[ax] = lo
         fit[lo:, ax] = np.sqrt(np.maximum(f.pred[lo:], 0.0))
-        # the white level the samples show (white, quantisation and filtered terms at one sample, what a filter
-        # that takes each sample's noise reads from a density), its variance by first order
-        g = f.white_row(float(taus[0]))
-        level = f.white_equivalent(float(taus[0]))
+        # the white level the samples show: the short-term terms' variance per sample (white, quantisation,
+        # filtered, tone), as a density (times the sample period): what a filter that takes each sample's noise
+        # reads from a density; its variance by first order
+        g = f.sample_row() * f.tau0
+        level = f.sample_variance() * f.tau0
         white[ax], white_sd[ax] = np.sqrt(max(level, 0.0)), _sd_of_root(level, float(g @ np.nan_to_num(cov) @ g))
         bias[ax], bias_sd[ax] = np.sqrt(max(coef[1], 0.0)), _sd_of_root(coef[1], cov[1, 1])
         walk[ax], walk_sd[ax] = np.sqrt(max(coef[2], 0.0)), _sd_of_root(coef[2], cov[2, 2])
