@@ -21,16 +21,17 @@ import numpy as np
 
 FLICKER = 2.0 * np.log(2.0) / np.pi   # AVAR of bias instability B: (2 ln 2 / pi) B^2 (IEEE Std 952)
 SIGNIFICANT_CHI2 = 9.0                # chi-square drop for a term to be kept (3 sigma)
+MAX_RED = 1.0   # the reduced chi-square a term's significance is scaled by, at most (see _best_addition)
 COLOURED_FACTOR = 1.5                 # Allan variance at the shortest tau off the fit by more: coloured
 #: the terms of :func:`fit_allan`, in the order of its coefficients
-TERMS = ("white", "flicker", "walk", "quantisation", "filtered", "tone")
-WHITE, FLICKER_TERM, WALK, QUANTISATION, FILTERED, TONE = range(6)
+TERMS = ("white", "flicker", "walk", "quantisation", "filtered", "tone", "bounded")
+WHITE, FLICKER_TERM, WALK, QUANTISATION, FILTERED, TONE, BOUNDED = range(7)
 #: the short-term terms: what a calibration over a window, and each sample, sees as noise
-SHORT_TERMS = (WHITE, QUANTISATION, FILTERED, TONE)
+SHORT_TERMS = (WHITE, QUANTISATION, FILTERED, TONE, BOUNDED)
 #: the noise type whose degrees of freedom and neighbour correlation a dominant term has (columns of
 #: :func:`edf_table`: white, flicker and random-walk rate noise, white angle noise); the filtered and tone
 #: terms are white at the taus where they matter
-TERM_NOISE = np.array([0, 1, 2, 3, 0, 0])
+TERM_NOISE = np.array([0, 1, 2, 3, 0, 0, 0])
 #: correlation of the overlapping Allan variance at neighbouring octave taus, by the dominant noise
 #: (white, flicker, random walk, white angle), measured on simulated noise
 NEIGHBOUR_CORRELATION = np.array([0.5, 0.7, 0.85, 0.3])
@@ -58,12 +59,59 @@ def allan_deviation(y: np.ndarray, rate_hz: float):
     return taus, np.sqrt(sums[0] / sums[-1][:, None]), sub_n, sub_m
 
 
-def second_differences(ys, rate_hz: float, pairs=()):
+class AllanPoints(NamedTuple):
+    """The points of :func:`allan_points`."""
+
+    taus: np.ndarray        # (T,) octave taus (s)
+    adev: np.ndarray        # (T, 3) overlapping Allan deviation per axis
+    sub_n: np.ndarray       # (T,) length of the subsampled phase (for :func:`edf_table`)
+    sub_m: np.ndarray       # (T,) its averaging factor
+    scatter: np.ndarray     # (T, 4) relative variance of each axis's Allan variance and of their mean, measured
+
+
+def allan_points(y: np.ndarray, rate_hz: float) -> AllanPoints:
+    """:func:`allan_deviation` with each point's scatter measured from the data: the relative variance of the
+    Allan variance at each tau from batch means (the log cut into batches of :data:`BATCH_TAUS` times ``2 tau``;
+    the spread of the batches' Allan variances over their number), per axis and for the mean of the axes.
+
+    The stationary estimator's variance (``2 AVAR^2 / edf``, :func:`edf_table`) holds for Gaussian noise of one
+    level; a residual whose level follows the motion (bursts, rests) scatters far more (on hand-held logs 20 to
+    several hundred times). Where the batches show more than the stationary variance significantly (by more than
+    three of their own standard errors), that is the scatter; else NaN (the stationary one holds). Beyond the
+    taus with at least :data:`MIN_BATCHES` batches the last measured excess over the stationary variance is
+    carried on (it is the level's fluctuation, the same at every tau)."""
+    taus, sums, sub_n, sub_m, batches = second_differences([y], rate_hz, batches=True)
+    adev = np.sqrt(sums[0] / sums[-1][:, None])
+    T = taus.size
+    stationary = np.column_stack([2.0 / edf_table(sub_n, sub_m, axes=1)[:, 0]] * 3
+                                 + [2.0 / edf_table(sub_n, sub_m, axes=3)[:, 0]])
+    scatter = np.full((T, 4), np.nan)
+    excess = np.full(4, np.nan)
+    for i, b in enumerate(batches):
+        if b is None or b.shape[1] < MIN_BATCHES:
+            scatter[i] = np.where(np.isfinite(excess), stationary[i] + excess, np.nan)
+            continue
+        v = np.vstack([b, b.mean(axis=0)[None]])          # (4, K)
+        K = v.shape[1]
+        rel = v.var(axis=1, ddof=1) / K / np.maximum(v.mean(axis=1), 1e-300) ** 2
+        sig = rel > stationary[i] * (1.0 + 3.0 * np.sqrt(2.0 / (K - 1)))
+        scatter[i] = np.where(sig, rel, np.nan)
+        excess = np.where(sig, rel - stationary[i], np.nan)
+    return AllanPoints(taus, adev, sub_n, sub_m, scatter)
+
+
+BATCH_TAUS = 16     # a batch of allan_points spans this many times 2 tau
+MIN_BATCHES = 8     # fewest batches whose spread is a scatter
+
+
+def second_differences(ys, rate_hz: float, pairs=(), batches: bool = False):
     """Per octave tau, the sums over the overlapping second differences of the phase of each stream of ``ys``
     (same length, (n, 3)), each axis apart, scaled so that ``sums[i] / sums[-1]`` is the Allan variance of
     stream ``i``; with ``pairs`` ``(i, j)``, also the cross sums ``d_i d_j`` (their Allan covariance), appended
     after the streams' in the order given; ``sums[-1]`` holds ``2 tau^2`` times the count. Returns taus, the
-    sums, and the subsampled phase's length and averaging factor (see :func:`allan_deviation`)."""
+    sums, and the subsampled phase's length and averaging factor (see :func:`allan_deviation`); with
+    ``batches``, also per tau the first stream's mean squared second difference per axis in consecutive batches
+    of :data:`BATCH_TAUS` times ``2 tau`` ((3, K) arrays, None where not even one batch fits)."""
     n = ys[0].shape[0]
     ms = 2 ** np.arange(0, int(np.floor(np.log2(max(n / 4.0, 1.0)))) + 1)
     blocks = [np.ascontiguousarray(y.T, dtype=np.float64) for y in ys]   # (3, n): fast row reductions
@@ -71,6 +119,7 @@ def second_differences(ys, rate_hz: float, pairs=()):
         b_ -= b_.mean(axis=1)[:, None]
     out = [np.empty((ms.size, 3)) for _ in range(len(ys) + len(pairs))] + [np.empty(ms.size)]
     sub_n, sub_m = np.empty(ms.size), np.empty(ms.size)
+    batch = []
     b = 1
     for i, m in enumerate(ms):
         while b < max(1, int(m) // 4):      # sums of 2b samples from those of b
@@ -87,10 +136,16 @@ def second_differences(ys, rate_hz: float, pairs=()):
             ds.append(s[:, mm:] - s[:, :-mm])    # (x_{i+2m} - 2 x_{i+m} + x_i) * rate_hz
         for j, d in enumerate(ds):
             out[j][i] = np.einsum("ak,ak->a", d, d)
+        if batches:
+            w = int(np.ceil(BATCH_TAUS * 2.0 * float(m) / b))    # elements of d (b samples apart) per batch
+            k = ds[0].shape[1] // w
+            batch.append((ds[0][:, :k * w] ** 2).reshape(3, k, w).mean(axis=2) if k else None)
         for j, (p, q) in enumerate(pairs):
             out[len(ys) + j][i] = np.einsum("ak,ak->a", ds[p], ds[q])
         out[-1][i] = 2.0 * float(m) ** 2 * ds[0].shape[1]
         sub_n[i], sub_m[i] = blocks[0].shape[1] + 1, mm
+    if batches:
+        return ms / rate_hz, out, sub_n, sub_m, batch
     return ms / rate_hz, out, sub_n, sub_m
 
 
@@ -149,21 +204,36 @@ def tone_shape(taus, tau0: float, freq_hz: float, rho: float) -> np.ndarray:
     return (4.0 * V(m) - V(2.0 * m)) / (2.0 * m * m)
 
 
-def design(taus, tc: float | None = None, tone: tuple | None = None, tau0: float | None = None) -> np.ndarray:
+def bounded_shape(taus, tb: float) -> np.ndarray:
+    """The Allan variance of a rate differentiated from an angle error that is a first-order Gauss-Markov process
+    of time constant ``tb`` (white noise high-pass filtered: the angle stays bounded, as a motion-capture
+    orientation's smoothed error or a motion-band residue), scaled to white level 1 at short taus:
+    ``tb (3 - 4 e^{-tau/tb} + e^{-2 tau/tb}) / (2 tau^2)`` (from the phase's autocovariance; exact for the
+    sampled process), ``1 / tau`` well below ``tb`` and ``3 tb / (2 tau^2)`` (quantisation, slope -1) above."""
+    taus = np.asarray(taus, float)
+    x = taus / tb
+    with np.errstate(over="ignore", invalid="ignore"):
+        h = tb * (3.0 - 4.0 * np.exp(-x) + np.exp(-2.0 * x)) / (2.0 * taus * taus)
+    return np.where(x < 1e-4, (1.0 - 1.5 * x) / taus, h)
+
+
+def design(taus, tc: float | None = None, tone: tuple | None = None, tau0: float | None = None,
+           tb: float | None = None) -> np.ndarray:
     """The columns of :data:`TERMS` at ``taus``: ``1/tau``, ``2 ln 2 / pi``, ``tau / 3``, ``3 / tau^2``,
-    :func:`filtered_shape` (zero without a time constant) and :func:`tone_shape` (zero without ``tone``, its
-    ``(freq_hz, rho)``, and the sample period ``tau0``)."""
+    :func:`filtered_shape` (zero without a time constant), :func:`tone_shape` (zero without ``tone``, its
+    ``(freq_hz, rho)``, and the sample period ``tau0``) and :func:`bounded_shape` (zero without ``tb``)."""
     taus = np.asarray(taus, float)
     f = filtered_shape(taus, tc) if tc else np.zeros_like(taus)
     k = tone_shape(taus, tau0, *tone) if tone and tone[1] > 0 and tau0 else np.zeros_like(taus)
-    return np.column_stack([1.0 / taus, np.full_like(taus, FLICKER), taus / 3.0, 3.0 / taus ** 2, f, k])
+    h = bounded_shape(taus, tb) if tb else np.zeros_like(taus)
+    return np.column_stack([1.0 / taus, np.full_like(taus, FLICKER), taus / 3.0, 3.0 / taus ** 2, f, k, h])
 
 
 class AllanFit(NamedTuple):
     """A fit of :func:`fit_allan`."""
 
-    coef: np.ndarray        # (6,) N^2, B^2, K^2, Q^2, F^2, tone variance per sample (0 for a term not kept)
-    cov: np.ndarray         # (6, 6) their covariance (NaN without a term)
+    coef: np.ndarray        # (7,) N^2, B^2, K^2, Q^2, F^2, tone variance per sample, H^2 (0 for a term not kept)
+    cov: np.ndarray         # (7, 7) their covariance (NaN without a term)
     first: int              # index of the first tau fitted
     pred: np.ndarray        # the model's AVAR at every tau
     tc: float               # the filtered term's time constant (0 without it)
@@ -171,6 +241,7 @@ class AllanFit(NamedTuple):
     worst: float            # largest ratio of model to point ADEV (or its inverse) beyond the points' 2-sigma
     tone: tuple = (0.0, 0.0)   # the tone term's centre frequency (Hz) and pole radius rho ((0, 0) without it)
     tau0: float = 0.0       # the sample period the taus are multiples of
+    tb: float = 0.0         # the bounded term's time constant (0 without it)
 
     @property
     def fits(self) -> bool:
@@ -179,23 +250,27 @@ class AllanFit(NamedTuple):
 
     def white_row(self, tau: float) -> np.ndarray:
         """The linear map of the coefficients to :meth:`white_equivalent` (for its variance: ``g cov g``)."""
-        g = tau * design([tau], self.tc, self.tone, self.tau0)[0]
+        g = tau * design([tau], self.tc, self.tone, self.tau0, self.tb)[0]
         g[[FLICKER_TERM, WALK]] = 0.0
-        return g
+        g[TONE] = self.tau0   # the tone counts as white noise of its variance per sample (its frequency may wander
+        return g              # into the motion's band: conservative)
 
     def white_equivalent(self, tau: float) -> float:
-        """``tau AVAR(tau)`` of the short-term terms (white, quantisation, filtered, tone): the white level (N^2)
-        that has their Allan variance at ``tau``, what a calibration over that time scale sees of them."""
+        """``tau AVAR(tau)`` of the short-term terms (white, quantisation, filtered, bounded): the white level
+        (N^2) that has their Allan variance at ``tau``, what a calibration over that time scale sees of them; the
+        tone counts with its variance per sample times ``tau0`` (as white noise of that spread)."""
         return float(self.white_row(tau) @ self.coef)
 
     def sample_row(self) -> np.ndarray:
         """The linear map of the coefficients to :meth:`sample_variance`: each short-term term's variance per
         sample, ``N^2 / tau0``, ``2 Q^2 / tau0^2`` (the difference of two white angle errors),
-        ``F^2 / (2 T_c)`` (a Gauss-Markov process's variance) and the tone's own variance."""
+        ``F^2 / (2 T_c)`` (a Gauss-Markov process's variance), the tone's own variance and the bounded term's
+        ``H^2 T_b (1 - e^{-tau0/T_b}) / tau0^2``."""
         tau0 = self.tau0
         g = np.zeros(len(TERMS))
         g[WHITE], g[QUANTISATION], g[TONE] = 1.0 / tau0, 2.0 / tau0 ** 2, 1.0
         g[FILTERED] = 1.0 / (2.0 * self.tc) if self.tc > 0 else 0.0
+        g[BOUNDED] = self.tb * -np.expm1(-tau0 / self.tb) / tau0 ** 2 if self.tb > 0 else 0.0
         return g
 
     def sample_variance(self) -> float:
@@ -204,7 +279,8 @@ class AllanFit(NamedTuple):
         return float(self.sample_row() @ self.coef)
 
 
-def _wls(taus, avar, edf, terms, tc=None, tone=None, tau0=None, scatter=None, start=None, iterations: int = 5):
+def _wls(taus, avar, edf, terms, tc=None, tone=None, tau0=None, scatter=None, start=None, iterations: int = 5,
+         tb=None):
     """Non-negative generalised least squares of AVAR on the chosen terms (indices of :data:`TERMS`).
 
     The variance of each point is ``2 AVAR^2 / edf`` with the degrees of freedom of the dominant noise at
@@ -217,7 +293,7 @@ def _wls(taus, avar, edf, terms, tc=None, tone=None, tau0=None, scatter=None, st
     """
     from scipy.optimize import nnls
 
-    X = design(taus, tc, tone, tau0)
+    X = design(taus, tc, tone, tau0, tb)
     Xs = X[:, terms]
     scale = np.abs(Xs).max(axis=0)
     pred = avar.copy() if start is None else np.asarray(start, float)
@@ -240,7 +316,14 @@ def _wls(taus, avar, edf, terms, tc=None, tone=None, tau0=None, scatter=None, st
         coef = np.zeros(len(TERMS))
         coef[terms] = c
         pred = X @ coef
-    res = np.linalg.solve(L, avar - pred)
+    # with a measured scatter (large relative variances) the chi-square on the log of the points: a model far above
+    # a point counts as much as one as far below (in the variance itself an overshoot by k counts only (k - 1) / k
+    # sigma); with the stationary one (small relative variances) the two agree near the points
+    if scatter is None:
+        res = np.linalg.solve(L, avar - pred)
+    else:
+        Lr = np.linalg.cholesky(C * np.outer(np.sqrt(rel), np.sqrt(rel)))
+        res = np.linalg.solve(Lr, np.log(np.maximum(avar, 1e-300) / np.maximum(pred, 1e-300)))
     chi2 = float(res @ res)
     cov = np.full((len(TERMS),) * 2, np.nan)
     act = [t for t in terms if coef[t] > 0]
@@ -257,7 +340,7 @@ def _wls(taus, avar, edf, terms, tc=None, tone=None, tau0=None, scatter=None, st
 
 
 #: the tone term's candidate centre frequencies (fractions of the sample rate) and pole radii
-TONE_FREQUENCIES = np.arange(0.02, 0.5001, 0.02)
+TONE_FREQUENCIES = np.arange(0.1, 0.5001, 0.02)   # above the motion band (its residue is no tone)
 TONE_RADII = (0.75, 0.9, 0.97)
 
 
@@ -269,12 +352,15 @@ def _candidates(taus, terms, max_tc, tau0):
     out = [(t, None) for t in (QUANTISATION, WALK, FLICKER_TERM) if t not in terms]
     if FILTERED not in terms:
         out += [(FILTERED, float(tc)) for tc in taus[taus <= min(taus[-1] / 8.0, max_tc)]]
+    if BOUNDED not in terms:
+        out += [(BOUNDED, float(tb)) for tb in taus[(taus > taus[0]) & (taus <= taus[-1] / 8.0)]]
     if TONE not in terms and tau0 and abs(taus[0] - tau0) < 1e-9 * tau0:
         out += [(TONE, (float(f / tau0), r)) for f in TONE_FREQUENCIES for r in TONE_RADII]
     return out
 
 
-SCANNED = (FILTERED, TONE)
+SCANNED = (FILTERED, TONE, BOUNDED)
+LAST = (TONE, BOUNDED)   # terms tried only where none of the others is kept (:func:`_select`)
 SCREENED = 12   # a scan of more candidates is screened (:func:`_best_addition`) down to this many   # terms tried at several parameters (their look-elsewhere counts them)
 
 
@@ -289,60 +375,95 @@ def _best_addition(t, a, e, tau0, scatter, terms, par, best, cands):
             if term in SCANNED:
                 p[term] = c
         fit = _wls(t, a, e, terms + list(add), p[FILTERED], p[TONE], tau0, scatter,
-                   *((best[3], 1) if screen else ()))
+                   *((best[3], 1) if screen else (None, 5)), p[BOUNDED])
         trials.append((best[2] - fit[2], add, fit, p))
     if screen:
         trials = sorted(trials, key=lambda tr: -tr[0])[:SCREENED]
         trials = [(best[2] - fit[2], add, fit, p) for _, add, _, p in trials
-                  for fit in [_wls(t, a, e, terms + list(add), p[FILTERED], p[TONE], tau0, scatter)]]
+                  for fit in [_wls(t, a, e, terms + list(add), p[FILTERED], p[TONE], tau0, scatter, tb=p[BOUNDED])]]
     look = {k: 2.0 * np.log(max(sum(1 for add, _ in cands if k in add), 1)) for k in SCANNED}   # all tried
     trials.sort(key=lambda tr: tr[0] - sum(look.get(k, 0.0) for k in tr[1]), reverse=True)
     for drop, add, fit, p in trials:
         red = max(1.0, fit[2] / max(t.size - len(terms) - len(add), 1))
-        need = sum(SIGNIFICANT_CHI2 * red + look.get(term, 0.0) for term in add)
+        need = sum(SIGNIFICANT_CHI2 * (red if scatter is None else min(red, MAX_RED)) + look.get(term, 0.0)
+                   for term in add)
         if not (all(fit[0][term] > 0 for term in add) and fit[0][WHITE] > 0 and drop > need):   # white stays
             continue
-        X = design(t, p[FILTERED], p[TONE], tau0)
+        X = design(t, p[FILTERED], p[TONE], tau0, p[BOUNDED])
         shares = [np.max(X[:, term] * fit[0][term] / np.maximum(fit[3], 1e-300)) for term in add
-                  if term in (QUANTISATION, FILTERED, TONE)]   # a noise kind, not a wrinkle: a material share
+                  if term in (QUANTISATION, FILTERED, TONE, BOUNDED)]   # a noise kind, not a wrinkle: a material share
         if shares and min(shares) < MATERIAL_SHARE:
             continue
         return terms + list(add), fit, p
     return None
 
 
-def _select(t, a, e, max_tc, tau0=None, scatter=None):
+def _select(t, a, e, max_tc, tau0=None, scatter=None, extra: bool = False):
     """Forward selection from white noise: the candidate (:func:`_candidates`) that lowers the chi-square most (with
     the white term still positive) is added while it does so by more than :data:`SIGNIFICANT_CHI2` (times the
     reduced chi-square; plus ``2 ln k`` for a term tried at ``k`` parameters, the look-elsewhere of picking the
     best) and, for the quantisation, filtered and tone terms, while it makes at least :data:`MATERIAL_SHARE` of
     the model at some fitted tau."""
-    terms, par = [WHITE], {FILTERED: None, TONE: None}
+    terms, par = [WHITE], {FILTERED: None, TONE: None, BOUNDED: None}
     best = _wls(t, a, e, terms, tau0=tau0, scatter=scatter)
     while True:
-        cands = [((term,), c) for term, c in _candidates(t, terms, max_tc, tau0)]
+        cands = [((term,), c) for term, c in _candidates(t, terms, max_tc, tau0) if extra or term not in LAST]
         fixed = [c[0][0] for c in cands if c[0][0] not in SCANNED]
         pairs = [((p, q), None) for i, p in enumerate(fixed) for q in fixed[i + 1:]]
         # one term at a time; else two of the fixed ones together (one alone may fit worse than none: the
-        # curve needs both ends, e.g. quantisation and a random walk); the tone last: a narrow band near the
-        # Nyquist rate looks like quantisation over the octaves, the simpler term
-        for group in ([c for c in cands if c[0][0] != TONE], pairs, [c for c in cands if c[0][0] == TONE]):
+        # curve needs both ends, e.g. quantisation and a random walk); the tone and bounded terms last (LAST): a
+        # narrow band near the Nyquist rate, or a bounded angle, looks like quantisation over the octaves, the
+        # simpler term
+        for group in ([c for c in cands if c[0][0] not in LAST], pairs, [c for c in cands if c[0][0] in LAST]):
             added = _best_addition(t, a, e, tau0, scatter, terms, par, best, group)
             if added is not None:
                 terms, best, par = added
                 break
         else:
             break
+    if best[4] > FIT_FACTOR:   # still off its points: every fixed term at once, pruned back to the significant
+        full = _prune(t, a, e, tau0, scatter, sorted(set(terms) | {FLICKER_TERM, WALK, QUANTISATION}), par)
+        if full is not None and full[1][2] < best[2] - SIGNIFICANT_CHI2:
+            terms, best = full
     return best, par
 
 
+def _prune(t, a, e, tau0, scatter, terms, par):
+    """Backward elimination from ``terms``: a term the fit sets to zero, or whose removal raises the chi-square
+    by less than :data:`SIGNIFICANT_CHI2` times the reduced chi-square, is removed (the least needed first) while
+    white noise stays positive. Returns ``(terms, fit)``, or None where white noise does not stay."""
+    def fit_of(ts):
+        return _wls(t, a, e, ts, par[FILTERED], par[TONE], tau0, scatter, tb=par[BOUNDED])
+
+    fit = fit_of(terms)
+    while True:
+        if not fit[0][WHITE] > 0:
+            return None
+        zero = [k for k in terms if k != WHITE and not fit[0][k] > 0]
+        if zero:
+            terms = [k for k in terms if k not in zero]
+            fit = fit_of(terms)
+            continue
+        red = max(1.0, fit[2] / max(t.size - len(terms), 1))
+        trials = [(fit_of([k for k in terms if k != r]), r) for r in terms if r != WHITE]
+        trials = [(f[2] - fit[2], r, f) for f, r in trials if f[0][WHITE] > 0]
+        if not trials:
+            return terms, fit
+        rise, r, f = min(trials, key=lambda tr: tr[0])
+        if rise >= SIGNIFICANT_CHI2 * (red if scatter is None else min(red, MAX_RED)):
+            return terms, fit
+        terms, fit = [k for k in terms if k != r], f
+
+
 def fit_allan(taus, avar, edf, first: int = 0, max_tc: float | None = None, scatter=None,
-              tau0: float | None = None) -> AllanFit:
+              tau0: float | None = None, extra: bool = False) -> AllanFit:
     """Fit :data:`TERMS` to the Allan variance ``avar`` from the tau of index ``first`` on (:func:`_select`; the
     filtered term's time constant at most ``max_tc``, a filter's, not a slow disturbance's: default
     :data:`MAX_FILTER_SAMPLES` times the shortest tau). ``scatter`` is each point's relative variance measured
     from the data (:func:`allan_points`; NaN where not measured), used where it exceeds the stationary
-    estimator's; ``tau0`` is the sample period (default the shortest tau). While the model is
+    estimator's, and then a term's significance is not scaled by the reduced chi-square (the points' own scatter
+    is measured: what is left is the model's); ``tau0`` is the sample period (default the shortest tau); with
+    ``extra`` the tone and bounded terms are tried too (:data:`LAST`). While the model is
     off the shortest tau by more than a factor :data:`COLOURED_FACTOR` in variance, or off one of the three
     shortest by more than :data:`FIT_FACTOR` beyond their scatter (noise none of the terms describes there), or
     has no short-term term (white, quantisation, filtered, tone) at all, that tau is dropped and the fit repeated,
@@ -357,7 +478,7 @@ def fit_allan(taus, avar, edf, first: int = 0, max_tc: float | None = None, scat
     while True:
         t, a, e = taus[lo:], avar[lo:], edf[lo:]
         s_ = None if sc is None else sc[lo:]
-        (coef, cov, chi2, pred, worst), par = _select(t, a, e, max_tc, tau0, s_)
+        (coef, cov, chi2, pred, worst), par = _select(t, a, e, max_tc, tau0, s_, extra)
         ratio = a[0] / pred[0] if pred[0] > 0 else np.inf
         dof = edf[lo:lo + 3, 0]
         rel = 2.0 / dof if s_ is None else np.maximum(2.0 / dof, np.nan_to_num(s_[:3], nan=0.0))
@@ -369,6 +490,8 @@ def fit_allan(taus, avar, edf, first: int = 0, max_tc: float | None = None, scat
                 (coef, cov, chi2, pred, worst), par = _wls(t, a, e, [WHITE], tau0=tau0, scatter=s_), {}
             tc = par.get(FILTERED) or 0.0
             tone = par.get(TONE) or (0.0, 0.0)
-            return AllanFit(coef, cov, lo, design(taus, tc, tone, tau0) @ coef, tc if coef[FILTERED] > 0 else 0.0,
-                            chi2, worst, tuple(tone) if coef[TONE] > 0 else (0.0, 0.0), tau0)
+            tb = par.get(BOUNDED) or 0.0
+            return AllanFit(coef, cov, lo, design(taus, tc, tone, tau0, tb) @ coef,
+                            tc if coef[FILTERED] > 0 else 0.0, chi2, worst,
+                            tuple(tone) if coef[TONE] > 0 else (0.0, 0.0), tau0, tb if coef[BOUNDED] > 0 else 0.0)
         lo += 1

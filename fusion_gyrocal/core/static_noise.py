@@ -212,7 +212,7 @@ def static_noise(omega, rate_hz: float, *, valid=None, stretches=None) -> Static
     fit = np.full(avar.shape, np.nan)
     first = np.zeros(3, int)
     for ax in range(3):
-        f = fit_allan(taus, avar[:, ax], edf)
+        f = fit_allan(taus, avar[:, ax], edf, extra=True)
         coef, cov, lo = f.coef, f.cov, f.first
         first[ax] = lo
         fit[lo:, ax] = np.sqrt(np.maximum(f.pred[lo:], 0.0))
