@@ -71,37 +71,39 @@ class AllanPoints(NamedTuple):
 
 def allan_points(y: np.ndarray, rate_hz: float) -> AllanPoints:
     """:func:`allan_deviation` with each point's scatter measured from the data: the relative variance of the
-    Allan variance at each tau from batch means (the log cut into batches of :data:`BATCH_TAUS` times ``2 tau``;
-    the spread of the batches' Allan variances over their number), per axis and for the mean of the axes.
+    Allan variance at each tau from batch means (the log cut into :data:`BATCHES` consecutive batches, each at
+    least :data:`BATCH_TAUS` times ``2 tau`` long: the spread of the batches' Allan variances over their number),
+    per axis and for the mean of the axes.
 
     The stationary estimator's variance (``2 AVAR^2 / edf``, :func:`edf_table`) holds for Gaussian noise of one
     level; a residual whose level follows the motion (bursts, rests) scatters far more (on hand-held logs 20 to
     several hundred times). Where the batches show more than the stationary variance significantly (by more than
-    three of their own standard errors), that is the scatter; else NaN (the stationary one holds). Beyond the
-    taus with at least :data:`MIN_BATCHES` batches the last measured excess over the stationary variance is
-    carried on (it is the level's fluctuation, the same at every tau)."""
+    three of their own standard errors), that is the scatter; else NaN (the stationary one holds). At the taus
+    too long for the batches, the excess over the stationary variance measured at the two longest taus that fit
+    them (where both show one) is carried on (the level's fluctuation, about the same at every tau)."""
     taus, sums, sub_n, sub_m, batches = second_differences([y], rate_hz, batches=True)
     adev = np.sqrt(sums[0] / sums[-1][:, None])
     T = taus.size
     stationary = np.column_stack([2.0 / edf_table(sub_n, sub_m, axes=1)[:, 0]] * 3
                                  + [2.0 / edf_table(sub_n, sub_m, axes=3)[:, 0]])
     scatter = np.full((T, 4), np.nan)
-    excess = np.full(4, np.nan)
+    excess, before = np.full(4, np.nan), np.full(4, np.nan)
     for i, b in enumerate(batches):
-        if b is None or b.shape[1] < MIN_BATCHES:
-            scatter[i] = np.where(np.isfinite(excess), stationary[i] + excess, np.nan)
+        if b is None:
+            carry = np.where(np.isfinite(before), excess, np.nan)
+            scatter[i] = np.where(np.isfinite(carry), stationary[i] + carry, np.nan)
             continue
         v = np.vstack([b, b.mean(axis=0)[None]])          # (4, K)
         K = v.shape[1]
         rel = v.var(axis=1, ddof=1) / K / np.maximum(v.mean(axis=1), 1e-300) ** 2
         sig = rel > stationary[i] * (1.0 + 3.0 * np.sqrt(2.0 / (K - 1)))
         scatter[i] = np.where(sig, rel, np.nan)
-        excess = np.where(sig, rel - stationary[i], np.nan)
+        before, excess = excess, np.where(sig, rel - stationary[i], np.nan)
     return AllanPoints(taus, adev, sub_n, sub_m, scatter)
 
 
-BATCH_TAUS = 16     # a batch of allan_points spans this many times 2 tau
-MIN_BATCHES = 8     # fewest batches whose spread is a scatter
+BATCHES = 32        # allan_points cuts the log into this many batches (longer than a level's fluctuations)
+BATCH_TAUS = 16     # a batch spans at least this many times 2 tau (else that tau carries the excess on)
 
 
 def second_differences(ys, rate_hz: float, pairs=(), batches: bool = False):
@@ -136,10 +138,10 @@ def second_differences(ys, rate_hz: float, pairs=(), batches: bool = False):
             ds.append(s[:, mm:] - s[:, :-mm])    # (x_{i+2m} - 2 x_{i+m} + x_i) * rate_hz
         for j, d in enumerate(ds):
             out[j][i] = np.einsum("ak,ak->a", d, d)
-        if batches:
-            w = int(np.ceil(BATCH_TAUS * 2.0 * float(m) / b))    # elements of d (b samples apart) per batch
-            k = ds[0].shape[1] // w
-            batch.append((ds[0][:, :k * w] ** 2).reshape(3, k, w).mean(axis=2) if k else None)
+        if batches:   # BATCHES consecutive batches (elements of d are b samples apart), each >= BATCH_TAUS 2 tau
+            w = ds[0].shape[1] // BATCHES
+            batch.append((ds[0][:, :BATCHES * w] ** 2).reshape(3, BATCHES, w).mean(axis=2)
+                         if w * b >= BATCH_TAUS * 2.0 * float(m) else None)
         for j, (p, q) in enumerate(pairs):
             out[len(ys) + j][i] = np.einsum("ak,ak->a", ds[p], ds[q])
         out[-1][i] = 2.0 * float(m) ** 2 * ds[0].shape[1]
