@@ -1,16 +1,22 @@
 """The overlapping Allan deviation and its fit with a gyro's noise terms (IEEE Std 952, IEEE Std 1139).
 
 :func:`allan_deviation` computes the overlapping Allan deviation per axis at octave taus in about two passes;
-:func:`edf_table` gives each tau's equivalent degrees of freedom; :func:`fit_allan` fits
+:func:`allan_points` adds each point's scatter measured from batch means of the log (a residual whose level follows
+the motion scatters far more than the stationary estimator's degrees of freedom say); :func:`edf_table` gives each
+tau's equivalent degrees of freedom; :func:`fit_allan` fits
 
-``AVAR(tau) = 3 Q^2 / tau^2 + N^2 / tau + (2 ln 2 / pi) B^2 + K^2 tau / 3 + F^2 g(tau / T_c) / tau``
+``AVAR(tau) = 3 Q^2 / tau^2 + N^2 / tau + (2 ln 2 / pi) B^2 + K^2 tau / 3 + F^2 g(tau / T_c) / tau
++ S^2 k(tau) + H^2 h(tau / T_b)``
 
 (quantisation or white angle noise ``Q``, slope -1: a quantised angle, or a rate differentiated from a noisy
 orientation such as motion capture's; white rate noise ``N``; bias instability ``B``; bias random walk ``K``;
 white noise ``F`` low-pass filtered with time constant ``T_c``, first order, whose ``g`` is 1 at long taus and
-``tau / (3 T_c)`` at short ones, so the curve flattens below ``T_c``) by non-negative generalised least squares
-with the estimator's correlations, each term kept only where it lowers the chi-square significantly.
-:mod:`~fusion_gyrocal.core.noise` applies them to a pair's residual and to each gyro's steady stretches.
+``tau / (3 T_c)`` at short ones, so the curve flattens below ``T_c``; with ``extra``, a tone ``S^2``: narrow-band
+noise such as a MEMS drive frequency aliased to the output rate, :func:`tone_shape`, and a bounded angle error
+``H^2``: a rate differentiated from a Gauss-Markov angle, white below ``T_b`` and slope -1 above,
+:func:`bounded_shape`) by non-negative generalised least squares with the estimator's correlations, each term kept
+only where it lowers the chi-square significantly. :mod:`~fusion_gyrocal.core.noise` applies them to a pair's
+residual and to each gyro's steady stretches, :mod:`~fusion_gyrocal.core.static_noise` to a gyro at rest.
 """
 
 from __future__ import annotations
