@@ -13,9 +13,14 @@
    windows of the per-axis std, at rest): BROAD (../shared/data/broad_handheld, the IMU against the rate
    differentiated from motion capture, rest = not ``movement``) and the MIMU board's static poses (IMU 1
    against IMUs 2, 4, 7; the static windows found from each IMU's own variance). Also how far the fitted
-   Allan model is from the residual's points (``worst``: the largest ratio beyond their 2-sigma scatter).
+   Allan model is from the residual's points: ``ratio``, the largest ratio of model to point Allan deviation (or
+   its inverse) over the fitted taus, and ``worst``, the same beyond each point's 2-sigma scatter (the stationary
+   estimator's, or the one measured from batch means where larger); ``fits`` says whether it passes through them.
+5. ``gyrocal noise`` (core/static_noise.py) on the MIMU static poses (9 sessions x 8 IMUs x 3 axes) and on the
+   BROAD rest stretches: the white noise per sample against the direct estimate from the same stretches (the
+   pooled per-sample std about each stretch's mean), per axis.
 
-    python benchmarks/noise_model.py [--runs 30] [--workers 2] [--only real]
+    python benchmarks/noise_model.py [--runs 30] [--workers 2] [--only real|static]
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ from _timing import best_of  # noqa: E402  (benchmarks/ is the script's folder)
 from scipy.signal import lfilter
 
 from fusion_gyrocal import calibrate_pair
+from fusion_gyrocal.core.allan import FIT_FACTOR
 from fusion_gyrocal.core.direct import solve_A
 from fusion_gyrocal.core.moments import Moments, random_walk_gain
 from fusion_gyrocal.core.noise import identify_noise
@@ -185,13 +191,30 @@ def static_std(omega: np.ndarray, still: np.ndarray, window: int) -> float:
     return float(np.median(x[inside].std(axis=1, ddof=1).mean(axis=1)))
 
 
-def _real_row(name, cal, static):
+def model_ratio(nm) -> float:
+    """The largest ratio of the residual's fitted Allan model to its points (or the inverse) over the fitted taus."""
+    taus = np.asarray(nm.taus)
+    sel = (taus >= nm.fit_taus[0] * (1 - 1e-9)) & (taus <= nm.fit_taus[1] * (1 + 1e-9))
+    pts = np.sqrt((np.asarray(nm.adev) ** 2).mean(axis=1))[sel]
+    mod = np.asarray(nm.adev_fit)[sel]
+    return float(np.max(np.maximum(mod / pts, pts / mod)))
+
+
+def _real_row(name, cal, static, fits):
     nm = cal.noise_model
     ratio = [nm.noise_std[i] / static[i] for i in (0, 1)]
     used = "still" if nm.sources.get("noise", "").startswith("USED: each gyro's own") else "residual"
+    fits.append((model_ratio(nm), nm.adev_worst, nm.fits))
     print(f"{name:>34} {nm.noise_std[0] / DEG:8.4f} {static[0] / DEG:7.4f} {ratio[0]:6.2f} {nm.noise_std[1] / DEG:8.4f} "
-          f"{static[1] / DEG:7.4f} {ratio[1]:6.2f} {used:>8} {nm.adev_worst:6.2f} {cal.lack_of_fit:8.3g}")
+          f"{static[1] / DEG:7.4f} {ratio[1]:6.2f} {used:>8} {fits[-1][0]:6.2f} {nm.adev_worst:6.2f} "
+          f"{'yes' if nm.fits else 'NO':>4} {cal.lack_of_fit:8.3g}")
     return ratio
+
+
+def _fit_summary(name, fits):
+    f = np.array(fits, float)
+    print(f"{name} residual Allan model vs points: ratio up to {f[:, 0].max():.2f}, beyond the points' 2-sigma up to "
+          f"{f[:, 1].max():.2f}; passes through them (within {FIT_FACTOR:g}x beyond) in {int(f[:, 2].sum())}/{len(f)}")
 
 
 def real_logs():
@@ -200,15 +223,16 @@ def real_logs():
     from fusion_gyrocal.io import read_npz
 
     print("\n4. real logs, calibrate_pair defaults: identified white noise per sample (deg/s) vs the static stretches' "
-          "std; used = where the white level came from; worst = Allan model vs points; lof = residual chi2/dof")
+          "std; used = where the white level came from; model = largest ratio Allan model / points, worst = the "
+          "same beyond their 2-sigma scatter, fits = within 1.2x of that; lof = residual chi2/dof")
     head = (f"{'log':>34} {'id 1':>8} {'stat 1':>7} {'ratio':>6} {'id 2':>8} {'stat 2':>7} {'ratio':>6} {'used':>8} "
-            f"{'worst':>6} {'lof':>8}")
+            f"{'model':>6} {'worst':>6} {'fits':>4} {'lof':>8}")
     broad = shared_data_dir() / "broad_handheld" / "data_mat"
     if broad.exists():
         print("BROAD: gyro 1 = the IMU, gyro 2 = the motion-capture rate (differentiated orientation: not white; "
               "its 'static' figure is the per-sample std)")
         print(head)
-        ratios = []
+        ratios, fits = [], []
         for f in sorted(broad.glob("*.mat")):
             d = loadmat(f, squeeze_me=True)
             fs = float(d["sampling_rate"])
@@ -218,15 +242,16 @@ def real_logs():
             cal = calibrate_pair(gyr, moc, t_1=t, t_2=t)
             static = (static_std(gyr, rest, int(fs)), static_std(np.nan_to_num(moc), rest & np.isfinite(moc).all(1),
                                                                   int(fs)))
-            ratios.append(_real_row(f.stem[:34], cal, static)[0])
+            ratios.append(_real_row(f.stem[:34], cal, static, fits)[0])
         r = np.array(ratios)
         print(f"BROAD IMU identified / static: {r.min():.2f}-{r.max():.2f} (mean {r.mean():.2f}); within 1.5x in "
               f"{np.sum((r < 1.5) & (r > 1 / 1.5))}/{r.size}")
+        _fit_summary("BROAD", fits)
     d = shared_data_dir() / "mimu_8imu_array" / "npz"
     if d.exists():
         print("MIMU static poses: IMU 1 vs IMU k")
         print(head)
-        ratios = []
+        ratios, fits = [], []
         for e in range(1, 10):
             streams = read_npz(d / f"exp_{e}.npz")
             for k in (1, 3, 6):
@@ -239,23 +264,75 @@ def real_logs():
                     s = g.omega[:k_ * w].reshape(k_, w, 3).std(axis=1, ddof=1).mean(axis=1)
                     still = np.repeat(s <= 2.0 * np.quantile(s, 0.1), w)
                     static.append(static_std(g.omega, np.r_[still, np.zeros(len(g.omega) - still.size, bool)], w))
-                ratios.append(_real_row(f"exp_{e} IMU 1 vs {k + 1}", cal, static))
+                ratios.append(_real_row(f"exp_{e} IMU 1 vs {k + 1}", cal, static, fits))
         r = np.array(ratios)
         print(f"MIMU identified / static: IMU 1 {r[:, 0].min():.2f}-{r[:, 0].max():.2f}, IMU k {r[:, 1].min():.2f}-"
               f"{r[:, 1].max():.2f}; within 1.5x in {np.sum((r < 1.5) & (r > 1 / 1.5))}/{r.size}")
+        _fit_summary("MIMU", fits)
+
+
+def direct_white(omega, stretches, rate_hz):
+    """The direct estimate of the white noise density from rest stretches: the per-sample std about each stretch's
+    own mean, pooled, over sqrt(rate) (rad/s/sqrt(Hz), per axis)."""
+    x = np.concatenate([omega[a:b] - omega[a:b].mean(axis=0) for a, b in stretches])
+    return x.std(axis=0) / np.sqrt(rate_hz)
+
+
+def static_logs():
+    from scipy.io import loadmat
+
+    from fusion_gyrocal.core.static_noise import rest_stretches, static_noise
+    from fusion_gyrocal.io import read_npz
+
+    print("\n5. gyrocal noise (static_noise) vs the direct estimate from the same rest stretches, per axis: "
+          "white / direct")
+    d = shared_data_dir() / "mimu_8imu_array" / "npz"
+    if d.exists():
+        rows = []
+        for e in range(1, 10):
+            line = []
+            for imu in range(8):
+                s = read_npz(d / f"exp_{e}.npz", imu=imu)
+                r = static_noise(s.omega, s.rate_hz, valid=s.valid,
+                                 stretches=rest_stretches(s.omega, s.rate_hz, valid=s.valid))
+                q = r.white / direct_white(s.omega, r.stretches, s.rate_hz)
+                rows.append(q)
+                line.append("/".join(f"{v:.2f}" for v in q))
+            print(f"MIMU exp_{e} IMU 1..8 (x/y/z): " + " ".join(line))
+        q = np.concatenate(rows)
+        print(f"MIMU static poses: white / direct {q.min():.3f}-{q.max():.3f}; within 10 % in "
+              f"{int(np.sum(np.abs(q - 1) <= 0.10))}/{q.size} axes")
+    broad = shared_data_dir() / "broad_handheld" / "data_mat"
+    if broad.exists():
+        rows = []
+        for f in sorted(broad.glob("*.mat")):
+            m = loadmat(f, squeeze_me=True)
+            g, fs = np.asarray(m["imu_gyr"], float), float(m["sampling_rate"])
+            r = static_noise(g, fs)
+            q = r.white / direct_white(g, r.stretches, fs)
+            rows.append(q)
+            print(f"{f.stem[:34]:>34}: {len(r.stretches)} stretch(es), {r.n_samples / fs:.0f} s, white / direct "
+                  + "/".join(f"{v:.3f}" for v in q))
+        q = np.concatenate(rows)
+        print(f"BROAD rest stretches: white / direct {q.min():.3f}-{q.max():.3f}; within 10 % in "
+              f"{int(np.sum(np.abs(q - 1) <= 0.10))}/{q.size} axes")
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", type=int, default=30)
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--only", choices=("all", "real"), default="all", help="real: only section 4")
+    ap.add_argument("--only", choices=("all", "real", "static"), default="all",
+                    help="real: only section 4, static: only section 5")
     a = ap.parse_args(argv)
     if a.only == "all":
         simulated_cases()
         mimu()
         drifting(a.runs, a.workers)
-    real_logs()
+    if a.only in ("all", "real"):
+        real_logs()
+    if a.only in ("all", "static"):
+        static_logs()
 
 
 if __name__ == "__main__":

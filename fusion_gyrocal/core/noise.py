@@ -52,8 +52,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ..errors import InputError, OptionError
-from .allan import (FILTERED, FIT_FACTOR, FLICKER_TERM, QUANTISATION, TERMS, WALK, AllanFit, allan_deviation,
-                    design, edf_table, fit_allan, second_differences)
+from .allan import (FILTERED, FIT_FACTOR, FLICKER_TERM, QUANTISATION, TERMS, WALK, AllanFit, allan_points,
+                    edf_table, fit_allan, second_differences)
 from .moments import NOMINAL_WINDOW, as_rates, finite_rows
 
 MISFIT_SHARE = 0.1                    # rate-explained share of the residual variance that is flagged
@@ -850,8 +850,7 @@ def white_level(fit: AllanFit, window_s: float) -> tuple[float, float]:
     the white term, the filtered term's share ``F^2 g(window_s / T_c)`` (nearly all of it: the motion is slower
     than the filter) and the quantisation's white equivalent ``3 Q^2 / window_s`` (it averages out over the
     motion's time scale); the bias terms are left to the bias model."""
-    g = window_s * design([window_s], fit.tc or None)[0]     # each term's white equivalent at the window
-    g[[FLICKER_TERM, WALK]] = 0.0
+    g = fit.white_row(window_s)     # each short-term term's white equivalent at the window
     level = float(g @ fit.coef)
     var = float(g @ np.nan_to_num(fit.cov) @ g) if fit.coef.any() else 0.0
     return level, float(np.sqrt(max(var, 0.0)))
@@ -870,13 +869,13 @@ def _allan_fit(r, use, rate_hz, stride, resampling, misfit: bool, window_s: floa
         idx = np.flatnonzero(use)
         y = r[idx]
         span, kept = int(idx[-1] - idx[0] + 1), idx.size
-    taus, adev, sub_n, sub_m = allan_deviation(y, rate_hz)
+    taus, adev, sub_n, sub_m, scatter = allan_points(y, rate_hz)
     avar = (adev ** 2).mean(axis=1)
     edf = edf_table(sub_n, sub_m)
     # an interpolated stream is smoother than white noise over its first grid samples (Resampling.white_from)
     first = 0 if resampling is None else int(np.searchsorted(taus, (resampling.white_from - 0.5) / rate_hz))
     # a misfit's motion-band residue mimics filtered noise (a bump at the motion's time scale): no filtered term then
-    model = fit_allan(taus, avar, edf, first, 0.0 if misfit else MAX_FILTER_S * window_s)
+    model = fit_allan(taus, avar, edf, first, 0.0 if misfit else MAX_FILTER_S * window_s, scatter[:, 3], extra=True)
     c, cov, lo = model.coef, model.cov, model.first
     compress = kept / (span * stride)  # joined samples: the walk per joined step covers span / size samples
     Bsq, Ksq = c[FLICKER_TERM], c[WALK]

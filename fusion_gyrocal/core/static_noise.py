@@ -12,8 +12,9 @@ each with its standard uncertainty.
 * :func:`static_noise` computes the overlapping Allan variance of every stretch with
   :func:`~fusion_gyrocal.core.allan.allan_deviation` (octave taus), pools the stretches at each tau weighted by
   their number of terms (their degrees of freedom add, :func:`~fusion_gyrocal.core.allan.edf_table`), and fits
-  ``AVAR = N^2 / tau + (2 ln 2 / pi) B^2 + K^2 tau / 3`` per axis with
-  :func:`~fusion_gyrocal.core.allan.fit_allan` (each term kept only where it is significant).
+  ``AVAR = N^2 / tau + (2 ln 2 / pi) B^2 + K^2 tau / 3`` and the short-term terms (quantisation, filtered, tone,
+  bounded) per axis with :func:`~fusion_gyrocal.core.allan.fit_allan` (each term kept only where it is
+  significant); the white noise is the density of the short-term terms' variance per sample.
 """
 
 from __future__ import annotations
@@ -96,8 +97,9 @@ class StaticNoise:
         Sample rate (Hz).
     white : ndarray (3,)
         White rate noise ``N`` (angle random walk), rad/s/sqrt(Hz): Kalibr's ``gyroscope_noise_density``. Where the
-        Allan fit also keeps quantisation or filtered noise, the white level with their Allan variance at one
-        sample (what a filter that takes each sample's noise from the density needs).
+        Allan fit also keeps quantisation, filtered, tone or bounded noise, the density whose variance per sample
+        is that of all the short-term terms (:meth:`~fusion_gyrocal.core.allan.AllanFit.sample_variance`: what a
+        filter that takes each sample's noise from the density needs, and what the spread of the samples shows).
     white_std : ndarray (3,)
         Its standard uncertainty.
     bias_instability, bias_instability_std : ndarray (3,)
@@ -212,14 +214,15 @@ def static_noise(omega, rate_hz: float, *, valid=None, stretches=None) -> Static
     fit = np.full(avar.shape, np.nan)
     first = np.zeros(3, int)
     for ax in range(3):
-        f = fit_allan(taus, avar[:, ax], edf)
+        f = fit_allan(taus, avar[:, ax], edf, extra=True)
         coef, cov, lo = f.coef, f.cov, f.first
         first[ax] = lo
         fit[lo:, ax] = np.sqrt(np.maximum(f.pred[lo:], 0.0))
-        # the white level the samples show (white, quantisation and filtered terms at one sample, what a filter
-        # that takes each sample's noise reads from a density), its variance by first order
-        g = f.white_row(float(taus[0]))
-        level = f.white_equivalent(float(taus[0]))
+        # the white level the samples show: the short-term terms' variance per sample (white, quantisation,
+        # filtered, tone), as a density (times the sample period): what a filter that takes each sample's noise
+        # reads from a density; its variance by first order
+        g = f.sample_row() * f.tau0
+        level = f.sample_variance() * f.tau0
         white[ax], white_sd[ax] = np.sqrt(max(level, 0.0)), _sd_of_root(level, float(g @ np.nan_to_num(cov) @ g))
         bias[ax], bias_sd[ax] = np.sqrt(max(coef[1], 0.0)), _sd_of_root(coef[1], cov[1, 1])
         walk[ax], walk_sd[ax] = np.sqrt(max(coef[2], 0.0)), _sd_of_root(coef[2], cov[2, 2])
