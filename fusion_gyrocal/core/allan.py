@@ -422,7 +422,12 @@ def _select(t, a, e, max_tc, tau0=None, scatter=None, extra: bool = False):
         # curve needs both ends, e.g. quantisation and a random walk); the tone and bounded terms last (LAST): a
         # narrow band near the Nyquist rate, or a bounded angle, looks like quantisation over the octaves, the
         # simpler term
-        for group in ([c for c in cands if c[0][0] not in LAST], pairs, [c for c in cands if c[0][0] in LAST]):
+        # (the pairs and the LAST terms only while the model misses its points: they are there for the curves
+        # that one more simple term cannot follow, and a model through its points asks for nothing more)
+        groups = [[c for c in cands if c[0][0] not in LAST]]
+        if best[4] > FIT_FACTOR:
+            groups += [pairs, [c for c in cands if c[0][0] in LAST]]
+        for group in groups:
             added = _best_addition(t, a, e, tau0, scatter, terms, par, best, group)
             if added is not None:
                 terms, best, par = added
