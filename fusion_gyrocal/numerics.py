@@ -114,45 +114,46 @@ def solve_tridiagonal(sub: np.ndarray, diag: np.ndarray, sup: np.ndarray, rhs: n
     """
     d = np.asarray(rhs, dtype=float)
     one = d.ndim == 1
-    d = d.reshape(d.shape[0], -1)
+    d = np.ascontiguousarray(d.reshape(d.shape[0], -1).T)     # (k, m): each right-hand side contiguous
     a = np.array(sub, dtype=float)
-    b = np.array(diag, dtype=float)
+    b = np.asarray(diag, dtype=float)
     c = np.array(sup, dtype=float)
     a[0] = 0.0
     c[-1] = 0.0
     levels = []
     while b.size > 1:
-        m = b.size
-        ev, od = slice(0, m, 2), slice(1, m, 2)
-        # the even rows' neighbours: odd rows i - 1 and i + 1 (none beyond the ends)
-        bo, ao, co, do = b[od], a[od], c[od], d[od]
-        n_ev = (m + 1) // 2
-        left = np.zeros(n_ev)               # -a[i] / b[i - 1] for even i >= 2
-        right = np.zeros(n_ev)              # -c[i] / b[i + 1] for even i <= m - 2
-        left[1:] = -a[ev][1:] / bo[:n_ev - 1]
-        right[:bo.size] = -c[ev][:bo.size] / bo
-        nb = b[ev].copy()
-        nd = d[ev].copy()
-        na = np.zeros(n_ev)
-        nc = np.zeros(n_ev)
-        nb[1:] += left[1:] * co[:n_ev - 1]
-        nd[1:] += left[1:, None] * do[:n_ev - 1]
-        na[1:] = left[1:] * ao[:n_ev - 1]
-        nb[:bo.size] += right[:bo.size] * ao
-        nd[:bo.size] += right[:bo.size, None] * do
-        nc[:bo.size] = right[:bo.size] * co
-        levels.append((m, ao, bo, co, do))
+        # even rows 0, 2, ... keep their unknowns; odd rows 1, 3, ... are eliminated from them
+        ao, co, do = a[1::2], c[1::2], d[:, 1::2]
+        inv = 1.0 / b[1::2]
+        ne, no = (b.size + 1) // 2, inv.size
+        left = a[2::2] * inv[:ne - 1]        # even row i >= 2: its row minus left x row i - 1
+        right = c[0:2 * no:2] * inv          # even row i: minus right x row i + 1
+        nb = b[0::2].copy()
+        nb[1:] -= left * co[:ne - 1]
+        nb[:no] -= right * ao
+        nd = d[:, 0::2].copy()
+        nd[:, 1:] -= left * do[:, :ne - 1]
+        nd[:, :no] -= right * do
+        na = np.zeros(ne)
+        np.multiply(left, ao[:ne - 1], out=na[1:])
+        np.negative(na, out=na)
+        nc = np.zeros(ne)
+        np.multiply(right, co, out=nc[:no])
+        np.negative(nc, out=nc)
+        levels.append((ao, co, do, inv))
         a, b, c, d = na, nb, nc, nd
-    x = d / b[:, None]
-    for m, ao, bo, co, do in reversed(levels):
-        full = np.empty((m, x.shape[1]))
-        full[0::2] = x
-        nxt = np.zeros((bo.size, x.shape[1]))         # x[i + 1] of each odd row i (0 beyond the end)
-        k = min(bo.size, x.shape[0] - 1)
-        nxt[:k] = x[1:k + 1]
-        full[1::2] = (do - ao[:, None] * x[:bo.size] - co[:, None] * nxt) / bo[:, None]
+    x = d / b
+    for ao, co, do, inv in reversed(levels):
+        no, ne = inv.size, x.shape[1]
+        full = np.empty((x.shape[0], ne + no))
+        full[:, 0::2] = x
+        odd = do - ao * x[:, :no]
+        k = min(no, ne - 1)                      # odd rows with an even row after them
+        odd[:, :k] -= co[:k] * x[:, 1:k + 1]
+        odd *= inv
+        full[:, 1::2] = odd
         x = full
-    return x[:, 0] if one else x
+    return x[0] if one else x.T
 
 
 def nnls(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float]:
