@@ -82,7 +82,7 @@ def log(R) -> np.ndarray:
     """``Log(R)``: the rotation vector (rad) of rotation matrices; (..., 3, 3) -> (..., 3), angle in [0, pi].
 
     Below 60 degrees the axial vector's arcsine is exact and cheap; larger angles go through the unit
-    quaternion (:func:`_quaternion_log`), accurate up to and at pi.
+    quaternion (scipy's ``Rotation``, imported only then), accurate up to and at pi.
     """
     R = np.asarray(R, dtype=float)
     if R.shape == (3, 3):     # one matrix (the trackers' per-sample path): scalar arithmetic
@@ -98,73 +98,10 @@ def log(R) -> np.ndarray:
     out = v * np.where(s < 1e-12, 1.0, np.arcsin(np.clip(s, 0.0, 1.0)) / np.where(s < 1e-12, 1.0, s))[..., None]
     large = cos <= 0.5
     if np.any(large):
-        out[large] = _quaternion_log(R[large].reshape(-1, 3, 3))
+        from scipy.spatial.transform import Rotation
+
+        out[large] = Rotation.from_matrix(R[large].reshape(-1, 3, 3)).as_rotvec()
     return out
-
-
-def _quaternion_log(R: np.ndarray) -> np.ndarray:
-    """Rotation vectors of rotation matrices (n, 3, 3) through their unit quaternions (:func:`quaternion`): the
-    angle ``2 atan2(|xyz|, w)`` is exact from 0 to pi."""
-    q = quaternion(R)
-    s = np.linalg.norm(q[:, :3], axis=-1)
-    angle = 2.0 * np.arctan2(s, q[:, 3])
-    return q[:, :3] * np.where(s > 0, angle / np.where(s > 0, s, 1.0), 2.0)[:, None]
-
-
-def quaternion(R) -> np.ndarray:
-    """Unit quaternions ``(x, y, z, w)`` (scalar last, ``w >= 0``) of rotation matrices (..., 3, 3) -> (..., 4).
-
-    Each is taken from the largest of ``1 + tr R`` and ``1 + 2 R_ii - tr R`` (Shepperd's choice: the component
-    found from a square root is the largest, so nothing is divided by a small number), then made unit: a matrix
-    that is orthonormal only to rounding gives the nearest unit quaternion.
-    """
-    R = np.asarray(R, dtype=float)
-    shape = R.shape[:-2]
-    R = R.reshape(-1, 3, 3)
-    tr = np.trace(R, axis1=-2, axis2=-1)
-    d = np.stack([tr, R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]], -1)
-    k = np.argmax(d, axis=-1)
-    big = 1.0 + 2.0 * np.take_along_axis(d, k[:, None], -1)[:, 0] - tr       # 4 q_k^2
-    sym = {(0, 1): R[:, 0, 1] + R[:, 1, 0], (0, 2): R[:, 0, 2] + R[:, 2, 0], (1, 2): R[:, 1, 2] + R[:, 2, 1]}
-    anti = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], -1)
-    q = np.empty((R.shape[0], 4))          # each row times 4 q_k
-    for j in range(4):
-        on = k == j
-        if not on.any():
-            continue
-        if j == 0:
-            q[on, :3], q[on, 3] = anti[on], big[on]
-            continue
-        a = j - 1
-        q[on, 3] = anti[on, a]
-        q[on, a] = big[on]
-        for b in range(3):
-            if b != a:
-                q[on, b] = sym[min(a, b), max(a, b)][on]
-    q /= np.linalg.norm(q, axis=-1, keepdims=True)
-    q[q[:, 3] < 0] *= -1.0
-    return q.reshape(shape + (4,))
-
-
-def quaternion_matrix(q) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) of quaternions ``(x, y, z, w)`` (..., 4), normalised first."""
-    q = np.asarray(q, dtype=float)
-    x, y, z, w = np.moveaxis(q / np.linalg.norm(q, axis=-1, keepdims=True), -1, 0)
-    return np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
-                     2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
-                     2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1).reshape(q.shape[:-1] + (3, 3))
-
-
-def roll_pitch_yaw(R) -> np.ndarray:
-    """``[roll, pitch, yaw]`` (rad) with ``R = Rz(yaw) Ry(pitch) Rx(roll)`` (fixed axes x, then y, then z) of one
-    rotation matrix; pitch in [-pi/2, pi/2]. At gimbal lock (``cos(pitch)`` below 1e-9) the yaw is set to 0 and
-    the roll carries the rest."""
-    R = np.asarray(R, dtype=float)
-    c = math.hypot(R[0, 0], R[1, 0])
-    pitch = math.atan2(-R[2, 0], c)
-    if c < 1e-9:
-        return np.array([math.atan2(-R[1, 2], R[1, 1]), pitch, 0.0])
-    return np.array([math.atan2(R[2, 1], R[2, 2]), pitch, math.atan2(R[1, 0], R[0, 0])])
 
 
 HALF_TURN_BAND = np.deg2rad(1.0)

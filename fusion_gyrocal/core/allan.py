@@ -174,7 +174,7 @@ def _wls(taus, avar, edf, terms, tc=None):
     decaying geometrically), so the points are whitened with that correlation before the fit (without it the
     uncertainties come out about twice too small). Iterated with the weights of the model.
     """
-    from ..numerics import nnls
+    from scipy.optimize import nnls
 
     X = design(taus, tc)
     Xs = X[:, terms]

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import FormatError, InputError
-from ..lie import canonical_rotvec, log, quaternion, quaternion_matrix, roll_pitch_yaw
+from ..lie import canonical_rotvec, log
 from .robust import CovarianceBasis
 
 FORMAT_VERSION = "1.4"
@@ -83,10 +83,19 @@ def rotation_forms(R) -> dict[str, list]:
     :func:`~fusion_gyrocal.lie.canonical_rotvec`); ``matrix`` the 3x3 rows. Near pitch = +-90 deg (gimbal lock)
     the roll and yaw are one of the equivalent pairs; the quaternion and the matrix are always unique.
     """
-    q = quaternion(R)
-    M = quaternion_matrix(q)
-    return {"quaternion_xyzw": q.tolist(), "quaternion_wxyz": [q[3], q[0], q[1], q[2]],
-            "rpy": roll_pitch_yaw(M).tolist(), "rotvec": canonical_rotvec(log(M)).tolist(), "matrix": M.tolist()}
+    import warnings
+
+    from scipy.spatial.transform import Rotation
+
+    r = Rotation.from_matrix(np.asarray(R, dtype=float))
+    q = r.as_quat()
+    if q[3] < 0:
+        q = -q
+    with warnings.catch_warnings():   # gimbal lock: scipy warns and still returns a valid triple
+        warnings.simplefilter("ignore", UserWarning)
+        rpy = r.as_euler("xyz")
+    return {"quaternion_xyzw": q.tolist(), "quaternion_wxyz": [q[3], q[0], q[1], q[2]], "rpy": rpy.tolist(),
+            "rotvec": canonical_rotvec(log(r.as_matrix())).tolist(), "matrix": r.as_matrix().tolist()}
 
 
 def parallel_axes(R) -> np.ndarray:

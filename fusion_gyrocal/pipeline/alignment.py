@@ -22,7 +22,6 @@ import numpy as np
 
 from ..core.moments import Moments, row_norms
 from ..errors import OptionError, TimeAlignmentError
-from ..numerics import minimize_bounded
 from .resample import _MARGIN, _RunSplines, _resample_checked, _runs
 from .streams import DEFAULT_GAP_PERIODS, _freeze, _nominal_period, _stream, timed_stream, valid_mask
 
@@ -283,8 +282,10 @@ def _refine(spl2: _RunSplines, x1, y1, tau0: float, h: float):
     Returns ``(tau, x_used, y_used, rss / n)``. The instants used are those whose whole
     bracket maps inside one run of gyro 2, so the set is fixed and the cost smooth; the
     bracket moves if the minimum lands on its edge. Brent's bounded method
-    (:func:`~fusion_gyrocal.numerics.minimize_bounded`).
+    (``scipy.optimize.minimize_scalar``, imported here: off the command line's start-up).
     """
+    from scipy.optimize import minimize_scalar
+
     tau, half = tau0, 1.5 * h
     for _ in range(6):
         lo, hi = tau - half, tau + half
@@ -292,7 +293,9 @@ def _refine(spl2: _RunSplines, x1, y1, tau0: float, h: float):
         if xe.size < 16:
             raise TimeAlignmentError(f"only {xe.size} gyro-1 instants overlap valid gyro-2 data near the "
                                      f"offset {tau0:+.4f} s; need at least 16")
-        tau, fun = minimize_bounded(cost, lo, hi, xatol=1e-9 * max(1.0, abs(tau)) + 1e-4 * h)
+        res = minimize_scalar(cost, bounds=(lo, hi), method="bounded",
+                              options={"xatol": 1e-9 * max(1.0, abs(tau)) + 1e-4 * h})
+        tau, fun = float(res.x), res.fun
         if min(tau - lo, hi - tau) >= 0.05 * half:
             return tau, xe, ye, float(fun) / xe.size
     raise TimeAlignmentError(f"the sub-sample refinement did not settle near the correlation peak "

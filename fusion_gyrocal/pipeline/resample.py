@@ -9,7 +9,6 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError, OptionError
-from ..numerics import solve_tridiagonal
 from .streams import DEFAULT_GAP_PERIODS, _nominal_period, _stream, timed_stream
 
 _GRID_BLOCK = 1 << 16          # grid points per block of a long resampling
@@ -32,11 +31,11 @@ def _spline_slopes(x: np.ndarray, Y: np.ndarray, first: np.ndarray, last: np.nda
     """Knot slopes of the not-a-knot cubic spline of each run ``first[k]..last[k]`` of ``(x, Y)``.
 
     The same equations as scipy's ``CubicSpline`` (tridiagonal continuity of the second
-    derivative, not-a-knot end rows in their tridiagonal form), with no coupling between runs. The
-    not-a-knot rows are not diagonally dominant: each is first eliminated from its neighbour's row (which
-    becomes dominant), the rest is solved by cyclic reduction
-    (:func:`~fusion_gyrocal.numerics.solve_tridiagonal`) and the end slopes are filled in from their rows.
+    derivative, not-a-knot end rows in their tridiagonal form), with no coupling between runs, solved by
+    ``scipy.linalg.solve_banded`` (imported here: off the command line's start-up).
     """
+    from scipy.linalg import solve_banded
+
     m = x.size
     dx = np.diff(x)
     slope = np.diff(Y, axis=0) / dx[:, None]
@@ -79,20 +78,7 @@ def _spline_slopes(x: np.ndarray, Y: np.ndarray, first: np.ndarray, last: np.nda
         ab[0, fixed[fixed < m - 1] + 1] = 0.0
         ab[2, fixed[fixed > 0] - 1] = 0.0
         rhs[fixed] = np.asarray(values)
-    diag, sup, sub = ab[1], np.r_[ab[0, 1:], 0.0], np.r_[0.0, ab[2, :-1]]
-    ends = []
-    # the not-a-knot rows (first and last of each long run), eliminated from their neighbours' rows
-    for row, nb, off, into in ((i0, i0 + 1, sup, sub), (i1, i1 - 1, sub, sup)):
-        f = into[nb] / diag[row]           # off[row]: the end row's coupling to nb; into[nb]: nb's to it
-        diag[nb] -= f * off[row]
-        rhs[nb] -= f[:, None] * rhs[row]
-        into[nb] = 0.0
-        ends.append((row, nb, off[row].copy(), diag[row].copy(), rhs[row].copy()))
-        diag[row], sup[row], sub[row], rhs[row] = 1.0, 0.0, 0.0, 0.0
-    S = solve_tridiagonal(sub, diag, sup, rhs)
-    for row, nb, off, piv, r in ends:
-        S[row] = (r - off[:, None] * S[nb]) / piv[:, None]
-    return S
+    return solve_banded((1, 1), ab, rhs, check_finite=False)
 
 
 def _hermite_coefficients(x: np.ndarray, Y: np.ndarray, S: np.ndarray) -> np.ndarray:
