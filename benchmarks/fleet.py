@@ -22,20 +22,25 @@ import argparse
 import functools
 import os
 import shutil
+import sys
 import tempfile
 from pathlib import Path
 
-import numpy as np
-import pandas as pd
-from _timing import best_of  # noqa: E402  (benchmarks/ is the script's folder)
-import pyarrow as pa
-import pyarrow.parquet as pq
-from distributed import Client, LocalCluster
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))   # this checkout's package, here and in the workers (not an installed one)
+os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, (str(ROOT), os.environ.get("PYTHONPATH"))))
 
-from fusion_gyrocal import Moments
-from fusion_gyrocal.distributed.fleet import (COLUMNS, device_row, find_devices, fleet_cluster, log_moments,
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+from _timing import best_of  # noqa: E402  (benchmarks/ is the script's folder)
+import pyarrow as pa  # noqa: E402
+import pyarrow.parquet as pq  # noqa: E402
+from distributed import Client, LocalCluster  # noqa: E402
+
+from fusion_gyrocal import Moments  # noqa: E402
+from fusion_gyrocal.distributed.fleet import (COLUMNS, device_row, find_devices, fleet_cluster, log_moments,  # noqa: E402
                                               run_fleet)
-from fusion_gyrocal.evaluate.sim import simulate_pair
+from fusion_gyrocal.evaluate.sim import simulate_pair  # noqa: E402
 
 
 def write_log(path: Path, n: int, *, seed: int, row_group_size: int, base: int = 200_000) -> None:
@@ -80,6 +85,8 @@ def bench_fleet(root: Path, n_devices: int, n_samples: int, repeat: int, rounds:
             client = Client(cluster)
             clusters.append((cluster, client))
             engines[label] = (client, functools.partial(run_fleet, root, client=client))
+        where = {f for f in clusters[0][1].run(lambda: __import__("fusion_gyrocal").__file__).values()}
+        print(f"   package in this process: {__import__('fusion_gyrocal').__file__}; in the workers: {sorted(where)}")
         times = {k: [] for k in engines}
         checks = {}
         for _, run in engines.values():

@@ -297,8 +297,8 @@ def run_fleet(devices, *, client=None, output=None, chunked: bool = False, split
     devices : path or iterable of paths
         Devices or folders of devices (see the module docstring and :func:`find_devices`).
     client : distributed.Client, optional
-        Cluster to run on (one task per device, ``client.map``); devices that shared a worker that died
-        are run again alone. :func:`fleet_cluster` starts a local one set up for this. Default: Dask's
+        Cluster to run on (a few tasks per worker thread, each a batch of devices: :data:`TASKS_PER_THREAD`);
+        devices that shared a worker that died are run again alone. :func:`fleet_cluster` starts a local one set up for this. Default: Dask's
         local threaded scheduler in this process.
     output : path, optional
         Also write the table as Parquet (:func:`write_results`).
@@ -343,7 +343,7 @@ def run_fleet(devices, *, client=None, output=None, chunked: bool = False, split
         with progress_bar(progress) as bar:
             tick = functools.partial(bar.advance, bar.add_task("devices", total=len(paths)))
             if client is not None:
-                rows = _run_on_client(client, task, paths, tick)
+                rows = _run_on_client(client, options, paths, tick)
             else:
                 import dask
                 from dask.callbacks import Callback
@@ -356,28 +356,53 @@ def run_fleet(devices, *, client=None, output=None, chunked: bool = False, split
     return df
 
 
-def _run_on_client(client, task, paths, tick) -> list:
-    """The rows of ``task`` over ``paths`` on a distributed client, one task per device.
+#: Tasks per worker thread of a fleet on a cluster: each task calibrates a batch of devices, so the scheduler's
+#: per-task cost is paid a few times per thread rather than once per device, and a few batches per thread still
+#: even out devices of unequal size.
+TASKS_PER_THREAD = 4
 
-    A worker that dies (out of memory, killed) takes the devices queued on it down with the one that killed it
-    (``KilledWorker``). Each of those is run again alone, one after the other: the healthy ones get their results,
-    and only the device that kills its worker again fails, with a row that says so.
+
+def device_rows(paths: Sequence, options: Options | None = None) -> list[dict]:
+    """:func:`device_row` of each of ``paths`` in turn (one task of :func:`run_fleet` on a cluster)."""
+    return [device_row(p, options) for p in paths]
+
+
+def _batches(n: int, threads: int) -> list[list[int]]:
+    """Device indices ``0..n-1`` dealt round-robin into ``min(n, TASKS_PER_THREAD x threads)`` batches (neighbours in
+    a folder, often alike in size, land in different batches)."""
+    k = max(1, min(n, TASKS_PER_THREAD * max(int(threads), 1)))
+    return [list(range(j, n, k)) for j in range(k)]
+
+
+def _run_on_client(client, options, paths, tick) -> list:
+    """The rows of :func:`device_row` over ``paths`` on a distributed client, in batches of devices (:func:`_batches`,
+    one task each, :func:`device_rows`); ``tick`` once per device.
+
+    A worker that dies (out of memory, killed) takes the batches queued on it down with the one that killed it
+    (``KilledWorker``). Each device of those is run again alone, one after the other: the healthy ones get their
+    results, and only the device that kills its worker again fails, with a row that says so.
     """
     from distributed import KilledWorker, as_completed
 
-    futures = client.map(task, [str(p) for p in paths], pure=False, retries=0)
-    for _ in as_completed(futures):
-        tick()
-    rows, lost = [], []
-    for i, (future, path) in enumerate(zip(futures, paths)):
+    batches = _batches(len(paths), sum(client.nthreads().values()))
+    futures = [client.submit(device_rows, [str(paths[i]) for i in b], options, pure=False, retries=0)
+               for b in batches]
+    size = {f.key: len(b) for f, b in zip(futures, batches)}
+    for future in as_completed(futures):
+        for _ in range(size[future.key]):
+            tick()
+    rows, lost = [None] * len(paths), []
+    for batch, future in zip(batches, futures):
         try:
-            rows.append(future.result())
+            for i, row in zip(batch, future.result()):
+                rows[i] = row
         except KilledWorker:
-            rows.append(None)
-            lost.append(i)
-        except Exception as exc:  # noqa: BLE001 - recorded for this device only
-            rows.append(_row(path.stem, str(path), None, exc, math.nan))
-    for i in lost:
+            lost.extend(batch)
+        except Exception as exc:  # noqa: BLE001 - recorded for this batch's devices only
+            for i in batch:
+                rows[i] = _row(paths[i].stem, str(paths[i]), None, exc, math.nan)
+    task = functools.partial(device_row, options=options)
+    for i in sorted(lost):
         path = paths[i]
         t0 = time.perf_counter()
         try:
@@ -402,8 +427,10 @@ def fleet_cluster(workers: int = 2, threads_per_worker: int = 1, **kwargs):
     ~1.75x slower); with glibc's adaptive thresholds freed memory is reused from device to device. The
     scheduler does not retry a task whose worker died (``allowed-failures`` 0): :func:`run_fleet` runs each
     device that shared the dead worker again alone, so one device that exhausts memory cannot kill worker
-    after worker. (Each nanny also writes its variables into this process's environment, where the next
-    cluster's workers would inherit them: distributed's ``MALLOC_TRIM_THRESHOLD_`` value is removed from it.)
+    after worker. The workers' statistical profiler (a thread sampling every task's stack each 10 ms, for the
+    dashboard) is off: it takes CPU time from the devices. (Each nanny also writes its variables into this
+    process's environment, where the next cluster's workers would inherit them: distributed's
+    ``MALLOC_TRIM_THRESHOLD_`` value is removed from it.)
 
     Parameters
     ----------
@@ -423,7 +450,8 @@ def fleet_cluster(workers: int = 2, threads_per_worker: int = 1, **kwargs):
     from distributed import LocalCluster
 
     settings = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
-                "distributed.scheduler.allowed-failures": 0}
+                "distributed.scheduler.allowed-failures": 0,
+                "distributed.worker.profile.enabled": False}
     kwargs = {"host": "127.0.0.1", "dashboard_address": None, **kwargs}
     if os.environ.get("MALLOC_TRIM_THRESHOLD_") == str(_DISTRIBUTED_TRIM):
         del os.environ["MALLOC_TRIM_THRESHOLD_"]
