@@ -39,8 +39,8 @@ from fusion_gyrocal.core.direct import solve_A
 from fusion_gyrocal.core.moments import Moments, random_walk_gain
 from fusion_gyrocal.core.noise import identify_noise
 from fusion_gyrocal.core.observability import cramer_rao_bound
-from fusion_gyrocal.evaluate.sim import (DEG, PAPER_BIAS_WALK_STD, PAPER_NOISE_STD, general_rotation, rotation_error,
-                                         scale_error, shared_data_dir, simulate_pair)
+from fusion_gyrocal.evaluate.sim import (DEG, PAPER_BIAS_WALK_STD, PAPER_NOISE_STD, general_rotation, load_broad_pair,
+                                         rotation_error, scale_error, shared_data_dir, simulate_pair)
 
 RATE = 100.0
 
@@ -169,20 +169,6 @@ def drifting(runs, workers):
           "one: the motion below the filter's corner (K / (2 pi dt)) carries no information once the bias walks")
 
 
-def mocap_rate(quat_wxyz: np.ndarray, rate_hz: float) -> np.ndarray:
-    """Body rate (rad/s) differentiated from a motion-capture orientation: ``log(q_k^-1 q_{k+1}) rate_hz``, NaN where
-    either quaternion is missing."""
-    from scipy.spatial.transform import Rotation
-
-    ok = np.isfinite(quat_wxyz).all(axis=1)
-    q = np.where(ok[:, None], quat_wxyz, [1.0, 0.0, 0.0, 0.0])
-    R = Rotation.from_quat(q[:, [1, 2, 3, 0]])
-    w = np.full((len(q), 3), np.nan)
-    w[:-1] = (R[:-1].inv() * R[1:]).as_rotvec() * rate_hz
-    w[:-1][~(ok[:-1] & ok[1:])] = np.nan
-    return w
-
-
 def static_std(omega: np.ndarray, still: np.ndarray, window: int) -> float:
     """Median over the ``window``-sample windows wholly inside ``still`` of the per-axis std, averaged over axes."""
     k = len(omega) // window
@@ -218,8 +204,6 @@ def _fit_summary(name, fits):
 
 
 def real_logs():
-    from scipy.io import loadmat
-
     from fusion_gyrocal.io import read_npz
 
     print("\n4. real logs, calibrate_pair defaults: identified white noise per sample (deg/s) vs the static stretches' "
@@ -234,11 +218,8 @@ def real_logs():
         print(head)
         ratios, fits = [], []
         for f in sorted(broad.glob("*.mat")):
-            d = loadmat(f, squeeze_me=True)
-            fs = float(d["sampling_rate"])
-            gyr, moc = np.asarray(d["imu_gyr"], float), mocap_rate(np.asarray(d["opt_quat"], float), fs)
+            gyr, moc, rest, fs = load_broad_pair(f.stem)
             t = np.arange(len(gyr)) / fs
-            rest = ~np.asarray(d["movement"], bool)
             cal = calibrate_pair(gyr, moc, t_1=t, t_2=t)
             static = (static_std(gyr, rest, int(fs)), static_std(np.nan_to_num(moc), rest & np.isfinite(moc).all(1),
                                                                   int(fs)))

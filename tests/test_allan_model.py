@@ -7,7 +7,7 @@ from scipy.signal import lfilter
 
 from fusion_gyrocal.core.allan import (BOUNDED, TONE, WHITE, allan_deviation, allan_points, bounded_shape, edf_table,
                                        fit_allan, tone_shape)
-from fusion_gyrocal.evaluate.sim import shared_data_dir
+from _shared import data_folder
 
 RATE = 100.0
 
@@ -101,11 +101,6 @@ def test_fit_allan_white_noise_gets_no_tone_or_bounded_term():
 
 
 # --------------------------------------------------------------------------------- real logs
-def _data(folder):
-    d = shared_data_dir() / folder
-    if not d.is_dir():
-        pytest.skip(f"../shared/data/{folder} is absent (a user's own clone)")
-    return d
 
 
 @pytest.mark.shared_data
@@ -113,7 +108,7 @@ def test_static_noise_mimu_every_axis_of_one_session_within_10_percent_of_direct
     from fusion_gyrocal.core.static_noise import rest_stretches, static_noise
     from fusion_gyrocal.io import read_npz
 
-    p = _data("mimu_8imu_array") / "npz" / "exp_1.npz"
+    p = data_folder("mimu_8imu_array") / "npz" / "exp_1.npz"
     ratios = []
     for imu in range(8):
         s = read_npz(p, imu=imu)
@@ -129,30 +124,23 @@ def test_static_noise_mimu_every_axis_of_one_session_within_10_percent_of_direct
 
 @pytest.mark.shared_data
 def test_residual_allan_model_passes_through_its_points_on_broad_and_mimu():
-    from scipy.io import loadmat
-    from scipy.spatial.transform import Rotation
-
     from fusion_gyrocal import calibrate_pair
+    from fusion_gyrocal.evaluate.sim import load_broad_pair
     from fusion_gyrocal.io import read_npz
 
     # BROAD trial 07: the IMU against the motion-capture rate (the model was 3.1x off its points before the
     # measured scatter and the bounded term)
-    m = loadmat(_data("broad_handheld") / "data_mat" / "07_undisturbed_fast_rotation_B.mat", squeeze_me=True)
-    fs, gyr, quat = float(m["sampling_rate"]), np.asarray(m["imu_gyr"], float), np.asarray(m["opt_quat"], float)
-    ok = np.isfinite(quat).all(axis=1)
-    R = Rotation.from_quat(np.where(ok[:, None], quat, [1.0, 0, 0, 0])[:, [1, 2, 3, 0]])
-    moc = np.full_like(gyr, np.nan)
-    moc[:-1] = (R[:-1].inv() * R[1:]).as_rotvec() * fs
-    moc[:-1][~(ok[:-1] & ok[1:])] = np.nan
+    data_folder("broad_handheld")
+    gyr, moc, _, fs = load_broad_pair("07_undisturbed_fast_rotation_B")
     t = np.arange(len(gyr)) / fs
     nm = calibrate_pair(gyr, moc, t_1=t, t_2=t).noise_model
     assert nm.fits, nm.sources["noise"]
     # MIMU session 5, IMU 1 against IMU 2 (1.27x beyond the points' scatter with white and walk alone)
-    streams = read_npz(_data("mimu_8imu_array") / "npz" / "exp_5.npz")
+    streams = read_npz(data_folder("mimu_8imu_array") / "npz" / "exp_5.npz")
     nm = calibrate_pair(streams[0].omega, streams[1].omega, t_1=streams[0].t, t_2=streams[1].t).noise_model
     assert nm.fits, nm.sources["noise"]
     # session 7, IMU 1 against IMU 4: 2.2x off before; closer now but not yet within FIT_FACTOR (the residual's
     # short taus carry a structure the tone and bounded terms describe only in part)
-    streams = read_npz(_data("mimu_8imu_array") / "npz" / "exp_7.npz")
+    streams = read_npz(data_folder("mimu_8imu_array") / "npz" / "exp_7.npz")
     nm = calibrate_pair(streams[0].omega, streams[3].omega, t_1=streams[0].t, t_2=streams[3].t).noise_model
     assert nm.adev_worst < 1.6, nm.sources["noise"]

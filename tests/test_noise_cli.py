@@ -9,7 +9,7 @@ import pytest
 from fusion_gyrocal import ExcitationError
 from fusion_gyrocal.cli import main
 from fusion_gyrocal.core.static_noise import rest_stretches, static_noise
-from fusion_gyrocal.evaluate.sim import shared_data_dir
+from _shared import data_folder
 from fusion_gyrocal.io.writers import ImuNoise, read_imu_noise
 from test_writers import kalibr_imu_parameters
 
@@ -81,18 +81,13 @@ def test_cli_noise_bad_window_is_one_line_error(tmp_path, capsys):
 
 
 # --------------------------------------------------------------------------------- real rest stretches
-def _data(folder):
-    d = shared_data_dir() / folder
-    if not d.is_dir():
-        pytest.skip(f"../shared/data/{folder} is absent (a user's own clone)")
-    return d
 
 
 @pytest.mark.shared_data
 def test_cli_noise_mimu_static_poses_white_noise_within_10_percent_of_direct(tmp_path, capsys):
     from fusion_gyrocal.io import read_npz
 
-    p = _data("mimu_8imu_array") / "npz" / "exp_1.npz"
+    p = data_folder("mimu_8imu_array") / "npz" / "exp_1.npz"
     for imu in range(8):
         out = tmp_path / f"n{imu}.json"
         assert main(["noise", str(p), "--imu", str(imu), "-o", str(out)]) == 0
@@ -113,7 +108,7 @@ def test_cli_noise_mimu_static_poses_white_noise_within_10_percent_of_direct(tmp
 def test_cli_noise_broad_rest_stretches_white_noise_within_10_percent_of_direct(tmp_path, capsys):
     from scipy.io import loadmat
 
-    folder = _data("broad_handheld") / "data_mat"
+    folder = data_folder("broad_handheld") / "data_mat"
     for name in ("04_undisturbed_slow_rotation_with_breaks_A", "08_undisturbed_fast_rotation_with_breaks_A"):
         m = loadmat(folder / f"{name}.mat", squeeze_me=True)
         g, fs = np.asarray(m["imu_gyr"], float), float(m["sampling_rate"])

@@ -117,23 +117,15 @@ def test_identify_noise_broad_imu_white_noise_within_1p5x_of_its_rest():
     d = shared_data_dir() / "broad_handheld" / "data_mat"
     if not d.exists():
         pytest.skip("../shared/data not present (real recordings are only in the project checkout)")
-    from scipy.io import loadmat
-    from scipy.spatial.transform import Rotation
-
     from fusion_gyrocal import calibrate_pair
+    from fusion_gyrocal.evaluate.sim import load_broad_pair
 
     for trial in ("01_undisturbed_slow_rotation_A", "04_undisturbed_slow_rotation_with_breaks_A",
                   "06_undisturbed_fast_rotation_A"):
-        m = loadmat(d / f"{trial}.mat", squeeze_me=True)
-        fs, gyr, quat = float(m["sampling_rate"]), np.asarray(m["imu_gyr"], float), np.asarray(m["opt_quat"], float)
-        ok = np.isfinite(quat).all(axis=1)
-        R = Rotation.from_quat(np.where(ok[:, None], quat, [1.0, 0, 0, 0])[:, [1, 2, 3, 0]])
-        moc = np.full_like(gyr, np.nan)
-        moc[:-1] = (R[:-1].inv() * R[1:]).as_rotvec() * fs
-        moc[:-1][~(ok[:-1] & ok[1:])] = np.nan
+        gyr, moc, rest, fs = load_broad_pair(trial)
         t = np.arange(len(gyr)) / fs
         nm = calibrate_pair(gyr, moc, t_1=t, t_2=t).noise_model
-        static = _static_std(gyr, ~np.asarray(m["movement"], bool), int(fs))
+        static = _static_std(gyr, rest, int(fs))
         assert 1 / 1.5 < nm.noise_std[0] / static < 1.5, (trial, nm.noise_std[0] / DEG, static / DEG)
         assert nm.still_noise_std is not None
 

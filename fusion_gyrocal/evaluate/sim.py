@@ -7,7 +7,8 @@
   random walk (57.3 micro-deg/s per step, Eq. 35) and optional skew (upper-triangular
   ``S_i`` with off-diagonals drawn from N(0, 2.357e-4^2)).
 * :func:`load_broad_rates`: real hand-held gyro motion from the BROAD dataset to drive the
-  simulation with recorded motion (as the paper did with its own human motion).
+  simulation with recorded motion (as the paper did with its own human motion); :func:`load_broad_pair`: a BROAD
+  trial's IMU against the rate differentiated from its motion capture, a real pair.
 * :func:`rotation_error` and :func:`scale_error`: the paper's two error metrics (Eq. 37-38).
 """
 
@@ -273,6 +274,37 @@ def load_broad_rates(trial: str = "06_undisturbed_fast_rotation_A", *, data_dir=
     if movement_only:
         gyr = gyr[np.asarray(d["movement"], dtype=bool)]
     return gyr, float(d["sampling_rate"])
+
+
+class BroadPair(NamedTuple):
+    """A BROAD trial as a gyro pair (:func:`load_broad_pair`)."""
+
+    gyr: np.ndarray        #: (N, 3) the IMU's gyro (rad/s)
+    mocap: np.ndarray      #: (N, 3) body rate differentiated from motion capture (rad/s; NaN where missing)
+    rest: np.ndarray       #: (N,) bool, the trial's rest stretches (not ``movement``)
+    rate_hz: float
+
+
+def load_broad_pair(trial: str, *, data_dir=None) -> BroadPair:
+    """A BROAD trial's IMU gyro against the body rate differentiated from its motion-capture orientation
+    (``log(q_k^-1 q_{k+1}) rate``, NaN where either quaternion is missing), on the same samples: a real pair whose
+    second gyro is not white (Laidig et al., Data 6(7):72, 2021; CC BY 4.0)."""
+    from scipy.io import loadmat
+    from scipy.spatial.transform import Rotation
+
+    root = Path(data_dir) if data_dir is not None else shared_data_dir()
+    path = root / "broad_handheld" / "data_mat" / f"{trial}.mat"
+    if not path.exists():
+        from ..errors import FormatError
+        raise FormatError(f"BROAD trial not found: expected {path}")
+    d = loadmat(path, squeeze_me=True)
+    fs, quat = float(d["sampling_rate"]), np.asarray(d["opt_quat"], dtype=float)
+    ok = np.isfinite(quat).all(axis=1)
+    R = Rotation.from_quat(np.where(ok[:, None], quat, [1.0, 0.0, 0.0, 0.0])[:, [1, 2, 3, 0]])
+    mocap = np.full((len(quat), 3), np.nan)
+    mocap[:-1] = (R[:-1].inv() * R[1:]).as_rotvec() * fs
+    mocap[:-1][~(ok[:-1] & ok[1:])] = np.nan
+    return BroadPair(np.asarray(d["imu_gyr"], dtype=float), mocap, ~np.asarray(d["movement"], dtype=bool), fs)
 
 
 def simulate_drifting_pair(t, R_1_2, scale_1, scale_2, *, bias_1=None, bias_2=None, noise_std=0.1 * np.pi / 180,
