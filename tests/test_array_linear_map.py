@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from _shared import data_folder
 from scipy.stats import chi2
 
 from fusion_gyrocal import ArrayCalibration, calibrate_streams, solve
@@ -205,12 +206,9 @@ def test_calibrate_array_mimu_full_map_sessions_agree_within_the_repeatable_cova
     # one rigid board in nine sessions: the 14 pairs of issue 20 from the joint calibration of all 8 IMUs
     import itertools
 
-    from fusion_gyrocal.evaluate.sim import shared_data_dir
     from fusion_gyrocal.io import read_npz
 
-    d = shared_data_dir() / "mimu_8imu_array" / "npz"
-    if not d.exists():
-        pytest.skip("../shared/data not present (real recordings are only in the project checkout)")
+    d = data_folder("mimu_8imu_array/npz")
     sessions = [read_npz(d / f"exp_{e}.npz") for e in range(1, 10)]
     rms = {}
     for lm in ("rigid", "auto"):

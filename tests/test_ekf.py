@@ -7,12 +7,13 @@ import dataclasses
 import numpy as np
 from _examples import load_example
 import pytest
+from _shared import data_folder
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from fusion_gyrocal import PairCalibration, calibrate_pair
 from fusion_gyrocal.errors import InputError, OptionError
-from fusion_gyrocal.evaluate.sim import (DEG, HumanMotion, general_rotation, rotation_error, scale_error, shared_data_dir,
+from fusion_gyrocal.evaluate.sim import (DEG, HumanMotion, general_rotation, rotation_error, scale_error,
                                          simulate_drifting_pair)
 from fusion_gyrocal.online.seed import misfit_gain
 from fusion_gyrocal.online.tracker import DriftNoise, GyroPairTracker, TrackerConfig, plot_history
@@ -537,9 +538,7 @@ def test_track_figure_for_report_tracks_a_pipeline_run():
 # ---------------------------------------------------------------------------- real motion, example
 @pytest.mark.shared_data
 def test_run_tracks_drift_with_recorded_hand_motion():
-    root = shared_data_dir()
-    if not (root / "broad_handheld").exists():
-        pytest.skip("../shared/data not present (real recordings are only in the project checkout)")
+    data_folder("broad_handheld")
     from fusion_gyrocal.evaluate.sim import load_broad_rates
 
     motion, fs = load_broad_rates("01_undisturbed_slow_rotation_A")
@@ -756,9 +755,7 @@ def _mimu_run(session: int, imu: int):
     blocks), its history, and the batch over the whole session (benchmarks/ekf.py section 4)."""
     from fusion_gyrocal.io import read_npz
 
-    path = shared_data_dir() / "mimu_8imu_array" / "npz" / f"exp_{session}.npz"
-    if not path.exists():
-        pytest.skip(f"{path} not present (set FUSION_GYROCAL_DATA to the shared data)")
+    path = data_folder("mimu_8imu_array/npz") / f"exp_{session}.npz"
     ref, other = read_npz(path, imu=0), read_npz(path, imu=imu - 1)
     keep = np.asarray(ref.valid, bool) & np.asarray(other.valid, bool)
     t, w1, w2 = ref.t[keep], ref.omega[keep], other.omega[keep]

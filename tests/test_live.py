@@ -9,11 +9,12 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from _shared import data_folder
 from _examples import load_example
 
 from fusion_gyrocal.cli import main
 from fusion_gyrocal.errors import InputError
-from fusion_gyrocal.evaluate.sim import general_rotation, shared_data_dir, simulate_drifting_pair
+from fusion_gyrocal.evaluate.sim import general_rotation, simulate_drifting_pair
 from fusion_gyrocal.online.live import LineReader, LiveAligner, LiveBlocks, LivePair
 from fusion_gyrocal.online.steps import block_spans
 from fusion_gyrocal.online.tracker import GyroPairTracker
@@ -180,9 +181,7 @@ def _final(path):
 
 @pytest.mark.shared_data
 def test_cli_track_mimu_session_equals_batch_tracker(tmp_path):
-    p = shared_data_dir() / "mimu_8imu_array" / "npz" / "exp_1.npz"
-    if not p.exists():
-        pytest.skip("../shared/data not present (real recordings are only in the project checkout)")
+    p = data_folder("mimu_8imu_array/npz") / "exp_1.npz"
     from fusion_gyrocal.io import read_npz
     imus = read_npz(p)
     n = 6000

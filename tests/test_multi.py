@@ -4,6 +4,7 @@ from pathlib import Path
 import numpy as np
 from _examples import load_example
 import pytest
+from _shared import data_folder
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
@@ -12,7 +13,7 @@ from fusion_gyrocal import (ConfigurationError, ExcitationError, InputError, Mom
 from fusion_gyrocal.core.array import (ArrayCalibration, ArrayMoments, _retract, calibrate_array, joint_cost,
                                   joint_gradient, solve_array)
 from fusion_gyrocal.core.refine import ml_cost
-from fusion_gyrocal.evaluate.sim import DEG, PAPER_NOISE_STD, HumanMotion, random_rotation, rotation_error, shared_data_dir
+from fusion_gyrocal.evaluate.sim import DEG, PAPER_NOISE_STD, HumanMotion, random_rotation, rotation_error
 
 SCALES = np.array([[1.01, 0.99, 1.02], [0.98, 1.00, 1.03], [1.00, 1.02, 0.97], [0.99, 1.01, 1.00]])
 
@@ -310,10 +311,7 @@ def _example():
 
 
 def _mimu_dir() -> Path:
-    d = shared_data_dir() / "mimu_8imu_array"
-    if not d.exists():
-        pytest.skip("../shared/data not present (real recordings are only in the project checkout)")
-    return d
+    return data_folder("mimu_8imu_array")
 
 
 @pytest.fixture(scope="module")

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from _shared import data_folder
 from scipy.signal import lfilter
 
 from fusion_gyrocal.core.allan import (FILTERED, FLICKER_TERM, QUANTISATION, WALK, WHITE, allan_deviation, edf_table,
@@ -9,7 +10,7 @@ from fusion_gyrocal.core.allan import (FILTERED, FLICKER_TERM, QUANTISATION, WAL
 from fusion_gyrocal.core.direct import solve_A
 from fusion_gyrocal.core.moments import Moments
 from fusion_gyrocal.core.noise import identify_noise
-from fusion_gyrocal.evaluate.sim import DEG, HumanMotion, shared_data_dir, simulate_pair
+from fusion_gyrocal.evaluate.sim import DEG, HumanMotion, simulate_pair
 
 RATE = 100.0
 
@@ -114,9 +115,7 @@ def _static_std(omega, still, window):
 def test_identify_noise_broad_imu_white_noise_within_1p5x_of_its_rest():
     """BROAD: the IMU against the rate differentiated from motion capture (calibrate_pair's defaults); the IMU's
     identified white noise against its std at rest (not ``movement``)."""
-    d = shared_data_dir() / "broad_handheld" / "data_mat"
-    if not d.exists():
-        pytest.skip("../shared/data not present (real recordings are only in the project checkout)")
+    d = data_folder("broad_handheld/data_mat")
     from fusion_gyrocal import calibrate_pair
     from fusion_gyrocal.evaluate.sim import load_broad_pair
 
@@ -131,9 +130,7 @@ def test_identify_noise_broad_imu_white_noise_within_1p5x_of_its_rest():
 
 
 def test_identify_noise_mimu_static_poses_within_1p5x():
-    d = shared_data_dir() / "mimu_8imu_array" / "npz"
-    if not d.exists():
-        pytest.skip("../shared/data not present (real recordings are only in the project checkout)")
+    d = data_folder("mimu_8imu_array/npz")
     from fusion_gyrocal import calibrate_pair
     from fusion_gyrocal.io import read_npz
 

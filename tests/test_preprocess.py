@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _shared import data_folder
 from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation
 
@@ -15,10 +16,8 @@ from fusion_gyrocal.pipeline.alignment import AlignedPair, TimeOffset, align_str
 from fusion_gyrocal.pipeline.resample import resample
 from fusion_gyrocal.pipeline.selection import excitation_report, informative_mask
 from fusion_gyrocal.pipeline.streams import check_timestamps, saturation_mask, to_rad_per_s, valid_mask
-from fusion_gyrocal.evaluate.sim import (DEG, PAPER_NOISE_STD, HumanMotion, random_rotation, rotation_error, shared_data_dir,
+from fusion_gyrocal.evaluate.sim import (DEG, PAPER_NOISE_STD, HumanMotion, random_rotation, rotation_error,
                                 simulate_streams)
-
-NO_DATA = "../shared/data not present (real recordings are only in the project checkout)"
 
 
 # ------------------------------------------------------------------------------------------------ stream checks
@@ -118,9 +117,7 @@ def test_valid_mask_excludes_non_finite_and_saturated_samples():
 
 
 def test_saturation_mask_heuristic_matches_mimu_sensor_range():
-    path = shared_data_dir() / "mimu_8imu_array" / "npz" / "exp_1.npz"
-    if not path.exists():
-        pytest.skip(NO_DATA)
+    path = data_folder("mimu_8imu_array/npz") / "exp_1.npz"
     counts = np.load(path)["gyro_counts"][:, 0, :]
     w = to_rad_per_s(counts, "counts", sensitivity=16.4)
     by_range = saturation_mask(counts, limit=32767)
@@ -304,9 +301,7 @@ def test_estimate_time_offset_resolves_periodic_norm_with_rigid_model():
 
 
 def test_estimate_time_offset_recovers_shift_between_mimu_imus():
-    path = shared_data_dir() / "mimu_8imu_array" / "npz" / "exp_1.npz"
-    if not path.exists():
-        pytest.skip(NO_DATA)
+    path = data_folder("mimu_8imu_array/npz") / "exp_1.npz"
     d = np.load(path)
     w1 = to_rad_per_s(d["gyro_counts"][:, 0, :], "counts", sensitivity=16.4)
     w2 = to_rad_per_s(d["gyro_counts"][:, 1, :], "counts", sensitivity=16.4)  # bottom side: rotated 180 deg
