@@ -37,9 +37,9 @@ part no data see, for every pair of gyros (:func:`_cross_budget`).
 Inter-sensor timing (``timing_model``, :mod:`~fusion_gyrocal.pipeline.timing`): each chip samples on its own clock,
 so beyond any constant offset gyro j's samples lag the reference's by ``d_j(t) - d_ref(t)``, the difference of two
 chips' delays, each following the beat tone of its clock against the read-out (or a constant group delay).
-:func:`calibrate_array` fits one delay per chip to all pairs' residuals at a first joint estimate
-(:func:`~fusion_gyrocal.pipeline.timing.estimate_array_timing`: the reference chip's tone found once, in every pair,
-each other chip's once, in its pair), moves every delayed gyro's samples to the instants the reference's describe
+:func:`calibrate_array` fits one delay per chip to the residuals of all pairs with the reference, each fitted
+directly (Eq. 17; :func:`~fusion_gyrocal.pipeline.timing.estimate_array_timing`: the reference chip's tone found
+once, in every pair, each other chip's once, in its pair), moves every delayed gyro's samples to the instants the reference's describe
 (first order: the rate plus its derivative times the delay) and calibrates the array on them; every gyro then
 describes the same instants, so the pairs without the reference are consistent too.
 
@@ -901,7 +901,8 @@ def calibrate_array(omegas, options: Options | None = None, *, reference: int = 
             Accepted and without effect: the joint calibration has no flex gate (Eq. 42 is per pair).
         ``timing_model``
             ``"auto"`` (default): every gyro's delay against the reference beyond the time offset, found in the
-            pairs' residuals at a first estimate (:func:`~fusion_gyrocal.pipeline.timing.estimate_array_timing`:
+            residuals of its pair with the reference, fitted directly
+            (:func:`~fusion_gyrocal.pipeline.timing.estimate_array_timing`:
             one delay per chip, the beat of its sampling clock against the read-out, or a constant group delay;
             gyro j's is the difference of its chip's and the reference chip's), compensated, and the array
             calibrated on the moved samples (the noise identified on those); ``"off"``: none.
@@ -946,7 +947,7 @@ def calibrate_array(omegas, options: Options | None = None, *, reference: int = 
     if rate_hz is None and t is not None:
         rate_hz = (len(clock) - 1) / (clock[-1] - clock[0])
     moments = _moments(rates, o, mask)
-    timed = _timed_samples(rates, moments, o, reference, mask, clock, rate_hz) if o.timing_model == "auto" else None
+    timed = _timed_samples(rates, moments, o, reference, mask, clock) if o.timing_model == "auto" else None
     if timed is not None:
         rates, moments = timed.rates, timed.moments
     source = None
@@ -1020,8 +1021,8 @@ def _time_base(t, n: int, rate_hz) -> np.ndarray:
 class _Timed:
     """The samples with every delayed gyro moved to the instants the reference's describe (:func:`_timed_samples`),
     their moments, and what was found: per moved gyro its delay against the reference (``models``) and that delay
-    at the samples used (``delays``), the reference chip's own tones, and every gyro's residual RMS at the first
-    estimate before and after the move."""
+    at the samples used (``delays``), the reference chip's own tones, and the residual RMS per axis of every gyro's
+    pair with the reference (direct fit; 0 for the reference) before and after the move."""
 
     rates: list
     moments: ArrayMoments
@@ -1043,46 +1044,55 @@ class _Timed:
                                    timing_explained=explained, notes=cal.notes + (note,))
 
 
-def _timed_samples(rates, moments: ArrayMoments, o: Options, ref: int, mask, t, rate_hz) -> _Timed | None:
+def _timed_samples(rates, moments: ArrayMoments, o: Options, ref: int, mask, t) -> _Timed | None:
     """Every gyro's samples moved to the instants the reference's describe, where the pairs' residuals show delays
-    (:func:`~fusion_gyrocal.pipeline.timing.estimate_array_timing` on ``omega_ref - A_j omega_j - bias_j`` of a
-    first joint estimate: one delay per chip, each following the beat tone of its sampling clock against the
-    read-out, or a constant group delay; gyro j's delay against the reference is the difference of the two
-    chips'); None when nothing is found or the move does not explain the residuals better.
+    (:func:`~fusion_gyrocal.pipeline.timing.estimate_array_timing` on ``omega_ref - A_j omega_j - bias_j`` of every
+    pair's direct least-squares fit, Eq. 17: one delay per chip, each following the beat tone of its sampling clock
+    against the read-out, or a constant group delay; gyro j's delay against the reference is the difference of the
+    two chips'); None when nothing is found or the move does not explain the residuals better.
 
-    The first estimate takes the noise as given or from the pairwise residuals (:func:`solve_array`): the noise is
-    identified once, on the samples that are calibrated in the end (the caller's). A gyro is moved only when the
-    move lowers its pair's residual at the first estimate, and the moved samples are kept only when they lower the
-    gyros' residuals against the common rate at that estimate (the pair pipeline's rule: the solve on them can
-    only lower those further). Every gyro then describes the reference's sampling instants, so the pairs without
-    the reference are consistent as well (the reference chip's delay cancels in them).
+    A gyro is moved only when the move lowers its pair's residual at that fit, and the moved samples are kept only
+    when the pairs fitted again on them have less residual energy in all than before (the pair pipeline's rule).
+    The caller then calibrates the array on them once (the noise identified on the moved samples). Every gyro
+    describes the reference's sampling instants, so the pairs without the reference are consistent as well (the
+    reference chip's delay cancels in them).
     """
     from ..pipeline.timing import estimate_array_timing
 
-    first = _solve_samples(rates, moments, o, ref, mask, rate_hz, None)
     n = len(rates)
+    others = [j for j in range(n) if j != ref]
+    try:
+        fits = {j: solve_A(moments.pair(ref, j)) for j in others}
+    except GyroCalError:
+        return None                   # a pair without the motion to fit: the solve says what is missing
     ok = np.ones(len(t), bool) if mask is None else mask
-    k = first.cross_axis_terms if "full" in first.linear_map else None
-    maps = [_pair_map(first.R_ref_k, first.scale, k, ref, ref, j) for j in range(n)]
-    chips = estimate_array_timing(t, rates, maps, first.bias, ok, reference=ref)
+    maps = [fits[j][0] if j in fits else np.eye(3) for j in range(n)]
+    chips = estimate_array_timing(t, rates, maps, [fits[j][1] if j in fits else np.zeros(3) for j in range(n)], ok,
+                                  reference=ref)
     moved, models, delays = list(rates), {}, {}
-    for j in range(n):
+    for j in others:
         model = chips.relative[j]
-        if j == ref or not model.significant:
+        if not model.significant:
             continue
         w = np.where(ok[:, None], rates[j], np.nan)      # the derivative one-sided beside an unused sample
         w_moved, delay = chips.compensate(j, t, w)
-        A = maps[j]
-        before, after = (float(np.mean(np.square(rates[ref][ok] - x[ok] @ A.T - first.bias[j]))) for x in (w, w_moved))
+        A, b = fits[j]
+        before, after = (float(np.mean(np.square(rates[ref][ok] - x[ok] @ A.T - b))) for x in (w, w_moved))
         if after < before:
             moved[j], models[j], delays[j] = np.where(ok[:, None], w_moved, rates[j]), model, delay[ok]
     if not models:
         return None
     again = _moments(moved, o, mask)
-    after = _residual_rms(first.R_ref_k, first.scale, again.scatter, again.dof, first.noise_std, k, ref)
-    if float(np.sum(after ** 2)) >= float(np.sum(first.residual_rms ** 2)):
+
+    def pair_rms(m: Moments) -> float:               # residual RMS per axis of the pair's direct fit
+        return float(np.sqrt(max(np.trace(residual_scatter(solve_A(m)[0], m.scatter)), 0.0) / (3.0 * max(m.dof, 1.0))))
+
+    before, after = np.zeros(n), np.zeros(n)
+    for j in others:
+        before[j], after[j] = pair_rms(moments.pair(ref, j)), pair_rms(again.pair(ref, j))
+    if float(np.sum(after ** 2)) >= float(np.sum(before ** 2)):
         return None                   # the move did not explain the residuals better: the samples as they were
-    return _Timed(moved, again, models, delays, chips.tones_hz[ref], first.residual_rms, after)
+    return _Timed(moved, again, models, delays, chips.tones_hz[ref], before, after)
 
 
 def _timing_note(reference: int, timed: _Timed, mean, std, rate_hz) -> str:
@@ -1096,11 +1106,12 @@ def _timing_note(reference: int, timed: _Timed, mean, std, rate_hz) -> str:
                  else "constant (a filter's group delay?):")
         parts.append(f"gyro {j + 1} {shape} {mean[j] * unit[2]:.3g} {unit[1]}, {100 * model.explained:.0f}% of its "
                      f"pair's residual energy")
-    rms = "; ".join(f"gyro {j + 1} {np.rad2deg(b):.4g} -> {np.rad2deg(a):.4g}"
-                    for j, (b, a) in enumerate(zip(timed.before, timed.after)))
+    rms = "; ".join(f"gyro {j + 1} {np.rad2deg(timed.before[j]):.4g} -> {np.rad2deg(timed.after[j]):.4g}"
+                    for j in range(len(mean)) if j != reference)
     shared = (f"; the reference chip's own beat, at {', '.join(f'{f:.4g}' for f in timed.reference_tones)} "
               f"{unit[0]}, found once in all pairs, is common to every gyro's delay" if timed.reference_tones else "")
     return (f"inter-sensor timing: delays against the reference gyro {reference + 1} beyond the time offset "
             f"(each chip's sampling clock against the read-out{shared}): {'; '.join(parts)}; those gyros' samples "
-            "were moved to the instants the reference's describe and the array calibrated again: residual RMS per "
-            f"axis at the first estimate (deg/s) {rms} (timing_model='off': no delay beyond the time offset)")
+            "were moved to the instants the reference's describe and the array calibrated on them: residual RMS per "
+            f"axis of each gyro's pair with the reference, fitted directly (Eq. 17; deg/s) {rms} (timing_model='off': "
+            "no delay beyond the time offset)")
