@@ -17,6 +17,11 @@ periodogram of ``r_k . u_k``, refined on a fine grid), and keeps them only where
 A constant delay alone (a filter's group delay, in sample-aligned input where no offset was estimated) is kept
 when it explains far more than noise would. :meth:`TimingModel.compensate` moves gyro 2's samples to the
 instants they describe (``omega_2 + d(omega_2)/dt delta``), after which the pair is calibrated again.
+
+An array of N gyros has N chips, hence N delays, not N-1 independent pairs: :func:`estimate_array_timing` fits one
+delay per chip (:class:`ArrayTimingModel`) to the residuals of all pairs with the reference, finding the reference
+chip's tone once (a line in every pair) and each other chip's once (in its pair); gyro j's delay against the
+reference is the difference of the two chips'.
 """
 
 from __future__ import annotations
