@@ -3,8 +3,9 @@
 1. MIMU board (``../shared/data/mimu_8imu_array``, nine sessions of one soldered PCB): ``calibrate_array`` of all 8
    IMUs per session (sample-aligned: one microcontroller samples every IMU, the read-out's timestamps as ``t``), with
    ``linear_map`` "rigid" (the paper's model) and the defaults (the full linear map per gyro where the data call for
-   it), each with ``timing_model`` "off" and/or "auto" (the default: every gyro's delay against the reference from
-   its pair's residual, the beat tones of each chip's sampling clock, compensated and the array solved again). For the 14 pairs of
+   it), each with ``timing_model`` "off" and "auto" (the default: one delay per chip from all pairs' residuals at a
+   first estimate, the beat tone of each chip's sampling clock, compensated and the array solved on the moved
+   samples), timed in the same run (the ratio auto / off is printed per linear map). For the 14 pairs of
    ``benchmarks/sensor_model.py`` the pair views (:meth:`ArrayCalibration.pair`) give per pair the RMS
    session-to-session rotation difference and the mean ``z^2`` of the differences against the two sessions'
    repeatable rotation covariances (without ``skew_rotation_covariance``, which the board's constant cross-axis
@@ -17,7 +18,7 @@
    sample-aligned, the defaults: the mean ``z^2`` of every ``R_ref_k``'s error against the physical rotation and the
    reported covariance (which carries the cross-axis budget).
 
-    python benchmarks/array_sensor_model.py [--runs 20] [--linear-map rigid auto] [--timing-model auto]
+    python benchmarks/array_sensor_model.py [--runs 20] [--linear-map rigid auto] [--timing-model off auto]
                                             [--no-mimu] [--no-sim]
 """
 
@@ -50,11 +51,18 @@ def mimu(linear_maps, timing_models) -> None:
     sessions = [read_npz(d / f"exp_{e}.npz") for e in range(1, 10)]
     print("1. MIMU board, 9 sessions, calibrate_array of all 8 IMUs (sample-aligned, the read-out's timestamps), "
           "pair views of 14 pairs")
+    seconds, cpu, results = {}, {}, {}
+    for lm in linear_maps:        # the timing models interleaved session by session: the same load for each
+        for s in sessions:
+            for tm in timing_models:
+                t0, c0 = time.perf_counter(), time.process_time()
+                results.setdefault((lm, tm), []).append(
+                    calibrate_array([g.omega for g in s], mask=np.all([g.valid for g in s], axis=0), t=s[0].t,
+                                    linear_map=lm, timing_model=tm))
+                seconds[lm, tm] = seconds.get((lm, tm), 0.0) + time.perf_counter() - t0
+                cpu[lm, tm] = cpu.get((lm, tm), 0.0) + time.process_time() - c0
     for lm, tm in ((lm, tm) for lm in linear_maps for tm in timing_models):
-        t0 = time.perf_counter()
-        arrays = [calibrate_array([g.omega for g in s], mask=np.all([g.valid for g in s], axis=0), t=s[0].t,
-                                  linear_map=lm, timing_model=tm) for s in sessions]
-        dt = time.perf_counter() - t0
+        arrays, dt = results[lm, tm], seconds[lm, tm]
         maps = [m for a in arrays for m in a.linear_map if m]
         print(f"\nlinear_map={lm!r}, timing_model={tm!r}: {dt:.1f} s for 9 joint calibrations; gyros with the full "
               f"map {maps.count('full')}/{len(maps)}; largest |K| "
@@ -86,6 +94,12 @@ def mimu(linear_maps, timing_models) -> None:
               f"views without the reference: mean {np.mean(shifts) / MDEG:.2f}, largest {np.max(shifts) / MDEG:.2f} "
               f"mdeg; view vs the pair solver on the same moments: RMS {np.sqrt(np.mean(np.square(gaps))) / MDEG:.1f} "
               "mdeg")
+    for lm in linear_maps:
+        if (lm, "off") in seconds and (lm, "auto") in seconds:
+            print(f"\nlinear_map={lm!r}: timing_model 'auto' took {seconds[lm, 'auto']:.1f} s, 'off' "
+                  f"{seconds[lm, 'off']:.1f} s for the 9 sessions in this run (interleaved): ratio "
+                  f"{seconds[lm, 'auto'] / seconds[lm, 'off']:.2f}; process CPU time {cpu[lm, 'auto']:.1f} vs "
+                  f"{cpu[lm, 'off']:.1f} s: ratio {cpu[lm, 'auto'] / cpu[lm, 'off']:.2f}")
 
 
 def timing_table(arrays) -> None:
@@ -155,7 +169,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=20, help="simulated arrays per case")
     ap.add_argument("--linear-map", nargs="+", default=["rigid", "auto"], help="linear_map values for the MIMU part")
-    ap.add_argument("--timing-model", nargs="+", default=["auto"], help="timing_model values for the MIMU part")
+    ap.add_argument("--timing-model", nargs="+", default=["off", "auto"], help="timing_model values for the MIMU part")
     ap.add_argument("--no-mimu", action="store_true")
     ap.add_argument("--no-sim", action="store_true")
     a = ap.parse_args(argv)

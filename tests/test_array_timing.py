@@ -148,6 +148,91 @@ def test_timing_line_names_every_delayed_gyro(delayed):
 
     cal = delayed[0][3]
     line = timing_line(cal, "auto")
-    assert "gyro 2 constant +1.9" in line and "gyro 3 std 1.7" in line and "tones 1.7, " in line
+    # one tone per chip: gyro 3's sawtooth at 1.7 Hz (its 4th harmonic, 6.8 Hz, is not taken for another chip's)
+    assert "gyro 2 constant +1.9" in line and "gyro 3 std 1." in line and "tones 1.7 Hz" in line
     assert "none found for gyro(s) 4" in line
     assert "off" in timing_line(cal, "off")
+
+
+# ---------------------------------------------------------------------------------------- one delay per chip
+from test_timing_model import CHIP_PERIOD_S, NOISE, RATE_HZ, chip_delay  # noqa: E402
+
+from fusion_gyrocal.pipeline.timing import estimate_array_timing, estimate_timing  # noqa: E402
+
+CHIP_TONES_HZ = (0.35, 2.5, 1.3, 0.8)           # every chip's clock against the read-out; chip 0 the reference
+
+
+def _chip_array(seed, n=20000):
+    """Four chips, each on its own clock: per-chip sawtooth delays over one internal sample period (as in
+    tests/test_timing_model.py), read out together at ``RATE_HZ``."""
+    rng = np.random.default_rng([20, 7, seed])
+    t = np.arange(n) / RATE_HZ
+    motion = HumanMotion(3.0, max_freq_hz=4.0, rng=rng)
+    R = [np.eye(3)] + [general_rotation(rng) for _ in range(3)]
+    late = [chip_delay(t, f, rng.uniform()) for f in CHIP_TONES_HZ]
+    rates = [motion(t - late[g]) @ R[g] + rng.normal(0, NOISE, (n, 3)) + rng.normal(0, 0.01, 3) for g in range(4)]
+    return t, rates, R, late
+
+
+@pytest.fixture(scope="module")
+def chips():
+    """Two seeds: ``[(t, rates, R, late, calibrate_array, calibrate_array with timing_model='off')]``."""
+    out = []
+    for seed in range(2):
+        t, w, R, late = _chip_array(seed)
+        out.append((t, w, R, late, calibrate_array(w, t=t), calibrate_array(w, t=t, timing_model="off")))
+    return out
+
+
+def test_estimate_array_timing_recovers_every_chip(chips):
+    for t, w, R, late, _, _ in chips:
+        model = estimate_array_timing(t, w, R, np.zeros((4, 3)))          # omega_ref ~ R_g omega_g
+        for g, f in enumerate(CHIP_TONES_HZ):
+            assert len(model.tones_hz[g]) == 1 and model.tones_hz[g][0] == pytest.approx(f, abs=0.005)
+            own = model.delay(g, t)                        # the reference's mean is the zero of the others'
+            assert own.std() == pytest.approx(late[g].std(), rel=0.25)
+        for j in (1, 2, 3):
+            truth = late[j] - late[0]
+            rel = model.relative[j]
+            assert rel.tones_hz == model.tones_hz[j] + model.tones_hz[0]     # its own tone, then the reference's
+            fit = rel.delay(t)
+            assert np.sqrt(np.mean((fit - fit.mean() - (truth - truth.mean())) ** 2)) < 0.5 * truth.std()
+            assert abs(fit.mean() - truth.mean()) < 0.1 * CHIP_PERIOD_S
+            assert rel.explained > 0.3
+
+
+def test_calibrate_array_timing_shares_the_reference_chip_tone(chips):
+    for _, _, _, _, cal, _ in chips:
+        ref = {tones[-1] for tones in cal.timing_tones_hz[1:]}
+        assert len(ref) == 1 and ref.pop() == pytest.approx(CHIP_TONES_HZ[0], abs=0.005)   # one estimate, every pair
+        for g in (1, 2, 3):
+            assert cal.timing_tones_hz[g][0] == pytest.approx(CHIP_TONES_HZ[g], abs=0.005)
+        note = [n for n in cal.notes if n.startswith("inter-sensor timing")][0]
+        assert "the reference chip's own beat, at 0.35" in note
+
+
+def test_calibrate_array_timing_chip_rotations_honest(chips):
+    z2 = []
+    for _, _, R, _, cal, off in chips:
+        # the delays modelled: closer to the truth than without them (over the three gyros: each is noise-limited)
+        assert sum(_error(cal, R, g) ** 2 for g in (1, 2, 3)) < sum(_error(off, R, g) ** 2 for g in (1, 2, 3))
+        z2 += [_z2(cal, R, g) for g in (1, 2, 3)]
+        for i, j in ((1, 2), (1, 3), (2, 3)):           # the pairs without the reference: its delay cancels there
+            view = cal.pair(i, j)
+            d = log(view.R_1_2 @ (R[i].T @ R[j]).T)
+            z2.append(float(d @ np.linalg.solve(view.covariance[:3, :3], d)))
+    assert max(z2) < 16.3, z2                           # chi2_3's 99.9 % point
+    assert np.mean(z2) < 6.0, z2
+
+
+def test_estimate_array_timing_one_pair_gives_both_tones_to_gyro_2():
+    from test_timing_model import simulated_pair
+
+    t, w1, w2, R, relative = simulated_pair(0)
+    A, b = R, np.zeros(3)                                # omega_1 ~ R omega_2
+    pair = estimate_timing(t, w1, w2, A, b)
+    model = estimate_array_timing(t, [w1, w2], [np.eye(3), A], [b, b])
+    assert model.tones_hz[0] == () and model.relative[0].explained == 0.0
+    assert np.allclose(sorted(model.tones_hz[1]), sorted(pair.tones_hz), atol=0.002)
+    assert model.relative[1].explained == pytest.approx(pair.explained, rel=0.02)
+    assert model.relative[1].delay_std == pytest.approx(pair.delay_std, rel=0.05)

@@ -35,11 +35,13 @@ reference at the joint rigid estimate, then the full map for every gyro once any
 part no data see, for every pair of gyros (:func:`_cross_budget`).
 
 Inter-sensor timing (``timing_model``, :mod:`~fusion_gyrocal.pipeline.timing`): each chip samples on its own clock,
-so beyond any constant offset gyro j's samples lag the reference's by a delay that follows the beat tones of the two
-chips' clocks against the read-out (or a constant group delay). :func:`calibrate_array` finds every gyro's delay in its
-pair's residual at the joint estimate, moves its samples to the instants the reference's describe (first order: the
-rate plus its derivative times the delay) and calibrates the array again; every gyro then describes the same
-instants, so the pairs without the reference are consistent too.
+so beyond any constant offset gyro j's samples lag the reference's by ``d_j(t) - d_ref(t)``, the difference of two
+chips' delays, each following the beat tone of its clock against the read-out (or a constant group delay).
+:func:`calibrate_array` fits one delay per chip to the residuals of all pairs with the reference, each fitted
+directly (Eq. 17; :func:`~fusion_gyrocal.pipeline.timing.estimate_array_timing`: the reference chip's tone found
+once, in every pair, each other chip's once, in its pair), moves every delayed gyro's samples to the instants the reference's describe
+(first order: the rate plus its derivative times the delay) and calibrates the array on them; every gyro then
+describes the same instants, so the pairs without the reference are consistent too.
 
 Unknowns are the rotations of every non-reference gyro, the log scale factors of every gyro (and the
 cross-axis terms ``k_j``); the scale factors are determined only up to one common factor per group of linked axes
@@ -898,10 +900,12 @@ def calibrate_array(omegas, options: Options | None = None, *, reference: int = 
         ``flex_rejection``
             Accepted and without effect: the joint calibration has no flex gate (Eq. 42 is per pair).
         ``timing_model``
-            ``"auto"`` (default): every gyro's delay against the reference beyond the time offset, found in its
-            pair's residual (:func:`~fusion_gyrocal.pipeline.timing.estimate_timing`: the beat of each chip's
-            sampling clock against the read-out, or a constant group delay), compensated, and the array
-            calibrated again; ``"off"``: none.
+            ``"auto"`` (default): every gyro's delay against the reference beyond the time offset, found in the
+            residuals of its pair with the reference, fitted directly
+            (:func:`~fusion_gyrocal.pipeline.timing.estimate_array_timing`:
+            one delay per chip, the beat of its sampling clock against the read-out, or a constant group delay;
+            gyro j's is the difference of its chip's and the reference chip's), compensated, and the array
+            calibrated on the moved samples (the noise identified on those); ``"off"``: none.
     reference : int
         Index of the reference gyro.
     mask : array_like of bool (n_samples,), optional
@@ -939,24 +943,35 @@ def calibrate_array(omegas, options: Options | None = None, *, reference: int = 
     o = Options.of(options, gyros=len(rates), **keywords).require("array", "calibrate_array")
     if isinstance(reference, bool) or not (isinstance(reference, (int, np.integer)) and 0 <= reference < len(rates)):
         raise OptionError(f"reference: expected a gyro index in [0, {len(rates)}), got {reference!r}")
-    given, clock = o, _time_base(t, len(rates[0]), rate_hz)
+    clock = _time_base(t, len(rates[0]), rate_hz)
     if rate_hz is None and t is not None:
         rate_hz = (len(clock) - 1) / (clock[-1] - clock[0])
-    if o.bias_window is None:
-        moments = ArrayMoments.from_samples(rates, mask=mask)
-    else:
-        moments = ArrayMoments.from_windows(rates, o.bias_window, mask=mask)
-    window = o.bias_window if o.bias_window is not None else window_samples(rate_hz)
-    windows = stacked_window_stats(rates, window, mask=mask, pooled=o.bias_window is not None)
+    moments = _moments(rates, o, mask)
+    timed = _timed_samples(rates, moments, o, reference, mask, clock) if o.timing_model == "auto" else None
+    if timed is not None:
+        rates, moments = timed.rates, timed.moments
     source = None
     if o.noise_std is None and o.noise_model == "identify":
         noise_std, source = _identified_noise(rates, moments, reference, mask, rate_hz)
         if noise_std is not None:
             o = o.replace(noise_std=noise_std)
-    cal = solve_array(moments, o, reference=reference, windows=windows, noise_source=source)
-    if given.timing_model == "auto":
-        cal = _with_timing(cal, rates, mask, clock, given, rate_hz)
-    return cal
+    cal = _solve_samples(rates, moments, o, reference, mask, rate_hz, source)
+    return cal if timed is None else timed.reported(cal, rate_hz)
+
+
+def _moments(rates, o: Options, mask) -> ArrayMoments:
+    """The array's moments: one pass, or pooled over windows of ``bias_window`` samples."""
+    if o.bias_window is None:
+        return ArrayMoments.from_samples(rates, mask=mask)
+    return ArrayMoments.from_windows(rates, o.bias_window, mask=mask)
+
+
+def _solve_samples(rates, moments, o: Options, reference, mask, rate_hz, source) -> ArrayCalibration:
+    """:func:`solve_array` of the samples' ``moments``, with their windows of about a second (or ``bias_window``)
+    for the block-robust covariance."""
+    window = o.bias_window if o.bias_window is not None else window_samples(rate_hz)
+    windows = stacked_window_stats(rates, window, mask=mask, pooled=o.bias_window is not None)
+    return solve_array(moments, o, reference=reference, windows=windows, noise_source=source)
 
 
 def _identified_noise(rates, moments: ArrayMoments, reference: int, mask, rate_hz):
@@ -1002,61 +1017,101 @@ def _time_base(t, n: int, rate_hz) -> np.ndarray:
     return clock
 
 
-def _with_timing(cal: ArrayCalibration, rates, mask, t, given: Options, rate_hz) -> ArrayCalibration:
-    """The array calibrated again on every gyro's samples moved to the instants the reference's describe, where
-    its pair's residual shows a delay against the reference (:func:`~fusion_gyrocal.pipeline.timing.estimate_timing`
-    on ``omega_ref - A_j omega_j - bias_j`` of the joint estimate: the beat tones of the two chips' sampling clocks
-    against the read-out, or a constant group delay); ``cal`` as it is otherwise.
+@dataclass(frozen=True)
+class _Timed:
+    """The samples with every delayed gyro moved to the instants the reference's describe (:func:`_timed_samples`),
+    their moments, and what was found: per moved gyro its delay against the reference (``models``) and that delay
+    at the samples used (``delays``), the reference chip's own tones, and the residual RMS per axis of every gyro's
+    pair with the reference (direct fit; 0 for the reference) before and after the move."""
 
-    A gyro is moved only when the move lowers its pair's residual at the joint estimate, and the new calibration is
-    kept only when it lowers the gyros' residuals against the common rate (the pair pipeline's rule). Every gyro then
-    describes the reference's sampling instants, so the pairs without the reference are consistent as well.
+    rates: list
+    moments: ArrayMoments
+    models: dict
+    delays: dict
+    reference_tones: tuple
+    before: np.ndarray
+    after: np.ndarray
+
+    def reported(self, cal: ArrayCalibration, rate_hz) -> ArrayCalibration:
+        """``cal`` (the calibration of :attr:`rates`) with the delays in its timing fields and a note."""
+        n = cal.n_gyros
+        tones, mean, std, explained = [()] * n, np.zeros(n), np.zeros(n), np.zeros(n)
+        for j, model in self.models.items():
+            d = self.delays[j]
+            tones[j], mean[j], std[j], explained[j] = model.tones_hz, d.mean(), d.std(), model.explained
+        note = _timing_note(cal.reference, self, mean, std, rate_hz)
+        return dataclasses.replace(cal, timing_tones_hz=tuple(tones), timing_delay_s=mean, timing_delay_std_s=std,
+                                   timing_explained=explained, notes=cal.notes + (note,))
+
+
+def _timed_samples(rates, moments: ArrayMoments, o: Options, ref: int, mask, t) -> _Timed | None:
+    """Every gyro's samples moved to the instants the reference's describe, where the pairs' residuals show delays
+    (:func:`~fusion_gyrocal.pipeline.timing.estimate_array_timing` on ``omega_ref - A_j omega_j - bias_j`` of every
+    pair's direct least-squares fit, Eq. 17: one delay per chip, each following the beat tone of its sampling clock
+    against the read-out, or a constant group delay; gyro j's delay against the reference is the difference of the
+    two chips'); None when nothing is found or the move does not explain the residuals better.
+
+    A gyro is moved only when the move lowers its pair's residual at that fit, and the moved samples are kept only
+    when the pairs fitted again on them have less residual energy in all than before (the pair pipeline's rule).
+    The caller then calibrates the array on them once (the noise identified on the moved samples). Every gyro
+    describes the reference's sampling instants, so the pairs without the reference are consistent as well (the
+    reference chip's delay cancels in them).
     """
-    from ..pipeline.timing import estimate_timing
+    from ..pipeline.timing import estimate_array_timing
 
-    n, ref = len(rates), cal.reference
+    n = len(rates)
+    others = [j for j in range(n) if j != ref]
+    try:
+        fits = {j: solve_A(moments.pair(ref, j)) for j in others}
+    except GyroCalError:
+        return None                   # a pair without the motion to fit: the solve says what is missing
     ok = np.ones(len(t), bool) if mask is None else mask
-    k = cal.cross_axis_terms if "full" in cal.linear_map else None
-    moved, models = list(rates), {}
-    for j in range(n):
-        if j == ref:
-            continue
-        A = _pair_map(cal.R_ref_k, cal.scale, k, ref, ref, j)
-        model = estimate_timing(t, rates[ref], rates[j], A, cal.bias[j], ok)
+    maps = [fits[j][0] if j in fits else np.eye(3) for j in range(n)]
+    chips = estimate_array_timing(t, rates, maps, [fits[j][1] if j in fits else np.zeros(3) for j in range(n)], ok,
+                                  reference=ref)
+    moved, models, delays = list(rates), {}, {}
+    for j in others:
+        model = chips.relative[j]
         if not model.significant:
             continue
         w = np.where(ok[:, None], rates[j], np.nan)      # the derivative one-sided beside an unused sample
-        w_moved = model.compensate(t, w)
-        before, after = (float(np.mean(np.square(rates[ref][ok] - x[ok] @ A.T - cal.bias[j]))) for x in (w, w_moved))
+        w_moved, delay = chips.compensate(j, t, w)
+        A, b = fits[j]
+        before, after = (float(np.mean(np.square(rates[ref][ok] - x[ok] @ A.T - b))) for x in (w, w_moved))
         if after < before:
-            moved[j], models[j] = w_moved, model
+            moved[j], models[j], delays[j] = np.where(ok[:, None], w_moved, rates[j]), model, delay[ok]
     if not models:
-        return cal
-    again = calibrate_array(moved, given.replace(timing_model="off"), reference=ref, mask=mask, rate_hz=rate_hz, t=t)
-    if float(np.sum(again.residual_rms ** 2)) >= float(np.sum(cal.residual_rms ** 2)):
-        return cal                    # the compensation did not explain the residuals better: kept as it was
-    tones, mean, std, explained = [()] * n, np.zeros(n), np.zeros(n), np.zeros(n)
-    for j, model in models.items():
-        delay = model.delay(t[ok])
-        tones[j], mean[j], std[j], explained[j] = model.tones_hz, delay.mean(), delay.std(), model.explained
-    return dataclasses.replace(again, timing_tones_hz=tuple(tones), timing_delay_s=mean, timing_delay_std_s=std,
-                               timing_explained=explained,
-                               notes=again.notes + (_timing_note(cal, again, models, mean, std, rate_hz),))
+        return None
+    again = _moments(moved, o, mask)
+
+    def pair_rms(m: Moments) -> float:               # residual RMS per axis of the pair's direct fit
+        return float(np.sqrt(max(np.trace(residual_scatter(solve_A(m)[0], m.scatter)), 0.0) / (3.0 * max(m.dof, 1.0))))
+
+    before, after = np.zeros(n), np.zeros(n)
+    for j in others:
+        before[j], after[j] = pair_rms(moments.pair(ref, j)), pair_rms(again.pair(ref, j))
+    if float(np.sum(after ** 2)) >= float(np.sum(before ** 2)):
+        return None                   # the move did not explain the residuals better: the samples as they were
+    return _Timed(moved, again, models, delays, chips.tones_hz[ref], before, after)
 
 
-def _timing_note(before: ArrayCalibration, after: ArrayCalibration, models, mean, std, rate_hz) -> str:
-    """What the timing model found and did, per gyro, with the residuals before and after."""
+def _timing_note(reference: int, timed: _Timed, mean, std, rate_hz) -> str:
+    """What the timing model found and did, per gyro (and the reference chip's own tone, shared by every pair),
+    with the residuals before and after the move."""
     unit = ("Hz", "ms", 1e3) if rate_hz is not None else ("cycles/sample", "samples", 1.0)
     parts = []
-    for j, model in sorted(models.items()):
+    for j, model in sorted(timed.models.items()):
         tones = ", ".join(f"{f:.4g}" for f in model.tones_hz)
         shape = (f"beat tone(s) at {tones} {unit[0]}, std {std[j] * unit[2]:.3g} {unit[1]}, mean" if tones
                  else "constant (a filter's group delay?):")
         parts.append(f"gyro {j + 1} {shape} {mean[j] * unit[2]:.3g} {unit[1]}, {100 * model.explained:.0f}% of its "
                      f"pair's residual energy")
-    rms = "; ".join(f"gyro {j + 1} {np.rad2deg(before.residual_rms[j]):.4g} -> {np.rad2deg(after.residual_rms[j]):.4g}"
-                    for j in range(len(mean)))
-    return (f"inter-sensor timing: delays against the reference gyro {before.reference + 1} beyond the time offset "
-            f"(each chip's sampling clock against the read-out): {'; '.join(parts)}; those gyros' samples were moved "
-            "to the instants the reference's describe and the array calibrated again: residual RMS per axis (deg/s) "
-            f"{rms} (timing_model='off': no delay beyond the time offset)")
+    rms = "; ".join(f"gyro {j + 1} {np.rad2deg(timed.before[j]):.4g} -> {np.rad2deg(timed.after[j]):.4g}"
+                    for j in range(len(mean)) if j != reference)
+    shared = (f"; the reference chip's own beat, at {', '.join(f'{f:.4g}' for f in timed.reference_tones)} "
+              f"{unit[0]}, found once in all pairs, is common to every gyro's delay" if timed.reference_tones else "")
+    return (f"inter-sensor timing: delays against the reference gyro {reference + 1} beyond the time offset "
+            f"(each chip's sampling clock against the read-out{shared}): {'; '.join(parts)}; those gyros' samples "
+            "were moved to the instants the reference's describe and the array calibrated on them: residual RMS per "
+            f"axis of each gyro's pair with the reference, fitted directly (Eq. 17; deg/s) {rms} (timing_model='off': "
+            "no delay beyond the time offset)")

@@ -135,8 +135,9 @@ class ArrayCalibration:
         board share it, so their difference cancels it.
     timing_tones_hz : tuple of tuple of float (N,)
         Beat tones of every gyro's delay against the reference beyond the time offset
-        (:mod:`~fusion_gyrocal.pipeline.timing`, from its pair's residual; Hz, cycles per sample without a time
-        base); empty where none was found (a constant delay may still be). Every gyro with a delay had its samples
+        (:func:`~fusion_gyrocal.pipeline.timing.estimate_array_timing`: its own chip's tone first, then the
+        reference chip's, found once for all pairs; Hz, cycles per sample without a time base); empty where none
+        was found (a constant delay may still be). Every gyro with a delay had its samples
         moved to the instants the reference's describe before the final solve.
     timing_delay_s : ndarray (N,)
         Mean of every gyro's delay beyond the time offset (s; samples without a time base); 0 for the reference
