@@ -540,15 +540,7 @@ def estimate_array_timing(t, omegas, maps, biases, mask=None, *, reference: int 
 
 
 def _fast_length(n: int) -> int:
-    """The smallest ``2^a 3^b 5^c`` at least ``n``: a length whose FFT is fast."""
-    best, p5 = 1 << max(int(n) - 1, 0).bit_length(), 1
-    while p5 < best:
-        p35 = p5
-        while p35 < best:
-            m = p35
-            while m < n:
-                m *= 2
-            best = min(best, m)
-            p35 *= 3
-        p5 *= 5
-    return best
+    """A length at least ``n`` whose FFT is fast (few small prime factors)."""
+    from scipy.fft import next_fast_len
+
+    return int(next_fast_len(int(n), real=True))
