@@ -67,7 +67,8 @@ def test_read_json_non_finite_pointer_to_a_number_is_a_format_error(parallel_pai
     d = json.loads(write_json(parallel_pair, p).read_text())
     d["non_finite"]["inf"].append("/n_samples")
     p.write_text(json.dumps(d))
-    with pytest.raises(FormatError, match=r"cal\.json: non_finite: expected '/n_samples' to name a null entry"):
+    with pytest.raises(FormatError, match=r"cal\.json: non_finite: expected '/n_samples' to name a null entry of "
+                                         r"the file, got 10000"):
         read_json(p)
     d["non_finite"] = {"Infinity": []}
     p.write_text(json.dumps(d))

@@ -101,7 +101,8 @@ def restore_non_finite(doc: dict) -> dict:
     Raises
     ------
     FormatError
-        ``non_finite`` is not a mapping of the kinds to lists of pointers, or a pointer names no ``null`` entry.
+        ``non_finite`` is not a mapping of the kinds to lists of pointers, or a pointer names an entry that is not
+        ``null`` (a pointer to an entry the file does not hold is ignored).
     """
     marks = doc.get("non_finite")
     if marks is None:
@@ -121,11 +122,11 @@ def restore_non_finite(doc: dict) -> dict:
                 for t in tokens[:-1]:
                     node = node[int(t)] if isinstance(node, list) else node[t]
                 key = int(tokens[-1]) if isinstance(node, list) else tokens[-1]
-                ok = node[key] is None
+                value = node[key]
             except (KeyError, IndexError, ValueError, TypeError):
-                ok = False
-            if not ok:
-                raise FormatError(f"non_finite: expected {pointer!r} to name a null entry of the file, got none there")
+                continue   # an entry the file does not hold (a field left out): nothing to restore
+            if value is not None:
+                raise FormatError(f"non_finite: expected {pointer!r} to name a null entry of the file, got {value!r}"[:200])
             node[key] = NON_FINITE_KINDS[kind]
     return out
 
