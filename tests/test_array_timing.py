@@ -123,7 +123,7 @@ def test_calibrate_array_t_checked():
 def test_array_calibration_timing_json_round_trip(delayed):
     cal = delayed[0][3]
     d = json.loads(json.dumps(cal.to_dict()))
-    assert d["format_version"] == ARRAY_FORMAT_VERSION == "1.2"
+    assert d["format_version"] == ARRAY_FORMAT_VERSION == "1.3"
     back = ArrayCalibration.from_dict(d)
     assert back.timing_tones_hz == cal.timing_tones_hz
     for name in ("timing_delay_s", "timing_delay_std_s", "timing_explained"):

@@ -338,7 +338,7 @@ def test_pair_calibration_json_round_trips_every_field_with_provenance_and_nomin
     back = PairCalibration.from_dict(d)
     _assert_same(cal, back)
     assert back.provenance.n_masked == (12, 0)
-    assert d["format_version"] == "1.4" and d["deviation"]["angle_deg"] == pytest.approx(
+    assert d["format_version"] == "1.5" and d["deviation"]["angle_deg"] == pytest.approx(
         np.degrees(np.linalg.norm(cal.rotvec)))
     for key in ("rotation", "scale_ratio", "deviation"):     # derived entries: numbers only, never strings
         assert "Infinity" not in json.dumps(d[key]) and "NaN" not in json.dumps(d[key])

@@ -575,7 +575,7 @@ def test_read_json_wrong_version_message(tmp_path):
     d = json.loads(p.read_text())
     d["format_version"] = "0.1"
     p.write_text(json.dumps(d))
-    with pytest.raises(FormatError, match=r"cal\.json: .*expected format_version '1\.4' \(or an earlier '1\.0', '1\.1', '1\.2', '1\.3'\), "
+    with pytest.raises(FormatError, match=r"cal\.json: .*expected format_version '1\.5' \(or an earlier '1\.0', '1\.1', '1\.2', '1\.3', '1\.4'\), "
                                          r"got '0\.1'"):
         read_json(p)
 

@@ -373,8 +373,9 @@ def test_array_calibration_json_roundtrip_keeps_nan_and_inf_apart(tmp_path):
                               time_offset_source=("reference", "estimated", "given"))
     p = write_json(cal, tmp_path / "array.json")
     d = json.loads(p.read_text())
-    assert d["kind"] == "array_calibration" and d["format_version"] == "1.2"
-    assert d["residual_rms"][:2] == ["Infinity", "NaN"]
+    assert d["kind"] == "array_calibration" and d["format_version"] == "1.3"
+    assert d["residual_rms"][:2] == [None, None]   # strict JSON: numbers or null, each null named by kind
+    assert "/residual_rms/0" in d["non_finite"]["inf"] and "/residual_rms/1" in d["non_finite"]["nan"]
     back = read_json(p)
     assert isinstance(back, ArrayCalibration)
     assert np.isposinf(back.residual_rms[0]) and np.isnan(back.residual_rms[1])
@@ -395,7 +396,7 @@ def test_array_calibration_from_dict_wrong_version_or_kind_raises_format_error()
     R = _rotations(62, 3)
     w, _ = _simulate(63, R, SCALES[:3], PAPER_NOISE_STD)
     d = calibrate_array(w).to_dict()
-    with pytest.raises(FormatError, match=r"expected format_version '1.2' \(or an earlier '1.0', '1.1'\), got '0.9'"):
+    with pytest.raises(FormatError, match=r"expected format_version '1.3' \(or an earlier '1.0', '1.1', '1.2'\), got '0.9'"):
         ArrayCalibration.from_dict({**d, "format_version": "0.9"})
     with pytest.raises(FormatError, match="expected kind 'array_calibration'"):
         ArrayCalibration.from_dict({k: v for k, v in d.items() if k != "kind"})

@@ -104,8 +104,9 @@ def test_write_kalibr_imu_configs_pass_kalibr_imu_parameters(tmp_path):
         got = kalibr_imu_parameters(p)
         assert got["rostopic"] == topic and got["update_rate"] == rate
         text = p.read_text()
-        # the joint solve's white noise per gyro (per sample on imu0's grid), placeholders for the rest
-        assert got["gyroscope_noise_density"] == pytest.approx(cal.noise_std[k] / math.sqrt(200.0), rel=1e-12)
+        # the joint solve's white noise per gyro (per sample: input without timestamps) at each IMU's own rate,
+        # placeholders for the rest
+        assert got["gyroscope_noise_density"] == pytest.approx(cal.noise_std[k] / math.sqrt(rate), rel=1e-12)
         assert f"identified: gyro {k + 1}'s white noise in the joint solve" in text
         assert text.count("PLACEHOLDER, not measured") == 3 and "Allan-variance" in text
 

@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..errors import ConfigurationError, FormatError, InputError
-from .model import (PairCalibration, from_json_list, mark_undetermined, parallel_axes, ratio_std, rotation_forms,
-                    rotation_text, scale_ratios, to_json_list, to_json_number)
+from .model import (PairCalibration, from_json_list, mark_undetermined, parallel_axes, ratio_std, restore_non_finite,
+                    rotation_forms, rotation_text, scale_ratios, strict_json, to_json_list, to_json_number)
 from .moments import Moments
 from ..lie import exp, log
 from .observability import CROSS_AXIS_PAIRS, dA_dp, per_axis_snr, residual_weight
@@ -28,15 +28,19 @@ if TYPE_CHECKING:
 
 ARRAY_KIND = "array_calibration"
 #: Format of :meth:`ArrayCalibration.to_dict` (``kind`` tells it from a pair's JSON).
-ARRAY_FORMAT_VERSION = "1.2"
+ARRAY_FORMAT_VERSION = "1.3"
 #: Versions :meth:`ArrayCalibration.from_dict` reads (1.1 adds the cross-axis fields, ``nominal_R_ref_k``,
 #: ``provenance`` and the derived ``rotations``, ``relative_scale``, ``deviation`` entries, which are recomputed on
 #: reading; 1.2 the timing fields ``timing_tones_hz``, ``timing_delay_s``, ``timing_delay_std_s``,
-#: ``timing_explained``, read as "no delay found" from earlier files).
-ARRAY_READABLE_VERSIONS = ("1.0", "1.1", ARRAY_FORMAT_VERSION)
+#: ``timing_explained``, read as "no delay found" from earlier files; 1.3 writes non-finite numbers as ``null``
+#: named in ``non_finite`` (:func:`~fusion_gyrocal.core.model.strict_json`; 1.0-1.2 wrote strings) and adds
+#: ``rates_hz`` and ``noise_density``, None in earlier files).
+ARRAY_READABLE_VERSIONS = ("1.0", "1.1", "1.2", ARRAY_FORMAT_VERSION)
 _ARRAY_FIELDS = ("R_ref_k", "scale", "bias", "scale_observable", "covariance", "snr", "noise_std", "residual_rms",
                  "time_offset_s", "time_offset_std_s", "cross_axis_terms", "cross_axis_covariance", "cross_axis_chi2",
                  "skew_rotation_covariance", "timing_delay_s", "timing_delay_std_s", "timing_explained")
+#: Per-gyro arrays that are None where not known (sample-aligned input, files before format 1.3).
+_OPTIONAL_FIELDS = ("nominal_R_ref_k", "rates_hz", "noise_density")
 
 
 def _json_ready(v):
@@ -146,6 +150,15 @@ class ArrayCalibration:
         Standard deviation of that delay over the samples used (s; samples without a time base).
     timing_explained : ndarray (N,)
         Fraction of its pair's residual energy the delay explained; 0 where none was found or compensated.
+    rates_hz : ndarray (N,) or None
+        Every gyro's own sample rate (Hz) before it was put on the grid; None for input without timestamps.
+    noise_density : ndarray (N,) or None
+        Every gyro's own white rate-noise density (rad/s/sqrt(Hz)): ``noise_std`` (per grid sample) referred back
+        to the sensor through what the resampling did to its white noise, ``noise_std[k] / sqrt(v_k rates_hz[k])``
+        with ``v_k`` the variance a unit white noise keeps on the grid
+        (:func:`~fusion_gyrocal.pipeline.resample.noise_factors`; 1 where the grid is the gyro's own samples).
+        None for input without timestamps (the figures are then per sample: divide by the square root of the
+        rate the samples were taken at).
     """
 
     R_ref_k: np.ndarray
@@ -184,6 +197,8 @@ class ArrayCalibration:
     timing_delay_s: np.ndarray | None = None
     timing_delay_std_s: np.ndarray | None = None
     timing_explained: np.ndarray | None = None
+    rates_hz: np.ndarray | None = None
+    noise_density: np.ndarray | None = None
 
     def __post_init__(self):
         n = np.asarray(self.scale).shape[0]
@@ -225,6 +240,13 @@ class ArrayCalibration:
         object.__setattr__(self, "notes", tuple(self.notes))
         object.__setattr__(self, "time_offset_source", tuple(str(x) for x in self.time_offset_source))
         object.__setattr__(self, "covariance_kind", CovarianceBasis(self.covariance_kind))
+        for name in ("rates_hz", "noise_density"):
+            if getattr(self, name) is not None:
+                arr = np.array(getattr(self, name), dtype=np.float64)
+                if arr.shape != (n,):
+                    raise InputError(f"{name}: expected shape {(n,)}, got {arr.shape}")
+                arr.flags.writeable = False
+                object.__setattr__(self, name, arr)
         if self.nominal_R_ref_k is not None:
             nom = np.array(self.nominal_R_ref_k, dtype=np.float64)
             if nom.shape != (n, 3, 3):
@@ -410,8 +432,9 @@ class ArrayCalibration:
     def to_dict(self) -> dict:
         """JSON-ready dictionary with ``kind`` and ``format_version`` (:data:`ARRAY_FORMAT_VERSION`).
 
-        Non-finite numbers become ``"NaN"``, ``"Infinity"``, ``"-Infinity"`` as in
-        :meth:`PairCalibration.to_dict`; the moments are kept, so :meth:`pair` works on a loaded result.
+        Strict JSON as :meth:`PairCalibration.to_dict`: every number a number, non-finite ones ``null`` and named
+        in ``non_finite`` (:func:`~fusion_gyrocal.core.model.strict_json`); the moments are kept, so :meth:`pair`
+        works on a loaded result.
         """
         out = {"kind": ARRAY_KIND, "format_version": ARRAY_FORMAT_VERSION, "units": {"rate": "rad/s", "time": "s"},
                "convention": "omega_ref = R_ref_k[k] @ omega_k; omega_k_meas = diag(scale[k]) omega_k + b_k; "
@@ -442,7 +465,7 @@ class ArrayCalibration:
                 v = v.value
             out[f.name] = v
         out.update(self._derived())
-        return out
+        return strict_json(out)
 
     def _derived(self) -> dict:
         """For readers (not read back): every gyro's rotation in every form, the relative scale factors with their
@@ -484,6 +507,7 @@ class ArrayCalibration:
             raise FormatError(f"array calibration: expected format_version {ARRAY_FORMAT_VERSION!r} (or an earlier "
                               f"{', '.join(repr(v) for v in ARRAY_READABLE_VERSIONS[:-1])}), "
                               f"got {d.get('format_version')!r}")
+        d = restore_non_finite(d)
         missing = [f.name for f in fields(cls) if f.default is MISSING and f.name not in d]
         if missing:
             raise FormatError(f"array calibration: expected the fields {missing}, got none of them")
@@ -500,7 +524,7 @@ class ArrayCalibration:
                 if v is not None:
                     from ..provenance import Provenance
                     v = Provenance.from_dict(v)
-            elif f.name == "nominal_R_ref_k":
+            elif f.name in _OPTIONAL_FIELDS:
                 v = None if v is None else from_json_list(v, np.float64)
             elif f.name in _ARRAY_FIELDS:
                 v = from_json_list(v, bool if f.name == "scale_observable" else np.float64)

@@ -33,14 +33,17 @@ from ..errors import FormatError, InputError
 from ..lie import canonical_rotvec, log
 from .robust import CovarianceBasis
 
-FORMAT_VERSION = "1.4"
+FORMAT_VERSION = "1.5"
 #: Versions :meth:`PairCalibration.from_dict` reads: 1.0 wrote every non-finite number as ``null``
-#: (read back as inf in arrays, NaN in scalars); 1.1 writes them as the strings of :data:`NON_FINITE`;
+#: (read back as inf in arrays, NaN in scalars); 1.1-1.4 wrote them as the strings of :data:`NON_FINITE`;
 #: 1.4 adds ``scale_ratio_std``, ``nominal_R_1_2``, ``provenance`` and the derived ``rotation``, ``scale_ratio``,
-#: ``deviation`` entries (written for readers, recomputed on reading).
-READABLE_VERSIONS = ("1.0", "1.1", "1.2", "1.3", FORMAT_VERSION)
-#: Non-finite numbers in JSON: strings any standard JSON parser reads, distinct for NaN and +-inf.
+#: ``deviation`` entries (written for readers, recomputed on reading); 1.5 writes every non-finite number as
+#: ``null`` and names each one in ``non_finite`` (:func:`strict_json`), and adds the derived ``undetermined``.
+READABLE_VERSIONS = ("1.0", "1.1", "1.2", "1.3", "1.4", FORMAT_VERSION)
+#: Non-finite numbers as files of format 1.1-1.4 wrote them (strings); read back, never written.
 NON_FINITE = {"NaN": float("nan"), "Infinity": float("inf"), "-Infinity": float("-inf")}
+#: The kinds of non-finite number :func:`strict_json` lists, and the value each stands for.
+NON_FINITE_KINDS = {"inf": float("inf"), "-inf": float("-inf"), "nan": float("nan")}
 CONFIGURATIONS = ("general", "one_axis_pair_parallel", "all_axes_parallel")
 PARAMETER_NAMES = (
     "dtheta_x", "dtheta_y", "dtheta_z",
@@ -57,7 +60,75 @@ _ARRAY_SHAPES = {
     "intrinsics_2_covariance": (6, 6), "scale_ratio_std": (3,),
 }
 #: Entries :meth:`PairCalibration.to_dict` derives from the fields for readers (not read back).
-DERIVED_KEYS = ("rotation", "scale_ratio", "deviation")
+DERIVED_KEYS = ("rotation", "scale_ratio", "deviation", "undetermined")
+
+
+def _pointer_token(key) -> str:
+    return str(key).replace("~", "~0").replace("/", "~1")
+
+
+def strict_json(doc: dict) -> dict:
+    """``doc`` with every non-finite float replaced by ``null`` and named in ``doc["non_finite"]``.
+
+    Strict JSON has no NaN or infinity, and a number written as a string is no number to a reader. So every
+    non-finite number (an undetermined scale factor's infinite variance, a figure not computed) is written as
+    ``null``, and ``non_finite`` maps each kind (``"inf"``, ``"-inf"``, ``"nan"``) to the JSON Pointers
+    (RFC 6901, e.g. ``"/covariance/4/4"``) of its entries: what is determined stays a finite number, what is not
+    is explicit. :func:`restore_non_finite` is the inverse. Nested dicts and lists are walked; ``doc`` is not
+    modified.
+    """
+    found = {k: [] for k in NON_FINITE_KINDS}
+
+    def walk(v, path):
+        if isinstance(v, dict):
+            return {k: walk(x, f"{path}/{_pointer_token(k)}") for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [walk(x, f"{path}/{i}") for i, x in enumerate(v)]
+        if isinstance(v, float) and not np.isfinite(v):
+            found["nan" if np.isnan(v) else "inf" if v > 0 else "-inf"].append(path)
+            return None
+        return v
+
+    out = walk(doc, "")
+    out["non_finite"] = found
+    return out
+
+
+def restore_non_finite(doc: dict) -> dict:
+    """The inverse of :func:`strict_json`: a copy of ``doc`` with the value of its kind at every pointer of
+    ``doc["non_finite"]`` (a document without ``non_finite`` is returned as it is).
+
+    Raises
+    ------
+    FormatError
+        ``non_finite`` is not a mapping of the kinds to lists of pointers, or a pointer names an entry that is not
+        ``null`` (a pointer to an entry the file does not hold is ignored).
+    """
+    marks = doc.get("non_finite")
+    if marks is None:
+        return doc
+    if not isinstance(marks, dict) or set(marks) - set(NON_FINITE_KINDS) or \
+            not all(isinstance(v, list) and all(isinstance(p, str) for p in v) for v in marks.values()):
+        raise FormatError(f"non_finite: expected a mapping of {sorted(NON_FINITE_KINDS)} to lists of JSON Pointers, "
+                          f"got {marks!r}"[:300])
+    import copy
+
+    out = copy.deepcopy({k: v for k, v in doc.items() if k != "non_finite"})
+    for kind, pointers in marks.items():
+        for pointer in pointers:
+            tokens = [t.replace("~1", "/").replace("~0", "~") for t in pointer.split("/")[1:]]
+            node = out
+            try:
+                for t in tokens[:-1]:
+                    node = node[int(t)] if isinstance(node, list) else node[t]
+                key = int(tokens[-1]) if isinstance(node, list) else tokens[-1]
+                value = node[key]
+            except (KeyError, IndexError, ValueError, TypeError):
+                continue   # an entry the file does not hold (a field left out): nothing to restore
+            if value is not None:
+                raise FormatError(f"non_finite: expected {pointer!r} to name a null entry of the file, got {value!r}"[:200])
+            node[key] = NON_FINITE_KINDS[kind]
+    return out
 
 
 def mark_undetermined(cov: np.ndarray, scale_observable) -> np.ndarray:
@@ -432,8 +503,9 @@ class PairCalibration:
 
     # ------------------------------------------------------------------ serialisation
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dictionary with ``format_version``; NaN and +-inf become ``"NaN"``, ``"Infinity"``,
-        ``"-Infinity"`` (strings: strict JSON that any parser reads, with NaN and inf kept apart)."""
+        """JSON-ready dictionary with ``format_version``: strict JSON, every number a number; NaN and +-inf
+        (an undetermined scale factor's variance) are ``null``, each named in ``non_finite`` (:func:`strict_json`),
+        and the parameters with an infinite variance are listed by name in ``undetermined``."""
         out: dict[str, Any] = {"format_version": FORMAT_VERSION, "units": {"rate": "rad/s", "time": "s"},
                                "convention": "omega_1 = R_1_2 @ omega_2; omega_i_meas = diag(scale_i) omega_i + b_i",
                                "covariance_order": list(PARAMETER_NAMES)}
@@ -451,7 +523,7 @@ class PairCalibration:
                 v = v.value
             out[f.name] = v
         out.update(self._derived())
-        return out
+        return strict_json(out)
 
     def _derived(self) -> dict[str, Any]:
         """The :data:`DERIVED_KEYS` entries: the rotation in every form, the relative scale factors with their
@@ -469,7 +541,8 @@ class PairCalibration:
                             "axis_of_gyro_1": parallel_axes(self.R_1_2).tolist(),
                             "value": [num(x) for x in self.scale_ratio],
                             "std": [num(x) for x in self.scale_ratio_std]},
-            "deviation": None}
+            "deviation": None,
+            "undetermined": [name for name, v in zip(PARAMETER_NAMES, np.diag(self.covariance)) if np.isposinf(v)]}
         dev = self.deviation
         if dev is not None:
             d, C = dev
@@ -492,6 +565,7 @@ class PairCalibration:
             raise FormatError(f"calibration: expected format_version {FORMAT_VERSION!r} (or an earlier "
                               f"{', '.join(repr(v) for v in READABLE_VERSIONS[:-1])}), got {version!r}")
         legacy = version == "1.0"
+        d = restore_non_finite(d)
         kwargs = {}
         for f in fields(cls):
             if f.name not in d:
@@ -519,17 +593,14 @@ class PairCalibration:
         return cls(**kwargs)
 
 
-def to_json_number(x: float):
-    """``x`` itself when finite, else its :data:`NON_FINITE` string."""
-    if np.isfinite(x):
-        return float(x)
-    return "NaN" if np.isnan(x) else ("Infinity" if x > 0 else "-Infinity")
+def to_json_number(x: float) -> float:
+    """``x`` as a Python float (a non-finite one stays: :func:`strict_json` writes it as ``null``)."""
+    return float(x)
 
 
-def to_json_list(a: np.ndarray):
-    if a.dtype == bool:
-        return a.tolist()
-    return np.vectorize(to_json_number, otypes=[object])(a).tolist() if a.size else a.tolist()
+def to_json_list(a: np.ndarray) -> list:
+    """``a`` as nested lists of Python floats (or bools); non-finite entries are left to :func:`strict_json`."""
+    return np.asarray(a).tolist()
 
 
 def from_json_list(v, dtype, legacy: bool = False):

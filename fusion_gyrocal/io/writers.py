@@ -39,7 +39,8 @@ Frame and time conventions of the YAML exports (``ARCHITECTURE.md``)
   relative scale factors and their 1-sigma are in a comment;
 * noise figures: figures passed as :class:`ImuNoise` are written as given (:func:`read_imu_noise` reads them
   from a Kalibr ``imu.yaml``, an ``allan_variance_ros`` output or an IMU chain). Otherwise an array's
-  per-gyro white noise (:attr:`ArrayCalibration.noise_std`, identified by the joint solve) is each IMU's
+  per-gyro white noise (:attr:`ArrayCalibration.noise_density`, identified by the joint solve and referred to each
+  gyro's own rate; per sample ``noise_std`` at each IMU's ``update_rate`` without timestamps) is each IMU's
   ``gyroscope_noise_density``; and when a pair's
   calibration carries the noise model identified from its own residual
   (:attr:`PairCalibration.noise_model`, :func:`~fusion_gyrocal.core.noise.identify_noise`), each gyro's
@@ -410,9 +411,10 @@ def write_json(cal, path) -> Path:
     """Write the full calibration (``cal.to_dict()``, with ``format_version``) as JSON, atomically.
 
     ``cal`` is a :class:`PairCalibration` or an :class:`~fusion_gyrocal.core.array.ArrayCalibration`
-    (every gyro; its dict carries ``kind: "array_calibration"``). Non-finite numbers are written as
-    the strings ``"NaN"``, ``"Infinity"``, ``"-Infinity"``; the file is strict JSON (no NaN / Infinity
-    literals).
+    (every gyro; its dict carries ``kind: "array_calibration"``). The file is strict JSON with every number a
+    number: a non-finite one (an undetermined scale factor's infinite variance) is ``null``, and the top-level
+    ``non_finite`` names each such entry by its JSON Pointer under its kind (``inf``, ``-inf``, ``nan``;
+    :func:`~fusion_gyrocal.core.model.strict_json`), which :func:`read_json` puts back.
     """
     if not isinstance(cal, (PairCalibration, ArrayCalibration)):
         raise InputError(f"cal: expected a PairCalibration or an ArrayCalibration, got {type(cal).__name__}")
@@ -738,18 +740,21 @@ def _identified(cal: PairCalibration, rates) -> tuple[tuple, tuple]:
 
 
 def _identified_array(cal: ArrayCalibration, rates) -> tuple[tuple, tuple]:
-    """The gyro white-noise densities the joint solve identified (:attr:`ArrayCalibration.noise_std`, per sample
-    on the reference's grid): ``noise_std[k] / sqrt(rate of imu0)`` for every IMU in chain order (the reference
-    first); nothing when the noise was the user's. The random walk stays a placeholder (the joint solve does not
-    identify one)."""
+    """The gyro white-noise densities the joint solve identified, for every IMU in chain order (the reference first):
+    each gyro's own density (:attr:`ArrayCalibration.noise_density`: its noise per grid sample referred back to its
+    native rate through what the resampling did to it); for input without timestamps (per-sample figures)
+    ``noise_std[k] / sqrt(rate)`` with each IMU's own ``rates`` entry. Nothing when the noise was the user's. The
+    random walk stays a placeholder (the joint solve does not identify one)."""
     if cal.noise_source == "user":
         return (None,) * cal.n_gyros, ()
     ref = cal.reference
     order = [ref] + [k for k in range(cal.n_gyros) if k != ref]
-    fs = float(rates[0])
+    per_sample = cal.noise_density is None
+    own = [float(r) for r in rates] if per_sample else [float(cal.rates_hz[k]) for k in order]
+    density = [float(cal.noise_std[k]) / np.sqrt(f) for k, f in zip(order, own)] if per_sample else \
+        [float(cal.noise_density[k]) for k in order]
     per = []
-    for k in order:
-        d = float(cal.noise_std[k]) / np.sqrt(fs)
+    for k, d in zip(order, density):
         if not (np.isfinite(d) and d > 0):
             per.append(None)
             continue
@@ -758,11 +763,15 @@ def _identified_array(cal: ArrayCalibration, rates) -> tuple[tuple, tuple]:
             "gyroscope_random_walk": _Figure(_PLACEHOLDER["gyroscope_random_walk"],
                                              f"{_NOT_MEASURED} (the joint solve identifies white noise only)", True,
                                              True)})
+    how = ("per sample (input without timestamps), at each IMU's update_rate: gyroscope_noise_density = noise_std / "
+           "sqrt(update_rate)" if per_sample else
+           "per sample on imu0's grid, referred back to each IMU's own rate through what resampling did to its noise "
+           "(noise_std^2 = v f N^2, v the share of white variance kept on the grid)")
     lines = _wrapped(f"Gyroscope white noise IDENTIFIED by fusion_gyrocal's joint solve of {cal.n_gyros} gyros "
-                     f"({cal.noise_source}), per sample on imu0's {fs:.6g} Hz grid: gyroscope_noise_density = "
-                     "noise_std / sqrt(rate); a static Allan analysis (gyrocal noise) measures it better.")
-    for i, k in enumerate(order):
-        lines.append(f"#   imu{i} = gyro {k + 1}: white {np.degrees(cal.noise_std[k]):.4g} deg/s per sample")
+                     f"({cal.noise_source}), {how}; a static Allan analysis (gyrocal noise) measures it better.")
+    for i, (k, f, d) in enumerate(zip(order, own, density)):
+        lines.append(f"#   imu{i} = gyro {k + 1}: white {np.degrees(cal.noise_std[k]):.4g} deg/s per grid sample; "
+                     f"own rate {f:.6g} Hz: gyroscope_noise_density {d:.4g} rad/s/sqrt(Hz)")
     return tuple(per), tuple(lines)
 
 

@@ -101,5 +101,31 @@ def calibrate_streams(ts, omegas, options: Options | None = None, **keywords) ->
     joint = o.replace(**{name: getattr(Options(gyros=n), name) for name in applying_to("streams")
                          if name not in applying_to("array")})
     cal = calibrate_array(aligned.omegas, joint, mask=mask, rate_hz=grid_rate(aligned.t), t=aligned.t)
+    rates, density = _own_noise(ts, aligned, cal.noise_std, o.rate_hz is not None)
     return dataclasses.replace(cal, time_offset_s=aligned.time_offset_s, time_offset_std_s=aligned.time_offset_std_s,
-                               time_offset_source=aligned.time_offset_source, notes=cal.notes + aligned.notes)
+                               time_offset_source=aligned.time_offset_source, notes=cal.notes + aligned.notes,
+                               rates_hz=rates, noise_density=density)
+
+
+def _own_noise(ts, aligned, noise_std, resampled_reference: bool):
+    """Every gyro's own rate (Hz) and white-noise density (rad/s/sqrt(Hz)) from its noise per grid sample: a stream
+    resampled onto the grid keeps the share ``v_k`` of its white variance there
+    (:func:`~fusion_gyrocal.pipeline.resample.noise_factors` at the instants of its own clock it was sampled at,
+    as the pair pipeline measures it), so ``noise_std[k]^2 = v_k f_k N_k^2``. The reference keeps its samples
+    unless a ``rate_hz`` grid resampled it too, and recordings on one clock keep theirs (``"one clock"``)."""
+    import numpy as np
+
+    from .resample import noise_factors
+    from .streams import _nominal_period
+
+    grid = np.asarray(aligned.t, dtype=np.float64)
+    drift = np.zeros(len(ts)) if aligned.clock_drift_ppm is None else 1e-6 * np.asarray(aligned.clock_drift_ppm)
+    mid = 0.5 * (grid[0] + grid[-1])
+    rates, density = [], []
+    for k, t in enumerate(ts):
+        t = np.asarray(t, dtype=np.float64)
+        rates.append(1.0 / _nominal_period(t))
+        own = (k > 0 or resampled_reference) and aligned.time_offset_source[k] != "one clock"
+        v = noise_factors(t, grid - aligned.time_offset_s[k] - drift[k] * (grid - mid))[0] if own else 1.0
+        density.append(float(noise_std[k]) / np.sqrt(v * rates[-1]))
+    return np.array(rates), np.array(density)
