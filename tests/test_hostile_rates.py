@@ -121,9 +121,9 @@ def test_calibrate_pair_rigid_all_axes_parallel_tilt_covered():
 # ----------------------------------------------------------------------------- the same stream twice
 def test_calibrate_array_duplicate_gyro_refused_naming_both():
     sim = simulate_pair(n=3000, rng=1)
-    with pytest.raises(InputError, match=r"gyro 0 and gyro 2: expected one stream per gyro, got identical"):
+    with pytest.raises(InputError, match=r"gyro 1 and gyro 3: expected one stream per gyro, got identical"):
         calibrate_array([sim.omega_1, sim.omega_2, sim.omega_1])
-    with pytest.raises(InputError, match=r"gyro 1 and gyro 2"):
+    with pytest.raises(InputError, match=r"gyro 2 and gyro 3"):
         calibrate_array(np.stack([sim.omega_1, sim.omega_2, sim.omega_2.copy()], axis=1))
 
 

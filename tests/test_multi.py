@@ -89,12 +89,12 @@ def test_calibrate_array_names_the_gyro_that_fails():
     R = _rotations(34, 3)
     w, _ = _simulate(35, R, SCALES[:3], PAPER_NOISE_STD)
     w = w.copy()
-    w[:, 2] = _simulate(36, R, SCALES[:3], PAPER_NOISE_STD)[0][:, 2]  # gyro 2 rides on another device
-    with pytest.raises(NotRigidError, match="gyro 2 against the reference gyro 0"):
+    w[:, 2] = _simulate(36, R, SCALES[:3], PAPER_NOISE_STD)[0][:, 2]  # gyro 3 rides on another device
+    with pytest.raises(NotRigidError, match="gyro 3 against the reference gyro 1"):
         calibrate_array(w)
     still = w.copy()
-    still[:, 1] = still[0, 1]  # gyro 1 reports a constant rate
-    with pytest.raises((ExcitationError, InputError), match="gyro 1 against"):
+    still[:, 1] = still[0, 1]  # gyro 2 reports a constant rate
+    with pytest.raises((ExcitationError, InputError), match="gyro 2 against"):
         calibrate_array(still)
 
 
@@ -284,7 +284,7 @@ def test_calibrate_array_non_finite_sample_names_gyro_and_sample():
     w, _ = _simulate(29, R, SCALES[:3], PAPER_NOISE_STD, n=500)
     w = w.copy()
     w[123, 2, 1] = np.nan
-    with pytest.raises(InputError, match="gyro 2: .*sample 123"):
+    with pytest.raises(InputError, match="gyro 3: .*sample 123"):
         calibrate_array(w)
     mask = np.ones(500, bool)
     mask[123] = False

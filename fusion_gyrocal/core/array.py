@@ -243,7 +243,7 @@ def as_array_rates(omegas) -> list[np.ndarray]:
     n = rates[0].shape[0]
     for k, w in enumerate(rates):
         if w.shape[0] != n:
-            raise InputError(f"gyro {k}: expected {n} samples (the length of gyro 0), got {w.shape[0]}; "
+            raise InputError(f"gyro {k + 1}: expected {n} samples (the length of gyro 1), got {w.shape[0]}; "
                              "the array calibration needs sample-aligned streams")
     return rates
 
@@ -280,7 +280,7 @@ def _checked_rates(omegas, mask):
     """The rates of :func:`as_array_rates` and the mask as bool, checked: finite wherever the mask keeps, no
     stream given twice (:func:`check_distinct`)."""
     rates = as_array_rates(omegas)
-    check_distinct([f"gyro {k}" for k in range(len(rates))], rates)
+    check_distinct([f"gyro {k + 1}" for k in range(len(rates))], rates)
     if mask is not None:
         mask = np.asarray(mask, dtype=bool)
         n = rates[0].shape[0]
@@ -292,7 +292,7 @@ def _checked_rates(omegas, mask):
             bad &= mask
         if bad.any():
             idx = np.flatnonzero(bad)
-            raise InputError(f"gyro {k}: expected finite rates, got a non-finite value at sample {idx[0]} "
+            raise InputError(f"gyro {k + 1}: expected finite rates, got a non-finite value at sample {idx[0]} "
                              f"({idx.size} such sample(s)); mask or drop those samples first")
     return rates, mask
 
@@ -476,7 +476,7 @@ def _seed(moments: ArrayMoments, reference, noise_std, parallel_tol_deg, min_snr
             pc = solve(moments.pair(reference, k), method="direct", noise_std=pn, parallel_tol_deg=parallel_tol_deg,
                        min_snr=min_snr)
         except GyroCalError as err:  # name the gyro: the pair solver only knows "gyro 1" and "gyro 2"
-            raise type(err)(f"gyro {k} against the reference gyro {reference} (as gyro 1 / gyro 2): {err}") from err
+            raise type(err)(f"gyro {k + 1} against the reference gyro {reference + 1} (as gyro 1 / gyro 2): {err}") from err
         R[k] = pc.R_1_2
         lp = np.log(np.stack([pc.scale_1, pc.scale_2]))
         for group in classify(pc.R_1_2, parallel_tol_deg).groups:
@@ -790,12 +790,12 @@ def _model_notes(k, P, chi2, dof, full, shown, skew_cov, reference) -> list:
     notes = []
     if k is not None:
         sd = np.sqrt(np.clip(np.diag(P)[6 * n:], 0.0, None)).reshape(n, 3)
-        terms = "; ".join(f"gyro {j}: " + ", ".join(f"{a} {100 * v:.3g} +- {100 * e:.2g} %"
+        terms = "; ".join(f"gyro {j + 1}: " + ", ".join(f"{a} {100 * v:.3g} +- {100 * e:.2g} %"
                                                      for a, v, e in zip(("xy", "yz", "zx"), k[j], sd[j]))
                           + f" (chi2 {chi2[j]:.3g} for {dof[j]} dof)" for j in np.flatnonzero(full))
         budget = np.sqrt(np.diag(skew_cov)[[3 * j for j in np.flatnonzero(full)]])
         notes.append(f"full linear map (omega_ref = (I + K_j) S_ref R_ref_j S_j^-1 omega_j): symmetric relative "
-                     f"cross-axis terms against gyro {reference}: {terms}. R_ref_k are the rotations under the "
+                     f"cross-axis terms against gyro {reference + 1}: {terms}. R_ref_k are the rotations under the "
                      "symmetric convention, repeatable from session to session; the chip-to-chip rotations differ "
                      "from them by the antisymmetric parts, which no data see: budgeted at "
                      f"{np.rad2deg(budget.min()):.3g}-{np.rad2deg(budget.max()):.3g} deg per axis "
