@@ -873,7 +873,7 @@ def _residual_rms(R, s, Sc, dof, noise, k=None, reference: int = 0):
 
 
 def calibrate_array(omegas, options: Options | None = None, *, reference: int = 0, mask=None,
-                    rate_hz: float | None = None, t=None, **keywords) -> ArrayCalibration:
+                    rate_hz: float | None = None, t=None, resampling=None, **keywords) -> ArrayCalibration:
     """Jointly calibrate N rigidly mounted gyroscopes from sample-aligned angular rates.
 
     Parameters
@@ -918,6 +918,10 @@ def calibrate_array(omegas, options: Options | None = None, *, reference: int = 
         The samples' instants (s, one clock, strictly increasing): the timing model's time base. Default: the
         sample index over ``rate_hz``, or the sample index without it (delays then in samples, tones in cycles per
         sample).
+    resampling : Resampling, optional
+        How each gyro's stream reached the samples (:class:`~fusion_gyrocal.core.noise.Resampling` with one entry
+        per gyro in each field, as :func:`~fusion_gyrocal.pipeline.array.calibrate_streams` gives it): the
+        identified noise is then split between each pair's gyros as their own rates and resampling make it.
     **keywords
         Fields of :class:`~fusion_gyrocal.options.Options` (``noise_std``, ``gauge``, ``bias_window``, ...),
         applied on top of ``options``.
@@ -952,7 +956,7 @@ def calibrate_array(omegas, options: Options | None = None, *, reference: int = 
         rates, moments = timed.rates, timed.moments
     source = None
     if o.noise_std is None and o.noise_model == "identify":
-        noise_std, source = _identified_noise(rates, moments, reference, mask, rate_hz)
+        noise_std, source = _identified_noise(rates, moments, reference, mask, rate_hz, resampling)
         if noise_std is not None:
             o = o.replace(noise_std=noise_std)
     cal = _solve_samples(rates, moments, o, reference, mask, rate_hz, source)
@@ -974,12 +978,13 @@ def _solve_samples(rates, moments, o: Options, reference, mask, rate_hz, source)
     return solve_array(moments, o, reference=reference, windows=windows, noise_source=source)
 
 
-def _identified_noise(rates, moments: ArrayMoments, reference: int, mask, rate_hz):
-    """Every gyro's white noise from its pair with the reference (:func:`identify_noise`): gyro k's from its
-    pair, the reference's the median over its pairs. ``(None, None)`` when a pair cannot be identified."""
+def _identified_noise(rates, moments: ArrayMoments, reference: int, mask, rate_hz, resampling=None):
+    """Every gyro's white noise from its pair with the reference (:func:`identify_noise`, with the pair's share
+    of ``resampling``): gyro k's from its pair, the reference's the median over its pairs. ``(None, None)`` when a
+    pair cannot be identified."""
     from ..errors import GyroCalError
     from .direct import solve_A
-    from .noise import identify_noise
+    from .noise import Resampling, identify_noise
 
     n = len(rates)
     noise, ref_noise, kinds = np.zeros(n), [], []
@@ -988,7 +993,11 @@ def _identified_noise(rates, moments: ArrayMoments, reference: int, mask, rate_h
             continue
         try:
             A, b = solve_A(moments.pair(reference, k))
-            nm = identify_noise(rates[reference], rates[k], A, b, rate_hz=rate_hz, mask=mask)
+            pair = None if resampling is None else Resampling(
+                *(tuple(f[i] for i in (reference, k)) for f in (resampling.rates_hz, resampling.variance,
+                                                                  resampling.diff3, resampling.density)),
+                resampling.white_from)
+            nm = identify_noise(rates[reference], rates[k], A, b, rate_hz=rate_hz, mask=mask, resampling=pair)
         except GyroCalError:
             return None, None
         noise[k] = nm.noise_std[1]

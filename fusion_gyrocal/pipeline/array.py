@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
+
 from ..core.array import calibrate_array
 from ..core.array_result import ArrayCalibration
 from ..errors import InputError
@@ -100,32 +102,35 @@ def calibrate_streams(ts, omegas, options: Options | None = None, **keywords) ->
     # what aligned and masked the samples is done: the joint solve gets the rest
     joint = o.replace(**{name: getattr(Options(gyros=n), name) for name in applying_to("streams")
                          if name not in applying_to("array")})
-    cal = calibrate_array(aligned.omegas, joint, mask=mask, rate_hz=grid_rate(aligned.t), t=aligned.t)
-    rates, density = _own_noise(ts, aligned, cal.noise_std, o.rate_hz is not None)
+    resampling = _resampling(ts, aligned, o.rate_hz is not None)
+    cal = calibrate_array(aligned.omegas, joint, mask=mask, rate_hz=grid_rate(aligned.t), t=aligned.t,
+                          resampling=resampling)
+    density = np.asarray(cal.noise_std, float) / np.sqrt(np.asarray(resampling.variance) * resampling.rates_hz)
     return dataclasses.replace(cal, time_offset_s=aligned.time_offset_s, time_offset_std_s=aligned.time_offset_std_s,
                                time_offset_source=aligned.time_offset_source, notes=cal.notes + aligned.notes,
-                               rates_hz=rates, noise_density=density)
+                               rates_hz=np.asarray(resampling.rates_hz), noise_density=density)
 
 
-def _own_noise(ts, aligned, noise_std, resampled_reference: bool):
-    """Every gyro's own rate (Hz) and white-noise density (rad/s/sqrt(Hz)) from its noise per grid sample: a stream
-    resampled onto the grid keeps the share ``v_k`` of its white variance there
-    (:func:`~fusion_gyrocal.pipeline.resample.noise_factors` at the instants of its own clock it was sampled at,
-    as the pair pipeline measures it), so ``noise_std[k]^2 = v_k f_k N_k^2``. The reference keeps its samples
-    unless a ``rate_hz`` grid resampled it too, and recordings on one clock keep theirs (``"one clock"``)."""
-    import numpy as np
-
+def _resampling(ts, aligned, resampled_reference: bool) -> "Resampling":
+    """How every gyro's stream reached the grid (:class:`~fusion_gyrocal.core.noise.Resampling`, one entry per gyro):
+    its own rate (Hz) and what the interpolation did to its white noise
+    (:func:`~fusion_gyrocal.pipeline.resample.noise_factors` at the instants of its own clock it was sampled at, as
+    the pair pipeline measures it). A gyro's white-noise density is then ``noise_std[k] / sqrt(variance_k f_k)``.
+    The reference keeps its samples unless a ``rate_hz`` grid resampled it too, and recordings on one clock keep
+    theirs (``"one clock"``)."""
+    from ..core.noise import Resampling
     from .resample import noise_factors
     from .streams import _nominal_period
 
     grid = np.asarray(aligned.t, dtype=np.float64)
     drift = np.zeros(len(ts)) if aligned.clock_drift_ppm is None else 1e-6 * np.asarray(aligned.clock_drift_ppm)
     mid = 0.5 * (grid[0] + grid[-1])
-    rates, density = [], []
+    rates, factors = [], []
     for k, t in enumerate(ts):
         t = np.asarray(t, dtype=np.float64)
         rates.append(1.0 / _nominal_period(t))
         own = (k > 0 or resampled_reference) and aligned.time_offset_source[k] != "one clock"
-        v = noise_factors(t, grid - aligned.time_offset_s[k] - drift[k] * (grid - mid))[0] if own else 1.0
-        density.append(float(noise_std[k]) / np.sqrt(v * rates[-1]))
-    return np.array(rates), np.array(density)
+        factors.append(noise_factors(t, grid - aligned.time_offset_s[k] - drift[k] * (grid - mid)) if own
+                       else (1.0, 1.0, 1.0, 1))
+    variance, diff3, density, white_from = zip(*factors)
+    return Resampling(tuple(rates), tuple(variance), tuple(diff3), tuple(density), max(white_from))
