@@ -288,7 +288,7 @@ class AllanFit(NamedTuple):
 
 
 def _wls(taus, avar, edf, terms, tc=None, tone=None, tau0=None, scatter=None, start=None, iterations: int = 5,
-         tb=None):
+         tb=None, covariance: bool = True):
     """Non-negative generalised least squares of AVAR on the chosen terms (indices of :data:`TERMS`).
 
     The variance of each point is ``2 AVAR^2 / edf`` with the degrees of freedom of the dominant noise at
@@ -297,7 +297,8 @@ def _wls(taus, avar, edf, terms, tc=None, tone=None, tau0=None, scatter=None, st
     for octave taus: about 0.5 for white, 0.7 for flicker, 0.85 for random-walk rate noise and 0.3 for white
     angle noise, decaying geometrically), so the points are whitened with that correlation before the fit
     (without it the uncertainties come out about twice too small). Iterated ``iterations`` times with the
-    weights of the model, from those of ``start`` (a model's AVAR; default the points themselves).
+    weights of the model, from those of ``start`` (a model's AVAR; default the points themselves). Without
+    ``covariance`` the coefficients' covariance is left NaN (a screening fit needs only the chi-square).
     """
     from scipy.optimize import nnls
 
@@ -308,19 +309,20 @@ def _wls(taus, avar, edf, terms, tc=None, tone=None, tau0=None, scatter=None, st
     coef = np.zeros(len(TERMS))
     T = taus.size
     extra = np.zeros(T) if scatter is None else np.nan_to_num(np.asarray(scatter, float), nan=0.0)
+    rows = np.arange(T)
+    Xy = np.column_stack([Xs / scale, avar])   # the regressors and the points, whitened together
     for _ in range(iterations):
         parts = X * np.where(coef > 0, coef, 0.0)
         dom = TERM_NOISE[np.argmax(parts, axis=1)] if coef.any() else np.zeros(T, int)
-        e = edf[np.arange(T), dom]
+        e = edf[rows, dom]
         rel = np.maximum(2.0 / e, extra)
         sd = np.maximum(pred, 1e-300) * np.sqrt(rel)
         rho = np.minimum(NEIGHBOUR_CORRELATION[dom[:-1]], NEIGHBOUR_CORRELATION[dom[1:]])
         logc = np.concatenate([[0.0], np.cumsum(np.log(rho))])
         C = np.exp(-np.abs(logc[:, None] - logc[None, :]))  # prod of the neighbour correlations between i and j
         L = np.linalg.cholesky(C * np.outer(sd, sd))
-        Jw = np.linalg.solve(L, Xs / scale)
-        yw = np.linalg.solve(L, avar)
-        c = nnls(Jw, yw)[0] / scale
+        Jy = np.linalg.solve(L, Xy)
+        c = nnls(Jy[:, :-1], Jy[:, -1])[0] / scale
         coef = np.zeros(len(TERMS))
         coef[terms] = c
         pred = X @ coef
@@ -335,7 +337,7 @@ def _wls(taus, avar, edf, terms, tc=None, tone=None, tau0=None, scatter=None, st
     chi2 = float(res @ res)
     cov = np.full((len(TERMS),) * 2, np.nan)
     act = [t for t in terms if coef[t] > 0]
-    if act:
+    if act and covariance:
         J = np.linalg.solve(L, X[:, act])
         red = max(1.0, chi2 / max(T - len(act), 1))
         cov = np.zeros((len(TERMS),) * 2)
@@ -383,7 +385,7 @@ def _best_addition(t, a, e, tau0, scatter, terms, par, best, cands):
             if term in SCANNED:
                 p[term] = c
         fit = _wls(t, a, e, terms + list(add), p[FILTERED], p[TONE], tau0, scatter,
-                   *((best[3], 1) if screen else (None, 5)), p[BOUNDED])
+                   *((best[3], 1) if screen else (None, 5)), p[BOUNDED], covariance=not screen)
         trials.append((best[2] - fit[2], add, fit, p))
     if screen:
         trials = sorted(trials, key=lambda tr: -tr[0])[:SCREENED]
