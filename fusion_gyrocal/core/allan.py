@@ -288,7 +288,7 @@ class AllanFit(NamedTuple):
 
 
 def _wls(taus, avar, edf, terms, tc=None, tone=None, tau0=None, scatter=None, start=None, iterations: int = 5,
-         tb=None, covariance: bool = True):
+         tb=None):
     """Non-negative generalised least squares of AVAR on the chosen terms (indices of :data:`TERMS`).
 
     The variance of each point is ``2 AVAR^2 / edf`` with the degrees of freedom of the dominant noise at
@@ -297,8 +297,7 @@ def _wls(taus, avar, edf, terms, tc=None, tone=None, tau0=None, scatter=None, st
     for octave taus: about 0.5 for white, 0.7 for flicker, 0.85 for random-walk rate noise and 0.3 for white
     angle noise, decaying geometrically), so the points are whitened with that correlation before the fit
     (without it the uncertainties come out about twice too small). Iterated ``iterations`` times with the
-    weights of the model, from those of ``start`` (a model's AVAR; default the points themselves). Without
-    ``covariance`` the coefficients' covariance is left NaN (a screening fit needs only the chi-square).
+    weights of the model, from those of ``start`` (a model's AVAR; default the points themselves).
     """
     from scipy.optimize import nnls
 
@@ -337,7 +336,7 @@ def _wls(taus, avar, edf, terms, tc=None, tone=None, tau0=None, scatter=None, st
     chi2 = float(res @ res)
     cov = np.full((len(TERMS),) * 2, np.nan)
     act = [t for t in terms if coef[t] > 0]
-    if act and covariance:
+    if act:
         J = np.linalg.solve(L, X[:, act])
         red = max(1.0, chi2 / max(T - len(act), 1))
         cov = np.zeros((len(TERMS),) * 2)
@@ -374,23 +373,62 @@ LAST = (TONE, BOUNDED)   # terms tried only where none of the others is kept (:f
 SCREENED = 12   # a scan of more candidates is screened (:func:`_best_addition`) down to this many   # terms tried at several parameters (their look-elsewhere counts them)
 
 
+def _screen(t, a, e, tau0, scatter, terms, start, cands, params) -> np.ndarray:
+    """The chi-square of each candidate (``terms`` plus the terms ``add`` of ``cands``, with its ``params``) after
+    one pass of :func:`_wls` weighted by the model ``start`` (``_wls(..., start=start, iterations=1)``, to rounding).
+
+    That pass's weights depend on ``start`` alone (no term is kept yet), so the whitening is factored once and
+    applied to every candidate's regressors in one solve, and the residuals in another; only the non-negative
+    least squares runs per candidate."""
+    from scipy.optimize import nnls
+
+    T = t.size
+    extra = np.zeros(T) if scatter is None else np.nan_to_num(np.asarray(scatter, float), nan=0.0)
+    rel = np.maximum(2.0 / e[:, 0], extra)     # white noise's degrees of freedom everywhere (no term kept)
+    sd = np.maximum(np.asarray(start, float), 1e-300) * np.sqrt(rel)
+    logc = np.concatenate([[0.0], np.cumsum(np.full(T - 1, np.log(NEIGHBOUR_CORRELATION[0])))])
+    C = np.exp(-np.abs(logc[:, None] - logc[None, :]))
+    L = np.linalg.cholesky(C * np.outer(sd, sd))
+    designs, cols, blocks = [], [], []
+    for (add, _), p in zip(cands, params):
+        X = design(t, p[FILTERED], p[TONE], tau0, p[BOUNDED])
+        Xs = X[:, terms + list(add)]
+        scale = np.abs(Xs).max(axis=0)
+        designs.append((X, terms + list(add), scale))
+        blocks.append((sum(c.shape[1] for c in cols), Xs.shape[1]))
+        cols.append(Xs / scale)
+    J = np.linalg.solve(L, np.column_stack(cols + [a]))
+    yw = J[:, -1]
+    pred = np.empty((T, len(cands)))
+    for k, ((X, ts, scale), (j0, w)) in enumerate(zip(designs, blocks)):
+        coef = np.zeros(len(TERMS))
+        coef[ts] = nnls(J[:, j0:j0 + w], yw)[0] / scale
+        pred[:, k] = X @ coef
+    if scatter is None:
+        res = np.linalg.solve(L, a[:, None] - pred)
+    else:
+        Lr = np.linalg.cholesky(C * np.outer(np.sqrt(rel), np.sqrt(rel)))
+        res = np.linalg.solve(Lr, np.log(np.maximum(a, 1e-300)[:, None] / np.maximum(pred, 1e-300)))
+    return np.einsum("ij,ij->j", res, res)
+
+
 def _best_addition(t, a, e, tau0, scatter, terms, par, best, cands):
     """The candidate of ``cands`` (each ``(added terms, parameter of a scanned one)``) :func:`_select` adds to
     ``terms``, as ``(terms, fit, parameters)``, or None."""
-    trials = []
-    screen = len(cands) > SCREENED   # many parameters of a scanned term: one pass each with the current
-    for add, c in cands:             # model's weights, then the full fit of the most promising
+    params = []
+    for add, c in cands:
         p = dict(par)
         for term in add:
             if term in SCANNED:
                 p[term] = c
-        fit = _wls(t, a, e, terms + list(add), p[FILTERED], p[TONE], tau0, scatter,
-                   *((best[3], 1) if screen else (None, 5)), p[BOUNDED], covariance=not screen)
-        trials.append((best[2] - fit[2], add, fit, p))
-    if screen:
-        trials = sorted(trials, key=lambda tr: -tr[0])[:SCREENED]
-        trials = [(best[2] - fit[2], add, fit, p) for _, add, _, p in trials
-                  for fit in [_wls(t, a, e, terms + list(add), p[FILTERED], p[TONE], tau0, scatter, tb=p[BOUNDED])]]
+        params.append(p)
+    keep = range(len(cands))
+    if len(cands) > SCREENED:   # many parameters of a scanned term: one pass each with the current model's weights
+        drops = best[2] - _screen(t, a, e, tau0, scatter, terms, best[3], cands, params)   # then the full fit of
+        keep = np.argsort(-drops, kind="stable")[:SCREENED]                              # the most promising
+    trials = [(best[2] - fit[2], cands[k][0], fit, params[k]) for k in keep
+              for fit in [_wls(t, a, e, terms + list(cands[k][0]), params[k][FILTERED], params[k][TONE], tau0, scatter,
+                               tb=params[k][BOUNDED])]]
     look = {k: 2.0 * np.log(max(sum(1 for add, _ in cands if k in add), 1)) for k in SCANNED}   # all tried
     trials.sort(key=lambda tr: tr[0] - sum(look.get(k, 0.0) for k in tr[1]), reverse=True)
     for drop, add, fit, p in trials:
