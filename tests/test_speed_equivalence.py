@@ -60,3 +60,28 @@ def test_values_and_slopes_equal_call():
     assert np.array_equal(values, spl(x)[0])
     assert np.array_equal(slopes, spl(x, nu=1)[0])
     assert values.shape == slopes.shape == (x.size, 3)
+
+
+@pytest.mark.parametrize("measured_scatter", [False, True])
+@pytest.mark.parametrize("added", [1, 2])
+def test_wls_many_equals_wls_per_job(measured_scatter, added):
+    taus, avar, edf, scatter = _residual_points(4, 5e-6)
+    sc = scatter if measured_scatter else None
+    tau0 = float(taus[0])
+    singles = [((term,), c) for term, c in allan._candidates(taus, [allan.WHITE], 1e9, tau0)]
+    fixed = [allan.QUANTISATION, allan.WALK, allan.FLICKER_TERM]
+    adds = singles if added == 1 else [((p, q), None) for i, p in enumerate(fixed) for q in fixed[i + 1:]]
+    jobs = []
+    for add, c in adds:
+        p = {allan.FILTERED: None, allan.TONE: None, allan.BOUNDED: None}
+        p.update({term: c for term in add if term in allan.SCANNED})
+        jobs.append(([allan.WHITE, *add], p[allan.FILTERED], p[allan.TONE], p[allan.BOUNDED]))
+    got = allan._wls_many(taus, avar, edf, jobs, tau0, sc)
+    assert len(got) == len(jobs) > 1
+    for (terms, tc, tone, tb), fit in zip(jobs, got):
+        want = allan._wls(taus, avar, edf, terms, tc, tone, tau0, sc, tb=tb)
+        np.testing.assert_allclose(fit[0], want[0], rtol=1e-12, atol=0)       # coefficients
+        np.testing.assert_allclose(fit[1], want[1], rtol=1e-10, atol=0)       # covariance (NaN where no term)
+        np.testing.assert_allclose(fit[2], want[2], rtol=1e-12)               # chi-square
+        np.testing.assert_allclose(fit[3], want[3], rtol=1e-12)               # model
+        np.testing.assert_allclose(fit[4], want[4], rtol=1e-12)               # worst ratio

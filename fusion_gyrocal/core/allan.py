@@ -348,6 +348,62 @@ def _wls(taus, avar, edf, terms, tc=None, tone=None, tau0=None, scatter=None, st
     return coef, cov, chi2, pred, worst
 
 
+def _wls_many(taus, avar, edf, jobs, tau0=None, scatter=None) -> list:
+    """:func:`_wls` of each of ``jobs`` (``(terms, tc, tone, tb)``, the same number of terms each), from the points'
+    own weights, equal to it to rounding: the fits run in lockstep, each step's small matrix operations (weights,
+    Cholesky factors, whitening) one stacked call for all of them; only the non-negative least squares and the
+    covariance of the kept terms are per fit."""
+    from scipy.optimize import nnls
+
+    if not jobs:
+        return []
+    K, T = len(jobs), taus.size
+    X = np.stack([design(taus, tc, tone, tau0, tb) for _, tc, tone, tb in jobs])          # (K, T, terms)
+    cols = np.array([list(terms) for terms, *_ in jobs])                                     # (K, w)
+    Xs = np.take_along_axis(X, cols[:, None, :], axis=2)
+    scale = np.abs(Xs).max(axis=1)                                                           # (K, w)
+    Xy = np.concatenate([Xs / scale[:, None, :], np.broadcast_to(avar[None, :, None], (K, T, 1))], axis=2)
+    pred = np.repeat(avar[None], K, axis=0)
+    coef = np.zeros((K, len(TERMS)))
+    extra = np.zeros(T) if scatter is None else np.nan_to_num(np.asarray(scatter, float), nan=0.0)
+    rows = np.arange(T)
+    for _ in range(5):
+        parts = X * np.where(coef > 0, coef, 0.0)[:, None, :]
+        dom = np.where(coef.any(axis=1)[:, None], TERM_NOISE[np.argmax(parts, axis=2)], 0)
+        rel = np.maximum(2.0 / edf[rows[None, :], dom], extra)
+        sd = np.maximum(pred, 1e-300) * np.sqrt(rel)
+        rho = np.minimum(NEIGHBOUR_CORRELATION[dom[:, :-1]], NEIGHBOUR_CORRELATION[dom[:, 1:]])
+        logc = np.concatenate([np.zeros((K, 1)), np.cumsum(np.log(rho), axis=1)], axis=1)
+        C = np.exp(-np.abs(logc[:, :, None] - logc[:, None, :]))
+        L = np.linalg.cholesky(C * (sd[:, :, None] * sd[:, None, :]))
+        Jy = np.linalg.solve(L, Xy)
+        coef = np.zeros((K, len(TERMS)))
+        for k in range(K):
+            coef[k, cols[k]] = nnls(Jy[k, :, :-1], Jy[k, :, -1])[0] / scale[k]
+        pred = np.matmul(X, coef[:, :, None])[:, :, 0]
+    if scatter is None:
+        res = np.linalg.solve(L, (avar[None] - pred)[:, :, None])[:, :, 0]
+    else:
+        root = np.sqrt(rel)
+        Lr = np.linalg.cholesky(C * (root[:, :, None] * root[:, None, :]))
+        logs = np.log(np.maximum(avar, 1e-300)[None] / np.maximum(pred, 1e-300))
+        res = np.linalg.solve(Lr, logs[:, :, None])[:, :, 0]
+    chi2 = np.einsum("kt,kt->k", res, res)
+    ratio = np.abs(0.5 * np.log(np.maximum(pred, 1e-300) / np.maximum(avar, 1e-300)[None]))
+    worst = np.exp(np.max(np.maximum(ratio - np.sqrt(rel), 0.0), axis=1))
+    out = []
+    for k, (terms, *_) in enumerate(jobs):
+        cov = np.full((len(TERMS),) * 2, np.nan)
+        act = [t for t in terms if coef[k, t] > 0]
+        if act:
+            J = np.linalg.solve(L[k], X[k][:, act])
+            red = max(1.0, float(chi2[k]) / max(T - len(act), 1))
+            cov = np.zeros((len(TERMS),) * 2)
+            cov[np.ix_(act, act)] = np.linalg.pinv(J.T @ J) * red
+        out.append((coef[k], cov, float(chi2[k]), pred[k], float(worst[k])))
+    return out
+
+
 #: the tone term's candidate centre frequencies (fractions of the sample rate) and pole radii
 TONE_FREQUENCIES = np.arange(0.1, 0.5001, 0.02)   # above the motion band (its residue is no tone)
 TONE_RADII = (0.75, 0.9, 0.97)
@@ -426,9 +482,9 @@ def _best_addition(t, a, e, tau0, scatter, terms, par, best, cands):
     if len(cands) > SCREENED:   # many parameters of a scanned term: one pass each with the current model's weights
         drops = best[2] - _screen(t, a, e, tau0, scatter, terms, best[3], cands, params)   # then the full fit of
         keep = np.argsort(-drops, kind="stable")[:SCREENED]                              # the most promising
-    trials = [(best[2] - fit[2], cands[k][0], fit, params[k]) for k in keep
-              for fit in [_wls(t, a, e, terms + list(cands[k][0]), params[k][FILTERED], params[k][TONE], tau0, scatter,
-                               tb=params[k][BOUNDED])]]
+    fits = _wls_many(t, a, e, [(terms + list(cands[k][0]), params[k][FILTERED], params[k][TONE], params[k][BOUNDED])
+                               for k in keep], tau0, scatter)
+    trials = [(best[2] - fit[2], cands[k][0], fit, params[k]) for k, fit in zip(keep, fits)]
     look = {k: 2.0 * np.log(max(sum(1 for add, _ in cands if k in add), 1)) for k in SCANNED}   # all tried
     trials.sort(key=lambda tr: tr[0] - sum(look.get(k, 0.0) for k in tr[1]), reverse=True)
     for drop, add, fit, p in trials:
