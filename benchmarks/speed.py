@@ -100,11 +100,14 @@ def drift(n=1_000_000, rounds=5, k=3):
     walk = 100 * PAPER_BIAS_WALK_STD if walk is None else walk
     t_rw = best_of(lambda: random_walk_bias_moments(w1, w2, walk, noise, window=100), k)[0]
     t_mom = best_of(lambda: Moments.from_samples(w1, w2), k)[0]
+    A, b = solve_A(Moments.from_samples(w1, w2))
+    t_id = best_of(lambda: identify_noise(w1, w2, A, b, rate_hz=1.0, window_s=100.0), k)[0]
     print(f"\ndrifting bias ({n} samples, walk 100x the paper's; identified: {default.noise_model.bias_model}), "
           f"best of {k} per round, {rounds} rounds; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
     print(f"  calibrate_pair(omega_1, omega_2) (default)      {min(t_def):8.4f} s (rounds {min(t_def):.3f}-{max(t_def):.3f})")
     print(f"  calibrate_pair(..., noise_std=known)            {min(t_known):8.4f} s (rounds {min(t_known):.3f}-"
           f"{max(t_known):.3f})")
+    print(f"    identify_noise (the default's extra step)     {t_id:8.4f} s")
     print(f"    random_walk_bias_moments(..., window=100)     {t_rw:8.4f} s; Moments.from_samples {t_mom:.4f} s")
     print(f"  default / noise given: median {np.median(ratios):.2f}x (rounds {min(ratios):.2f}-{max(ratios):.2f}; "
           "target <= 2.5x)")
