@@ -308,19 +308,20 @@ def _wls(taus, avar, edf, terms, tc=None, tone=None, tau0=None, scatter=None, st
     coef = np.zeros(len(TERMS))
     T = taus.size
     extra = np.zeros(T) if scatter is None else np.nan_to_num(np.asarray(scatter, float), nan=0.0)
+    rows = np.arange(T)
+    Xy = np.column_stack([Xs / scale, avar])   # the regressors and the points, whitened together
     for _ in range(iterations):
         parts = X * np.where(coef > 0, coef, 0.0)
         dom = TERM_NOISE[np.argmax(parts, axis=1)] if coef.any() else np.zeros(T, int)
-        e = edf[np.arange(T), dom]
+        e = edf[rows, dom]
         rel = np.maximum(2.0 / e, extra)
         sd = np.maximum(pred, 1e-300) * np.sqrt(rel)
         rho = np.minimum(NEIGHBOUR_CORRELATION[dom[:-1]], NEIGHBOUR_CORRELATION[dom[1:]])
         logc = np.concatenate([[0.0], np.cumsum(np.log(rho))])
         C = np.exp(-np.abs(logc[:, None] - logc[None, :]))  # prod of the neighbour correlations between i and j
         L = np.linalg.cholesky(C * np.outer(sd, sd))
-        Jw = np.linalg.solve(L, Xs / scale)
-        yw = np.linalg.solve(L, avar)
-        c = nnls(Jw, yw)[0] / scale
+        Jy = np.linalg.solve(L, Xy)
+        c = nnls(Jy[:, :-1], Jy[:, -1])[0] / scale
         coef = np.zeros(len(TERMS))
         coef[terms] = c
         pred = X @ coef
@@ -345,6 +346,62 @@ def _wls(taus, avar, edf, terms, tc=None, tone=None, tau0=None, scatter=None, st
     ratio = np.abs(0.5 * np.log(np.maximum(pred, 1e-300) / np.maximum(avar, 1e-300)))
     worst = float(np.exp(np.max(np.maximum(ratio - np.sqrt(rel), 0.0))))
     return coef, cov, chi2, pred, worst
+
+
+def _wls_many(taus, avar, edf, jobs, tau0=None, scatter=None) -> list:
+    """:func:`_wls` of each of ``jobs`` (``(terms, tc, tone, tb)``, the same number of terms each), from the points'
+    own weights, equal to it to rounding: the fits run in lockstep, each step's small matrix operations (weights,
+    Cholesky factors, whitening) one stacked call for all of them; only the non-negative least squares and the
+    covariance of the kept terms are per fit."""
+    from scipy.optimize import nnls
+
+    if not jobs:
+        return []
+    K, T = len(jobs), taus.size
+    X = np.stack([design(taus, tc, tone, tau0, tb) for _, tc, tone, tb in jobs])          # (K, T, terms)
+    cols = np.array([list(terms) for terms, *_ in jobs])                                     # (K, w)
+    Xs = np.take_along_axis(X, cols[:, None, :], axis=2)
+    scale = np.abs(Xs).max(axis=1)                                                           # (K, w)
+    Xy = np.concatenate([Xs / scale[:, None, :], np.broadcast_to(avar[None, :, None], (K, T, 1))], axis=2)
+    pred = np.repeat(avar[None], K, axis=0)
+    coef = np.zeros((K, len(TERMS)))
+    extra = np.zeros(T) if scatter is None else np.nan_to_num(np.asarray(scatter, float), nan=0.0)
+    rows = np.arange(T)
+    for _ in range(5):
+        parts = X * np.where(coef > 0, coef, 0.0)[:, None, :]
+        dom = np.where(coef.any(axis=1)[:, None], TERM_NOISE[np.argmax(parts, axis=2)], 0)
+        rel = np.maximum(2.0 / edf[rows[None, :], dom], extra)
+        sd = np.maximum(pred, 1e-300) * np.sqrt(rel)
+        rho = np.minimum(NEIGHBOUR_CORRELATION[dom[:, :-1]], NEIGHBOUR_CORRELATION[dom[:, 1:]])
+        logc = np.concatenate([np.zeros((K, 1)), np.cumsum(np.log(rho), axis=1)], axis=1)
+        C = np.exp(-np.abs(logc[:, :, None] - logc[:, None, :]))
+        L = np.linalg.cholesky(C * (sd[:, :, None] * sd[:, None, :]))
+        Jy = np.linalg.solve(L, Xy)
+        coef = np.zeros((K, len(TERMS)))
+        for k in range(K):
+            coef[k, cols[k]] = nnls(Jy[k, :, :-1], Jy[k, :, -1])[0] / scale[k]
+        pred = np.matmul(X, coef[:, :, None])[:, :, 0]
+    if scatter is None:
+        res = np.linalg.solve(L, (avar[None] - pred)[:, :, None])[:, :, 0]
+    else:
+        root = np.sqrt(rel)
+        Lr = np.linalg.cholesky(C * (root[:, :, None] * root[:, None, :]))
+        logs = np.log(np.maximum(avar, 1e-300)[None] / np.maximum(pred, 1e-300))
+        res = np.linalg.solve(Lr, logs[:, :, None])[:, :, 0]
+    chi2 = np.einsum("kt,kt->k", res, res)
+    ratio = np.abs(0.5 * np.log(np.maximum(pred, 1e-300) / np.maximum(avar, 1e-300)[None]))
+    worst = np.exp(np.max(np.maximum(ratio - np.sqrt(rel), 0.0), axis=1))
+    out = []
+    for k, (terms, *_) in enumerate(jobs):
+        cov = np.full((len(TERMS),) * 2, np.nan)
+        act = [t for t in terms if coef[k, t] > 0]
+        if act:
+            J = np.linalg.solve(L[k], X[k][:, act])
+            red = max(1.0, float(chi2[k]) / max(T - len(act), 1))
+            cov = np.zeros((len(TERMS),) * 2)
+            cov[np.ix_(act, act)] = np.linalg.pinv(J.T @ J) * red
+        out.append((coef[k], cov, float(chi2[k]), pred[k], float(worst[k])))
+    return out
 
 
 #: the tone term's candidate centre frequencies (fractions of the sample rate) and pole radii
@@ -372,23 +429,62 @@ LAST = (TONE, BOUNDED)   # terms tried only where none of the others is kept (:f
 SCREENED = 12   # a scan of more candidates is screened (:func:`_best_addition`) down to this many   # terms tried at several parameters (their look-elsewhere counts them)
 
 
+def _screen(t, a, e, tau0, scatter, terms, start, cands, params) -> np.ndarray:
+    """The chi-square of each candidate (``terms`` plus the terms ``add`` of ``cands``, with its ``params``) after
+    one pass of :func:`_wls` weighted by the model ``start`` (``_wls(..., start=start, iterations=1)``, to rounding).
+
+    That pass's weights depend on ``start`` alone (no term is kept yet), so the whitening is factored once and
+    applied to every candidate's regressors in one solve, and the residuals in another; only the non-negative
+    least squares runs per candidate."""
+    from scipy.optimize import nnls
+
+    T = t.size
+    extra = np.zeros(T) if scatter is None else np.nan_to_num(np.asarray(scatter, float), nan=0.0)
+    rel = np.maximum(2.0 / e[:, 0], extra)     # white noise's degrees of freedom everywhere (no term kept)
+    sd = np.maximum(np.asarray(start, float), 1e-300) * np.sqrt(rel)
+    logc = np.concatenate([[0.0], np.cumsum(np.full(T - 1, np.log(NEIGHBOUR_CORRELATION[0])))])
+    C = np.exp(-np.abs(logc[:, None] - logc[None, :]))
+    L = np.linalg.cholesky(C * np.outer(sd, sd))
+    designs, cols, blocks = [], [], []
+    for (add, _), p in zip(cands, params):
+        X = design(t, p[FILTERED], p[TONE], tau0, p[BOUNDED])
+        Xs = X[:, terms + list(add)]
+        scale = np.abs(Xs).max(axis=0)
+        designs.append((X, terms + list(add), scale))
+        blocks.append((sum(c.shape[1] for c in cols), Xs.shape[1]))
+        cols.append(Xs / scale)
+    J = np.linalg.solve(L, np.column_stack(cols + [a]))
+    yw = J[:, -1]
+    pred = np.empty((T, len(cands)))
+    for k, ((X, ts, scale), (j0, w)) in enumerate(zip(designs, blocks)):
+        coef = np.zeros(len(TERMS))
+        coef[ts] = nnls(J[:, j0:j0 + w], yw)[0] / scale
+        pred[:, k] = X @ coef
+    if scatter is None:
+        res = np.linalg.solve(L, a[:, None] - pred)
+    else:
+        Lr = np.linalg.cholesky(C * np.outer(np.sqrt(rel), np.sqrt(rel)))
+        res = np.linalg.solve(Lr, np.log(np.maximum(a, 1e-300)[:, None] / np.maximum(pred, 1e-300)))
+    return np.einsum("ij,ij->j", res, res)
+
+
 def _best_addition(t, a, e, tau0, scatter, terms, par, best, cands):
     """The candidate of ``cands`` (each ``(added terms, parameter of a scanned one)``) :func:`_select` adds to
     ``terms``, as ``(terms, fit, parameters)``, or None."""
-    trials = []
-    screen = len(cands) > SCREENED   # many parameters of a scanned term: one pass each with the current
-    for add, c in cands:             # model's weights, then the full fit of the most promising
+    params = []
+    for add, c in cands:
         p = dict(par)
         for term in add:
             if term in SCANNED:
                 p[term] = c
-        fit = _wls(t, a, e, terms + list(add), p[FILTERED], p[TONE], tau0, scatter,
-                   *((best[3], 1) if screen else (None, 5)), p[BOUNDED])
-        trials.append((best[2] - fit[2], add, fit, p))
-    if screen:
-        trials = sorted(trials, key=lambda tr: -tr[0])[:SCREENED]
-        trials = [(best[2] - fit[2], add, fit, p) for _, add, _, p in trials
-                  for fit in [_wls(t, a, e, terms + list(add), p[FILTERED], p[TONE], tau0, scatter, tb=p[BOUNDED])]]
+        params.append(p)
+    keep = range(len(cands))
+    if len(cands) > SCREENED:   # many parameters of a scanned term: one pass each with the current model's weights
+        drops = best[2] - _screen(t, a, e, tau0, scatter, terms, best[3], cands, params)   # then the full fit of
+        keep = np.argsort(-drops, kind="stable")[:SCREENED]                              # the most promising
+    fits = _wls_many(t, a, e, [(terms + list(cands[k][0]), params[k][FILTERED], params[k][TONE], params[k][BOUNDED])
+                               for k in keep], tau0, scatter)
+    trials = [(best[2] - fit[2], cands[k][0], fit, params[k]) for k, fit in zip(keep, fits)]
     look = {k: 2.0 * np.log(max(sum(1 for add, _ in cands if k in add), 1)) for k in SCANNED}   # all tried
     trials.sort(key=lambda tr: tr[0] - sum(look.get(k, 0.0) for k in tr[1]), reverse=True)
     for drop, add, fit, p in trials:

@@ -316,14 +316,12 @@ def _offset_std(spl2: _RunSplines, x1, y1, tau: float, h: float, newton: bool = 
     """
     delta = 0.25 * h
     xe, ye, cost = _span_misfit(spl2, x1, y1, tau - delta, tau + delta)
-    inside = np.ones(xe.size, dtype=bool)
-    w2 = spl2(xe - tau, inside=inside)[0]
+    w2, dw2 = spl2.values_and_slopes(xe - tau)   # one lookup of the instants' intervals for both
     m, S22p, A = _profile_fit(ye, w2)
     at_tau = float(np.trace(m.S11) - np.trace(A @ m.S12.T))   # cost(tau), from the fit needed below anyway
     half_curv = 0.5 * (cost(tau + delta) - 2.0 * at_tau + cost(tau - delta)) / delta**2
     if not half_curv > 0:
         return (float("inf"), float("nan")) if newton else float("inf")
-    dw2 = spl2(xe - tau, nu=1, inside=inside)[0]
     resid = (ye - m.mean_1) - (w2 - m.mean_2) @ A.T
     md = Moments.from_samples(dw2, w2)  # project d/dt omega_2 on the regressors [omega_2, 1]
     d = ((dw2 - md.mean_1) - (w2 - md.mean_2) @ (md.S12 @ S22p).T) @ A.T

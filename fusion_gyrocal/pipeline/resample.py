@@ -151,13 +151,28 @@ class _RunSplines:
         inside = (r >= 0) & (x <= self.ends[np.clip(r, 0, None)])
         return np.where(inside, r, -1)
 
-    def _eval(self, x: np.ndarray, nu: int) -> np.ndarray:
-        """Values (``nu`` = 0) or first derivatives (``nu`` = 1) at ``x`` (1-D, inside the knots' span)."""
+    def _gather(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(d, c)``: the offsets of ``x`` (1-D, inside the knots' span) from their intervals' first knots and
+        those intervals' coefficients ``(4, k, len(x))``."""
         i = np.searchsorted(self.knots, x, side="right") - 1
         np.clip(i, 0, self.knots.size - 2, out=i)
         d = x - self.knots.take(i)
         k = self.coef.shape[1]
-        c = self.coef.reshape(4 * k, -1).take(i, axis=1).reshape(4, k, -1)
+        return d, self.coef.reshape(4 * k, -1).take(i, axis=1).reshape(4, k, -1)
+
+    def _eval(self, x: np.ndarray, nu: int) -> np.ndarray:
+        """Values (``nu`` = 0) or first derivatives (``nu`` = 1) at ``x`` (1-D, inside the knots' span)."""
+        return self._horner(*self._gather(x), nu)
+
+    def values_and_slopes(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Values and first derivatives at ``x`` (1-D, every instant inside a run: ``run_of(x) >= 0``), from one
+        lookup of the instants' intervals; each equals ``self(x, nu)[0]``."""
+        d, c = self._gather(x)
+        return tuple(self._horner(d, c, nu).reshape(x.shape + self.width) for nu in (0, 1))
+
+    @staticmethod
+    def _horner(d: np.ndarray, c: np.ndarray, nu: int) -> np.ndarray:
+        """The cubics ``c`` (:meth:`_gather`) or their derivatives (``nu`` = 1) at the offsets ``d``, ``(len(d), k)``."""
         if nu == 0:
             out = c[0] * d
             out += c[1]
