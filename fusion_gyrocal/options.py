@@ -56,6 +56,7 @@ COVARIANCES = ("auto", "model", "robust")
 NOISE_MODELS = ("identify", "residual")
 LINEAR_MAPS = ("auto", "rigid", "full")
 TIMING_MODELS = ("auto", "off")
+ROBUST_WEIGHTS = ("auto", "off")
 
 
 # ------------------------------------------------------------------------------------------ checks
@@ -372,6 +373,15 @@ class Options(FrozenOptions):
         "its pair's residual, and the array calibrated again); ``'off'``: one constant offset only.",
         "--timing-model", choices=TIMING_MODELS,
         help="delay beyond the constant offset: auto (beat tones of the chips' clocks, default) or off")
+    robust_weights: str = _option(
+        "auto", _choice(ROBUST_WEIGHTS), {"pair"},
+        "Per-sample weights against a heavy-tailed residual (:func:`~fusion_gyrocal.pipeline.pipeline."
+        "residual_weights`). ``'auto'`` (default): after the timing step, each sample is weighted by the white "
+        "noise's variance over its residual's local variance (impacts, transients faster than the read-out, "
+        "spikes after clipping weigh little), the pair is calibrated again on the weighted moments and the result "
+        "kept when its rotation is better determined; ``'off'``: every sample weighs 1.",
+        "--robust-weights", choices=ROBUST_WEIGHTS,
+        help="per-sample weights from the residual's local variance: auto (default) or off")
     flex_rejection: object = _option(
         "auto", _flex, {"pair"} | _JOINT,
         "The paper's flex rejection (Section VI.C, Eq. 42): ``'auto'`` gates when more than 1% of the samples "
