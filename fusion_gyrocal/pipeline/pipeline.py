@@ -388,11 +388,23 @@ def residual_weights(w1, w2, A, bias, noise_std, mask=None, span: int = WEIGHT_S
     return np.where(ok, v0 / np.maximum(local, v0), 0.0)
 
 
-def _residual_energy(w1, w2, A, bias, mask=None):
-    """``(|r_k|^2 / 3, ok)``: each sample's residual energy per axis and where it is used and finite."""
+_ENERGY_ROWS = 65536     # rows per block of _residual_energy: no (N, 3) temporary for a long log
+TAIL_SAMPLES = 200_000  # at most this many samples (evenly strided) decide whether the residual is heavy-tailed
+
+
+def _residual_energy(w1, w2, A, bias, mask=None, stride: int = 1):
+    """``(|r_k|^2 / 3, ok)``: the residual energy per axis of every ``stride``-th sample and where it is used
+    and finite, a block of rows at a time."""
+    n = len(w1)
+    rr = np.empty(-(-n // stride))
+    block = _ENERGY_ROWS * stride
     with np.errstate(invalid="ignore", over="ignore"):
-        rr = row_sumsq(np.asarray(w1, float) - np.asarray(w2, float) @ A.T - bias) / 3.0
-    ok = np.isfinite(rr) if mask is None else (np.asarray(mask, bool) & np.isfinite(rr))
+        for a in range(0, n, block):
+            r = np.asarray(w1[a:a + block:stride], float) - np.asarray(w2[a:a + block:stride], float) @ A.T - bias
+            rr[a // stride:a // stride + len(r)] = row_sumsq(r) / 3.0
+    ok = np.isfinite(rr)
+    if mask is not None:
+        ok &= np.asarray(mask, bool)[::stride]
     return rr, ok
 
 
@@ -418,7 +430,8 @@ def _with_weights(run: PipelineRun, mask, pair, resampling, o: Options, carried:
             or o.bias_walk_std is not None or o.bias_window is not None:
         return run                    # weighted moments are those of a constant bias
     use = run.valid if run.valid is not None else mask
-    rr, ok = _residual_energy(run.omega_1, run.omega_2, cal.A, cal.bias, use)
+    rr, ok = _residual_energy(run.omega_1, run.omega_2, cal.A, cal.bias, use,
+                              max(1, len(run.omega_1) // TAIL_SAMPLES))
     share = tail_share(rr[ok]) if ok.any() else 0.0
     if share < TAIL_SHARE:
         return run                    # a residual without a heavy tail: every sample weighs the same
