@@ -242,7 +242,7 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
     if o.timing_model == "auto" and run.calibration.rigid:
         run, carried = _with_timing(run, mask, pair, resampling, o)
     if o.robust_weights == "auto" and run.calibration.rigid:
-        run = _with_weights(run, mask, pair, resampling, o, carried)
+        run = _with_weights(run, pair, resampling, o, carried)
     if notes:
         run = _replace(run, calibration=_replace(run.calibration, notes=run.calibration.notes + notes))
     return run
@@ -421,15 +421,18 @@ def tail_share(rr: np.ndarray) -> float:
     return float(np.partition(rr, n - k)[n - k:].sum()) / total if total > 0 else 0.0
 
 
-def _with_weights(run: PipelineRun, mask, pair, resampling, o: Options, carried: dict) -> PipelineRun:
+def _with_weights(run: PipelineRun, pair, resampling, o: Options, carried: dict) -> PipelineRun:
     """The run again with each sample weighted by the inverse of its residual's local variance
-    (:func:`residual_weights`, at the run's estimate), kept when it explains the data better (``robust_weights``);
-    ``carried``: the fields earlier steps added to the calibration."""
+    (:func:`residual_weights`, at the run's estimate) when the residual is heavy-tailed (:func:`tail_share` above
+    :data:`TAIL_SHARE`), kept when its rotation is better determined (``robust_weights``); ``carried``: the fields
+    earlier steps added to the calibration. Only for a constant bias and a white noise identified or given."""
     cal = run.calibration
     if cal.bias_segments != 1 or cal.noise_model is not None and cal.noise_model.bias_walk_std is not None \
             or o.bias_walk_std is not None or o.bias_window is not None:
         return run                    # weighted moments are those of a constant bias
-    use = run.valid if run.valid is not None else mask
+    if cal.noise_model is None and o.noise_std is None:
+        return run                    # no white noise to weigh against (the residual's own variance is the noise)
+    use = run.valid                   # the samples before the flex gate, which the weighted run gates again
     rr, ok = _residual_energy(run.omega_1, run.omega_2, cal.A, cal.bias, use,
                               max(1, len(run.omega_1) // TAIL_SAMPLES))
     share = tail_share(rr[ok]) if ok.any() else 0.0
@@ -445,10 +448,13 @@ def _with_weights(run: PipelineRun, mask, pair, resampling, o: Options, carried:
     before, after = _rotation_sd(cal), _rotation_sd(again.calibration)
     if not after < before:
         return run                    # the weighted estimate is not better determined: kept as it was
-    note = (f"robust weights: each sample weighted by the white noise's variance over its residual's local variance "
-            f"({WEIGHT_SPAN} samples; impacts, transients faster than the read-out, spikes: the largest 1% of the "
-            f"residual carried {100 * share:.0f}% of its energy): {100 * effective / n_used:.0f}% effective samples; rotation 1-sigma {np.rad2deg(before) * 1e3:.3g} -> {np.rad2deg(after) * 1e3:.3g} "
-            "mdeg (robust_weights='off': every sample weighs 1)")
+    note = (f"robust weights: the largest 1% of the residual carried {100 * share:.0f}% of its energy (impacts, "
+            "transients faster than the read-out, spikes; 4.5% for Gaussian noise): each sample weighted by the white "
+            f"noise's variance over its residual's local variance ({WEIGHT_SPAN} samples), "
+            f"{100 * effective / n_used:.0f}% effective samples (n_samples counts the weights); rotation 1-sigma "
+            f"{np.rad2deg(before) * 1e3:.3g} -> {np.rad2deg(after) * 1e3:.3g} mdeg, residual RMS per axis "
+            f"{np.rad2deg(cal.residual_rms):.4g} -> {np.rad2deg(again.calibration.residual_rms):.4g} deg/s weighted "
+            "(robust_weights='off': every sample weighs 1)")
     more = dict(carried, notes=tuple(carried.get("notes", ())) + (note,))
     return _carry(again, more)
 
