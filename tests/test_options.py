@@ -29,7 +29,7 @@ FLAG_EXAMPLES = {
     "linear_map": (["--linear-map", "rigid"], {"linear_map": "rigid"}),
     "cross_axis_std": (["--cross-axis-std", "0.02"], {"cross_axis_std": 0.02}),
     "timing_model": (["--timing-model", "off"], {"timing_model": "off"}),
-    "robust_weights": (["--robust-weights", "off"], {"robust_weights": "off"}),
+    "robust_weights": (["--robust-weights", "auto"], {"robust_weights": "auto"}),
     "min_snr": (["--min-snr", "20"], {"min_snr": 20.0}),
     "on_not_rigid": (["--allow-not-rigid"], {"on_not_rigid": "flag"}),
     "time_offset_s": (["--offset", "-0.25"], {"time_offset_s": -0.25}),

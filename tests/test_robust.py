@@ -116,14 +116,12 @@ def test_calibrate_pair_mimu_sessions_spread_is_covered_by_the_covariance():
     """Nine sessions of one soldered PCB: the session-to-session rotation differences are the truth the
     reported covariances must explain (mean z^2 over the 36 session pairs near 3, not 100s). The board's cross-axis
     terms are the same in every session, so the difference of two sessions cancels the skew budget
-    (``skew_rotation_covariance``): the repeatable part of the covariance is what explains it. Unweighted
-    (``robust_weights="off"``): the weighted estimate of this pair is precise enough to see IMUs 3 and 4 turn
-    against IMU 1 between sessions (tests/test_robust_weights.py: pairs within one part of the board stay honest)."""
+    (``skew_rotation_covariance``): the repeatable part of the covariance is what explains it."""
     from fusion_gyrocal.io import read_npz
     cals = []
     for e in range(1, 10):
         s = read_npz(DATA / "mimu_8imu_array" / "npz" / f"exp_{e}.npz")
-        cals.append(calibrate_pair(s[0].omega, s[2].omega, t_1=s[0].t, t_2=s[2].t, robust_weights="off"))
+        cals.append(calibrate_pair(s[0].omega, s[2].omega, t_1=s[0].t, t_2=s[2].t))
     repeatable = [c.covariance[:3, :3] - c.skew_rotation_covariance for c in cals]
     z2, d2 = [], []
     for (a, Pa), (b, Pb) in itertools.combinations(zip(cals, repeatable), 2):
