@@ -380,10 +380,10 @@ class Options(FrozenOptions):
         "more than a tenth of its energy, each sample is weighted by the white noise's variance over its residual's "
         "local variance (impacts, transients faster than the read-out, spikes after clipping weigh little), the "
         "pair is calibrated again on the weighted moments and the result kept when its rotation is better "
-        "determined (constant bias, identified or given noise). ``'off'`` (default): every sample weighs 1. Off by "
-        "default: on the MIMU board the weighted rotations are 3x more precise and their covariance explains the "
-        "sessions of IMUs that keep their relative orientation, not yet those between parts of the board that "
-        "turn between sessions (benchmarks/sensor_model.py).",
+        "determined (constant bias, identified or given noise). ``'off'`` (default): every sample weighs 1. On the "
+        "MIMU board (benchmarks/sensor_model.py) the weighted rotations repeat to 17.7 mdeg RMS over nine sessions "
+        "(25.5 unweighted) and to 9.3 mdeg, mean z^2 5.84, without the one session where IMUs 3 and 4 turned "
+        "against the others; with it, mean z^2 24.9.",
         "--robust-weights", choices=ROBUST_WEIGHTS,
         help="per-sample weights from the residual's local variance: auto or off (default)")
     flex_rejection: object = _option(
