@@ -20,7 +20,7 @@ Two ways to combine moments:
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Iterable
 
 import numpy as np
@@ -337,7 +337,7 @@ class Moments:
         return cls(0.0, np.zeros(6), np.zeros((6, 6)), 0)
 
     @classmethod
-    def from_samples(cls, omega_1, omega_2, *, mask=None, chunk_size: int = CHUNK_SIZE,
+    def from_samples(cls, omega_1, omega_2, *, mask=None, weights=None, chunk_size: int = CHUNK_SIZE,
                      threads: int | None = None) -> "Moments":
         """Accumulate the moments of two sample-aligned rate streams in bounded memory.
 
@@ -348,6 +348,12 @@ class Moments:
             or float64 (accumulation is always float64).
         mask : array_like of bool, shape (N,), optional
             Samples to use (True = keep).
+        weights : array_like, shape (N,), optional
+            A non-negative weight per sample (:func:`weighted_moments`): ``count`` is the sum of the used
+            samples' weights, ``mean`` their weighted mean and ``scatter`` the weighted centred scatter. With
+            weights ``sigma^2 / sigma_k^2`` (sample ``k``'s residual variance against a reference white noise
+            ``sigma``) the cost of Eq. 12-17 and its refinement is the likelihood of heteroscedastic samples.
+            None (default): every sample weighs 1 (the unweighted pass, unchanged).
         chunk_size : int
             Rows per chunk; memory beyond the inputs is ``O(chunk_size * threads)``.
         threads : int, optional
@@ -359,6 +365,8 @@ class Moments:
             On a wrong shape, unequal lengths or a non-finite sample.
         """
         w1, w2, mask = as_rate_pair(omega_1, omega_2, mask)
+        if weights is not None:
+            return weighted_moments(w1, w2, sample_weights(weights, w1.shape[0]), mask=mask, chunk_size=chunk_size)
         return _moments(w1, w2, mask, chunk_size, threads)
 
     # ------------------------------------------------------------------ algebra
@@ -479,6 +487,80 @@ def _moments(w1, w2, mask, chunk_size, threads, extremes: bool = False):
             parts = list(pool.map(part, range(workers)))
         out = Moments.merge_all(Moments(c, mu, sc, 1 if c else 0) for c, mu, sc in parts)
     return out if not extremes else (out, ext, chunk_size, bounds)
+
+
+def sample_weights(weights, n: int) -> np.ndarray:
+    """``weights`` as a float64 (n,) array of finite non-negative values (one per sample).
+
+    Raises
+    ------
+    InputError
+        On another shape, a negative or non-finite weight.
+    """
+    try:
+        w = np.asarray(weights, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"weights: expected one non-negative number per sample ({n},), got "
+                         f"{type(weights).__name__}") from None
+    if w.shape != (n,):
+        raise InputError(f"weights: expected one weight per sample, shape ({n},), got {w.shape}")
+    bad = ~np.isfinite(w) | (w < 0)
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        raise InputError(f"weights: expected finite non-negative weights, got {w[k]!r} at sample {k} "
+                         f"({int(bad.sum())} such weight(s))")
+    return w
+
+
+def weighted_moments(w1, w2, weights, *, mask=None, chunk_size: int = CHUNK_SIZE) -> Moments:
+    """The moments of checked sample-aligned rates with a weight per sample (:meth:`Moments.from_samples`).
+
+    ``count = sum_k w_k``, ``mean = sum_k w_k x_k / count`` and ``scatter = sum_k w_k (x_k - mean)(x_k - mean)^T``
+    over the used samples: each chunk centred on its own weighted mean, chunks combined with Chan's update (the
+    weighted form of :meth:`Moments.merge`), so a large bias costs no precision. ``weights`` (N,) float64, checked
+    (:func:`sample_weights`); samples of weight 0 play no part (they may be non-finite).
+
+    Raises
+    ------
+    InputError
+        A non-finite used sample of positive weight, or values whose squares overflow.
+    """
+    n = w1.shape[0]
+    chunk_size = int(chunk_size)
+    if chunk_size < 1:
+        raise OptionError(f"chunk_size: expected a positive number of rows, got {chunk_size}")
+    count, mean, scat = 0.0, np.zeros(6), np.zeros((6, 6))
+    for start in range(0, n, chunk_size):
+        stop = min(start + chunk_size, n)
+        wt = weights[start:stop]
+        keep = wt > 0 if mask is None else (mask[start:stop] & (wt > 0))
+        if not keep.any():
+            continue
+        x = np.concatenate([np.asarray(w1[start:stop][keep], dtype=np.float64).T,
+                            np.asarray(w2[start:stop][keep], dtype=np.float64).T])     # (6, m)
+        wt = wt[keep]
+        c = float(wt.sum())
+        with np.errstate(over="ignore", invalid="ignore"):
+            mu = (x @ wt) / c
+            if not np.isfinite(mu).all():
+                name, arr = ("omega_1", w1) if not np.isfinite(mu[:3]).all() else ("omega_2", w2)
+                rows = np.asarray(arr[start:stop])
+                bad = np.flatnonzero(keep & ~finite_rows(rows))
+                if bad.size:
+                    raise InputError(f"{name}: expected finite rates, got a non-finite value (NaN or inf) at sample "
+                                     f"{start + int(bad[0])} ({bad.size} non-finite used row(s) in that block); "
+                                     "mask or drop those samples first")
+                raise _too_large(w1, w2, start, stop)
+            x -= mu[:, None]
+            sc = (x * wt) @ x.T
+        if not np.isfinite(sc).all():
+            raise _too_large(w1, w2, start, stop)
+        total = count + c                       # Chan's update, weighted
+        delta = mu - mean
+        scat += sc + np.outer(delta, delta) * (count * c / total)
+        mean += delta * (c / total)
+        count = total
+    return Moments(count, mean, 0.5 * (scat + scat.T), 1 if count > 0 else 0)
 
 
 def moments_with_extremes(omega_1, omega_2, *, chunk_size: int = CHUNK_SIZE, threads: int | None = None):
@@ -633,6 +715,9 @@ class WindowStats:
     pooled : bool
         True when each window is a bias segment of its own (``bias_window``): scores use the
         within-window scatter only; else the log's mean centres every window.
+    weighted : bool
+        True when the samples carry weights (``weights`` of :func:`window_stats`): ``count`` is then each
+        window's sum of weights.
     """
 
     count: np.ndarray
@@ -642,28 +727,35 @@ class WindowStats:
     window: int
     weight: float = 1.0
     pooled: bool = False
+    weighted: bool = False
 
     @property
     def n_windows(self) -> int:
         return int(self.count.size)
 
 
-def window_stats(omega_1, omega_2, window: int, *, mask=None, pooled: bool = False,
+def window_stats(omega_1, omega_2, window: int, *, mask=None, weights=None, pooled: bool = False,
                  max_windows: int = MAX_SCORE_WINDOWS) -> WindowStats:
     """:class:`WindowStats` of consecutive windows of ``window`` samples, in one vectorised pass.
 
     Up to ``max_windows`` full windows all are used; beyond, runs of 16 consecutive windows spread
     evenly over the log (work bounded per log, not per sample). Windows with fewer than two valid
-    samples are left out; the partial window at the end is left out.
+    samples are left out; the partial window at the end is left out. ``weights`` (N,): a weight per
+    sample, as in :meth:`Moments.from_samples` (each window's count is the sum of its samples' weights,
+    its mean and scatter weighted), so the per-window sums add up to the weighted moments.
     """
     w1 = as_rates("omega_1", omega_1)
     w2 = as_rates("omega_2", omega_2, length=w1.shape[0])
-    return stacked_window_stats([w1, w2], window, mask=mask, pooled=pooled, max_windows=max_windows)
+    if weights is not None:
+        weights = sample_weights(weights, w1.shape[0])
+    return stacked_window_stats([w1, w2], window, mask=mask, pooled=pooled, max_windows=max_windows,
+                                weights=weights)
 
 
 def stacked_window_stats(streams, window: int, *, mask=None, pooled: bool = False,
-                         max_windows: int = MAX_SCORE_WINDOWS) -> WindowStats:
-    """:func:`window_stats` of any number of checked, sample-aligned (N, 3) streams (stacked ``3 k`` wide)."""
+                         max_windows: int = MAX_SCORE_WINDOWS, weights=None) -> WindowStats:
+    """:func:`window_stats` of any number of checked, sample-aligned (N, 3) streams (stacked ``3 k`` wide);
+    ``weights`` checked (:func:`sample_weights`) or None."""
     window = int(window)
     if window < 2:
         raise OptionError(f"window: expected at least 2 samples per window, got {window}")
@@ -690,9 +782,32 @@ def stacked_window_stats(streams, window: int, *, mask=None, pooled: bool = Fals
         m = None if mask is None else np.concatenate([mask[q] for q in sl]).reshape(-1, window)
         run = np.repeat(np.arange(lo, lo + len(sl)) if run_len != n_win else np.zeros(len(sl), int),
                         [(q.stop - q.start) // window for q in sl])
-        parts.append(_stats_of(x, m, run))
-    total = float(n_win * window if mask is None else np.count_nonzero(mask[: n_win * window]))
-    return _join(parts, window, total, pooled, width)
+        if weights is None:
+            parts.append(_stats_of(x, m, run))
+        else:
+            parts.append(_weighted_stats_of(x, m, np.concatenate([weights[q] for q in sl]).reshape(-1, window), run))
+    if weights is None:
+        total = float(n_win * window if mask is None else np.count_nonzero(mask[: n_win * window]))
+    else:
+        head = weights[: n_win * window]
+        total = float(head.sum() if mask is None else head[mask[: n_win * window]].sum())
+    out = _join(parts, window, total, pooled, width)
+    return out if weights is None else replace(out, weighted=True)
+
+
+def _weighted_stats_of(x, m, wt, run):
+    """:func:`_stats_of` with a weight per sample ``wt`` (W, n): each window's count is its samples' weight, its
+    mean and scatter weighted; windows with fewer than two valid samples of positive weight are left out."""
+    ok = np.isfinite(x).all(axis=1) & (wt > 0)
+    m = ok if m is None else (m & ok)
+    wt = np.where(m, wt, 0.0)
+    x = np.where(m[:, None, :], x, 0.0)
+    keep = m.sum(axis=1) >= 2
+    x, wt, run = x[keep], wt[keep], run[keep]
+    cnt = wt.sum(axis=1)
+    mean = np.einsum("wcn,wn->wc", x, wt) / cnt[:, None]
+    x -= mean[:, :, None]
+    return cnt, mean, np.matmul(x * wt[:, None, :], x.transpose(0, 2, 1)), run
 
 
 def _stats_of(x, m, run):

@@ -80,10 +80,17 @@ class BiasModel:
         _, noise_scale = random_walk_gain(self.walk_std, self.noise_std)
         return tuple(np.asarray(noise_std, float) * noise_scale)
 
-    def moments(self, w1, w2, use, window: int | None = None, base: Moments | None = None):
+    def moments(self, w1, w2, use, window: int | None = None, base: Moments | None = None, weights=None):
         """``(moments, windows)`` of the samples ``use`` (bool mask or None) under this model; ``windows`` their
         per-window statistics in windows of ``window`` samples (for the block-robust covariance; segments for the
-        piecewise model), None without ``window``. ``base``: the constant model's moments of ``use`` when known."""
+        piecewise model), None without ``window``. ``base``: the constant model's moments of ``use`` when known.
+        ``weights``: a weight per sample (constant bias only, :meth:`~fusion_gyrocal.core.moments.Moments.from_samples`)."""
+        if weights is not None:
+            if self.kind is not BiasKind.CONSTANT:
+                from ..errors import OptionError
+                raise OptionError(f"weights: expected a constant bias model for weighted moments, got {self.kind.value}")
+            m = Moments.from_samples(w1, w2, mask=use, weights=weights)
+            return m, (window_stats(w1, w2, window, mask=use, weights=weights) if window is not None else None)
         if self.kind is BiasKind.RANDOM_WALK:
             out = random_walk_bias_moments(w1, w2, self.walk_std, self.noise_std, mask=use, window=window)
             return out[0], (out[2] if window is not None else None)

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..core.direct import solve_A
 from ..core.model import PairCalibration
-from ..core.moments import Moments, as_rate_pair, window_samples
+from ..core.moments import Moments, as_rate_pair, row_sumsq, window_samples
 from ..core.noise import difference_noise_std
 from ..core.solve import solve
 from ..errors import InputError, NotRigidError, OptionError
@@ -238,8 +238,11 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
     o = slow_grid(t_1, t_2, given)
     resampling = _resampling(t_1, t_2, pair, o)
     run = _calibrate(w1, w2, mask, pair, resampling, o, base)
+    carried = {}
     if o.timing_model == "auto" and run.calibration.rigid:
-        run = _with_timing(run, mask, pair, resampling, o)
+        run, carried = _with_timing(run, mask, pair, resampling, o)
+    if o.robust_weights == "auto" and run.calibration.rigid:
+        run = _with_weights(run, pair, resampling, o, carried)
     if notes:
         run = _replace(run, calibration=_replace(run.calibration, notes=run.calibration.notes + notes))
     return run
@@ -321,20 +324,21 @@ def _unclipped(w1, w2, mask, limits, extremes=None):
     return (~clipped if mask is None else (mask & ~clipped)), (f"{n} sample(s) {said}",)
 
 
-def _with_timing(run: PipelineRun, mask, pair, resampling, o: Options) -> PipelineRun:
+def _with_timing(run: PipelineRun, mask, pair, resampling, o: Options) -> tuple[PipelineRun, dict]:
     """The run again on gyro 2's samples moved to the instants they describe, when the residual shows a delay
-    that follows beat tones (:mod:`~fusion_gyrocal.pipeline.timing`); the run as it is otherwise."""
+    that follows beat tones (:mod:`~fusion_gyrocal.pipeline.timing`); the run as it is otherwise. Also the fields
+    (and the note, ``notes``) the step added to the calibration, for a later step that solves again."""
     from .timing import estimate_timing
 
     # on the samples before the flex gate: the gate rejects where the delay's residual is largest, a mask that
     # follows the beat and would put sidebands (one tone plus or minus another) into the search
     model = estimate_timing(run.t, run.omega_1, run.omega_2, run.calibration.A, run.calibration.bias, run.valid)
     if not model.significant:
-        return run
+        return run, {}
     t = run.t if run.t is not None else np.arange(len(run.omega_1), dtype=float)
     again = _calibrate(run.omega_1, model.compensate(t, run.omega_2), mask, pair, resampling, o)
     if not again.calibration.rigid or again.calibration.residual_rms >= run.calibration.residual_rms:
-        return run                    # the compensation did not explain the residual better: kept as it was
+        return run, {}                # the compensation did not explain the residual better: kept as it was
     delay = model.delay(t if again.used is None else t[again.used])
     unit = ("Hz", "ms", 1e3) if run.t is not None else ("cycles/sample", "samples", 1.0)
     tones = ", ".join(f"{f:.4g}" for f in model.tones_hz)
@@ -346,15 +350,127 @@ def _with_timing(run: PipelineRun, mask, pair, resampling, o: Options) -> Pipeli
             f"{np.rad2deg(run.calibration.residual_rms):.4g} -> "
             f"{np.rad2deg(again.calibration.residual_rms):.4g} deg/s (timing_model='off': no delay beyond the time "
             "offset)")
-    new = _replace(again.calibration, timing_tones_hz=model.tones_hz, timing_delay_s=float(delay.mean()),
-                   timing_delay_std_s=float(delay.std()), timing_explained=model.explained,
-                   notes=again.calibration.notes + (note,))
-    return PipelineRun(new, again.t, again.omega_1, again.omega_2, again.valid, again.used, again.aligned)
+    carried = dict(timing_tones_hz=model.tones_hz, timing_delay_s=float(delay.mean()),
+                   timing_delay_std_s=float(delay.std()), timing_explained=model.explained, notes=(note,))
+    return _carry(again, carried), carried
 
 
-def _calibrate(w1, w2, mask, pair, resampling, o: Options, base: Moments | None = None) -> PipelineRun:
+def _carry(run: PipelineRun, fields: dict) -> PipelineRun:
+    """``run`` with the fields a step of :func:`run_pipeline` added to its calibration (``notes`` appended)."""
+    if not fields:
+        return run
+    more = dict(fields, notes=run.calibration.notes + tuple(fields.get("notes", ())))
+    return _replace(run, calibration=_replace(run.calibration, **more))
+
+
+#: Samples (centred on each) over which the local residual variance of :func:`residual_weights` is averaged.
+WEIGHT_SPAN = 5
+
+
+def residual_weights(w1, w2, A, bias, noise_std, mask=None, span: int = WEIGHT_SPAN) -> np.ndarray:
+    """A weight per sample: the white noise's variance over the residual's local variance, at most 1.
+
+    The residual ``r_k = omega_1(k) - A omega_2(k) - b`` of sample ``k`` has the local variance ``v_k``, the mean
+    of ``|r_j|^2 / 3`` over the used samples ``j`` among the ``span`` centred on ``k``, floored at the white
+    noise's variance per axis ``v_0 = tr(sigma_1^2 I + sigma_2^2 A A^T) / 3`` (``noise_std``: the identified
+    noise). ``w_k = v_0 / max(v_k, v_0)``: samples where the residual is the noise keep weight 1; an impact,
+    a transient faster than the read-out, a spike after clipping (the heavy tail of real MEMS residuals) weigh
+    as little as their variance is large. With them the moments' cost (Eq. 12-17) is the likelihood of
+    heteroscedastic samples. 0 where ``mask`` is False or a rate is not finite.
+    """
+    s1, s2 = (float(v) for v in np.broadcast_to(np.asarray(noise_std, float), (2,)))
+    v0 = (3.0 * s1 ** 2 + s2 ** 2 * float(np.trace(A @ A.T))) / 3.0
+    rr, ok = _residual_energy(w1, w2, A, bias, mask)
+    kernel = np.ones(int(span))
+    total = np.convolve(np.where(ok, rr, 0.0), kernel, "same")
+    n = np.convolve(ok.astype(float), kernel, "same")
+    local = total / np.maximum(n, 1.0)
+    return np.where(ok, v0 / np.maximum(local, v0), 0.0)
+
+
+_ENERGY_ROWS = 65536     # rows per block of _residual_energy: no (N, 3) temporary for a long log
+TAIL_SAMPLES = 200_000  # at most this many samples (evenly strided) decide whether the residual is heavy-tailed
+
+
+def _residual_energy(w1, w2, A, bias, mask=None, stride: int = 1):
+    """``(|r_k|^2 / 3, ok)``: the residual energy per axis of every ``stride``-th sample and where it is used
+    and finite, a block of rows at a time."""
+    n = len(w1)
+    rr = np.empty(-(-n // stride))
+    block = _ENERGY_ROWS * stride
+    with np.errstate(invalid="ignore", over="ignore"):
+        for a in range(0, n, block):
+            r = np.asarray(w1[a:a + block:stride], float) - np.asarray(w2[a:a + block:stride], float) @ A.T - bias
+            rr[a // stride:a // stride + len(r)] = row_sumsq(r) / 3.0
+    ok = np.isfinite(rr)
+    if mask is not None:
+        ok &= np.asarray(mask, bool)[::stride]
+    return rr, ok
+
+
+#: Share of the residual's energy in its largest 1 % of samples above which the residual is heavy-tailed: about
+#: 4.5 % for Gaussian noise (the top 1 % of a chi-square with 3 dof, divided by 3), 54-57 % on the MIMU board (pair 1-2).
+TAIL_SHARE = 0.10
+
+
+def tail_share(rr: np.ndarray) -> float:
+    """Share of the total of ``rr`` (residual energies) carried by its largest 1 % of values."""
+    n = rr.size
+    k = max(1, n // 100)
+    total = float(rr.sum())
+    return float(np.partition(rr, n - k)[n - k:].sum()) / total if total > 0 else 0.0
+
+
+def _with_weights(run: PipelineRun, pair, resampling, o: Options, carried: dict) -> PipelineRun:
+    """The run again with each sample weighted by the inverse of its residual's local variance
+    (:func:`residual_weights`, at the run's estimate) when the residual is heavy-tailed (:func:`tail_share` above
+    :data:`TAIL_SHARE`), kept when its rotation is better determined (``robust_weights``); ``carried``: the fields
+    earlier steps added to the calibration. Only for a constant bias and a white noise identified or given."""
+    cal = run.calibration
+    if cal.bias_segments != 1 or cal.noise_model is not None and cal.noise_model.bias_walk_std is not None \
+            or o.bias_walk_std is not None or o.bias_window is not None:
+        return run                    # weighted moments are those of a constant bias
+    if cal.noise_model is None and o.noise_std is None:
+        return run                    # no white noise to weigh against (the residual's own variance is the noise)
+    use = run.valid                   # the samples before the flex gate, which the weighted run gates again
+    rr, ok = _residual_energy(run.omega_1, run.omega_2, cal.A, cal.bias, use,
+                              max(1, len(run.omega_1) // TAIL_SAMPLES))
+    share = tail_share(rr[ok]) if ok.any() else 0.0
+    if share < TAIL_SHARE:
+        return run                    # a residual without a heavy tail: every sample weighs the same
+    weights = residual_weights(run.omega_1, run.omega_2, cal.A, cal.bias, cal.noise_std, use)
+    n_used = float(np.count_nonzero(weights > 0))
+    effective = float(weights.sum())
+    noise = (cal.noise_model, tuple(cal.noise_std), None)
+    again = _calibrate(run.omega_1, run.omega_2, use, pair, resampling, o, weights=weights, noise=noise)
+    if not again.calibration.rigid:
+        return run
+    before, after = _rotation_sd(cal), _rotation_sd(again.calibration)
+    if not after < before:
+        return run                    # the weighted estimate is not better determined: kept as it was
+    note = (f"robust weights: the largest 1% of the residual carried {100 * share:.0f}% of its energy (impacts, "
+            "transients faster than the read-out, spikes; 4.5% for Gaussian noise): each sample weighted by the white "
+            f"noise's variance over its residual's local variance ({WEIGHT_SPAN} samples), "
+            f"{100 * effective / n_used:.0f}% effective samples (n_samples counts the weights); rotation 1-sigma "
+            f"{np.rad2deg(before) * 1e3:.3g} -> {np.rad2deg(after) * 1e3:.3g} mdeg, residual RMS per axis "
+            f"{np.rad2deg(cal.residual_rms):.4g} -> {np.rad2deg(again.calibration.residual_rms):.4g} deg/s weighted "
+            "(robust_weights='off': every sample weighs 1)")
+    more = dict(carried, notes=tuple(carried.get("notes", ())) + (note,))
+    return _carry(again, more)
+
+
+def _rotation_sd(cal: PairCalibration) -> float:
+    """RMS 1-sigma of the rotation per axis (rad) without the skew budget (what the data determine)."""
+    P = cal.covariance[:3, :3] - cal.skew_rotation_covariance
+    return float(np.sqrt(max(np.trace(P), 0.0) / 3.0))
+
+
+def _calibrate(w1, w2, mask, pair, resampling, o: Options, base: Moments | None = None,
+               weights=None, noise: tuple | None = None) -> PipelineRun:
     """The calibration of prepared samples: the noise model, the bias model, the solve, the flex gate. ``base``:
-    the moments of the samples ``mask`` when already taken."""
+    the moments of the samples ``mask`` when already taken; ``weights``: a weight per sample
+    (:func:`residual_weights`) the moments are taken with; ``noise``: ``(noise_model, noise_std, noise_ratio)``
+    of an earlier calibration of the same samples, used instead of identifying them again."""
     t_grid = None if pair is None else pair.t
     offset = 0.0 if pair is None else pair.time_offset_s
     offset_std = pair.time_offset.std_s if pair is not None and pair.time_offset is not None else 0.0
@@ -362,12 +478,14 @@ def _calibrate(w1, w2, mask, pair, resampling, o: Options, base: Moments | None 
     window = window_samples(rate_hz)   # about 1 s
     noise_model, noise_ratio = None, None
     noise_std = o.noise_std       # the white noise the run uses; base: the moments of every usable sample
-    if noise_std is None and o.noise_model == "identify":
+    if noise is not None:
+        noise_model, noise_std, noise_ratio = noise
+    elif noise_std is None and o.noise_model == "identify":
         base = Moments.from_samples(w1, w2, mask=mask) if base is None else base
         noise_model = _identify(w1, w2, mask, rate_hz, base, resampling)
         if noise_model is not None:
             noise_std = noise_model.noise_std
-    if noise_std is None:  # split the residual variance by each stream's high-frequency noise
+    if noise_std is None and noise is None:  # split the residual variance by each stream's high-frequency noise
         d1, d2 = (difference_noise_std(w, mask) for w in (w1, w2))  # a bounded subsample of the log
         noise_ratio = d1 / d2 if d1 > 0 and d2 > 0 else None
     bias = BiasModel.of(o, noise_std, noise_model)
@@ -376,7 +494,8 @@ def _calibrate(w1, w2, mask, pair, resampling, o: Options, base: Moments | None 
 
     def solve_on(use):
         """The pair solved on the samples ``use`` with the run's bias model and noise, and its moments."""
-        m, windows = bias.moments(w1, w2, use, window, base if use is base_mask else None)
+        m, windows = bias.moments(w1, w2, use, window, base if use is base_mask and weights is None else None,
+                                  weights=weights)
         return solve(m, o, noise=solve_noise, noise_ratio=noise_ratio, windows=windows, noise_model=noise_model), m
 
     valid_in = mask
