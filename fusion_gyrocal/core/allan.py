@@ -299,60 +299,14 @@ def _wls(taus, avar, edf, terms, tc=None, tone=None, tau0=None, scatter=None, st
     (without it the uncertainties come out about twice too small). Iterated ``iterations`` times with the
     weights of the model, from those of ``start`` (a model's AVAR; default the points themselves).
     """
-    from scipy.optimize import nnls
-
-    X = design(taus, tc, tone, tau0, tb)
-    Xs = X[:, terms]
-    scale = np.abs(Xs).max(axis=0)
-    pred = avar.copy() if start is None else np.asarray(start, float)
-    coef = np.zeros(len(TERMS))
-    T = taus.size
-    extra = np.zeros(T) if scatter is None else np.nan_to_num(np.asarray(scatter, float), nan=0.0)
-    rows = np.arange(T)
-    Xy = np.column_stack([Xs / scale, avar])   # the regressors and the points, whitened together
-    for _ in range(iterations):
-        parts = X * np.where(coef > 0, coef, 0.0)
-        dom = TERM_NOISE[np.argmax(parts, axis=1)] if coef.any() else np.zeros(T, int)
-        e = edf[rows, dom]
-        rel = np.maximum(2.0 / e, extra)
-        sd = np.maximum(pred, 1e-300) * np.sqrt(rel)
-        rho = np.minimum(NEIGHBOUR_CORRELATION[dom[:-1]], NEIGHBOUR_CORRELATION[dom[1:]])
-        logc = np.concatenate([[0.0], np.cumsum(np.log(rho))])
-        C = np.exp(-np.abs(logc[:, None] - logc[None, :]))  # prod of the neighbour correlations between i and j
-        L = np.linalg.cholesky(C * np.outer(sd, sd))
-        Jy = np.linalg.solve(L, Xy)
-        c = nnls(Jy[:, :-1], Jy[:, -1])[0] / scale
-        coef = np.zeros(len(TERMS))
-        coef[terms] = c
-        pred = X @ coef
-    # with a measured scatter (large relative variances) the chi-square on the log of the points: a model far above
-    # a point counts as much as one as far below (in the variance itself an overshoot by k counts only (k - 1) / k
-    # sigma); with the stationary one (small relative variances) the two agree near the points
-    if scatter is None:
-        res = np.linalg.solve(L, avar - pred)
-    else:
-        Lr = np.linalg.cholesky(C * np.outer(np.sqrt(rel), np.sqrt(rel)))
-        res = np.linalg.solve(Lr, np.log(np.maximum(avar, 1e-300) / np.maximum(pred, 1e-300)))
-    chi2 = float(res @ res)
-    cov = np.full((len(TERMS),) * 2, np.nan)
-    act = [t for t in terms if coef[t] > 0]
-    if act:
-        J = np.linalg.solve(L, X[:, act])
-        red = max(1.0, chi2 / max(T - len(act), 1))
-        cov = np.zeros((len(TERMS),) * 2)
-        cov[np.ix_(act, act)] = np.linalg.pinv(J.T @ J) * red
-    # how far the model is from the points, beyond each point's own 2-sigma scatter (in deviation: half the
-    # relative variance's square root)
-    ratio = np.abs(0.5 * np.log(np.maximum(pred, 1e-300) / np.maximum(avar, 1e-300)))
-    worst = float(np.exp(np.max(np.maximum(ratio - np.sqrt(rel), 0.0))))
-    return coef, cov, chi2, pred, worst
+    return _wls_many(taus, avar, edf, [(terms, tc, tone, tb)], tau0, scatter, start, iterations)[0]
 
 
-def _wls_many(taus, avar, edf, jobs, tau0=None, scatter=None) -> list:
-    """:func:`_wls` of each of ``jobs`` (``(terms, tc, tone, tb)``, the same number of terms each), from the points'
-    own weights, equal to it to rounding: the fits run in lockstep, each step's small matrix operations (weights,
-    Cholesky factors, whitening) one stacked call for all of them; only the non-negative least squares and the
-    covariance of the kept terms are per fit."""
+def _wls_many(taus, avar, edf, jobs, tau0=None, scatter=None, start=None, iterations: int = 5) -> list:
+    """:func:`_wls` of each of ``jobs`` (``(terms, tc, tone, tb)``, the same number of terms each): the fits run in
+    lockstep, each step's small matrix operations (weights, Cholesky factors, whitening) one stacked call for all of
+    them; only the non-negative least squares and the covariance of the kept terms are per fit. Each returns
+    ``(coef, cov, chi2, pred, worst)``."""
     from scipy.optimize import nnls
 
     if not jobs:
@@ -363,11 +317,11 @@ def _wls_many(taus, avar, edf, jobs, tau0=None, scatter=None) -> list:
     Xs = np.take_along_axis(X, cols[:, None, :], axis=2)
     scale = np.abs(Xs).max(axis=1)                                                           # (K, w)
     Xy = np.concatenate([Xs / scale[:, None, :], np.broadcast_to(avar[None, :, None], (K, T, 1))], axis=2)
-    pred = np.repeat(avar[None], K, axis=0)
+    pred = np.repeat((avar if start is None else np.asarray(start, float))[None], K, axis=0)
     coef = np.zeros((K, len(TERMS)))
     extra = np.zeros(T) if scatter is None else np.nan_to_num(np.asarray(scatter, float), nan=0.0)
     rows = np.arange(T)
-    for _ in range(5):
+    for _ in range(iterations):
         parts = X * np.where(coef > 0, coef, 0.0)[:, None, :]
         dom = np.where(coef.any(axis=1)[:, None], TERM_NOISE[np.argmax(parts, axis=2)], 0)
         rel = np.maximum(2.0 / edf[rows[None, :], dom], extra)
