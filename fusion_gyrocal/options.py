@@ -375,7 +375,7 @@ class Options(FrozenOptions):
         help="delay beyond the constant offset: auto (beat tones of the chips' clocks, default) or off")
     robust_weights: str = _option(
         "off", _choice(ROBUST_WEIGHTS), {"pair"},
-        "Per-sample weights against a heavy-tailed residual (:func:`~fusion_gyrocal.pipeline.pipeline."
+        "Per-sample weights against a heavy-tailed residual (:func:`~fusion_gyrocal.core.weights."
         "residual_weights`). ``'auto'``: after the timing step, when the residual's largest 1 % of samples carry "
         "more than a tenth of its energy, each sample is weighted by the white noise's variance over its residual's "
         "local variance (impacts, transients faster than the read-out, spikes after clipping weigh little), the "

@@ -14,7 +14,7 @@ from fusion_gyrocal.evaluate.sim import DEG, simulate_pair
 from fusion_gyrocal.io import read_npz
 from fusion_gyrocal.lie import log
 from fusion_gyrocal.options import Options
-from fusion_gyrocal.pipeline.pipeline import residual_weights, tail_share
+from fusion_gyrocal.core.weights import residual_weights, tail_share
 
 
 def _streams(n=5000, seed=0):

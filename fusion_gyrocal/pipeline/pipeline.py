@@ -14,9 +14,10 @@ import numpy as np
 
 from ..core.direct import solve_A
 from ..core.model import PairCalibration
-from ..core.moments import Moments, as_rate_pair, row_sumsq, window_samples
+from ..core.moments import Moments, as_rate_pair, window_samples
 from ..core.noise import difference_noise_std
 from ..core.solve import solve
+from ..core.weights import TAIL_SHARE, WEIGHT_SPAN, residual_tail_share, residual_weights
 from ..errors import InputError, NotRigidError, OptionError
 from ..options import TIMESTAMP_OPTIONS, Options
 from .bias import BiasModel
@@ -363,69 +364,12 @@ def _carry(run: PipelineRun, fields: dict) -> PipelineRun:
     return _replace(run, calibration=_replace(run.calibration, **more))
 
 
-#: Samples (centred on each) over which the local residual variance of :func:`residual_weights` is averaged.
-WEIGHT_SPAN = 5
-
-
-def residual_weights(w1, w2, A, bias, noise_std, mask=None, span: int = WEIGHT_SPAN) -> np.ndarray:
-    """A weight per sample: the white noise's variance over the residual's local variance, at most 1.
-
-    The residual ``r_k = omega_1(k) - A omega_2(k) - b`` of sample ``k`` has the local variance ``v_k``, the mean
-    of ``|r_j|^2 / 3`` over the used samples ``j`` among the ``span`` centred on ``k``, floored at the white
-    noise's variance per axis ``v_0 = tr(sigma_1^2 I + sigma_2^2 A A^T) / 3`` (``noise_std``: the identified
-    noise). ``w_k = v_0 / max(v_k, v_0)``: samples where the residual is the noise keep weight 1; an impact,
-    a transient faster than the read-out, a spike after clipping (the heavy tail of real MEMS residuals) weigh
-    as little as their variance is large. With them the moments' cost (Eq. 12-17) is the likelihood of
-    heteroscedastic samples. 0 where ``mask`` is False or a rate is not finite.
-    """
-    s1, s2 = (float(v) for v in np.broadcast_to(np.asarray(noise_std, float), (2,)))
-    v0 = (3.0 * s1 ** 2 + s2 ** 2 * float(np.trace(A @ A.T))) / 3.0
-    rr, ok = _residual_energy(w1, w2, A, bias, mask)
-    kernel = np.ones(int(span))
-    total = np.convolve(np.where(ok, rr, 0.0), kernel, "same")
-    n = np.convolve(ok.astype(float), kernel, "same")
-    local = total / np.maximum(n, 1.0)
-    return np.where(ok, v0 / np.maximum(local, v0), 0.0)
-
-
-_ENERGY_ROWS = 65536     # rows per block of _residual_energy: no (N, 3) temporary for a long log
-TAIL_SAMPLES = 200_000  # at most this many samples (evenly strided) decide whether the residual is heavy-tailed
-
-
-def _residual_energy(w1, w2, A, bias, mask=None, stride: int = 1):
-    """``(|r_k|^2 / 3, ok)``: the residual energy per axis of every ``stride``-th sample and where it is used
-    and finite, a block of rows at a time."""
-    n = len(w1)
-    rr = np.empty(-(-n // stride))
-    block = _ENERGY_ROWS * stride
-    with np.errstate(invalid="ignore", over="ignore"):
-        for a in range(0, n, block):
-            r = np.asarray(w1[a:a + block:stride], float) - np.asarray(w2[a:a + block:stride], float) @ A.T - bias
-            rr[a // stride:a // stride + len(r)] = row_sumsq(r) / 3.0
-    ok = np.isfinite(rr)
-    if mask is not None:
-        ok &= np.asarray(mask, bool)[::stride]
-    return rr, ok
-
-
-#: Share of the residual's energy in its largest 1 % of samples above which the residual is heavy-tailed: about
-#: 4.5 % for Gaussian noise (the top 1 % of a chi-square with 3 dof, divided by 3), 54-57 % on the MIMU board (pair 1-2).
-TAIL_SHARE = 0.10
-
-
-def tail_share(rr: np.ndarray) -> float:
-    """Share of the total of ``rr`` (residual energies) carried by its largest 1 % of values."""
-    n = rr.size
-    k = max(1, n // 100)
-    total = float(rr.sum())
-    return float(np.partition(rr, n - k)[n - k:].sum()) / total if total > 0 else 0.0
-
-
 def _with_weights(run: PipelineRun, pair, resampling, o: Options, carried: dict) -> PipelineRun:
     """The run again with each sample weighted by the inverse of its residual's local variance
-    (:func:`residual_weights`, at the run's estimate) when the residual is heavy-tailed (:func:`tail_share` above
-    :data:`TAIL_SHARE`), kept when its rotation is better determined (``robust_weights``); ``carried``: the fields
-    earlier steps added to the calibration. Only for a constant bias and a white noise identified or given."""
+    (:func:`~fusion_gyrocal.core.weights.residual_weights`, at the run's estimate) when the residual is heavy-tailed
+    (:func:`~fusion_gyrocal.core.weights.tail_share` above :data:`~fusion_gyrocal.core.weights.TAIL_SHARE`), kept
+    when its rotation is better determined (``robust_weights``); ``carried``: the fields earlier steps added to the
+    calibration. Only for a constant bias and a white noise identified or given."""
     cal = run.calibration
     if cal.bias_segments != 1 or cal.noise_model is not None and cal.noise_model.bias_walk_std is not None \
             or o.bias_walk_std is not None or o.bias_window is not None:
@@ -433,9 +377,7 @@ def _with_weights(run: PipelineRun, pair, resampling, o: Options, carried: dict)
     if cal.noise_model is None and o.noise_std is None:
         return run                    # no white noise to weigh against (the residual's own variance is the noise)
     use = run.valid                   # the samples before the flex gate, which the weighted run gates again
-    rr, ok = _residual_energy(run.omega_1, run.omega_2, cal.A, cal.bias, use,
-                              max(1, len(run.omega_1) // TAIL_SAMPLES))
-    share = tail_share(rr[ok]) if ok.any() else 0.0
+    share = residual_tail_share(run.omega_1, run.omega_2, cal.A, cal.bias, use)
     if share < TAIL_SHARE:
         return run                    # a residual without a heavy tail: every sample weighs the same
     weights = residual_weights(run.omega_1, run.omega_2, cal.A, cal.bias, cal.noise_std, use)
@@ -469,7 +411,7 @@ def _calibrate(w1, w2, mask, pair, resampling, o: Options, base: Moments | None 
                weights=None, noise: tuple | None = None) -> PipelineRun:
     """The calibration of prepared samples: the noise model, the bias model, the solve, the flex gate. ``base``:
     the moments of the samples ``mask`` when already taken; ``weights``: a weight per sample
-    (:func:`residual_weights`) the moments are taken with; ``noise``: ``(noise_model, noise_std, noise_ratio)``
+    (:func:`~fusion_gyrocal.core.weights.residual_weights`) the moments are taken with; ``noise``: ``(noise_model, noise_std, noise_ratio)``
     of an earlier calibration of the same samples, used instead of identifying them again."""
     t_grid = None if pair is None else pair.t
     offset = 0.0 if pair is None else pair.time_offset_s
