@@ -19,6 +19,7 @@
    reported covariance (which carries the cross-axis budget).
 
     python benchmarks/array_sensor_model.py [--runs 20] [--linear-map rigid auto] [--timing-model off auto]
+                                            [--robust-weights auto|off]
                                             [--no-mimu] [--no-sim]
 """
 
@@ -34,14 +35,14 @@ from fusion_gyrocal import solve
 from fusion_gyrocal.core.array import calibrate_array
 from fusion_gyrocal.evaluate.sim import PAPER_NOISE_STD, PAPER_RATE_HZ, HumanMotion, general_rotation, shared_data_dir
 from fusion_gyrocal.lie import log
-from sensor_model import PAIRS, repeatable, session_pairs
+from sensor_model import PAIRS, consistency, repeatable, session_pairs
 
 DEG = np.pi / 180.0
 MDEG = DEG * 1e-3
 FLIP = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 
 
-def mimu(linear_maps, timing_models) -> None:
+def mimu(linear_maps, timing_models, keywords: dict) -> None:
     d = shared_data_dir() / "mimu_8imu_array" / "npz"
     if not d.exists():
         print("1. MIMU: ../shared/data not present, skipped")
@@ -50,7 +51,7 @@ def mimu(linear_maps, timing_models) -> None:
 
     sessions = [read_npz(d / f"exp_{e}.npz") for e in range(1, 10)]
     print("1. MIMU board, 9 sessions, calibrate_array of all 8 IMUs (sample-aligned, the read-out's timestamps), "
-          "pair views of 14 pairs")
+          f"pair views of 14 pairs; options {keywords or 'defaults'}")
     seconds, cpu, results = {}, {}, {}
     for lm in linear_maps:        # the timing models interleaved session by session: the same load for each
         for s in sessions:
@@ -58,7 +59,7 @@ def mimu(linear_maps, timing_models) -> None:
                 t0, c0 = time.perf_counter(), time.process_time()
                 results.setdefault((lm, tm), []).append(
                     calibrate_array([g.omega for g in s], mask=np.all([g.valid for g in s], axis=0), t=s[0].t,
-                                    linear_map=lm, timing_model=tm))
+                                    linear_map=lm, timing_model=tm, **keywords))
                 seconds[lm, tm] = seconds.get((lm, tm), 0.0) + time.perf_counter() - t0
                 cpu[lm, tm] = cpu.get((lm, tm), 0.0) + time.process_time() - c0
     for lm, tm in ((lm, tm) for lm in linear_maps for tm in timing_models):
@@ -70,9 +71,10 @@ def mimu(linear_maps, timing_models) -> None:
         timing_table(arrays)
         print(f"{'pair':>5} {'rms diff mdeg':>14} {'sigma mdeg':>11} {'mean z2':>8} {'max z2':>7} "
               f"{'shift mdeg':>11} {'vs solve mdeg':>14} {'solve sigma':>12}")
-        rms_all, z2_all, shifts, gaps = [], [], [], []
+        rms_all, z2_all, shifts, gaps, per_pair = [], [], [], [], []
         for i, j in PAIRS:
             views = [a.pair(i - 1, j - 1) for a in arrays]
+            per_pair.append(views)
             rms, z2 = session_pairs(views)
             sigma = np.mean([np.sqrt(np.trace(repeatable(v)) / 3.0) for v in views])
             shift = [np.linalg.norm(log(v.R_1_2 @ (a.R_ref_k[j - 1].T @ a.R_ref_k[i - 1]))) for v, a in
@@ -94,6 +96,7 @@ def mimu(linear_maps, timing_models) -> None:
               f"views without the reference: mean {np.mean(shifts) / MDEG:.2f}, largest {np.max(shifts) / MDEG:.2f} "
               f"mdeg; view vs the pair solver on the same moments: RMS {np.sqrt(np.mean(np.square(gaps))) / MDEG:.1f} "
               "mdeg")
+        consistency(per_pair, PAIRS)
     for lm in linear_maps:
         if (lm, "off") in seconds and (lm, "auto") in seconds:
             print(f"\nlinear_map={lm!r}: timing_model 'auto' took {seconds[lm, 'auto']:.1f} s, 'off' "
@@ -170,11 +173,12 @@ def main(argv=None) -> int:
     ap.add_argument("--runs", type=int, default=20, help="simulated arrays per case")
     ap.add_argument("--linear-map", nargs="+", default=["rigid", "auto"], help="linear_map values for the MIMU part")
     ap.add_argument("--timing-model", nargs="+", default=["off", "auto"], help="timing_model values for the MIMU part")
+    ap.add_argument("--robust-weights", default=None, help="the robust_weights option (default: the library's)")
     ap.add_argument("--no-mimu", action="store_true")
     ap.add_argument("--no-sim", action="store_true")
     a = ap.parse_args(argv)
     if not a.no_mimu:
-        mimu(a.linear_map, a.timing_model)
+        mimu(a.linear_map, a.timing_model, {} if a.robust_weights is None else {"robust_weights": a.robust_weights})
     if not a.no_sim:
         simulations(a.runs)
     return 0

@@ -374,13 +374,14 @@ class Options(FrozenOptions):
         "--timing-model", choices=TIMING_MODELS,
         help="delay beyond the constant offset: auto (beat tones of the chips' clocks, default) or off")
     robust_weights: str = _option(
-        "off", _choice(ROBUST_WEIGHTS), {"pair"},
+        "off", _choice(ROBUST_WEIGHTS), {"pair"} | _JOINT,
         "Per-sample weights against a heavy-tailed residual (:func:`~fusion_gyrocal.core.weights."
         "residual_weights`). ``'auto'``: after the timing step, when the residual's largest 1 % of samples carry "
         "more than a tenth of its energy, each sample is weighted by the white noise's variance over its residual's "
         "local variance (impacts, transients faster than the read-out, spikes after clipping weigh little), the "
-        "pair is calibrated again on the weighted moments and the result kept when its rotation is better "
-        "determined (constant bias, identified or given noise). ``'off'`` (default): every sample weighs 1. On the "
+        "pair (N gyros: each sample at its smallest weight over the gyros' pairs with the reference) is calibrated "
+        "again on the weighted moments and the result kept when its rotation is better determined (constant bias, "
+        "identified or given noise). ``'off'`` (default): every sample weighs 1. On the "
         "MIMU board (benchmarks/sensor_model.py) the weighted rotations repeat to 17.7 mdeg RMS over nine sessions "
         "(25.5 unweighted) and to 9.3 mdeg, mean z^2 5.84, without the one session where IMUs 3 and 4 turned "
         "against the others; with it, mean z^2 24.9.",

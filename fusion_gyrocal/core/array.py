@@ -72,8 +72,8 @@ from ..options import Options
 from .array_result import ARRAY_FORMAT_VERSION, ARRAY_KIND, ArrayCalibration  # noqa: F401 (their home before)
 from .direct import solve_A
 from .gauge import Gauge, constrained_inverse
-from .moments import (Moments, WindowStats, as_rates, finite_rows, stacked_window_stats, window_moments,
-                      window_samples)
+from .moments import (Moments, WindowStats, as_rates, finite_rows, sample_weights, stacked_window_stats,
+                      window_moments, window_samples)
 from .linear_map import choose_full_map, cross_axis_budget
 from .observability import A_of, classify, cross_matrix, dA_dp
 from .refine import fisher_scoring, residual_scatter
@@ -132,7 +132,7 @@ class ArrayMoments:
         return cls(n_gyros, tuple(Moments.empty() for _ in range(n_gyros * (n_gyros - 1) // 2)))
 
     @classmethod
-    def from_samples(cls, omegas, *, mask=None) -> "ArrayMoments":
+    def from_samples(cls, omegas, *, mask=None, weights=None) -> "ArrayMoments":
         """One bounded-memory pass (per pair, :meth:`Moments.from_samples`) over N aligned streams.
 
         Parameters
@@ -141,10 +141,12 @@ class ArrayMoments:
             Measured rates (rad/s) of every gyro at the same instants.
         mask : array_like of bool (n_samples,), optional
             Samples to use (True = keep); a sample is used for all gyros or for none.
+        weights : array_like (n_samples,), optional
+            A non-negative weight per sample, the same for every gyro (:meth:`Moments.from_samples`).
         """
         rates, mask = _checked_rates(omegas, mask)
         n = len(rates)
-        return cls(n, tuple(Moments.from_samples(rates[i], rates[j], mask=mask)
+        return cls(n, tuple(Moments.from_samples(rates[i], rates[j], mask=mask, weights=weights)
                             for i, j in itertools.combinations(range(n), 2)))
 
     @classmethod
@@ -960,6 +962,8 @@ def calibrate_array(omegas, options: Options | None = None, *, reference: int = 
         if noise_std is not None:
             o = o.replace(noise_std=noise_std)
     cal = _solve_samples(rates, moments, o, reference, mask, rate_hz, source)
+    if o.robust_weights == "auto":
+        cal = _with_weights(cal, rates, o, mask, rate_hz, source)
     return cal if timed is None else timed.reported(cal, rate_hz)
 
 
@@ -970,12 +974,55 @@ def _moments(rates, o: Options, mask) -> ArrayMoments:
     return ArrayMoments.from_windows(rates, o.bias_window, mask=mask)
 
 
-def _solve_samples(rates, moments, o: Options, reference, mask, rate_hz, source) -> ArrayCalibration:
+def _solve_samples(rates, moments, o: Options, reference, mask, rate_hz, source, weights=None) -> ArrayCalibration:
     """:func:`solve_array` of the samples' ``moments``, with their windows of about a second (or ``bias_window``)
-    for the block-robust covariance."""
+    for the block-robust covariance (weighted as the moments with ``weights``)."""
     window = o.bias_window if o.bias_window is not None else window_samples(rate_hz)
-    windows = stacked_window_stats(rates, window, mask=mask, pooled=o.bias_window is not None)
+    windows = stacked_window_stats(rates, window, mask=mask, pooled=o.bias_window is not None,
+                                   weights=None if weights is None else sample_weights(weights, len(rates[0])))
     return solve_array(moments, o, reference=reference, windows=windows, noise_source=source)
+
+
+def _with_weights(cal: ArrayCalibration, rates, o: Options, mask, rate_hz, source) -> ArrayCalibration:
+    """The array again with each sample weighted against a heavy-tailed residual (``robust_weights``, the pair
+    pipeline's rule, :mod:`~fusion_gyrocal.core.weights`): when any gyro's residual against the reference is
+    heavy-tailed, each sample weighs its smallest :func:`~fusion_gyrocal.core.weights.residual_weights` over the
+    gyros' pairs with the reference (an impact reaches every chip); kept when the rotations are better determined.
+    Only for a constant bias and a white noise identified or given."""
+    from .weights import TAIL_SHARE, WEIGHT_SPAN, residual_tail_share, residual_weights
+
+    if o.noise_std is None or o.bias_window is not None or o.bias_walk_std is not None:
+        return cal
+    ref = cal.reference
+    noise = np.broadcast_to(np.asarray(o.noise_std, dtype=float), (cal.n_gyros,))
+    views = {j: cal.pair(ref, j) for j in range(cal.n_gyros) if j != ref}
+    share = max(residual_tail_share(rates[ref], rates[j], v.A, v.bias, mask) for j, v in views.items())
+    if share < TAIL_SHARE:
+        return cal
+    weights = np.minimum.reduce([residual_weights(rates[ref], rates[j], v.A, v.bias, (noise[ref], noise[j]), mask)
+                                 for j, v in views.items()])
+    moments = ArrayMoments.from_samples(rates, mask=mask, weights=weights)
+    again = _solve_samples(rates, moments, o, ref, mask, rate_hz, source, weights)
+    before, after = _rotation_sd(cal), _rotation_sd(again)
+    if not after < before:
+        return cal                      # the weighted estimate is not better determined: kept as it was
+    used = float(np.count_nonzero(weights > 0))
+    note = (f"robust weights: the largest 1% of a gyro's residual against the reference carried up to "
+            f"{100 * share:.0f}% of its energy (4.5% for Gaussian noise): each sample weighted by the white noise's "
+            f"variance over its residual's local variance ({WEIGHT_SPAN} samples; the smallest over the gyros), "
+            f"{100 * weights.sum() / max(used, 1.0):.0f}% effective samples (n_samples counts the weights); rotation "
+            f"1-sigma (RMS over the gyros) {np.rad2deg(before) * 1e3:.3g} -> {np.rad2deg(after) * 1e3:.3g} mdeg "
+            "(robust_weights='off': every sample weighs 1)")
+    return dataclasses.replace(again, notes=again.notes + (note,))
+
+
+def _rotation_sd(cal: ArrayCalibration) -> float:
+    """RMS 1-sigma of the non-reference gyros' rotations per axis (rad), without the skew budget (what the data
+    determine)."""
+    n = cal.n_gyros
+    P = cal.covariance[:3 * n, :3 * n] - cal.skew_rotation_covariance
+    var = np.diag(P).reshape(n, 3)[[j for j in range(n) if j != cal.reference]]
+    return float(np.sqrt(max(var.mean(), 0.0)))
 
 
 def _identified_noise(rates, moments: ArrayMoments, reference: int, mask, rate_hz, resampling=None):
