@@ -39,9 +39,9 @@ so beyond any constant offset gyro j's samples lag the reference's by ``d_j(t) -
 chips' delays, each following the beat tone of its clock against the read-out (or a constant group delay).
 :func:`calibrate_array` fits one delay per chip to the residuals of all pairs with the reference, each fitted
 directly (Eq. 17; :func:`~fusion_gyrocal.pipeline.timing.estimate_array_timing`: the reference chip's tone found
-once, in every pair, each other chip's once, in its pair), moves every delayed gyro's samples to the instants the reference's describe
-(first order: the rate plus its derivative times the delay) and calibrates the array on them; every gyro then
-describes the same instants, so the pairs without the reference are consistent too.
+once, in every pair, each other chip's once, in its pair), moves every delayed gyro's samples to the instants the
+reference's describe (first order: the rate plus its derivative times the delay) and calibrates the array on them;
+every gyro then describes the same instants, so the pairs without the reference are consistent too.
 
 Unknowns are the rotations of every non-reference gyro, the log scale factors of every gyro (and the
 cross-axis terms ``k_j``); the scale factors are determined only up to one common factor per group of linked axes
@@ -478,7 +478,8 @@ def _seed(moments: ArrayMoments, reference, noise_std, parallel_tol_deg, min_snr
             pc = solve(moments.pair(reference, k), method="direct", noise_std=pn, parallel_tol_deg=parallel_tol_deg,
                        min_snr=min_snr)
         except GyroCalError as err:  # name the gyro: the pair solver only knows "gyro 1" and "gyro 2"
-            raise type(err)(f"gyro {k + 1} against the reference gyro {reference + 1} (as gyro 1 / gyro 2): {err}") from err
+            raise type(err)(f"gyro {k + 1} against the reference gyro {reference + 1} (as gyro 1 / gyro 2): "
+                            f"{err}") from err
         R[k] = pc.R_1_2
         lp = np.log(np.stack([pc.scale_1, pc.scale_2]))
         for group in classify(pc.R_1_2, parallel_tol_deg).groups:

@@ -63,7 +63,8 @@ def _residual_energy(w1, w2, A, bias, mask=None, stride: int = 1):
 
 
 #: Share of the residual's energy in its largest 1 % of samples above which the residual is heavy-tailed: about
-#: 4.5 % for Gaussian noise (the top 1 % of a chi-square with 3 dof, divided by 3), 54-57 % on the MIMU board (pair 1-2).
+#: 4.5 % for Gaussian noise (the top 1 % of a chi-square with 3 dof, divided by 3), 54-57 % on the MIMU board
+#: (pair 1-2).
 TAIL_SHARE = 0.10
 
 

@@ -411,8 +411,9 @@ def _calibrate(w1, w2, mask, pair, resampling, o: Options, base: Moments | None 
                weights=None, noise: tuple | None = None) -> PipelineRun:
     """The calibration of prepared samples: the noise model, the bias model, the solve, the flex gate. ``base``:
     the moments of the samples ``mask`` when already taken; ``weights``: a weight per sample
-    (:func:`~fusion_gyrocal.core.weights.residual_weights`) the moments are taken with; ``noise``: ``(noise_model, noise_std, noise_ratio)``
-    of an earlier calibration of the same samples, used instead of identifying them again."""
+    (:func:`~fusion_gyrocal.core.weights.residual_weights`) the moments are taken with; ``noise``:
+    ``(noise_model, noise_std, noise_ratio)`` of an earlier calibration of the same samples, used instead of
+    identifying them again."""
     t_grid = None if pair is None else pair.t
     offset = 0.0 if pair is None else pair.time_offset_s
     offset_std = pair.time_offset.std_s if pair is not None and pair.time_offset is not None else 0.0
