@@ -75,7 +75,7 @@ class AllanPoints(NamedTuple):
     scatter: np.ndarray     # (T, 4) relative variance of each axis's Allan variance and of their mean, measured
 
 
-def allan_points(y: np.ndarray, rate_hz: float) -> AllanPoints:
+def allan_points(y: np.ndarray, rate_hz: float, stretches=None) -> AllanPoints:
     """:func:`allan_deviation` with each point's scatter measured from the data: the relative variance of the
     Allan variance at each tau from batch means (the log cut into :data:`BATCHES` consecutive batches, each at
     least :data:`BATCH_TAUS` times ``2 tau`` long: the spread of the batches' Allan variances over their number),
@@ -86,12 +86,26 @@ def allan_points(y: np.ndarray, rate_hz: float) -> AllanPoints:
     several hundred times). Where the batches show more than the stationary variance significantly (by more than
     three of their own standard errors), that is the scatter; else NaN (the stationary one holds). At the taus
     too long for the batches, the excess over the stationary variance measured at the two longest taus that fit
-    them (where both show one) is carried on (the level's fluctuation, about the same at every tau)."""
+    them (where both show one) is carried on (the level's fluctuation, about the same at every tau).
+
+    ``stretches``: the lengths of consecutive stretches of ``y`` taken apart in time (a long log's stretches,
+    joined): no second difference spans two of them (a drifting bias jumps between them), the sums of every
+    stretch are pooled, up to the taus of the shortest stretch, and the stretches are the batches.
+    """
+    if stretches is not None and len(stretches) > 2:
+        return _stretch_points(y, rate_hz, [int(n) for n in stretches])
     taus, sums, sub_n, sub_m, batches = second_differences([y], rate_hz, batches=True)
     adev = np.sqrt(sums[0] / sums[-1][:, None])
-    T = taus.size
     stationary = np.column_stack([2.0 / edf_table(sub_n, sub_m, axes=1)[:, 0]] * 3
                                  + [2.0 / edf_table(sub_n, sub_m, axes=3)[:, 0]])
+    return AllanPoints(taus, adev, sub_n, sub_m, _batch_scatter(stationary, batches))
+
+
+def _batch_scatter(stationary: np.ndarray, batches: list) -> np.ndarray:
+    """The measured relative variance of each point (T, 4) from its batches' Allan variances (per tau a (3, K)
+    array, or None where no batches fit: the excess of the two longest taus that fit carried on); NaN where the
+    batches show no more than the ``stationary`` relative variance significantly."""
+    T = stationary.shape[0]
     scatter = np.full((T, 4), np.nan)
     excess, before = np.full(4, np.nan), np.full(4, np.nan)
     for i, b in enumerate(batches):
@@ -105,7 +119,24 @@ def allan_points(y: np.ndarray, rate_hz: float) -> AllanPoints:
         sig = rel > stationary[i] * (1.0 + 3.0 * np.sqrt(2.0 / (K - 1)))
         scatter[i] = np.where(sig, rel, np.nan)
         before, excess = excess, np.where(sig, rel - stationary[i], np.nan)
-    return AllanPoints(taus, adev, sub_n, sub_m, scatter)
+    return scatter
+
+
+def _stretch_points(y: np.ndarray, rate_hz: float, lengths: list) -> AllanPoints:
+    """:func:`allan_points` of consecutive stretches of ``lengths`` samples, each on its own (``stretches=``)."""
+    ends = np.cumsum(lengths)
+    parts = [second_differences([y[b - n:b]], rate_hz) for n, b in zip(lengths, ends) if n >= 8]
+    T = min(q[0].size for q in parts)
+    taus = parts[0][0][:T]
+    sums = sum(q[1][0][:T] for q in parts)
+    counts = sum(q[1][-1][:T] for q in parts)
+    sub_n, sub_m = sum(q[2][:T] for q in parts), parts[0][3][:T]   # the stretches' phase points, pooled
+    edf_1 = np.sum([edf_table(q[2][:T], q[3][:T], axes=1)[:, 0] for q in parts], axis=0)
+    edf_3 = np.sum([edf_table(q[2][:T], q[3][:T], axes=3)[:, 0] for q in parts], axis=0)
+    stationary = np.column_stack([2.0 / edf_1] * 3 + [2.0 / edf_3])
+    each = np.stack([q[1][0][:T] / q[1][-1][:T, None] for q in parts], axis=2)   # (T, 3, K): each stretch's AVAR
+    return AllanPoints(taus, np.sqrt(sums / counts[:, None]), sub_n, sub_m,
+                       _batch_scatter(stationary, [each[i] for i in range(T)]))
 
 
 BATCHES = 32        # allan_points cuts the log into this many batches (longer than a level's fluctuations)

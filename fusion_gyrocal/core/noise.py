@@ -619,7 +619,10 @@ def identify_noise(omega_1, omega_2, A, bias, *, rate_hz: float | None, mask=Non
     omega_1, omega_2 : array_like, shape (N, 3)
         Sample-aligned rates (rad/s) of gyro 1 and gyro 2 at ``rate_hz``.
     A : array_like (3, 3)
-        ``S_1 R_1_2 S_2^-1`` (Eq. 4), e.g. from :func:`~fusion_gyrocal.core.direct.solve_A`.
+        ``S_1 R_1_2 S_2^-1`` (Eq. 4), e.g. from :func:`~fusion_gyrocal.core.direct.solve_A`. A log longer than
+        :data:`MAX_IDENTIFY_SAMPLES` is identified on stretches spread over it, with ``A`` fitted again on them,
+        each with a bias of its own (a drifting bias leaks into a constant-bias fit's ``A``), and no Allan
+        difference across two stretches.
     bias : array_like (3,)
         The combined bias ``b_1 - A b_2`` (Eq. 5) that goes with ``A``.
     rate_hz : float or None
@@ -673,20 +676,42 @@ def identify_noise(omega_1, omega_2, A, bias, *, rate_hz: float | None, mask=Non
         mask = np.asarray(mask, dtype=bool)
         if mask.shape != (n,):
             raise InputError(f"mask: expected shape ({n},), got {mask.shape}")
-    if n > MAX_IDENTIFY_SAMPLES:   # a long log: contiguous stretches spread over it, joined
+    if n > MAX_IDENTIFY_SAMPLES:   # a long log: contiguous stretches spread over it, each on its own
         w = max(8, int(round(window_s * rate_hz)))
         spans = _stretches(n, w)
         size = sum(b - a for a, b in spans)
+        A = _stretch_map(w1, w2, mask, spans, A)
         nm = _identify(_join(w1, spans, np.float64), _join(w2, spans, np.float64), A, bias, rate_hz,
                        None if mask is None else _join(mask, spans, bool), window_s, stride=n / size,
-                       resampling=resampling)
+                       resampling=resampling, stretch=spans[0][1] - spans[0][0])
         sources = dict(nm.sources)
         sources["noise"] += (f"; on {size} samples in {len(spans)} stretches spread over the "
-                             f"{n}-sample log (the walk scaled to the time between them)")
+                             f"{n}-sample log (their Allan sums pooled, none across two stretches)")
         import dataclasses
         return dataclasses.replace(nm, sources=sources)
     return _identify(np.asarray(w1, dtype=np.float64), np.asarray(w2, dtype=np.float64), A, bias, rate_hz, mask,
                      window_s, resampling=resampling)
+
+
+def _stretch_map(w1, w2, mask, spans, A) -> np.ndarray:
+    """``A`` of the least-squares fit (Eq. 17) on the stretches ``spans``, each with a bias of its own: a bias that
+    drifts over a long log leaks into a constant-bias fit's ``A`` (its residual then carries the motion, far above
+    the noise), not into this one; ``A`` as given where the stretches cannot determine it."""
+    from ..errors import GyroCalError
+    from .direct import solve_A
+    from .moments import Moments
+
+    parts = []
+    for a, b in spans:
+        use = finite_rows(w1[a:b]) & finite_rows(w2[a:b])
+        if mask is not None:
+            use &= mask[a:b]
+        parts.append(Moments.from_samples(np.where(use[:, None], w1[a:b], 0.0), np.where(use[:, None], w2[a:b], 0.0),
+                                          mask=use))
+    try:
+        return solve_A(Moments.pool_all(parts))[0]
+    except GyroCalError:
+        return np.asarray(A, dtype=float)
 
 
 def _stretches(n: int, window: int) -> list[tuple[int, int]]:
@@ -704,8 +729,9 @@ def _join(a, spans, dtype) -> np.ndarray:
 
 
 def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0,
-              resampling: Resampling | None = None) -> NoiseModel:
-    """:func:`identify_noise` on float64 rates; ``stride`` log samples per sample given (joined stretches).
+              resampling: Resampling | None = None, stretch: int | None = None) -> NoiseModel:
+    """:func:`identify_noise` on float64 rates; ``stride`` log samples per sample given, ``stretch`` the samples
+    of each of the joined stretches they are (None: one contiguous log).
 
     The steps, in order: the residual and its windows; 1. the rate-dependent misfit (:func:`_misfit_test`);
     2. the Allan fit of the residual (:func:`_allan_fit`); 3. the bias model (:func:`_bias_choice`); 4. the
@@ -732,7 +758,7 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0,
     notes, sources = [], {}
     mis = _misfit_test(win, valid, rate_hz, sources, notes)
     fit = _allan_fit(r, None if everything and not mis.flagged else mis.use, rate_hz, stride, resampling,
-                     mis.flagged, window_s, sources, notes)
+                     mis.flagged, window_s, sources, notes, stretch)
     walk = _bias_choice(fit, stride, rate_hz, sources, notes)
     if walk and mis.few_quiet:   # misfit in every window: the residual's Allan deviation is no drift figure either
         walk = False
@@ -857,19 +883,24 @@ def white_level(fit: AllanFit, window_s: float) -> tuple[float, float]:
 
 
 def _allan_fit(r, use, rate_hz, stride, resampling, misfit: bool, window_s: float, sources: dict,
-               notes: list) -> _AllanFit:
+               notes: list, stretch: int | None = None) -> _AllanFit:
     """Step 2 of :func:`_identify`: the Allan deviation of the residual ``r`` on the samples ``use`` (None: all)
     fitted with the terms of :func:`~fusion_gyrocal.core.allan.fit_allan` (white, bias instability, random walk,
     quantisation, filtered). Adds ``sources["noise"]`` and, for coloured noise, a note."""
     n = r.shape[0]
+    starts = np.arange(0, n, stretch if stretch is not None else n)
     if use is None:
         idx, y, span = None, r, n
         kept = n
+        lengths, covered = np.diff(np.append(starts, n)), n
     else:
         idx = np.flatnonzero(use)
         y = r[idx]
         span, kept = int(idx[-1] - idx[0] + 1), idx.size
-    taus, adev, sub_n, sub_m, scatter = allan_points(y, rate_hz)
+        cut = np.searchsorted(idx, np.append(starts, n))                 # the kept samples of each stretch
+        lengths = np.diff(cut)
+        covered = sum(int(idx[b - 1] - idx[a] + 1) for a, b in zip(cut[:-1], cut[1:]) if b > a)
+    taus, adev, sub_n, sub_m, scatter = allan_points(y, rate_hz, None if stretch is None else lengths)
     avar = (adev ** 2).mean(axis=1)
     edf = edf_table(sub_n, sub_m)
     # an interpolated stream is smoother than white noise over its first grid samples (Resampling.white_from)
@@ -877,7 +908,9 @@ def _allan_fit(r, use, rate_hz, stride, resampling, misfit: bool, window_s: floa
     # a misfit's motion-band residue mimics filtered noise (a bump at the motion's time scale): no filtered term then
     model = fit_allan(taus, avar, edf, first, 0.0 if misfit else MAX_FILTER_S * window_s, scatter[:, 3], extra=True)
     c, cov, lo = model.coef, model.cov, model.first
-    compress = kept / (span * stride)  # joined samples: the walk per joined step covers span / size samples
+    # joined samples: the walk per joined step covers the samples left out too (within a stretch: the stretches'
+    # Allan sums are pooled, none across two of them, so the walk between stretches is not in the points)
+    compress = kept / (span * stride) if stretch is None else kept / covered
     Bsq, Ksq = c[FLICKER_TERM], c[WALK]
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0)) if np.isfinite(cov).all() else np.full(c.size, np.nan)
     Nsq, Nsq_sd = white_level(model, window_s)
