@@ -456,17 +456,20 @@ class Moments:
 _BLOCK_ROWS = 65536         # samples per block of the window moments and the drifting-bias filter (a few MiB)
 
 
+def _chunk_rows(chunk_size) -> int:
+    """``chunk_size`` as a positive number of rows per chunk."""
+    chunk_size = int(chunk_size)
+    if chunk_size < 1:
+        raise OptionError(f"chunk_size: expected a positive number of rows, got {chunk_size}")
+    return chunk_size
+
+
 def _moments(w1, w2, mask, chunk_size, threads, extremes: bool = False):
     """:meth:`Moments.from_samples` of checked rates; with ``extremes`` (``mask`` None) also the per-chunk
     ``(hi, lo)`` (chunks, 6) of :func:`_accumulate`, the chunk size and the first chunk of each worker (each
     shifts by its own mean), as ``(moments, (hi, lo), chunk_size, bounds)``."""
-    chunk_size = int(chunk_size)
-    if chunk_size < 1:
-        raise OptionError(f"chunk_size: expected a positive number of rows, got {chunk_size}")
     n = w1.shape[0]
-    if isinstance(chunk_size, bool) or not isinstance(chunk_size, (int, np.integer)) or chunk_size < 1:
-        raise InputError(f"chunk_size: expected an integer >= 1 (rows per chunk), got {chunk_size!r}")
-    chunk_size = int(min(chunk_size, max(n, 1)))   # the buffer is bounded by the data
+    chunk_size = min(_chunk_rows(chunk_size), max(n, 1))   # the buffer is bounded by the data
     n_chunks = -(-n // chunk_size)
     ext = (np.empty((n_chunks, 6)), np.empty((n_chunks, 6))) if extremes else None
     workers = max(1, min(threads or _THREADS, n_chunks // 4))
@@ -526,9 +529,7 @@ def weighted_moments(w1, w2, weights, *, mask=None, chunk_size: int = CHUNK_SIZE
         A non-finite used sample of positive weight, or values whose squares overflow.
     """
     n = w1.shape[0]
-    chunk_size = int(chunk_size)
-    if chunk_size < 1:
-        raise OptionError(f"chunk_size: expected a positive number of rows, got {chunk_size}")
+    chunk_size = _chunk_rows(chunk_size)
     count, mean, scat = 0.0, np.zeros(6), np.zeros((6, 6))
     for start in range(0, n, chunk_size):
         stop = min(start + chunk_size, n)
@@ -785,7 +786,7 @@ def stacked_window_stats(streams, window: int, *, mask=None, pooled: bool = Fals
         if weights is None:
             parts.append(_stats_of(x, m, run))
         else:
-            parts.append(_weighted_stats_of(x, m, np.concatenate([weights[q] for q in sl]).reshape(-1, window), run))
+            parts.append(_stats_of(x, m, run, np.concatenate([weights[q] for q in sl]).reshape(-1, window)))
     if weights is None:
         total = float(n_win * window if mask is None else np.count_nonzero(mask[: n_win * window]))
     else:
@@ -795,41 +796,30 @@ def stacked_window_stats(streams, window: int, *, mask=None, pooled: bool = Fals
     return out if weights is None else replace(out, weighted=True)
 
 
-def _weighted_stats_of(x, m, wt, run):
-    """:func:`_stats_of` with a weight per sample ``wt`` (W, n): each window's count is its samples' weight, its
-    mean and scatter weighted; windows with fewer than two valid samples of positive weight are left out."""
-    ok = np.isfinite(x).all(axis=1) & (wt > 0)
-    m = ok if m is None else (m & ok)
-    wt = np.where(m, wt, 0.0)
-    x = np.where(m[:, None, :], x, 0.0)
-    keep = m.sum(axis=1) >= 2
-    x, wt, run = x[keep], wt[keep], run[keep]
-    cnt = wt.sum(axis=1)
-    mean = np.einsum("wcn,wn->wc", x, wt) / cnt[:, None]
-    x -= mean[:, :, None]
-    return cnt, mean, np.matmul(x * wt[:, None, :], x.transpose(0, 2, 1)), run
-
-
-def _stats_of(x, m, run):
-    """Per-window (count, mean, scatter, run) of ``x`` (W, width, n), overwritten; ``m`` (W, n) marks valid samples.
+def _stats_of(x, m, run, wt=None):
+    """Per-window (count, mean, scatter, run) of ``x`` (W, width, n), overwritten; ``m`` (W, n) marks valid samples,
+    ``wt`` (W, n) weighs them (None: 1; each window's count is then its samples' weight, its mean and scatter
+    weighted). Windows with fewer than two valid samples (of positive weight) are left out.
 
     The layout keeps each window's channel contiguous: numpy reduces an (n, 6) block along its rows
     several times slower than a (6, n) one along its columns."""
-    if np.isfinite(x.sum()) and (m is None or m.all()):      # the common case: every sample valid
+    if wt is None and np.isfinite(x.sum()) and (m is None or m.all()):      # the common case: every sample valid
         cnt = np.full(x.shape[0], float(x.shape[2]))
         mean = x.mean(axis=2)
         x -= mean[:, :, None]
         return cnt, mean, np.matmul(x, x.transpose(0, 2, 1)), run
     ok = np.isfinite(x).all(axis=1)
+    if wt is not None:
+        ok &= wt > 0
     m = ok if m is None else (m & ok)
     x = np.where(m[:, None, :], x, 0.0)
-    cnt = m.sum(axis=1).astype(np.float64)
-    keep = cnt >= 2
-    x, m, cnt, run = x[keep], m[keep], cnt[keep], run[keep]
-    mean = x.sum(axis=2) / cnt[:, None]
+    keep = m.sum(axis=1) >= 2
+    x, m, run = x[keep], m[keep], run[keep]
+    w = m.astype(np.float64) if wt is None else np.where(m, wt[keep], 0.0)
+    cnt = w.sum(axis=1)
+    mean = np.einsum("wcn,wn->wc", x, w) / cnt[:, None]
     x -= mean[:, :, None]
-    x *= m[:, None, :]
-    return cnt, mean, np.matmul(x, x.transpose(0, 2, 1)), run
+    return cnt, mean, np.matmul(x * w[:, None, :], x.transpose(0, 2, 1)), run
 
 
 def _join(parts, window: int, total: float, pooled: bool, width: int = 6) -> WindowStats:
@@ -898,9 +888,7 @@ def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask
         Only with ``window``.
     """
     w1, w2, mask = as_rate_pair(omega_1, omega_2, mask)
-    chunk_size = int(chunk_size)
-    if chunk_size < 1:
-        raise OptionError(f"chunk_size: expected a positive number of rows, got {chunk_size}")
+    chunk_size = _chunk_rows(chunk_size)
     K, noise_scale = random_walk_gain(bias_walk_std, noise_std)
     settle = int(np.ceil(5.0 / K)) if settle is None else int(settle)
     filt = _WalkFilter(w1, w2, mask, K, chunk_size * max(1, _BLOCK_ROWS // chunk_size))  # whole chunks per block
