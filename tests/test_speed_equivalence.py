@@ -1,7 +1,8 @@
 """The faster paths of issue 25 compute what the plain ones compute.
 
-* :func:`fusion_gyrocal.core.allan._screen` (one reweighted pass of many candidate terms, whitened together) gives
-  each candidate the chi-square of its own one-pass :func:`~fusion_gyrocal.core.allan._wls` fit;
+* the screening pass of :func:`fusion_gyrocal.core.allan._wls_many` (one pass of many candidate terms weighted by
+  the current model, whitened by one factor) gives each candidate the chi-square of its own one-pass
+  :func:`~fusion_gyrocal.core.allan._wls` fit;
 * :meth:`_RunSplines.values_and_slopes` (one interval lookup) gives the values and slopes of two separate calls.
 """
 
@@ -22,7 +23,7 @@ def _residual_points(seed: int, walk: float):
 
 
 @pytest.mark.parametrize("measured_scatter", [False, True])
-def test_screen_matches_one_pass_of_wls(measured_scatter):
+def test_wls_many_screening_pass_matches_one_pass_of_wls(measured_scatter):
     taus, avar, edf, scatter = _residual_points(3, 2e-6)
     sc = scatter if measured_scatter else None
     tau0 = float(taus[0])
@@ -37,7 +38,8 @@ def test_screen_matches_one_pass_of_wls(measured_scatter):
         p = dict(par)
         p.update({term: c for term in add if term in allan.SCANNED})
         params.append(p)
-    got = allan._screen(taus, avar, edf, tau0, sc, terms, best[3], cands, params)
+    jobs = [(terms + list(add), p[allan.FILTERED], p[allan.TONE], p[allan.BOUNDED]) for (add, _), p in zip(cands, params)]
+    got = np.array([f[2] for f in allan._wls_many(taus, avar, edf, jobs, tau0, sc, best[3], 1)])
     want = np.array([allan._wls(taus, avar, edf, terms + list(add), p[allan.FILTERED], p[allan.TONE], tau0, sc,
                                 best[3], 1, p[allan.BOUNDED])[2] for (add, _), p in zip(cands, params)])
     assert got.shape == want.shape

@@ -334,14 +334,24 @@ def _wls(taus, avar, edf, terms, tc=None, tone=None, tau0=None, scatter=None, st
 
 
 def _wls_many(taus, avar, edf, jobs, tau0=None, scatter=None, start=None, iterations: int = 5) -> list:
-    """:func:`_wls` of each of ``jobs`` (``(terms, tc, tone, tb)``, the same number of terms each): the fits run in
+    """:func:`_wls` of each of ``jobs`` (``(terms, tc, tone, tb)``): the fits with the same number of terms run in
     lockstep, each step's small matrix operations (weights, Cholesky factors, whitening) one stacked call for all of
-    them; only the non-negative least squares and the covariance of the kept terms are per fit. Each returns
-    ``(coef, cov, chi2, pred, worst)``."""
+    them, one factor for all while no term is kept (the first pass: every job weighs its points as ``start``); only
+    the non-negative least squares and the covariance of the kept terms are per fit. Each returns
+    ``(coef, cov, chi2, pred, worst)``, in the order of ``jobs``."""
     from scipy.optimize import nnls
 
     if not jobs:
         return []
+    widths = sorted({len(terms) for terms, *_ in jobs})
+    if len(widths) > 1:     # each width in lockstep
+        out = [None] * len(jobs)
+        for w in widths:
+            idx = [i for i, (terms, *_) in enumerate(jobs) if len(terms) == w]
+            for i, fit in zip(idx, _wls_many(taus, avar, edf, [jobs[i] for i in idx], tau0, scatter, start,
+                                             iterations)):
+                out[i] = fit
+        return out
     K, T = len(jobs), taus.size
     X = np.stack([design(taus, tc, tone, tau0, tb) for _, tc, tone, tb in jobs])          # (K, T, terms)
     cols = np.array([list(terms) for terms, *_ in jobs])                                     # (K, w)
@@ -360,7 +370,11 @@ def _wls_many(taus, avar, edf, jobs, tau0=None, scatter=None, start=None, iterat
         rho = np.minimum(NEIGHBOUR_CORRELATION[dom[:, :-1]], NEIGHBOUR_CORRELATION[dom[:, 1:]])
         logc = np.concatenate([np.zeros((K, 1)), np.cumsum(np.log(rho), axis=1)], axis=1)
         C = np.exp(-np.abs(logc[:, :, None] - logc[:, None, :]))
-        L = np.linalg.cholesky(C * (sd[:, :, None] * sd[:, None, :]))
+        if not coef.any():    # no term kept yet: every job weighs its points as the start, one factor for all
+            C = C[:1]
+            L = np.broadcast_to(np.linalg.cholesky(C[0] * np.outer(sd[0], sd[0])), (K, T, T))
+        else:
+            L = np.linalg.cholesky(C * (sd[:, :, None] * sd[:, None, :]))
         Jy = np.linalg.solve(L, Xy)
         coef = np.zeros((K, len(TERMS)))
         for k in range(K):
@@ -414,45 +428,6 @@ LAST = (TONE, BOUNDED)   # terms tried only where none of the others is kept (:f
 SCREENED = 12   # a scan of more candidates is screened (:func:`_best_addition`) down to this many   # terms tried at several parameters (their look-elsewhere counts them)
 
 
-def _screen(t, a, e, tau0, scatter, terms, start, cands, params) -> np.ndarray:
-    """The chi-square of each candidate (``terms`` plus the terms ``add`` of ``cands``, with its ``params``) after
-    one pass of :func:`_wls` weighted by the model ``start`` (``_wls(..., start=start, iterations=1)``, to rounding).
-
-    That pass's weights depend on ``start`` alone (no term is kept yet), so the whitening is factored once and
-    applied to every candidate's regressors in one solve, and the residuals in another; only the non-negative
-    least squares runs per candidate."""
-    from scipy.optimize import nnls
-
-    T = t.size
-    extra = np.zeros(T) if scatter is None else np.nan_to_num(np.asarray(scatter, float), nan=0.0)
-    rel = np.maximum(2.0 / e[:, 0], extra)     # white noise's degrees of freedom everywhere (no term kept)
-    sd = np.maximum(np.asarray(start, float), 1e-300) * np.sqrt(rel)
-    logc = np.concatenate([[0.0], np.cumsum(np.full(T - 1, np.log(NEIGHBOUR_CORRELATION[0])))])
-    C = np.exp(-np.abs(logc[:, None] - logc[None, :]))
-    L = np.linalg.cholesky(C * np.outer(sd, sd))
-    designs, cols, blocks = [], [], []
-    for (add, _), p in zip(cands, params):
-        X = design(t, p[FILTERED], p[TONE], tau0, p[BOUNDED])
-        Xs = X[:, terms + list(add)]
-        scale = np.abs(Xs).max(axis=0)
-        designs.append((X, terms + list(add), scale))
-        blocks.append((sum(c.shape[1] for c in cols), Xs.shape[1]))
-        cols.append(Xs / scale)
-    J = np.linalg.solve(L, np.column_stack(cols + [a]))
-    yw = J[:, -1]
-    pred = np.empty((T, len(cands)))
-    for k, ((X, ts, scale), (j0, w)) in enumerate(zip(designs, blocks)):
-        coef = np.zeros(len(TERMS))
-        coef[ts] = nnls(J[:, j0:j0 + w], yw)[0] / scale
-        pred[:, k] = X @ coef
-    if scatter is None:
-        res = np.linalg.solve(L, a[:, None] - pred)
-    else:
-        Lr = np.linalg.cholesky(C * np.outer(np.sqrt(rel), np.sqrt(rel)))
-        res = np.linalg.solve(Lr, np.log(np.maximum(a, 1e-300)[:, None] / np.maximum(pred, 1e-300)))
-    return np.einsum("ij,ij->j", res, res)
-
-
 def _best_addition(t, a, e, tau0, scatter, terms, par, best, cands):
     """The candidate of ``cands`` (each ``(added terms, parameter of a scanned one)``) :func:`_select` adds to
     ``terms``, as ``(terms, fit, parameters)``, or None."""
@@ -463,12 +438,12 @@ def _best_addition(t, a, e, tau0, scatter, terms, par, best, cands):
             if term in SCANNED:
                 p[term] = c
         params.append(p)
+    jobs = [(terms + list(add), p[FILTERED], p[TONE], p[BOUNDED]) for (add, _), p in zip(cands, params)]
     keep = range(len(cands))
-    if len(cands) > SCREENED:   # many parameters of a scanned term: one pass each with the current model's weights
-        drops = best[2] - _screen(t, a, e, tau0, scatter, terms, best[3], cands, params)   # then the full fit of
-        keep = np.argsort(-drops, kind="stable")[:SCREENED]                              # the most promising
-    fits = _wls_many(t, a, e, [(terms + list(cands[k][0]), params[k][FILTERED], params[k][TONE], params[k][BOUNDED])
-                               for k in keep], tau0, scatter)
+    if len(cands) > SCREENED:   # many parameters of a scanned term: one pass each with the current model's weights,
+        drops = best[2] - np.array([f[2] for f in _wls_many(t, a, e, jobs, tau0, scatter, best[3], 1)])
+        keep = np.argsort(-drops, kind="stable")[:SCREENED]     # then the full fit of the most promising
+    fits = _wls_many(t, a, e, [jobs[k] for k in keep], tau0, scatter)
     trials = [(best[2] - fit[2], cands[k][0], fit, params[k]) for k, fit in zip(keep, fits)]
     look = {k: 2.0 * np.log(max(sum(1 for add, _ in cands if k in add), 1)) for k in SCANNED}   # all tried
     trials.sort(key=lambda tr: tr[0] - sum(look.get(k, 0.0) for k in tr[1]), reverse=True)
