@@ -125,10 +125,15 @@ def _spiky(k, spike_deg_s=20.0, n=6000):
     """A simulated pair whose gyro 1 has 1 % Student-t (2 dof) spikes of ``spike_deg_s`` scale."""
     rng = np.random.default_rng([7, k])
     sim = simulate_pair(n=n, rng=rng, bias_walk_std=0.0)
-    w1 = sim.omega_1.copy()
-    idx = rng.choice(n, n // 100, replace=False)
-    w1[idx] += rng.standard_t(2, (idx.size, 3)) * spike_deg_s * DEG
-    return sim, w1
+    return sim, _with_spikes(sim.omega_1, rng, spike_deg_s)
+
+
+def _with_spikes(w, rng, spike_deg_s):
+    """``w`` with 1 % of its samples hit by Student-t (2 dof) spikes of ``spike_deg_s`` scale."""
+    w = w.copy()
+    idx = rng.choice(len(w), len(w) // 100, replace=False)
+    w[idx] += rng.standard_t(2, (idx.size, 3)) * spike_deg_s * DEG
+    return w
 
 
 def test_calibrate_pair_spiky_recovered_and_honest():
@@ -184,8 +189,7 @@ def _spiky_array(k, n=6000, gyros=3, spike_deg_s=20.0):
     omega = HumanMotion(rng=rng)(t)
     R = [np.eye(3)] + [random_rotation(rng) for _ in range(gyros - 1)]
     rates = [omega @ Rk + rng.normal(0, PAPER_NOISE_STD, omega.shape) for Rk in R]   # omega_ref = R_ref_k omega_k
-    idx = rng.choice(n, n // 100, replace=False)
-    rates[0][idx] += rng.standard_t(2, (idx.size, 3)) * spike_deg_s * DEG
+    rates[0] = _with_spikes(rates[0], rng, spike_deg_s)
     return rates, R
 
 
