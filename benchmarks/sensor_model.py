@@ -17,7 +17,10 @@ eight in units of its covariance (``z^2`` of the difference against the session'
 of the others' mean, 3 dof), the median over the pairs and the pairs where it exceeds the chi-square 99.9 % point
 (16.3). A session beyond that point in more than half of the pairs is flagged (a board that changed in that
 session, not noise), and the target figures are printed again without the flagged sessions. The library keeps
-every session: the check is the benchmark's, the decision the reader's.
+every session: the check is the benchmark's, the decision the reader's. Last, per site of two co-located chips
+(top and bottom of the board at one x, y): both chips' deviations from chip 1 in the sessions that stand out, and
+the co-located pair's own leave-one-out z^2; two different chips that moved alike while their own pair stayed put
+are a site of the board that moved (a bend), not an estimate that erred.
 
     python benchmarks/sensor_model.py [--linear-map auto|rigid|full] [--robust-weights auto|off] [--pairs 1-2,2-4]
 """
@@ -105,6 +108,40 @@ def consistency(per_pair, pairs) -> None:
               f"{summary(per_pair, [e for e in everything if e not in flagged])}")
     else:
         print("no session flagged")
+
+
+def sites(folder) -> list[tuple[int, int]]:
+    """Chips (1-based) that share one site of the board: same x and y in ``IMU_positions.csv`` (top and bottom side)."""
+    rows = [line.split(",") for line in (folder / "IMU_positions.csv").read_text().splitlines()[1:]]
+    xy = np.array([[float(v) for v in r[1:]] for r in rows[:2]]).T          # (chips, 2)
+    return [(a + 1, b + 1) for a, b in itertools.combinations(range(len(xy)), 2) if np.allclose(xy[a], xy[b])]
+
+
+def site_check(per_pair, pairs, sessions, keywords, folder) -> None:
+    """Did a flagged session's chips move, or did the estimate err? Per site of two co-located chips k, l (top and
+    bottom of the board, different chips with different axes), each chip's leave-one-out deviation from reference
+    chip 1 (rotation vector in chip 1's frame) beside the leave-one-out z^2 of the pair k-l itself: a site that moved
+    as a whole shows the same deviation on both chips and a small z^2 of k-l (a deformation of the board between
+    the sites; noise or a chip's own sensor model would not move two chips alike)."""
+    def deviation(cals, e):
+        return np.mean([log(o.R_1_2 @ cals[e].R_1_2.T) for k, o in enumerate(cals) if k != e], axis=0)
+
+    print("\nsites (co-located chips, IMU_positions.csv): each chip's leave-one-out deviation from chip 1 (mdeg, "
+          "about chip 1's x, y, z) and the leave-one-out z2 of the co-located pair itself")
+    given = dict(zip(pairs, per_pair))
+    for k, l in sites(folder):
+        if (1, k) not in given or (1, l) not in given:
+            continue
+        own = [calibrate_pair(s[k - 1].omega, s[l - 1].omega, t_1=s[k - 1].t, t_2=s[l - 1].t, **keywords)
+               for s in sessions]
+        loo = leave_one_out(own)
+        for e in range(len(sessions)):
+            dk, dl = (deviation(given[(1, m)], e) / DEG * 1e3 for m in (k, l))
+            if max(np.abs(dk).max(), np.abs(dl).max()) < 15.0 and loo[e] < LOO_LIMIT:
+                continue
+            print(f"  site {k}/{l} exp_{e + 1}: chip {k} [{dk[0]:6.1f} {dk[1]:6.1f} {dk[2]:6.1f}], chip {l} "
+                  f"[{dl[0]:6.1f} {dl[1]:6.1f} {dl[2]:6.1f}]; pair {k}-{l} z2 {loo[e]:.1f}")
+        print(f"  site {k}/{l}: pair {k}-{l} over all sessions: {summary([own], list(range(len(sessions))))}")
 
 
 def cross_axis_case(k: int, configuration: str, delay_s: float = 0.0, cross: bool = True) -> dict:
@@ -227,6 +264,7 @@ def main(argv=None) -> int:
           f"{time.perf_counter() - t0:.1f} s")
     if len(sessions) >= 3:
         consistency(per_pair, pairs)
+        site_check(per_pair, pairs, sessions, keywords, d.parent)
     return 0
 
 
