@@ -22,7 +22,10 @@ every session: the check is the benchmark's, the decision the reader's. Last, pe
 the co-located pair's own leave-one-out z^2; two different chips that moved alike while their own pair stayed put
 are a site of the board that moved (a bend), not an estimate that erred.
 
+With ``--broad``, BROAD's undisturbed trials split into halves, one half against the other (a truth within a trial).
+
     python benchmarks/sensor_model.py [--linear-map auto|rigid|full] [--robust-weights auto|off] [--pairs 1-2,2-4]
+                                      [--broad] [--no-mimu] [--sim N]
 """
 
 from __future__ import annotations
@@ -144,6 +147,31 @@ def site_check(per_pair, pairs, sessions, keywords, folder) -> None:
         print(f"  site {k}/{l}: pair {k}-{l} over all sessions: {summary([own], list(range(len(sessions))))}")
 
 
+def broad_halves(keywords) -> None:
+    """BROAD's ten undisturbed trials (the IMU against the rate from motion capture), each split into halves: the
+    rotation of one half against the other's, in units of their repeatable covariances (a truth within one trial:
+    the trials themselves disagree by far more than any covariance, ~390 mdeg)."""
+    from fusion_gyrocal.evaluate.sim import load_broad_pair
+
+    folder = shared_data_dir() / "broad_handheld" / "data_mat"
+    if not folder.exists():
+        print("BROAD: ../shared/data not present, nothing to measure")
+        return
+    print(f"\nBROAD, each undisturbed trial's first half against its second, options {keywords or 'defaults'}")
+    z2, d2 = [], []
+    for f in sorted(folder.glob("*undisturbed*.mat")):
+        p = load_broad_pair(f.stem)
+        n = len(p.gyr)
+        cals = [calibrate_pair(p.gyr[a:b], p.mocap[a:b], mask=np.isfinite(p.mocap[a:b]).all(axis=1), **keywords)
+                for a, b in ((0, n // 2), (n // 2, n))]
+        rms, z = session_pairs(cals)
+        z2.append(z[0])
+        d2.append(rms ** 2)
+        print(f"{f.stem[:34]:>34}: difference {rms / DEG * 1e3:6.1f} mdeg, 1-sigma "
+              f"{np.mean([np.sqrt(np.trace(repeatable(c)) / 3.0) for c in cals]) / DEG * 1e3:5.1f}, z2 {z[0]:6.2f}")
+    print(f"BROAD halves: RMS difference {np.sqrt(np.mean(d2)) / DEG * 1e3:.1f} mdeg, mean z2 {np.mean(z2):.2f} (3 dof)")
+
+
 def cross_axis_case(k: int, configuration: str, delay_s: float = 0.0, cross: bool = True) -> dict:
     """One simulated pair whose gyros both have cross-axis terms of 0.5-2 % (each off-diagonal entry of
     ``U_i = I + K_i`` a random sign times U(0.5, 2) %): gyro i measures ``S_i U_i omega_i + b_i + n_i``; gyro 2
@@ -224,9 +252,13 @@ def main(argv=None) -> int:
     ap.add_argument("--pairs", default=None, help="comma-separated i-j pairs (1-based), default the 14 of issue 20")
     ap.add_argument("--sim", type=int, default=0, help="also simulate this many cross-axis pairs per configuration")
     ap.add_argument("--no-mimu", action="store_true")
+    ap.add_argument("--broad", action="store_true", help="also the BROAD within-trial halves")
     a = ap.parse_args(argv)
     if a.sim:
         simulations(a.sim)
+    keywords = {k: v for k, v in (("linear_map", a.linear_map), ("robust_weights", a.robust_weights)) if v is not None}
+    if a.broad:
+        broad_halves(keywords)
     if a.no_mimu:
         return 0
     d = shared_data_dir() / "mimu_8imu_array" / "npz"
@@ -236,7 +268,6 @@ def main(argv=None) -> int:
     from fusion_gyrocal.io import read_npz
 
     pairs = PAIRS if a.pairs is None else tuple(tuple(int(v) for v in p.split("-")) for p in a.pairs.split(","))
-    keywords = {k: v for k, v in (("linear_map", a.linear_map), ("robust_weights", a.robust_weights)) if v is not None}
     sessions = [read_npz(d / f"exp_{e}.npz") for e in range(1, 10)]
     print(f"MIMU board, 9 sessions, {len(pairs)} pairs, timestamps given, options {keywords or 'defaults'}")
     print(f"{'pair':>5} {'rms diff mdeg':>14} {'sigma mdeg':>11} {'mean z2':>8} {'max z2':>7} {'chi2/dof':>9} "
