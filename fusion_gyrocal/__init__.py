@@ -8,7 +8,7 @@ Every name loads on first use (``from fusion_gyrocal import calibrate_pair`` imp
 so that ``import fusion_gyrocal`` and the ``gyrocal`` command line start light.
 """
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 _LAZY = {
     "calibrate_pair": "pipeline.pipeline", "solve": "core.solve", "Options": "options", "Gauge": "core.gauge",
