@@ -59,6 +59,24 @@ def row_norms(x) -> np.ndarray:
     return np.sqrt(row_sumsq(x))
 
 
+_PRODUCT_ROWS = 16384   # rows per product of rows_times: one BLAS call each, below OpenBLAS's threading threshold
+
+
+def rows_times(x, M) -> np.ndarray:
+    """``x @ M`` of an (N, k) float array and a small (k, j) matrix, equal to it bit for bit, in blocks of rows.
+
+    One product of a tall (N, 3) array with a 3 x 3 matrix is shared by OpenBLAS between its threads, which on a
+    host whose cores are busy wait for one another: measured 16-32 ms instead of 0.25 ms for (65536, 3) @ (3, 3)
+    at load 3.5 on 2 cores; each block's product runs on one thread, at the same speed when the cores are free.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    M = np.asarray(M, dtype=np.float64)
+    out = np.empty((x.shape[0], M.shape[1]))
+    for lo in range(0, x.shape[0], _PRODUCT_ROWS):
+        np.matmul(x[lo:lo + _PRODUCT_ROWS], M, out=out[lo:lo + _PRODUCT_ROWS])
+    return out
+
+
 _EXTREME_BLOCK = 1024   # rows per block of column_extremes: (1024 * k,) rows reduced element-wise, contiguous
 
 

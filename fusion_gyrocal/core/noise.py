@@ -54,7 +54,7 @@ import numpy as np
 from ..errors import InputError, OptionError
 from .allan import (FILTERED, FIT_FACTOR, FLICKER_TERM, QUANTISATION, TERMS, WALK, AllanFit, allan_points,
                     edf_table, fit_allan, second_differences)
-from .moments import NOMINAL_WINDOW, as_rates, finite_rows
+from .moments import NOMINAL_WINDOW, as_rates, finite_rows, rows_times
 
 MISFIT_SHARE = 0.1                    # rate-explained share of the residual variance that is flagged
 WALK_Z = 3.0                          # significance of K for a random-walk bias
@@ -743,7 +743,7 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0,
     everything = bool(valid.all())
     if not everything:
         w1, w2 = np.where(valid[:, None], w1, 0.0), np.where(valid[:, None], w2, 0.0)
-    aw2 = w2 @ A.T
+    aw2 = rows_times(w2, A.T)
     r = w1 - aw2
     r -= bias
     if not everything:
