@@ -849,7 +849,7 @@ def _join(parts, window: int, total: float, pooled: bool, width: int = 6) -> Win
 
 
 _WALK_BLOCK_ROWS = 16384   # samples per block of the drifting-bias filter: its (6, block) input and output (768 KiB
-#                            each) stay in the cache for the reductions that read them (4x the rows: 1.2x the time)
+#                            each) stay in the cache for the reductions that read them (blocks of 65536: 1.2x the time)
 
 
 def random_walk_gain(bias_walk_std, noise_std) -> tuple[float, float]:
