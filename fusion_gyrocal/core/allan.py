@@ -124,8 +124,13 @@ def _batch_scatter(stationary: np.ndarray, batches: list) -> np.ndarray:
 
 def _stretch_points(y: np.ndarray, rate_hz: float, lengths: list) -> AllanPoints:
     """:func:`allan_points` of consecutive stretches of ``lengths`` samples, each on its own (``stretches=``)."""
-    ends = np.cumsum(lengths)
-    parts = [second_differences([y[b - n:b]], rate_hz) for n, b in zip(lengths, ends) if n >= 8]
+    if min(lengths) == max(lengths) >= 8:     # stretches of one length (every sample kept): all in one pass
+        taus, sums, sub_n, sub_m = second_differences([y[:sum(lengths)].reshape(len(lengths), lengths[0], 3)],
+                                                      rate_hz)
+        parts = [(taus, (sums[0][:, k], sums[-1]), sub_n, sub_m) for k in range(len(lengths))]
+    else:
+        ends = np.cumsum(lengths)
+        parts = [second_differences([y[b - n:b]], rate_hz) for n, b in zip(lengths, ends) if n >= 8]
     T = min(q[0].size for q in parts)
     taus = parts[0][0][:T]
     sums = sum(q[1][0][:T] for q in parts)
@@ -145,44 +150,45 @@ BATCH_TAUS = 16     # a batch spans at least this many times 2 tau (else that ta
 
 def second_differences(ys, rate_hz: float, pairs=(), batches: bool = False):
     """Per octave tau, the sums over the overlapping second differences of the phase of each stream of ``ys``
-    (same length, (n, 3)), each axis apart, scaled so that ``sums[i] / sums[-1]`` is the Allan variance of
-    stream ``i``; with ``pairs`` ``(i, j)``, also the cross sums ``d_i d_j`` (their Allan covariance), appended
-    after the streams' in the order given; ``sums[-1]`` holds ``2 tau^2`` times the count. Returns taus, the
-    sums, and the subsampled phase's length and averaging factor (see :func:`allan_deviation`); with
-    ``batches``, also per tau the first stream's mean squared second difference per axis in consecutive batches
-    of :data:`BATCH_TAUS` times ``2 tau`` ((3, K) arrays, None where not even one batch fits)."""
-    n = ys[0].shape[0]
+    (same length, (n, 3), or (K, n, 3): K stretches of n samples, each on its own), each axis apart, scaled so
+    that ``sums[i] / sums[-1]`` is the Allan variance of stream ``i``; with ``pairs`` ``(i, j)``, also the cross
+    sums ``d_i d_j`` (their Allan covariance), appended after the streams' in the order given; ``sums[-1]`` holds
+    ``2 tau^2`` times the count (of one stretch). Returns taus, the sums ((T, 3) per stream, (T, K, 3) for
+    stretches), and the subsampled phase's length and averaging factor (see :func:`allan_deviation`); with
+    ``batches`` (streams of (n, 3)), also per tau the first stream's mean squared second difference per axis in
+    consecutive batches of :data:`BATCH_TAUS` times ``2 tau`` ((3, K) arrays, None where not even one batch fits)."""
+    n = ys[0].shape[-2]
     ms = 2 ** np.arange(0, int(np.floor(np.log2(max(n / 4.0, 1.0)))) + 1)
-    blocks = [np.ascontiguousarray(y.T, dtype=np.float64) for y in ys]   # (3, n): fast row reductions
-    for b_ in blocks:
-        b_ -= b_.mean(axis=1)[:, None]
-    out = [np.empty((ms.size, 3)) for _ in range(len(ys) + len(pairs))] + [np.empty(ms.size)]
+    blocks = [np.ascontiguousarray(np.swapaxes(y, -1, -2), dtype=np.float64) for y in ys]   # (..., 3, n): fast
+    for b_ in blocks:                                                                        # row reductions
+        b_ -= b_.mean(axis=-1)[..., None]
+    out = [np.empty((ms.size,) + ys[0].shape[:-2] + (3,)) for _ in range(len(ys) + len(pairs))] + [np.empty(ms.size)]
     sub_n, sub_m = np.empty(ms.size), np.empty(ms.size)
     batch = []
     b = 1
     for i, m in enumerate(ms):
         while b < max(1, int(m) // 4):      # sums of 2b samples from those of b
-            k = blocks[0].shape[1] // 2
-            blocks = [x[:, 0:2 * k:2] + x[:, 1:2 * k:2] for x in blocks]
+            k = blocks[0].shape[-1] // 2
+            blocks = [x[..., 0:2 * k:2] + x[..., 1:2 * k:2] for x in blocks]
             b *= 2
         mm = int(m) // b
         ds = []
         for x in blocks:
             s, width = x, 1
             while width < mm:                    # moving sums of mm blocks (mm is 1, 2 or 4)
-                s = s[:, :-width] + s[:, width:]
+                s = s[..., :-width] + s[..., width:]
                 width *= 2
-            ds.append(s[:, mm:] - s[:, :-mm])    # (x_{i+2m} - 2 x_{i+m} + x_i) * rate_hz
+            ds.append(s[..., mm:] - s[..., :-mm])    # (x_{i+2m} - 2 x_{i+m} + x_i) * rate_hz
         for j, d in enumerate(ds):
-            out[j][i] = np.einsum("ak,ak->a", d, d)
+            out[j][i] = np.einsum("...k,...k->...", d, d)
         if batches:   # BATCHES consecutive batches (elements of d are b samples apart), each >= BATCH_TAUS 2 tau
             w = ds[0].shape[1] // BATCHES
             batch.append((ds[0][:, :BATCHES * w] ** 2).reshape(3, BATCHES, w).mean(axis=2)
                          if w * b >= BATCH_TAUS * 2.0 * float(m) else None)
         for j, (p, q) in enumerate(pairs):
-            out[len(ys) + j][i] = np.einsum("ak,ak->a", ds[p], ds[q])
-        out[-1][i] = 2.0 * float(m) ** 2 * ds[0].shape[1]
-        sub_n[i], sub_m[i] = blocks[0].shape[1] + 1, mm
+            out[len(ys) + j][i] = np.einsum("...k,...k->...", ds[p], ds[q])
+        out[-1][i] = 2.0 * float(m) ** 2 * ds[0].shape[-1]
+        sub_n[i], sub_m[i] = blocks[0].shape[-1] + 1, mm
     if batches:
         return ms / rate_hz, out, sub_n, sub_m, batch
     return ms / rate_hz, out, sub_n, sub_m

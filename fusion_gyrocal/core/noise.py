@@ -54,7 +54,7 @@ import numpy as np
 from ..errors import InputError, OptionError
 from .allan import (FILTERED, FIT_FACTOR, FLICKER_TERM, QUANTISATION, TERMS, WALK, AllanFit, allan_points,
                     edf_table, fit_allan, second_differences)
-from .moments import NOMINAL_WINDOW, as_rates, finite_rows
+from .moments import NOMINAL_WINDOW, as_rates, finite_rows, rows_times
 
 MISFIT_SHARE = 0.1                    # rate-explained share of the residual variance that is flagged
 WALK_Z = 3.0                          # significance of K for a random-walk bias
@@ -680,10 +680,11 @@ def identify_noise(omega_1, omega_2, A, bias, *, rate_hz: float | None, mask=Non
         w = max(8, int(round(window_s * rate_hz)))
         spans = _stretches(n, w)
         size = sum(b - a for a, b in spans)
-        A = _stretch_map(w1, w2, mask, spans, A)
-        nm = _identify(_join(w1, spans, np.float64), _join(w2, spans, np.float64), A, bias, rate_hz,
-                       None if mask is None else _join(mask, spans, bool), window_s, stride=n / size,
-                       resampling=resampling, stretch=spans[0][1] - spans[0][0])
+        j1, j2 = _join(w1, spans, np.float64), _join(w2, spans, np.float64)
+        jmask = None if mask is None else _join(mask, spans, bool)
+        stretch = spans[0][1] - spans[0][0]
+        nm = _identify(j1, j2, _stretch_map(j1, j2, jmask, stretch, A), bias, rate_hz, jmask, window_s,
+                       stride=n / size, resampling=resampling, stretch=stretch)
         sources = dict(nm.sources)
         sources["noise"] += (f"; on {size} samples in {len(spans)} stretches spread over the "
                              f"{n}-sample log (their Allan sums pooled, none across two stretches)")
@@ -693,23 +694,20 @@ def identify_noise(omega_1, omega_2, A, bias, *, rate_hz: float | None, mask=Non
                      window_s, resampling=resampling)
 
 
-def _stretch_map(w1, w2, mask, spans, A) -> np.ndarray:
-    """``A`` of the least-squares fit (Eq. 17) on the stretches ``spans``, each with a bias of its own: a bias that
-    drifts over a long log leaks into a constant-bias fit's ``A`` (its residual then carries the motion, far above
-    the noise), not into this one; ``A`` as given where the stretches cannot determine it."""
+def _stretch_map(w1, w2, mask, length: int, A) -> np.ndarray:
+    """``A`` of the least-squares fit (Eq. 17) on the joined stretches of ``length`` samples ``w1``, ``w2`` (the
+    samples ``mask``, and finite), each with a bias of its own: a bias that drifts over a long log leaks into a
+    constant-bias fit's ``A`` (its residual then carries the motion, far above the noise), not into this one;
+    ``A`` as given where the stretches cannot determine it."""
     from ..errors import GyroCalError
     from .direct import solve_A
-    from .moments import Moments
+    from .moments import Moments, window_moments
 
-    parts = []
-    for a, b in spans:
-        use = finite_rows(w1[a:b]) & finite_rows(w2[a:b])
-        if mask is not None:
-            use &= mask[a:b]
-        parts.append(Moments.from_samples(np.where(use[:, None], w1[a:b], 0.0), np.where(use[:, None], w2[a:b], 0.0),
-                                          mask=use))
+    use = finite_rows(w1) & finite_rows(w2)
+    if mask is not None:
+        use &= mask
     try:
-        return solve_A(Moments.pool_all(parts))[0]
+        return solve_A(Moments.pool_all(window_moments(w1, w2, length, mask=None if use.all() else use)))[0]
     except GyroCalError:
         return np.asarray(A, dtype=float)
 
@@ -745,7 +743,7 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0,
     everything = bool(valid.all())
     if not everything:
         w1, w2 = np.where(valid[:, None], w1, 0.0), np.where(valid[:, None], w2, 0.0)
-    aw2 = w2 @ A.T
+    aw2 = rows_times(w2, A.T)
     r = w1 - aw2
     r -= bias
     if not everything:
@@ -1050,7 +1048,7 @@ def _within_residual(r, use, a: float, fit: _AllanFit, levels, sources: dict, no
     a note). Beyond it both gyros' levels are scaled down to the residual's and ``sources["noise"]`` says so.
     Returns ``(noise_std, noise_sd, densities^2)``."""
     (s1, s2), sd, dens_sq = levels
-    x = r[use] if use is not None else r
+    x = r if use is None or use.all() else r[use]
     ms = float(np.mean((x - x.mean(axis=0)) ** 2)) if x.size else 0.0
     implied = s1 * s1 + a * s2 * s2
     if not (ms > 0 and implied > CONTRADICT * ms) or fit.coef[FILTERED] > 0:
