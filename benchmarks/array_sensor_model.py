@@ -13,6 +13,7 @@
    reference move from ``R_ref_i^T R_ref_j`` into the pair's convention, and how far they are from the pair solver
    on the same moments (:func:`fusion_gyrocal.solve`, its own noise and windows; with the timing model the moments
    are those of the moved samples), and per gyro the delays found (tones, std of the delay, residual explained).
+   Then the leave-one-session-out check and the site check of ``benchmarks/sensor_model.py`` on the pair views.
 2. Simulated arrays: N gyros (general rotations, or an axis-parallel board), every gyro with scale errors of 1 % and
    cross-axis terms of 0.5-2 % (each off-diagonal entry of ``I + C_k`` a random sign times U(0.5, 2) %), white noise,
    sample-aligned, the defaults: the mean ``z^2`` of every ``R_ref_k``'s error against the physical rotation and the
@@ -35,7 +36,7 @@ from fusion_gyrocal import solve
 from fusion_gyrocal.core.array import calibrate_array
 from fusion_gyrocal.evaluate.sim import PAPER_NOISE_STD, PAPER_RATE_HZ, HumanMotion, general_rotation, shared_data_dir
 from fusion_gyrocal.lie import log
-from sensor_model import PAIRS, consistency, repeatable, session_pairs
+from sensor_model import PAIRS, consistency, repeatable, session_pairs, site_check
 
 DEG = np.pi / 180.0
 MDEG = DEG * 1e-3
@@ -97,6 +98,7 @@ def mimu(linear_maps, timing_models, keywords: dict) -> None:
               f"mdeg; view vs the pair solver on the same moments: RMS {np.sqrt(np.mean(np.square(gaps))) / MDEG:.1f} "
               "mdeg")
         consistency(per_pair, PAIRS)
+        site_check(per_pair, PAIRS, lambda k, l: [a.pair(k - 1, l - 1) for a in arrays], d.parent)
     for lm in linear_maps:
         if (lm, "off") in seconds and (lm, "auto") in seconds:
             print(f"\nlinear_map={lm!r}: timing_model 'auto' took {seconds[lm, 'auto']:.1f} s, 'off' "

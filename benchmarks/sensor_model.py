@@ -120,12 +120,13 @@ def sites(folder) -> list[tuple[int, int]]:
     return [(a + 1, b + 1) for a, b in itertools.combinations(range(len(xy)), 2) if np.allclose(xy[a], xy[b])]
 
 
-def site_check(per_pair, pairs, sessions, keywords, folder) -> None:
+def site_check(per_pair, pairs, co_located, folder) -> None:
     """Did a flagged session's chips move, or did the estimate err? Per site of two co-located chips k, l (top and
     bottom of the board, different chips with different axes), each chip's leave-one-out deviation from reference
     chip 1 (rotation vector in chip 1's frame) beside the leave-one-out z^2 of the pair k-l itself: a site that moved
     as a whole shows the same deviation on both chips and a small z^2 of k-l (a deformation of the board between
-    the sites; noise or a chip's own sensor model would not move two chips alike)."""
+    the sites; noise or a chip's own sensor model would not move two chips alike). ``co_located(k, l)``: the pair
+    k-l's calibrations, one per session."""
     def deviation(cals, e):
         return np.mean([log(o.R_1_2 @ cals[e].R_1_2.T) for k, o in enumerate(cals) if k != e], axis=0)
 
@@ -135,16 +136,15 @@ def site_check(per_pair, pairs, sessions, keywords, folder) -> None:
     for k, l in sites(folder):
         if (1, k) not in given or (1, l) not in given:
             continue
-        own = [calibrate_pair(s[k - 1].omega, s[l - 1].omega, t_1=s[k - 1].t, t_2=s[l - 1].t, **keywords)
-               for s in sessions]
+        own = co_located(k, l)
         loo = leave_one_out(own)
-        for e in range(len(sessions)):
+        for e in range(len(own)):
             dk, dl = (deviation(given[(1, m)], e) / DEG * 1e3 for m in (k, l))
             if max(np.abs(dk).max(), np.abs(dl).max()) < 15.0 and loo[e] < LOO_LIMIT:
                 continue
             print(f"  site {k}/{l} exp_{e + 1}: chip {k} [{dk[0]:6.1f} {dk[1]:6.1f} {dk[2]:6.1f}], chip {l} "
                   f"[{dl[0]:6.1f} {dl[1]:6.1f} {dl[2]:6.1f}]; pair {k}-{l} z2 {loo[e]:.1f}")
-        print(f"  site {k}/{l}: pair {k}-{l} over all sessions: {summary([own], list(range(len(sessions))))}")
+        print(f"  site {k}/{l}: pair {k}-{l} over all sessions: {summary([own], list(range(len(own))))}")
 
 
 def broad_halves(keywords) -> None:
@@ -297,7 +297,8 @@ def main(argv=None) -> int:
           f"{time.perf_counter() - t0:.1f} s")
     if len(sessions) >= 3:
         consistency(per_pair, pairs)
-        site_check(per_pair, pairs, sessions, keywords, d.parent)
+        site_check(per_pair, pairs, lambda k, l: [calibrate_pair(s[k - 1].omega, s[l - 1].omega, t_1=s[k - 1].t,
+                                                                 t_2=s[l - 1].t, **keywords) for s in sessions], d.parent)
     return 0
 
 
