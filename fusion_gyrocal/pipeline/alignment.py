@@ -214,10 +214,16 @@ def _span_misfit(spl2: _RunSplines, x1, y1, lo: float, hi: float):
     inside = np.ones(xe.size, dtype=bool)
 
     def cost(tau):
-        m, _, A = _profile_fit(ye, spl2(xe - tau, inside=inside)[0])
-        return float(np.trace(m.S11) - np.trace(A @ m.S12.T))
+        return _misfit(ye, spl2(xe - tau, inside=inside)[0])
 
     return xe, ye, cost
+
+
+def _misfit(y, w2) -> float:
+    """The profiled misfit of ``y = A w2 + b`` (A and b at their least-squares values, Eq. 16-17):
+    ``tr(S11 - S12 S22^+ S12^T)`` of the centred scatter."""
+    m, _, A = _profile_fit(y, w2)
+    return float(np.trace(m.S11) - np.trace(A @ m.S12.T))
 
 
 def _excited_instants(t1, w1, ok1, he: float, max_eval: int) -> np.ndarray:
@@ -302,36 +308,77 @@ def _refine(spl2: _RunSplines, x1, y1, tau0: float, h: float):
                              f"{tau0:+.4f} s (last {tau:+.6f} s)")
 
 
-def _offset_std(spl2: _RunSplines, x1, y1, tau: float, h: float, newton: bool = False):
-    """Standard deviation of the refined offset: a sandwich estimate on the profiled misfit ``C``
-    (``newton``: also the Newton step ``-C'/C'' = -sum u / (C''/2)`` towards the minimum, as ``(std, step)``).
+@dataclass(frozen=True)
+class _Linearised:
+    """The profiled misfit ``C`` near one trial offset ``tau``, on the instants ``x`` whose gyro-2 times stay inside
+    one run of gyro 2 for every offset in ``tau +- delta``: gyro 1's rates ``y`` there, gyro 2's spline values
+    ``w2`` and slopes ``dw2`` at ``x - tau`` and its values at ``x - (tau - delta)`` and ``x - (tau + delta)``.
 
-    At the minimum, ``tau_hat - tau ~ -sum_m u_m / (C''/2)`` with ``u_m = d_m . r_m``,
-    ``d_m = P A d/dt omega_2(x_m - tau)`` (``P`` projects out the directions of the profiled ``A``
-    and ``b``) and residuals ``r_m``. ``C''`` is taken by central differences of the profiled
-    misfit, so it contains the term ``-sum r . A d2/dt2 omega_2`` that cancels the noise energy of
-    the spline derivative (using ``sum |d|^2`` alone would overstate the information). The
-    residuals of neighbouring (interpolated) instants are correlated, so ``Var(sum u)`` is
-    estimated from the sums of ``u`` over consecutive blocks of about ``_STD_BLOCK_S`` seconds.
+    One evaluation of gyro 2's splines serves the whole record's std and Newton step (:meth:`std_step`) and those
+    of every stretch of it (:meth:`within`: the same values, sliced): the drift stretches need no evaluation of
+    their own.
     """
+
+    tau: float
+    delta: float
+    x: np.ndarray
+    y: np.ndarray
+    w2: np.ndarray
+    dw2: np.ndarray
+    w2_minus: np.ndarray
+    w2_plus: np.ndarray
+
+    def within(self, a: float, b: float) -> "_Linearised":
+        """The same terms on the instants in ``[a, b)``."""
+        j0, j1 = np.searchsorted(self.x, [a, b])
+        return _Linearised(self.tau, self.delta, *(v[j0:j1] for v in (self.x, self.y, self.w2, self.dw2,
+                                                                       self.w2_minus, self.w2_plus)))
+
+    def std_step(self) -> tuple[float, float]:
+        """``(std, step)``: the sandwich standard deviation of the offset that minimises ``C`` and the Newton step
+        ``-C'/C'' = -sum u / (C''/2)`` from ``tau`` towards it; ``(inf, nan)`` where ``C`` is not convex.
+
+        At the minimum, ``tau_hat - tau ~ -sum_m u_m / (C''/2)`` with ``u_m = d_m . r_m``,
+        ``d_m = P A d/dt omega_2(x_m - tau)`` (``P`` projects out the directions of the profiled ``A``
+        and ``b``) and residuals ``r_m``; ``sum u`` is ``C'/2`` exactly (the residuals are orthogonal to what
+        ``P`` removes). ``C''`` is taken by central differences of the profiled misfit, so it contains the
+        term ``-sum r . A d2/dt2 omega_2`` that cancels the noise energy of the spline derivative (using
+        ``sum |d|^2`` alone would overstate the information). The residuals of neighbouring (interpolated)
+        instants are correlated, so ``Var(sum u)`` is estimated from the sums of ``u`` over consecutive blocks
+        of about ``_STD_BLOCK_S`` seconds.
+        """
+        ye, w2, dw2, delta = self.y, self.w2, self.dw2, self.delta
+        m, S22p, A = _profile_fit(ye, w2)
+        at_tau = float(np.trace(m.S11) - np.trace(A @ m.S12.T))   # C(tau), from the fit needed below anyway
+        half_curv = 0.5 * (_misfit(ye, self.w2_plus) - 2.0 * at_tau + _misfit(ye, self.w2_minus)) / delta**2
+        if not half_curv > 0:
+            return float("inf"), float("nan")
+        resid = (ye - m.mean_1) - (w2 - m.mean_2) @ A.T
+        md = Moments.from_samples(dw2, w2)  # project d/dt omega_2 on the regressors [omega_2, 1]
+        d = ((dw2 - md.mean_1) - (w2 - md.mean_2) @ (md.S12 @ S22p).T) @ A.T
+        u = np.einsum("ij,ij->i", d, resid)
+        block = np.floor((self.x - self.x[0]) / _STD_BLOCK_S).astype(np.int64)
+        sums = np.bincount(block, weights=u)[np.bincount(block) > 0]
+        nb = sums.size
+        var_u = float(np.sum(sums**2)) * nb / max(nb - 1, 1)
+        return float(np.sqrt(var_u) / half_curv), -float(sums.sum()) / half_curv
+
+
+def _linearise(spl2: _RunSplines, x1, y1, tau: float, h: float) -> _Linearised:
+    """:class:`_Linearised` at ``tau`` on the instants ``x1`` (gyro 1's rates ``y1``), ``delta`` a quarter step."""
     delta = 0.25 * h
-    xe, ye, cost = _span_misfit(spl2, x1, y1, tau - delta, tau + delta)
+    xe, ye, _ = _span_misfit(spl2, x1, y1, tau - delta, tau + delta)
     w2, dw2 = spl2.values_and_slopes(xe - tau)   # one lookup of the instants' intervals for both
-    m, S22p, A = _profile_fit(ye, w2)
-    at_tau = float(np.trace(m.S11) - np.trace(A @ m.S12.T))   # cost(tau), from the fit needed below anyway
-    half_curv = 0.5 * (cost(tau + delta) - 2.0 * at_tau + cost(tau - delta)) / delta**2
-    if not half_curv > 0:
-        return (float("inf"), float("nan")) if newton else float("inf")
-    resid = (ye - m.mean_1) - (w2 - m.mean_2) @ A.T
-    md = Moments.from_samples(dw2, w2)  # project d/dt omega_2 on the regressors [omega_2, 1]
-    d = ((dw2 - md.mean_1) - (w2 - md.mean_2) @ (md.S12 @ S22p).T) @ A.T
-    u = np.einsum("ij,ij->i", d, resid)
-    block = np.floor((xe - xe[0]) / _STD_BLOCK_S).astype(np.int64)
-    sums = np.bincount(block, weights=u)[np.bincount(block) > 0]
-    nb = sums.size
-    var_u = float(np.sum(sums**2)) * nb / max(nb - 1, 1)
-    std = float(np.sqrt(var_u) / half_curv)
-    return (std, -float(sums.sum()) / half_curv) if newton else std
+    inside = np.ones(xe.size, dtype=bool)
+    return _Linearised(tau, delta, xe, ye, w2, dw2, spl2(xe - (tau - delta), inside=inside)[0],
+                       spl2(xe - (tau + delta), inside=inside)[0])
+
+
+def _offset_std(spl2: _RunSplines, x1, y1, tau: float, h: float, newton: bool = False):
+    """Standard deviation of the offset refined on the instants ``x1`` near ``tau`` (``newton``: also the Newton
+    step towards the minimum, as ``(std, step)``): :meth:`_Linearised.std_step`."""
+    std, step = _linearise(spl2, x1, y1, tau, h).std_step()
+    return (std, step) if newton else std
 
 
 def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float | None = None, valid_1=None,
@@ -548,8 +595,9 @@ def _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, min_correlation, max_eval,
                 "know it (time_offset_s), or a max_offset_s that leaves the other lobe out")
     peak = float(r[i])
     tau, xe, ye, _ = fits[best]
-    std = _offset_std(spl2, x1, y1, tau, h)
-    line = _drift_line(t1, w1, ok1, t2, w2, ok2, tau, h, gap1, gap2, max_eval, (spl2, x1, y1)) if drift else None
+    lin = _linearise(spl2, x1, y1, tau, h)
+    std = lin.std_step()[0]
+    line = _drift_line(t1, w1, ok1, t2, w2, ok2, tau, h, gap1, gap2, max_eval, (spl2, x1, y1), lin) if drift else None
     if line is not None:
         mid, tau_mid, sd_mid, ppm, sd_ppm, (lo, hi), _ = line
         half = 0.5 * (hi - lo)
@@ -677,14 +725,16 @@ def _instants(t1, w1, ok1, t2, w2, ok2, he, h, gap1, gap2, max_eval, starts):
     return spl1, spl2, x1, y1
 
 
-def _drift_line(t1, w1, ok1, t2, w2, ok2, tau: float, h: float, gap1, gap2, max_eval, fitted):
+def _drift_line(t1, w1, ok1, t2, w2, ok2, tau: float, h: float, gap1, gap2, max_eval, fitted,
+                lin: _Linearised | None = None):
     """Clock drift: the offset refined on ``_DRIFT_SEGMENTS`` stretches of the overlap and a weighted line through
     them, ``offset(t) = tau_mid + drift (t - mid)`` on gyro 1's clock.
 
     Returns ``(mid, tau_mid, std_mid, drift_ppm, drift_std_ppm, (lo, hi), n_instants)`` or None when the overlap
     is shorter than ``_DRIFT_MIN_S`` per stretch or fewer than 3 stretches give an offset. Each stretch's offset is
     refined from ``tau`` on the whole record's instants in it (``fitted``: gyro 2's splines, the instants and gyro
-    1's rates there) or, when it lies further, searched at full rate within ``tau +- _MAX_DRIFT x`` the overlap
+    1's rates there; its first Newton step from the whole record's :class:`_Linearised` at ``tau``, ``lin`` when
+    given) or, when it lies further, searched at full rate within ``tau +- _MAX_DRIFT x`` the overlap
     and refined on instants and splines of its own; its std is estimated as the whole record's
     (:func:`_refine`, :func:`_offset_std`); the line's stds are scaled up by the scatter of the
     stretches about it when that exceeds their own stds.
@@ -693,6 +743,8 @@ def _drift_line(t1, w1, ok1, t2, w2, ok2, tau: float, h: float, gap1, gap2, max_
     n_seg = min(_DRIFT_SEGMENTS, int((hi - lo) / _DRIFT_MIN_S))
     if n_seg < 3:
         return None
+    if lin is None or lin.tau != tau:
+        lin = _linearise(*fitted, tau, h)
     width = _MAX_DRIFT * (hi - lo) + 3.0 * h
     he = h * _EVAL_STEP
     edges = np.linspace(lo, hi, n_seg + 1)
@@ -722,8 +774,9 @@ def _drift_line(t1, w1, ok1, t2, w2, ok2, tau: float, h: float, gap1, gap2, max_
                 if x.size < 64:
                     continue
                 tk = tau
-                for _ in range(4):
-                    sk, step = _offset_std(spl2, x, y, tk, h, newton=True)
+                for k in range(4):   # the first from the whole record's linearisation at tau
+                    sk, step = (lin.within(a, b).std_step() if k == 0 else
+                                _offset_std(spl2, x, y, tk, h, newton=True))
                     if not (np.isfinite(step) and abs(step) <= 0.5 * h):
                         break
                     tk += step
