@@ -33,6 +33,8 @@ _XC_ONE_FFT = 1 << 17          # grid points up to which the coarse correlation 
 _XC_BLOCK = 1 << 13            # beyond: blocks of f of this length (small FFTs, measured fastest)
 _NORM_BLOCK = 1 << 16          # grid points (and samples) per block of the norms and the window scores
 MAX_EVAL = 1 << 17             # refinement instants: longer logs use their most excited windows
+_COARSE_EVAL = 1 << 14         # instants of the bracketed search of a refinement on 4x as many or more (a thinned set)
+_NEWTON_STEPS = 4              # Newton steps on the whole set before falling back to the bracketed search there
 _COARSE_BINS = 1 << 18         # grid points and lags of the coarse correlation: beyond, the norms are binned coarser
 _LOCAL_POINTS = 1 << 16        # full-rate grid points of the search near a coarse lobe
 _SEGMENT_POINTS = 1 << 13      # half the full-rate grid points of a drift stretch's own search
@@ -226,8 +228,15 @@ def _misfit(y, w2) -> float:
     return float(np.trace(m.S11) - np.trace(A @ m.S12.T))
 
 
-def _excited_instants(t1, w1, ok1, he: float, max_eval: int) -> np.ndarray:
-    """Refinement instants (multiples of ``he``) inside the most excited windows of gyro 1, at most ``max_eval``.
+def _ranges(starts: np.ndarray, stops: np.ndarray) -> np.ndarray:
+    """The integers of the ranges ``[starts_i, stops_i)`` (each non-empty), one after the other."""
+    n = stops - starts
+    return np.repeat(starts - np.cumsum(n) + n, n) + np.arange(int(n.sum()))
+
+
+def _excited_instants(t1, w1, ok1, he: float, max_eval: int):
+    """Refinement instants (multiples of ``he``) inside the most excited windows of gyro 1, at most ``max_eval``, and
+    the first and last instant of each window.
 
     The information about the offset is in the rate's derivative (the misfit's curvature is
     ``sum |A d/dt omega_2|^2``): the record is cut into windows of ``_STD_BLOCK_S`` seconds, each
@@ -248,14 +257,15 @@ def _excited_instants(t1, w1, ok1, he: float, max_eval: int) -> np.ndarray:
     best = np.sort(np.argsort(score)[::-1][:n_win])
     a = np.ceil((t1[0] + best * _STD_BLOCK_S) / he).astype(np.int64)
     b = np.ceil((t1[0] + (best + 1) * _STD_BLOCK_S) / he).astype(np.int64)
-    idx = np.concatenate([np.arange(p, q) for p, q in zip(a, b)])
-    return idx * he
+    a, b = a[b > a], b[b > a]
+    return _ranges(a, b) * he, (a * he, (b - 1) * he)
 
 
 def _near(t, w, ok, lo, hi):
     """``(t, w, ok)`` restricted to the samples within ``_MARGIN`` samples of the spans ``[lo_i, hi_i]``.
 
-    Overlapping or close spans are merged; the first sample of every later stretch is marked
+    Overlapping or close spans are merged (spans that overlap their neighbours, as the instants of a window, give
+    the stretches of the window's span); the first sample of every later stretch is marked
     invalid so that a spline never bridges two stretches. A spline on these samples equals the
     one on the whole record (to rounding) at every query inside the spans.
     """
@@ -266,8 +276,8 @@ def _near(t, w, ok, lo, hi):
     new = np.r_[True, i0[1:] > i1[:-1] + 2 * _MARGIN]      # a new stretch starts here
     starts = i0[new]
     stops = np.r_[i1[np.flatnonzero(new)[1:] - 1], i1[-1]]
-    sel = np.concatenate([np.arange(p, q) for p, q in zip(starts, stops)])
-    keep = ok[sel].copy()
+    sel = _ranges(starts, stops)
+    keep = ok[sel]
     first = np.cumsum(np.r_[0, stops[:-1] - starts[:-1]])
     keep[first[1:]] = False
     return t[sel], w[sel], keep
@@ -299,13 +309,52 @@ def _refine(spl2: _RunSplines, x1, y1, tau0: float, h: float):
         if xe.size < 16:
             raise TimeAlignmentError(f"only {xe.size} gyro-1 instants overlap valid gyro-2 data near the "
                                      f"offset {tau0:+.4f} s; need at least 16")
-        res = minimize_scalar(cost, bounds=(lo, hi), method="bounded",
-                              options={"xatol": 1e-9 * max(1.0, abs(tau)) + 1e-4 * h})
+        res = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": _tolerance(tau, h)})
         tau, fun = float(res.x), res.fun
         if min(tau - lo, hi - tau) >= 0.05 * half:
             return tau, xe, ye, float(fun) / xe.size
     raise TimeAlignmentError(f"the sub-sample refinement did not settle near the correlation peak "
                              f"{tau0:+.4f} s (last {tau:+.6f} s)")
+
+
+def _tolerance(tau: float, h: float) -> float:
+    """How closely the refinement locates the misfit's minimum (s): a ten-thousandth of a step (plus rounding)."""
+    return 1e-9 * max(1.0, abs(tau)) + 1e-4 * h
+
+
+def _thinned(x1, y1):
+    """``(x1, y1)`` thinned for the bracketed search: every k-th block of ``_STD_BLOCK_S`` seconds of the instants,
+    ``k = len(x1) // _COARSE_EVAL``, when that is 4 or more (else all of them)."""
+    k = x1.size // _COARSE_EVAL
+    if k < 4:
+        return x1, y1
+    keep = np.floor((x1 - x1[0]) / _STD_BLOCK_S).astype(np.int64) % k == 0
+    return x1[keep], y1[keep]
+
+
+def _polish(spl2: _RunSplines, x1, y1, tau0: float, h: float):
+    """The offset minimising the profiled misfit on all the instants ``x1``, from ``tau0`` (the bracketed search's on
+    :func:`_thinned` instants): ``(tau, lin, std)``, ``lin`` the :class:`_Linearised` where ``std`` was taken.
+
+    Newton steps (:meth:`_Linearised.std_step`: the exact derivative ``C'``, the curvature by central differences)
+    until one is within :func:`_tolerance`, which is then added: the result is the minimum to well within the
+    bracketed search's tolerance (after a step ``s`` the remaining error is ``s`` times the curvature's relative
+    error), at two evaluations of the splines on all the instants where that search takes about eight.
+    Where a step is not finite, longer than half a step of the grid, or the steps do not settle, the bracketed
+    search (:func:`_refine`) runs on all the instants.
+    """
+    tau = tau0
+    for _ in range(_NEWTON_STEPS):
+        lin = _linearise(spl2, x1, y1, tau, h)
+        std, step = lin.std_step()
+        if not (np.isfinite(step) and abs(step) <= 0.5 * h):
+            break
+        if abs(step) <= _tolerance(tau, h):
+            return tau + step, lin, std
+        tau += step
+    tau = _refine(spl2, x1, y1, tau0, h)[0]
+    lin = _linearise(spl2, x1, y1, tau, h)
+    return tau, lin, lin.std_step()[0]
 
 
 @dataclass(frozen=True)
@@ -564,7 +613,7 @@ def _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, min_correlation, max_eval,
             failures.append(TimeAlignmentError("the full-rate correlation found no peak near a coarse lobe"))
             continue
         try:
-            fits.append(_refine(spl2, x1, y1, start, h))
+            fits.append(_refine(spl2, *_thinned(x1, y1), start, h))
         except TimeAlignmentError as exc:  # e.g. a lobe on the boundary whose minimum lies outside
             fits.append(None)
             failures.append(exc)
@@ -594,20 +643,19 @@ def _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, min_correlation, max_eval,
                 f"{score[k] / score[best]:.3g}x; periodic motion? record less repetitive motion, give the offset if you "
                 "know it (time_offset_s), or a max_offset_s that leaves the other lobe out")
     peak = float(r[i])
-    tau, xe, ye, _ = fits[best]
-    lin = _linearise(spl2, x1, y1, tau, h)
-    std = lin.std_step()[0]
-    line = _drift_line(t1, w1, ok1, t2, w2, ok2, tau, h, gap1, gap2, max_eval, (spl2, x1, y1), lin) if drift else None
+    tau, lin, std = _polish(spl2, x1, y1, fits[best][0], h)
+    line = (_drift_line(t1, w1, ok1, t2, w2, ok2, lin.tau, h, gap1, gap2, max_eval, (spl2, x1, y1), lin) if drift
+            else None)
     if line is not None:
         mid, tau_mid, sd_mid, ppm, sd_ppm, (lo, hi), _ = line
         half = 0.5 * (hi - lo)
         if abs(ppm) > _DRIFT_SIGMAS * sd_ppm and abs(ppm) * 1e-6 * half > std:   # it matters: compensated
             line = _drift_again(t1, w1, ok1, t2, w2, ok2, line, h, gap1, gap2, max_eval)
             return _drift_offset(line, t_ref, lags, r, peak, compensated=True)
-        return TimeOffset(float(tau), std, lags, r, peak, int(xe.size), drift_ppm=ppm, drift_std_ppm=sd_ppm,
+        return TimeOffset(float(tau), std, lags, r, peak, int(lin.x.size), drift_ppm=ppm, drift_std_ppm=sd_ppm,
                           reference_time_s=float(mid + t_ref))
     mid = 0.5 * (max(t1[0], t2[0] + tau) + min(t1[-1], t2[-1] + tau))
-    return TimeOffset(float(tau), std, lags, r, peak, int(xe.size), reference_time_s=float(mid + t_ref))
+    return TimeOffset(float(tau), std, lags, r, peak, int(lin.x.size), reference_time_s=float(mid + t_ref))
 
 
 def _drift_again(t1, w1, ok1, t2, w2, ok2, line, h: float, gap1, gap2, max_eval):
@@ -624,10 +672,10 @@ def _drift_again(t1, w1, ok1, t2, w2, ok2, line, h: float, gap1, gap2, max_eval)
     he = h * _EVAL_STEP
     try:
         _, spl2, x1, y1 = _instants(t1, w1, ok1, t2c, w2, ok2, he, h, gap1, gap2, max_eval, [tau_mid])
-        tau, _, _, _ = _refine(spl2, x1, y1, tau_mid, h)
+        _, lin, _ = _polish(spl2, x1, y1, _refine(spl2, *_thinned(x1, y1), tau_mid, h)[0], h)
     except TimeAlignmentError:
         return line
-    again = _drift_line(t1, w1, ok1, t2c, w2, ok2, tau, h, gap1, gap2, max_eval, (spl2, x1, y1))
+    again = _drift_line(t1, w1, ok1, t2c, w2, ok2, lin.tau, h, gap1, gap2, max_eval, (spl2, x1, y1), lin)
     if again is None:
         return line
     return (again[0], again[1], again[2], ppm + again[3], again[4], span, again[6])
@@ -716,10 +764,10 @@ def _instants(t1, w1, ok1, t2, w2, ok2, he, h, gap1, gap2, max_eval, starts):
         spl2 = _RunSplines(t2, w2, ok2, gap2)
         x1 = np.arange(j_lo, j_hi) * he
     else:  # the most excited windows carry the offset information: a bounded subsample of them
-        x1 = _excited_instants(t1, w1, ok1, he, int(max_eval))
+        x1, (first, last) = _excited_instants(t1, w1, ok1, he, int(max_eval))
         pad = 12.0 * h                                     # room for the refinement bracket to move (6 x 1.5 steps)
-        spl1 = _RunSplines(*_near(t1, w1, ok1, x1, x1), gap1)
-        spl2 = _RunSplines(*_near(t2, w2, ok2, x1 - max(starts) - pad, x1 - min(starts) + pad), gap2)
+        spl1 = _RunSplines(*_near(t1, w1, ok1, first, last), gap1)
+        spl2 = _RunSplines(*_near(t2, w2, ok2, first - max(starts) - pad, last - min(starts) + pad), gap2)
     x1 = x1[spl1.run_of(x1) >= 0]
     y1 = spl1(x1, inside=np.ones(x1.size, dtype=bool))[0]
     return spl1, spl2, x1, y1
