@@ -339,14 +339,18 @@ def _polish(spl2: _RunSplines, x1, y1, tau0: float, h: float):
     Newton steps (:meth:`_Linearised.std_step`: the exact derivative ``C'``, the curvature by central differences)
     until one is within :func:`_tolerance`, which is then added: the result is the minimum to well within the
     bracketed search's tolerance (after a step ``s`` the remaining error is ``s`` times the curvature's relative
-    error), at two evaluations of the splines on all the instants where that search takes about eight.
-    Where a step is not finite, longer than half a step of the grid, or the steps do not settle, the bracketed
-    search (:func:`_refine`) runs on all the instants.
+    error). A step within ``delta`` keeps the instants and the curvature (:meth:`_Linearised.moved`: only the
+    values and slopes at the new offset), so the usual two steps cost about one and a half evaluations of the
+    splines on all the instants where that search takes about eight. Where a step is not finite, longer than half
+    a step of the grid, or the steps do not settle, the bracketed search (:func:`_refine`) runs on all the instants.
     """
-    tau = tau0
+    tau, lin = tau0, None
     for _ in range(_NEWTON_STEPS):
-        lin = _linearise(spl2, x1, y1, tau, h)
-        std, step = lin.std_step()
+        if lin is not None and abs(tau - lin.tau_mid) <= lin.delta:
+            lin = lin.moved(spl2, tau, half_curv)
+        else:
+            lin = _linearise(spl2, x1, y1, tau, h)
+        std, step, half_curv = lin.std_step()
         if not (np.isfinite(step) and abs(step) <= 0.5 * h):
             break
         if abs(step) <= _tolerance(tau, h):
@@ -359,9 +363,11 @@ def _polish(spl2: _RunSplines, x1, y1, tau0: float, h: float):
 
 @dataclass(frozen=True)
 class _Linearised:
-    """The profiled misfit ``C`` near one trial offset ``tau``, on the instants ``x`` whose gyro-2 times stay inside
-    one run of gyro 2 for every offset in ``tau +- delta``: gyro 1's rates ``y`` there, gyro 2's spline values
-    ``w2`` and slopes ``dw2`` at ``x - tau`` and its values at ``x - (tau - delta)`` and ``x - (tau + delta)``.
+    """The profiled misfit ``C`` near a trial offset ``tau``, on the instants ``x`` whose gyro-2 times stay inside
+    one run of gyro 2 for every offset in ``tau_mid +- delta``: gyro 1's rates ``y`` there, gyro 2's spline values
+    ``w2`` and slopes ``dw2`` at ``x - tau`` and its values at ``x - (tau_mid - delta)`` and
+    ``x - (tau_mid + delta)`` (the curvature's central differences; ``tau_mid`` is ``tau`` unless moved, then
+    ``w2_mid`` holds the values at ``x - tau_mid``, and ``half_curv`` may hold ``C''/2`` of these instants).
 
     One evaluation of gyro 2's splines serves the whole record's std and Newton step (:meth:`std_step`) and those
     of every stretch of it (:meth:`within`: the same values, sliced): the drift stretches need no evaluation of
@@ -376,32 +382,52 @@ class _Linearised:
     dw2: np.ndarray
     w2_minus: np.ndarray
     w2_plus: np.ndarray
+    tau_mid: float | None = None
+    w2_mid: np.ndarray | None = None
+    half_curv: float | None = None
+
+    def __post_init__(self):
+        if self.tau_mid is None:
+            object.__setattr__(self, "tau_mid", self.tau)
 
     def within(self, a: float, b: float) -> "_Linearised":
-        """The same terms on the instants in ``[a, b)``."""
+        """The same terms on the instants in ``[a, b)`` (their curvature their own)."""
         j0, j1 = np.searchsorted(self.x, [a, b])
-        return _Linearised(self.tau, self.delta, *(v[j0:j1] for v in (self.x, self.y, self.w2, self.dw2,
-                                                                       self.w2_minus, self.w2_plus)))
+        cut = [None if v is None else v[j0:j1] for v in (self.x, self.y, self.w2, self.dw2, self.w2_minus,
+                                                          self.w2_plus, self.w2_mid)]
+        return _Linearised(self.tau, self.delta, *cut[:6], tau_mid=self.tau_mid, w2_mid=cut[6])
 
-    def std_step(self) -> tuple[float, float]:
-        """``(std, step)``: the sandwich standard deviation of the offset that minimises ``C`` and the Newton step
-        ``-C'/C'' = -sum u / (C''/2)`` from ``tau`` towards it; ``(inf, nan)`` where ``C`` is not convex.
+    def moved(self, spl2: _RunSplines, tau: float, half_curv: float | None = None) -> "_Linearised":
+        """The terms at ``tau`` (within ``delta`` of ``tau_mid``) on the same instants, with the same central
+        differences (and ``half_curv``, the curvature of all these instants, when given): gyro 2's values and
+        slopes evaluated again, at ``x - tau``."""
+        w2, dw2 = spl2.values_and_slopes(self.x - tau)
+        return _Linearised(tau, self.delta, self.x, self.y, w2, dw2, self.w2_minus, self.w2_plus, self.tau_mid,
+                           self.w2 if self.w2_mid is None else self.w2_mid, half_curv)
+
+    def std_step(self) -> tuple[float, float, float]:
+        """``(std, step, half_curv)``: the sandwich standard deviation of the offset that minimises ``C``, the Newton
+        step ``-C'/C'' = -sum u / (C''/2)`` from ``tau`` towards it and ``C''/2``; ``(inf, nan, C''/2)`` where ``C``
+        is not convex.
 
         At the minimum, ``tau_hat - tau ~ -sum_m u_m / (C''/2)`` with ``u_m = d_m . r_m``,
         ``d_m = P A d/dt omega_2(x_m - tau)`` (``P`` projects out the directions of the profiled ``A``
         and ``b``) and residuals ``r_m``; ``sum u`` is ``C'/2`` exactly (the residuals are orthogonal to what
-        ``P`` removes). ``C''`` is taken by central differences of the profiled misfit, so it contains the
-        term ``-sum r . A d2/dt2 omega_2`` that cancels the noise energy of the spline derivative (using
-        ``sum |d|^2`` alone would overstate the information). The residuals of neighbouring (interpolated)
+        ``P`` removes). ``C''`` is taken by central differences of the profiled misfit about ``tau_mid``, so it
+        contains the term ``-sum r . A d2/dt2 omega_2`` that cancels the noise energy of the spline derivative
+        (using ``sum |d|^2`` alone would overstate the information). The residuals of neighbouring (interpolated)
         instants are correlated, so ``Var(sum u)`` is estimated from the sums of ``u`` over consecutive blocks
         of about ``_STD_BLOCK_S`` seconds.
         """
         ye, w2, dw2, delta = self.y, self.w2, self.dw2, self.delta
         m, S22p, A = _profile_fit(ye, w2)
-        at_tau = float(np.trace(m.S11) - np.trace(A @ m.S12.T))   # C(tau), from the fit needed below anyway
-        half_curv = 0.5 * (_misfit(ye, self.w2_plus) - 2.0 * at_tau + _misfit(ye, self.w2_minus)) / delta**2
+        half_curv = self.half_curv
+        if half_curv is None:
+            at_mid = (float(np.trace(m.S11) - np.trace(A @ m.S12.T)) if self.w2_mid is None   # C(tau), from the fit
+                      else _misfit(ye, self.w2_mid))                                         # needed below anyway
+            half_curv = 0.5 * (_misfit(ye, self.w2_plus) - 2.0 * at_mid + _misfit(ye, self.w2_minus)) / delta**2
         if not half_curv > 0:
-            return float("inf"), float("nan")
+            return float("inf"), float("nan"), half_curv
         # the (N, 3) x (3, 3) products by einsum's own loop: as BLAS calls they are spread over OpenBLAS's threads,
         # whose start and spin cost more CPU time than the products (measured 30x on a busy 2-CPU machine)
         resid = (ye - m.mean_1) - np.einsum("ij,kj->ik", w2 - m.mean_2, A)
@@ -412,7 +438,7 @@ class _Linearised:
         sums = np.bincount(block, weights=u)[np.bincount(block) > 0]
         nb = sums.size
         var_u = float(np.sum(sums**2)) * nb / max(nb - 1, 1)
-        return float(np.sqrt(var_u) / half_curv), -float(sums.sum()) / half_curv
+        return float(np.sqrt(var_u) / half_curv), -float(sums.sum()) / half_curv, half_curv
 
 
 def _linearise(spl2: _RunSplines, x1, y1, tau: float, h: float) -> _Linearised:
@@ -428,7 +454,7 @@ def _linearise(spl2: _RunSplines, x1, y1, tau: float, h: float) -> _Linearised:
 def _offset_std(spl2: _RunSplines, x1, y1, tau: float, h: float, newton: bool = False):
     """Standard deviation of the offset refined on the instants ``x1`` near ``tau`` (``newton``: also the Newton
     step towards the minimum, as ``(std, step)``): :meth:`_Linearised.std_step`."""
-    std, step = _linearise(spl2, x1, y1, tau, h).std_step()
+    std, step, _ = _linearise(spl2, x1, y1, tau, h).std_step()
     return (std, step) if newton else std
 
 
@@ -825,7 +851,7 @@ def _drift_line(t1, w1, ok1, t2, w2, ok2, tau: float, h: float, gap1, gap2, max_
                     continue
                 tk = tau
                 for k in range(4):   # the first from the whole record's linearisation at tau
-                    sk, step = (lin.within(a, b).std_step() if k == 0 else
+                    sk, step = (lin.within(a, b).std_step()[:2] if k == 0 else
                                 _offset_std(spl2, x, y, tk, h, newton=True))
                     if not (np.isfinite(step) and abs(step) <= 0.5 * h):
                         break
