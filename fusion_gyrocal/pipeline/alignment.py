@@ -65,7 +65,7 @@ class TimeOffset:
     peak_correlation : float
         Largest value of ``correlation``.
     n_samples : int
-        Instants compared in the sub-sample refinement (gyro 1 interpolated about 1.6 times per
+        Instants compared in the sub-sample refinement's last step (gyro 1 interpolated about 1.6 times per
         sample of the faster stream).
     drift_ppm, drift_std_ppm : float
         Clock drift: how fast the offset grows along gyro 1's clock, in 1e-6 (s per s), and its std, from the
@@ -340,8 +340,8 @@ def _polish(spl2: _RunSplines, x1, y1, tau0: float, h: float):
     until one is within :func:`_tolerance`, which is then added: the result is the minimum to well within the
     bracketed search's tolerance (after a step ``s`` the remaining error is ``s`` times the curvature's relative
     error). A step within ``delta`` keeps the instants and the curvature (:meth:`_Linearised.moved`: only the
-    values and slopes at the new offset), so the usual two steps cost about one and a half evaluations of the
-    splines on all the instants where that search takes about eight. Where a step is not finite, longer than half
+    values and slopes at the new offset), so the usual two steps cost the evaluations the std needs anyway and
+    one more of the values and slopes, where that search on all the instants takes six or more of the misfit. Where a step is not finite, longer than half
     a step of the grid, or the steps do not settle, the bracketed search (:func:`_refine`) runs on all the instants.
     """
     tau, lin = tau0, None
@@ -484,7 +484,12 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float | No
        spread at every trial offset; evaluating at gyro 1's own sample times instead lets the
        phase-dependent variance of the interpolated noise pull the offset (up to ~0.1 ms for
        two 200 Hz streams with slow motion). The 1-D minimisation is Brent's method on a
-       +-1.5-step bracket around the coarse peak.
+       +-1.5-step bracket around the coarse peak, on every k-th 0.25 s block of the instants when there
+       are 4 x 16384 or more (about 16384 of them; the lobes are compared there), then Newton steps on all
+       the instants (the exact derivative of the misfit, its curvature by central differences) until a step
+       is within Brent's tolerance (a ten-thousandth of a grid step): the minimum on all the instants with
+       the evaluations the uncertainty (step 3) needs there and one more of the values and slopes, where Brent
+       took six or more.
     3. Uncertainty: first order, ``offset_hat - offset = -sum_m d_m . r_m / (C''/2)`` with
        ``d_m = P A d/dt omega_2(x_m - offset)`` (``P`` projects out the directions of the profiled
        ``A`` and ``b``), residuals ``r_m`` and ``C''`` the curvature of the profiled misfit (central
