@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core.moments import Moments, row_norms
+from ..core.moments import Moments, row_norms, row_sumsq
 from ..errors import OptionError, TimeAlignmentError
 from .resample import _MARGIN, _RunSplines, _resample_checked, _runs
 from .streams import DEFAULT_GAP_PERIODS, _freeze, _nominal_period, _stream, timed_stream, valid_mask
@@ -991,10 +991,10 @@ def _rate_glitches(w: np.ndarray, ok: np.ndarray) -> np.ndarray:
     out = np.zeros(w.shape[0], dtype=bool)
     if sub.size < 100:
         return out
-    lim = GLITCH_FACTOR * float(np.quantile(sub, 0.99))
+    lim2 = (GLITCH_FACTOR * float(np.quantile(sub, 0.99))) ** 2      # squared norms against it: no square roots
     for lo in range(0, w.shape[0], _NORM_BLOCK):
         with np.errstate(invalid="ignore"):
-            out[lo:lo + _NORM_BLOCK] = row_norms(w[lo:lo + _NORM_BLOCK]) > lim
+            out[lo:lo + _NORM_BLOCK] = row_sumsq(w[lo:lo + _NORM_BLOCK]) > lim2
     out &= ok
     return out
 
