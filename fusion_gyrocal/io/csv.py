@@ -259,9 +259,10 @@ def read_csv(path, *, time_column=None, columns=None, unit: str | None = None, s
     _check_time_unit(raw, time_unit, how, fname, column)
     if raw.dtype.kind == "i":
         t = int_time_to_seconds(raw, TIME_UNITS[time_unit])
-    else:
-        t = raw / 10.0 ** TIME_UNITS[time_unit]
-    w = w * factor
+    else:   # seconds as parsed (ImuStream keeps its own copy)
+        t = raw / 10.0 ** TIME_UNITS[time_unit] if TIME_UNITS[time_unit] else raw
+    if factor != 1.0:        # rad/s as parsed (ImuStream keeps its own copy)
+        w = w * factor
     if name is None:
         name = path.parent.name if path.name == "data.csv" else path.stem
     return ImuStream(t, w, name=name, source=str(path), unit_in=unit, notes=tuple(notes))

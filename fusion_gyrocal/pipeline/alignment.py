@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core.moments import Moments, row_norms
+from ..core.moments import Moments, row_norms, row_sumsq
 from ..errors import OptionError, TimeAlignmentError
 from .resample import _MARGIN, _RunSplines, _resample_checked, _runs
 from .streams import DEFAULT_GAP_PERIODS, _freeze, _nominal_period, _stream, timed_stream, valid_mask
@@ -33,6 +33,8 @@ _XC_ONE_FFT = 1 << 17          # grid points up to which the coarse correlation 
 _XC_BLOCK = 1 << 13            # beyond: blocks of f of this length (small FFTs, measured fastest)
 _NORM_BLOCK = 1 << 16          # grid points (and samples) per block of the norms and the window scores
 MAX_EVAL = 1 << 17             # refinement instants: longer logs use their most excited windows
+_COARSE_EVAL = 1 << 14         # instants of the bracketed search of a refinement on 4x as many or more (a thinned set)
+_NEWTON_STEPS = 4              # Newton steps on the whole set before falling back to the bracketed search there
 _COARSE_BINS = 1 << 18         # grid points and lags of the coarse correlation: beyond, the norms are binned coarser
 _LOCAL_POINTS = 1 << 16        # full-rate grid points of the search near a coarse lobe
 _SEGMENT_POINTS = 1 << 13      # half the full-rate grid points of a drift stretch's own search
@@ -63,7 +65,7 @@ class TimeOffset:
     peak_correlation : float
         Largest value of ``correlation``.
     n_samples : int
-        Instants compared in the sub-sample refinement (gyro 1 interpolated about 1.6 times per
+        Instants compared in the sub-sample refinement's last step (gyro 1 interpolated about 1.6 times per
         sample of the faster stream).
     drift_ppm, drift_std_ppm : float
         Clock drift: how fast the offset grows along gyro 1's clock, in 1e-6 (s per s), and its std, from the
@@ -214,14 +216,27 @@ def _span_misfit(spl2: _RunSplines, x1, y1, lo: float, hi: float):
     inside = np.ones(xe.size, dtype=bool)
 
     def cost(tau):
-        m, _, A = _profile_fit(ye, spl2(xe - tau, inside=inside)[0])
-        return float(np.trace(m.S11) - np.trace(A @ m.S12.T))
+        return _misfit(ye, spl2(xe - tau, inside=inside)[0])
 
     return xe, ye, cost
 
 
-def _excited_instants(t1, w1, ok1, he: float, max_eval: int) -> np.ndarray:
-    """Refinement instants (multiples of ``he``) inside the most excited windows of gyro 1, at most ``max_eval``.
+def _misfit(y, w2) -> float:
+    """The profiled misfit of ``y = A w2 + b`` (A and b at their least-squares values, Eq. 16-17):
+    ``tr(S11 - S12 S22^+ S12^T)`` of the centred scatter."""
+    m, _, A = _profile_fit(y, w2)
+    return float(np.trace(m.S11) - np.trace(A @ m.S12.T))
+
+
+def _ranges(starts: np.ndarray, stops: np.ndarray) -> np.ndarray:
+    """The integers of the ranges ``[starts_i, stops_i)`` (each non-empty), one after the other."""
+    n = stops - starts
+    return np.repeat(starts - np.cumsum(n) + n, n) + np.arange(int(n.sum()))
+
+
+def _excited_instants(t1, w1, ok1, he: float, max_eval: int):
+    """Refinement instants (multiples of ``he``) inside the most excited windows of gyro 1, at most ``max_eval``, and
+    the first and last instant of each window.
 
     The information about the offset is in the rate's derivative (the misfit's curvature is
     ``sum |A d/dt omega_2|^2``): the record is cut into windows of ``_STD_BLOCK_S`` seconds, each
@@ -242,14 +257,15 @@ def _excited_instants(t1, w1, ok1, he: float, max_eval: int) -> np.ndarray:
     best = np.sort(np.argsort(score)[::-1][:n_win])
     a = np.ceil((t1[0] + best * _STD_BLOCK_S) / he).astype(np.int64)
     b = np.ceil((t1[0] + (best + 1) * _STD_BLOCK_S) / he).astype(np.int64)
-    idx = np.concatenate([np.arange(p, q) for p, q in zip(a, b)])
-    return idx * he
+    a, b = a[b > a], b[b > a]
+    return _ranges(a, b) * he, (a * he, (b - 1) * he)
 
 
 def _near(t, w, ok, lo, hi):
     """``(t, w, ok)`` restricted to the samples within ``_MARGIN`` samples of the spans ``[lo_i, hi_i]``.
 
-    Overlapping or close spans are merged; the first sample of every later stretch is marked
+    Overlapping or close spans are merged (spans that overlap their neighbours, as the instants of a window, give
+    the stretches of the window's span); the first sample of every later stretch is marked
     invalid so that a spline never bridges two stretches. A spline on these samples equals the
     one on the whole record (to rounding) at every query inside the spans.
     """
@@ -260,8 +276,8 @@ def _near(t, w, ok, lo, hi):
     new = np.r_[True, i0[1:] > i1[:-1] + 2 * _MARGIN]      # a new stretch starts here
     starts = i0[new]
     stops = np.r_[i1[np.flatnonzero(new)[1:] - 1], i1[-1]]
-    sel = np.concatenate([np.arange(p, q) for p, q in zip(starts, stops)])
-    keep = ok[sel].copy()
+    sel = _ranges(starts, stops)
+    keep = ok[sel]
     first = np.cumsum(np.r_[0, stops[:-1] - starts[:-1]])
     keep[first[1:]] = False
     return t[sel], w[sel], keep
@@ -293,8 +309,7 @@ def _refine(spl2: _RunSplines, x1, y1, tau0: float, h: float):
         if xe.size < 16:
             raise TimeAlignmentError(f"only {xe.size} gyro-1 instants overlap valid gyro-2 data near the "
                                      f"offset {tau0:+.4f} s; need at least 16")
-        res = minimize_scalar(cost, bounds=(lo, hi), method="bounded",
-                              options={"xatol": 1e-9 * max(1.0, abs(tau)) + 1e-4 * h})
+        res = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": _tolerance(tau, h)})
         tau, fun = float(res.x), res.fun
         if min(tau - lo, hi - tau) >= 0.05 * half:
             return tau, xe, ye, float(fun) / xe.size
@@ -302,36 +317,145 @@ def _refine(spl2: _RunSplines, x1, y1, tau0: float, h: float):
                              f"{tau0:+.4f} s (last {tau:+.6f} s)")
 
 
-def _offset_std(spl2: _RunSplines, x1, y1, tau: float, h: float, newton: bool = False):
-    """Standard deviation of the refined offset: a sandwich estimate on the profiled misfit ``C``
-    (``newton``: also the Newton step ``-C'/C'' = -sum u / (C''/2)`` towards the minimum, as ``(std, step)``).
+def _tolerance(tau: float, h: float) -> float:
+    """How closely the refinement locates the misfit's minimum (s): a ten-thousandth of a step (plus rounding)."""
+    return 1e-9 * max(1.0, abs(tau)) + 1e-4 * h
 
-    At the minimum, ``tau_hat - tau ~ -sum_m u_m / (C''/2)`` with ``u_m = d_m . r_m``,
-    ``d_m = P A d/dt omega_2(x_m - tau)`` (``P`` projects out the directions of the profiled ``A``
-    and ``b``) and residuals ``r_m``. ``C''`` is taken by central differences of the profiled
-    misfit, so it contains the term ``-sum r . A d2/dt2 omega_2`` that cancels the noise energy of
-    the spline derivative (using ``sum |d|^2`` alone would overstate the information). The
-    residuals of neighbouring (interpolated) instants are correlated, so ``Var(sum u)`` is
-    estimated from the sums of ``u`` over consecutive blocks of about ``_STD_BLOCK_S`` seconds.
+
+def _thinned(x1, y1):
+    """``(x1, y1)`` thinned for the bracketed search: every k-th block of ``_STD_BLOCK_S`` seconds of the instants,
+    ``k = len(x1) // _COARSE_EVAL``, when that is 4 or more (else all of them)."""
+    k = x1.size // _COARSE_EVAL
+    if k < 4:
+        return x1, y1
+    keep = np.floor((x1 - x1[0]) / _STD_BLOCK_S).astype(np.int64) % k == 0
+    return x1[keep], y1[keep]
+
+
+def _polish(spl2: _RunSplines, x1, y1, tau0: float, h: float):
+    """The offset minimising the profiled misfit on all the instants ``x1``, from ``tau0`` (the bracketed search's on
+    :func:`_thinned` instants): ``(tau, lin, std)``, ``lin`` the :class:`_Linearised` where ``std`` was taken.
+
+    Newton steps (:meth:`_Linearised.std_step`: the exact derivative ``C'``, the curvature by central differences)
+    until one is within :func:`_tolerance`, which is then added: the result is the minimum to well within the
+    bracketed search's tolerance (after a step ``s`` the remaining error is ``s`` times the curvature's relative
+    error). A step within ``delta`` keeps the instants and the curvature (:meth:`_Linearised.moved`: only the
+    values and slopes at the new offset), so the usual two steps cost the evaluations the std needs anyway and
+    one more of the values and slopes, where that search on all the instants takes six or more of the misfit. Where a step is not finite, longer than half
+    a step of the grid, or the steps do not settle, the bracketed search (:func:`_refine`) runs on all the instants.
     """
+    tau, lin = tau0, None
+    for _ in range(_NEWTON_STEPS):
+        if lin is not None and abs(tau - lin.tau_mid) <= lin.delta:
+            lin = lin.moved(spl2, tau, half_curv)
+        else:
+            lin = _linearise(spl2, x1, y1, tau, h)
+        std, step, half_curv = lin.std_step()
+        if not (np.isfinite(step) and abs(step) <= 0.5 * h):
+            break
+        if abs(step) <= _tolerance(tau, h):
+            return tau + step, lin, std
+        tau += step
+    tau = _refine(spl2, x1, y1, tau0, h)[0]
+    lin = _linearise(spl2, x1, y1, tau, h)
+    return tau, lin, lin.std_step()[0]
+
+
+@dataclass(frozen=True)
+class _Linearised:
+    """The profiled misfit ``C`` near a trial offset ``tau``, on the instants ``x`` whose gyro-2 times stay inside
+    one run of gyro 2 for every offset in ``tau_mid +- delta``: gyro 1's rates ``y`` there, gyro 2's spline values
+    ``w2`` and slopes ``dw2`` at ``x - tau`` and its values at ``x - (tau_mid - delta)`` and
+    ``x - (tau_mid + delta)`` (the curvature's central differences; ``tau_mid`` is ``tau`` unless moved, then
+    ``w2_mid`` holds the values at ``x - tau_mid``, and ``half_curv`` may hold ``C''/2`` of these instants).
+
+    One evaluation of gyro 2's splines serves the whole record's std and Newton step (:meth:`std_step`) and those
+    of every stretch of it (:meth:`within`: the same values, sliced): the drift stretches need no evaluation of
+    their own.
+    """
+
+    tau: float
+    delta: float
+    x: np.ndarray
+    y: np.ndarray
+    w2: np.ndarray
+    dw2: np.ndarray
+    w2_minus: np.ndarray
+    w2_plus: np.ndarray
+    tau_mid: float | None = None
+    w2_mid: np.ndarray | None = None
+    half_curv: float | None = None
+
+    def __post_init__(self):
+        if self.tau_mid is None:
+            object.__setattr__(self, "tau_mid", self.tau)
+
+    def within(self, a: float, b: float) -> "_Linearised":
+        """The same terms on the instants in ``[a, b)`` (their curvature their own)."""
+        j0, j1 = np.searchsorted(self.x, [a, b])
+        cut = [None if v is None else v[j0:j1] for v in (self.x, self.y, self.w2, self.dw2, self.w2_minus,
+                                                          self.w2_plus, self.w2_mid)]
+        return _Linearised(self.tau, self.delta, *cut[:6], tau_mid=self.tau_mid, w2_mid=cut[6])
+
+    def moved(self, spl2: _RunSplines, tau: float, half_curv: float | None = None) -> "_Linearised":
+        """The terms at ``tau`` (within ``delta`` of ``tau_mid``) on the same instants, with the same central
+        differences (and ``half_curv``, the curvature of all these instants, when given): gyro 2's values and
+        slopes evaluated again, at ``x - tau``."""
+        w2, dw2 = spl2.values_and_slopes(self.x - tau)
+        return _Linearised(tau, self.delta, self.x, self.y, w2, dw2, self.w2_minus, self.w2_plus, self.tau_mid,
+                           self.w2 if self.w2_mid is None else self.w2_mid, half_curv)
+
+    def std_step(self) -> tuple[float, float, float]:
+        """``(std, step, half_curv)``: the sandwich standard deviation of the offset that minimises ``C``, the Newton
+        step ``-C'/C'' = -sum u / (C''/2)`` from ``tau`` towards it and ``C''/2``; ``(inf, nan, C''/2)`` where ``C``
+        is not convex.
+
+        At the minimum, ``tau_hat - tau ~ -sum_m u_m / (C''/2)`` with ``u_m = d_m . r_m``,
+        ``d_m = P A d/dt omega_2(x_m - tau)`` (``P`` projects out the directions of the profiled ``A``
+        and ``b``) and residuals ``r_m``; ``sum u`` is ``C'/2`` exactly (the residuals are orthogonal to what
+        ``P`` removes). ``C''`` is taken by central differences of the profiled misfit about ``tau_mid``, so it
+        contains the term ``-sum r . A d2/dt2 omega_2`` that cancels the noise energy of the spline derivative
+        (using ``sum |d|^2`` alone would overstate the information). The residuals of neighbouring (interpolated)
+        instants are correlated, so ``Var(sum u)`` is estimated from the sums of ``u`` over consecutive blocks
+        of about ``_STD_BLOCK_S`` seconds.
+        """
+        ye, w2, dw2, delta = self.y, self.w2, self.dw2, self.delta
+        m, S22p, A = _profile_fit(ye, w2)
+        half_curv = self.half_curv
+        if half_curv is None:
+            at_mid = (float(np.trace(m.S11) - np.trace(A @ m.S12.T)) if self.w2_mid is None   # C(tau), from the fit
+                      else _misfit(ye, self.w2_mid))                                         # needed below anyway
+            half_curv = 0.5 * (_misfit(ye, self.w2_plus) - 2.0 * at_mid + _misfit(ye, self.w2_minus)) / delta**2
+        if not half_curv > 0:
+            return float("inf"), float("nan"), half_curv
+        # the (N, 3) x (3, 3) products by einsum's own loop: as BLAS calls they are spread over OpenBLAS's threads,
+        # whose start and spin cost more CPU time than the products (measured 30x on a busy 2-CPU machine)
+        resid = (ye - m.mean_1) - np.einsum("ij,kj->ik", w2 - m.mean_2, A)
+        md = Moments.from_samples(dw2, w2)  # project d/dt omega_2 on the regressors [omega_2, 1]
+        d = np.einsum("ij,kj->ik", (dw2 - md.mean_1) - np.einsum("ij,kj->ik", w2 - md.mean_2, md.S12 @ S22p), A)
+        u = np.einsum("ij,ij->i", d, resid)
+        block = np.floor((self.x - self.x[0]) / _STD_BLOCK_S).astype(np.int64)
+        sums = np.bincount(block, weights=u)[np.bincount(block) > 0]
+        nb = sums.size
+        var_u = float(np.sum(sums**2)) * nb / max(nb - 1, 1)
+        return float(np.sqrt(var_u) / half_curv), -float(sums.sum()) / half_curv, half_curv
+
+
+def _linearise(spl2: _RunSplines, x1, y1, tau: float, h: float) -> _Linearised:
+    """:class:`_Linearised` at ``tau`` on the instants ``x1`` (gyro 1's rates ``y1``), ``delta`` a quarter step."""
     delta = 0.25 * h
-    xe, ye, cost = _span_misfit(spl2, x1, y1, tau - delta, tau + delta)
+    xe, ye, _ = _span_misfit(spl2, x1, y1, tau - delta, tau + delta)
     w2, dw2 = spl2.values_and_slopes(xe - tau)   # one lookup of the instants' intervals for both
-    m, S22p, A = _profile_fit(ye, w2)
-    at_tau = float(np.trace(m.S11) - np.trace(A @ m.S12.T))   # cost(tau), from the fit needed below anyway
-    half_curv = 0.5 * (cost(tau + delta) - 2.0 * at_tau + cost(tau - delta)) / delta**2
-    if not half_curv > 0:
-        return (float("inf"), float("nan")) if newton else float("inf")
-    resid = (ye - m.mean_1) - (w2 - m.mean_2) @ A.T
-    md = Moments.from_samples(dw2, w2)  # project d/dt omega_2 on the regressors [omega_2, 1]
-    d = ((dw2 - md.mean_1) - (w2 - md.mean_2) @ (md.S12 @ S22p).T) @ A.T
-    u = np.einsum("ij,ij->i", d, resid)
-    block = np.floor((xe - xe[0]) / _STD_BLOCK_S).astype(np.int64)
-    sums = np.bincount(block, weights=u)[np.bincount(block) > 0]
-    nb = sums.size
-    var_u = float(np.sum(sums**2)) * nb / max(nb - 1, 1)
-    std = float(np.sqrt(var_u) / half_curv)
-    return (std, -float(sums.sum()) / half_curv) if newton else std
+    inside = np.ones(xe.size, dtype=bool)
+    return _Linearised(tau, delta, xe, ye, w2, dw2, spl2(xe - (tau - delta), inside=inside)[0],
+                       spl2(xe - (tau + delta), inside=inside)[0])
+
+
+def _offset_std(spl2: _RunSplines, x1, y1, tau: float, h: float, newton: bool = False):
+    """Standard deviation of the offset refined on the instants ``x1`` near ``tau`` (``newton``: also the Newton
+    step towards the minimum, as ``(std, step)``): :meth:`_Linearised.std_step`."""
+    std, step, _ = _linearise(spl2, x1, y1, tau, h).std_step()
+    return (std, step) if newton else std
 
 
 def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float | None = None, valid_1=None,
@@ -360,7 +484,12 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float | No
        spread at every trial offset; evaluating at gyro 1's own sample times instead lets the
        phase-dependent variance of the interpolated noise pull the offset (up to ~0.1 ms for
        two 200 Hz streams with slow motion). The 1-D minimisation is Brent's method on a
-       +-1.5-step bracket around the coarse peak.
+       +-1.5-step bracket around the coarse peak, on every k-th 0.25 s block of the instants when there
+       are 4 x 16384 or more (about 16384 of them; the lobes are compared there), then Newton steps on all
+       the instants (the exact derivative of the misfit, its curvature by central differences) until a step
+       is within Brent's tolerance (a ten-thousandth of a grid step): the minimum on all the instants with
+       the evaluations the uncertainty (step 3) needs there and one more of the values and slopes, where Brent
+       took six or more.
     3. Uncertainty: first order, ``offset_hat - offset = -sum_m d_m . r_m / (C''/2)`` with
        ``d_m = P A d/dt omega_2(x_m - offset)`` (``P`` projects out the directions of the profiled
        ``A`` and ``b``), residuals ``r_m`` and ``C''`` the curvature of the profiled misfit (central
@@ -517,7 +646,7 @@ def _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, min_correlation, max_eval,
             failures.append(TimeAlignmentError("the full-rate correlation found no peak near a coarse lobe"))
             continue
         try:
-            fits.append(_refine(spl2, x1, y1, start, h))
+            fits.append(_refine(spl2, *_thinned(x1, y1), start, h))
         except TimeAlignmentError as exc:  # e.g. a lobe on the boundary whose minimum lies outside
             fits.append(None)
             failures.append(exc)
@@ -547,19 +676,19 @@ def _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, min_correlation, max_eval,
                 f"{score[k] / score[best]:.3g}x; periodic motion? record less repetitive motion, give the offset if you "
                 "know it (time_offset_s), or a max_offset_s that leaves the other lobe out")
     peak = float(r[i])
-    tau, xe, ye, _ = fits[best]
-    std = _offset_std(spl2, x1, y1, tau, h)
-    line = _drift_line(t1, w1, ok1, t2, w2, ok2, tau, h, gap1, gap2, max_eval, (spl2, x1, y1)) if drift else None
+    tau, lin, std = _polish(spl2, x1, y1, fits[best][0], h)
+    line = (_drift_line(t1, w1, ok1, t2, w2, ok2, lin.tau, h, gap1, gap2, max_eval, (spl2, x1, y1), lin) if drift
+            else None)
     if line is not None:
         mid, tau_mid, sd_mid, ppm, sd_ppm, (lo, hi), _ = line
         half = 0.5 * (hi - lo)
         if abs(ppm) > _DRIFT_SIGMAS * sd_ppm and abs(ppm) * 1e-6 * half > std:   # it matters: compensated
             line = _drift_again(t1, w1, ok1, t2, w2, ok2, line, h, gap1, gap2, max_eval)
             return _drift_offset(line, t_ref, lags, r, peak, compensated=True)
-        return TimeOffset(float(tau), std, lags, r, peak, int(xe.size), drift_ppm=ppm, drift_std_ppm=sd_ppm,
+        return TimeOffset(float(tau), std, lags, r, peak, int(lin.x.size), drift_ppm=ppm, drift_std_ppm=sd_ppm,
                           reference_time_s=float(mid + t_ref))
     mid = 0.5 * (max(t1[0], t2[0] + tau) + min(t1[-1], t2[-1] + tau))
-    return TimeOffset(float(tau), std, lags, r, peak, int(xe.size), reference_time_s=float(mid + t_ref))
+    return TimeOffset(float(tau), std, lags, r, peak, int(lin.x.size), reference_time_s=float(mid + t_ref))
 
 
 def _drift_again(t1, w1, ok1, t2, w2, ok2, line, h: float, gap1, gap2, max_eval):
@@ -576,10 +705,10 @@ def _drift_again(t1, w1, ok1, t2, w2, ok2, line, h: float, gap1, gap2, max_eval)
     he = h * _EVAL_STEP
     try:
         _, spl2, x1, y1 = _instants(t1, w1, ok1, t2c, w2, ok2, he, h, gap1, gap2, max_eval, [tau_mid])
-        tau, _, _, _ = _refine(spl2, x1, y1, tau_mid, h)
+        _, lin, _ = _polish(spl2, x1, y1, _refine(spl2, *_thinned(x1, y1), tau_mid, h)[0], h)
     except TimeAlignmentError:
         return line
-    again = _drift_line(t1, w1, ok1, t2c, w2, ok2, tau, h, gap1, gap2, max_eval, (spl2, x1, y1))
+    again = _drift_line(t1, w1, ok1, t2c, w2, ok2, lin.tau, h, gap1, gap2, max_eval, (spl2, x1, y1), lin)
     if again is None:
         return line
     return (again[0], again[1], again[2], ppm + again[3], again[4], span, again[6])
@@ -668,23 +797,25 @@ def _instants(t1, w1, ok1, t2, w2, ok2, he, h, gap1, gap2, max_eval, starts):
         spl2 = _RunSplines(t2, w2, ok2, gap2)
         x1 = np.arange(j_lo, j_hi) * he
     else:  # the most excited windows carry the offset information: a bounded subsample of them
-        x1 = _excited_instants(t1, w1, ok1, he, int(max_eval))
+        x1, (first, last) = _excited_instants(t1, w1, ok1, he, int(max_eval))
         pad = 12.0 * h                                     # room for the refinement bracket to move (6 x 1.5 steps)
-        spl1 = _RunSplines(*_near(t1, w1, ok1, x1, x1), gap1)
-        spl2 = _RunSplines(*_near(t2, w2, ok2, x1 - max(starts) - pad, x1 - min(starts) + pad), gap2)
+        spl1 = _RunSplines(*_near(t1, w1, ok1, first, last), gap1)
+        spl2 = _RunSplines(*_near(t2, w2, ok2, first - max(starts) - pad, last - min(starts) + pad), gap2)
     x1 = x1[spl1.run_of(x1) >= 0]
     y1 = spl1(x1, inside=np.ones(x1.size, dtype=bool))[0]
     return spl1, spl2, x1, y1
 
 
-def _drift_line(t1, w1, ok1, t2, w2, ok2, tau: float, h: float, gap1, gap2, max_eval, fitted):
+def _drift_line(t1, w1, ok1, t2, w2, ok2, tau: float, h: float, gap1, gap2, max_eval, fitted,
+                lin: _Linearised | None = None):
     """Clock drift: the offset refined on ``_DRIFT_SEGMENTS`` stretches of the overlap and a weighted line through
     them, ``offset(t) = tau_mid + drift (t - mid)`` on gyro 1's clock.
 
     Returns ``(mid, tau_mid, std_mid, drift_ppm, drift_std_ppm, (lo, hi), n_instants)`` or None when the overlap
     is shorter than ``_DRIFT_MIN_S`` per stretch or fewer than 3 stretches give an offset. Each stretch's offset is
     refined from ``tau`` on the whole record's instants in it (``fitted``: gyro 2's splines, the instants and gyro
-    1's rates there) or, when it lies further, searched at full rate within ``tau +- _MAX_DRIFT x`` the overlap
+    1's rates there; its first Newton step from the whole record's :class:`_Linearised` at ``tau``, ``lin`` when
+    given) or, when it lies further, searched at full rate within ``tau +- _MAX_DRIFT x`` the overlap
     and refined on instants and splines of its own; its std is estimated as the whole record's
     (:func:`_refine`, :func:`_offset_std`); the line's stds are scaled up by the scatter of the
     stretches about it when that exceeds their own stds.
@@ -693,6 +824,8 @@ def _drift_line(t1, w1, ok1, t2, w2, ok2, tau: float, h: float, gap1, gap2, max_
     n_seg = min(_DRIFT_SEGMENTS, int((hi - lo) / _DRIFT_MIN_S))
     if n_seg < 3:
         return None
+    if lin is None or lin.tau != tau:
+        lin = _linearise(*fitted, tau, h)
     width = _MAX_DRIFT * (hi - lo) + 3.0 * h
     he = h * _EVAL_STEP
     edges = np.linspace(lo, hi, n_seg + 1)
@@ -722,8 +855,9 @@ def _drift_line(t1, w1, ok1, t2, w2, ok2, tau: float, h: float, gap1, gap2, max_
                 if x.size < 64:
                     continue
                 tk = tau
-                for _ in range(4):
-                    sk, step = _offset_std(spl2, x, y, tk, h, newton=True)
+                for k in range(4):   # the first from the whole record's linearisation at tau
+                    sk, step = (lin.within(a, b).std_step()[:2] if k == 0 else
+                                _offset_std(spl2, x, y, tk, h, newton=True))
                     if not (np.isfinite(step) and abs(step) <= 0.5 * h):
                         break
                     tk += step
@@ -857,10 +991,10 @@ def _rate_glitches(w: np.ndarray, ok: np.ndarray) -> np.ndarray:
     out = np.zeros(w.shape[0], dtype=bool)
     if sub.size < 100:
         return out
-    lim = GLITCH_FACTOR * float(np.quantile(sub, 0.99))
+    lim2 = (GLITCH_FACTOR * float(np.quantile(sub, 0.99))) ** 2      # squared norms against it: no square roots
     for lo in range(0, w.shape[0], _NORM_BLOCK):
         with np.errstate(invalid="ignore"):
-            out[lo:lo + _NORM_BLOCK] = row_norms(w[lo:lo + _NORM_BLOCK]) > lim
+            out[lo:lo + _NORM_BLOCK] = row_sumsq(w[lo:lo + _NORM_BLOCK]) > lim2
     out &= ok
     return out
 
