@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core.moments import Moments, row_norms, row_sumsq
+from ..core.moments import Moments, row_norms, row_sumsq, rows_times
 from ..errors import OptionError, TimeAlignmentError
 from .resample import _MARGIN, _RunSplines, _resample_checked, _runs
 from .streams import DEFAULT_GAP_PERIODS, _freeze, _nominal_period, _stream, timed_stream, valid_mask
@@ -341,8 +341,9 @@ def _polish(spl2: _RunSplines, x1, y1, tau0: float, h: float):
     bracketed search's tolerance (after a step ``s`` the remaining error is ``s`` times the curvature's relative
     error). A step within ``delta`` keeps the instants and the curvature (:meth:`_Linearised.moved`: only the
     values and slopes at the new offset), so the usual two steps cost the evaluations the std needs anyway and
-    one more of the values and slopes, where that search on all the instants takes six or more of the misfit. Where a step is not finite, longer than half
-    a step of the grid, or the steps do not settle, the bracketed search (:func:`_refine`) runs on all the instants.
+    one more of the values and slopes, where that search on all the instants takes six or more of the misfit.
+    Where a step is not finite, longer than half a step of the grid, or the steps do not settle, the bracketed
+    search (:func:`_refine`) runs on all the instants.
     """
     tau, lin = tau0, None
     for _ in range(_NEWTON_STEPS):
@@ -428,11 +429,11 @@ class _Linearised:
             half_curv = 0.5 * (_misfit(ye, self.w2_plus) - 2.0 * at_mid + _misfit(ye, self.w2_minus)) / delta**2
         if not half_curv > 0:
             return float("inf"), float("nan"), half_curv
-        # the (N, 3) x (3, 3) products by einsum's own loop: as BLAS calls they are spread over OpenBLAS's threads,
-        # whose start and spin cost more CPU time than the products (measured 30x on a busy 2-CPU machine)
-        resid = (ye - m.mean_1) - np.einsum("ij,kj->ik", w2 - m.mean_2, A)
+        # the tall (N, 3) x (3, 3) products in blocks of rows (rows_times: one thread each, not OpenBLAS's spinning
+        # threads, which cost more CPU time than the products on a busy machine)
+        resid = (ye - m.mean_1) - rows_times(w2 - m.mean_2, A.T)
         md = Moments.from_samples(dw2, w2)  # project d/dt omega_2 on the regressors [omega_2, 1]
-        d = np.einsum("ij,kj->ik", (dw2 - md.mean_1) - np.einsum("ij,kj->ik", w2 - md.mean_2, md.S12 @ S22p), A)
+        d = rows_times((dw2 - md.mean_1) - rows_times(w2 - md.mean_2, (md.S12 @ S22p).T), A.T)
         u = np.einsum("ij,ij->i", d, resid)
         block = np.floor((self.x - self.x[0]) / _STD_BLOCK_S).astype(np.int64)
         sums = np.bincount(block, weights=u)[np.bincount(block) > 0]
