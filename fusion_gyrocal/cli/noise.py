@@ -123,7 +123,13 @@ def run(args) -> int:
                   else f"none up to tau {noise.taus[-1]:.3g} s")
     console.print(t)
     for i, name in enumerate("xyz"):
-        if noise.fit_from[i] > 0:
+        if noise.white_from[i] == "spread":
+            why = (f"the shortest {noise.fit_from[i]} tau(s) are off every term of the Allan fit (tones, coloured "
+                   "noise) and were left out of it" if noise.fit_from[i] > 0 else
+                   "the Allan fit's short-term terms claimed more variance per sample than the samples hold")
+            console.print(f"note: axis {name}: {why}; its white noise is the samples' own spread about their "
+                          "means over 1 s blocks (short_term_spread)")
+        elif noise.fit_from[i] > 0:
             console.print(f"note: axis {name}: the shortest {noise.fit_from[i]} tau(s) are off the standard terms "
                           "(coloured noise) and were left out of the fit; its white noise is that of the longer taus")
     for line in prov.lines():

@@ -14,7 +14,11 @@ each with its standard uncertainty.
   their number of terms (their degrees of freedom add, :func:`~fusion_gyrocal.core.allan.edf_table`), and fits
   ``AVAR = N^2 / tau + (2 ln 2 / pi) B^2 + K^2 tau / 3`` and the short-term terms (quantisation, filtered, tone,
   bounded) per axis with :func:`~fusion_gyrocal.core.allan.fit_allan` (each term kept only where it is
-  significant); the white noise is the density of the short-term terms' variance per sample.
+  significant); the white noise is the density of the short-term terms' variance per sample. That variance is
+  also what the samples' spread about their means over about a second shows (:func:`short_term_spread`): where the
+  fit leaves the shortest taus out (noise none of its terms describes there, such as a comb of tones of the chip)
+  or claims more than the spread holds, the white noise is taken from the spread instead, and ``white_from`` says
+  so per axis.
 """
 
 from __future__ import annotations
@@ -28,6 +32,8 @@ from .allan import allan_deviation, edf_table, fit_allan
 
 REST_SPREAD_FACTOR = 2.0     # a rest window's spread is at most this times the quiet level
 MIN_STRETCH_S = 4.0          # shorter rest stretches are not used
+SPREAD_BLOCK_S = 1.0         # blocks of the short-term spread: a tone above 1 Hz inside one, a drift not
+SPREAD_SIGMAS = 3.0          # the fit's variance per sample beyond the spread by more than this many sigmas contradicts it
 
 
 def _windows(omega, valid, w: int):
@@ -115,6 +121,10 @@ class StaticNoise:
     fit_from : ndarray (3,) of int
         Index of the first tau each axis's fit used (shorter taus dropped as coloured by
         :func:`~fusion_gyrocal.core.allan.fit_allan`).
+    white_from : tuple of str
+        Per axis, where ``white`` comes from: ``"fit"`` (the Allan fit's short-term terms) or ``"spread"``
+        (:func:`short_term_spread`: the fit left the shortest taus out, or its variance per sample exceeded the
+        samples' own spread by more than :data:`SPREAD_SIGMAS` sigmas).
     stretches : tuple of (int, int)
         The rest stretches used (sample ranges).
     n_samples : int
@@ -134,6 +144,7 @@ class StaticNoise:
     fit_from: np.ndarray
     stretches: tuple
     n_samples: int
+    white_from: tuple = ("fit", "fit", "fit")
 
     @property
     def white_per_sample(self) -> np.ndarray:
@@ -150,12 +161,43 @@ class StaticNoise:
                      "random_walk_std", "taus", "adev"):
             out[name] = np.asarray(getattr(self, name), float).tolist()
         out["fit_from"] = [int(i) for i in self.fit_from]
+        out["white_from"] = list(self.white_from)
         return out
 
 
 def _sd_of_root(value_sq: float, var: float) -> float:
     """1-sigma of ``sqrt(x)`` from ``x``'s variance (first order), 0 where the term is absent."""
     return float(np.sqrt(max(var, 0.0)) / (2.0 * np.sqrt(value_sq))) if value_sq > 0 and np.isfinite(var) else 0.0
+
+
+def short_term_spread(omega, pieces, rate_hz: float):
+    """Per axis, the variance per sample of the short-term noise as the samples show it, and its standard uncertainty.
+
+    Every piece ``(a, b)`` of contiguous good samples is cut into blocks of about :data:`SPREAD_BLOCK_S` (at most the
+    piece); the squared deviations from each block's own mean are pooled, times ``m / (m - 1)`` (unbiased for white
+    noise in blocks of ``m``): a tone of more than a cycle per block counts, a drift over many blocks does not. The
+    uncertainty is the larger of the white-noise one (``sqrt(2 / n)`` relative) and the scatter of the pieces' own
+    values (tones and bursts make the pieces disagree more). ``(None, None)`` without a piece of 8 samples.
+    """
+    m = max(8, int(round(SPREAD_BLOCK_S * rate_hz)))
+    values, counts = [], []
+    for a, b in pieces:
+        width = min(m, b - a)
+        k = (b - a) // width
+        if width < 8:
+            continue
+        x = omega[a:a + k * width].reshape(k, width, 3)
+        dev = x - x.mean(axis=1, keepdims=True)
+        values.append(np.einsum("kwi,kwi->i", dev, dev) / (k * (width - 1)))
+        counts.append(k * width)
+    if not values:
+        return None, None
+    v, c = np.array(values), np.array(counts, float)
+    mean = c @ v / c.sum()
+    var = 2.0 * mean ** 2 / c.sum()
+    if len(c) >= 2:
+        var = np.maximum(var, (c ** 2 @ (v - mean) ** 2) / c.sum() ** 2 * len(c) / (len(c) - 1))
+    return mean, np.sqrt(var)
 
 
 def static_noise(omega, rate_hz: float, *, valid=None, stretches=None) -> StaticNoise:
@@ -213,6 +255,8 @@ def static_noise(omega, rate_hz: float, *, valid=None, stretches=None) -> Static
     walk, walk_sd = np.zeros(3), np.zeros(3)
     fit = np.full(avar.shape, np.nan)
     first = np.zeros(3, int)
+    spread, spread_sd = short_term_spread(omega, pieces, rate_hz)
+    source = ["fit"] * 3
     for ax in range(3):
         f = fit_allan(taus, avar[:, ax], edf, extra=True)
         coef, cov, lo = f.coef, f.cov, f.first
@@ -222,14 +266,18 @@ def static_noise(omega, rate_hz: float, *, valid=None, stretches=None) -> Static
         # filtered, tone), as a density (times the sample period): what a filter that takes each sample's noise
         # reads from a density; its variance by first order
         g = f.sample_row() * f.tau0
-        level = f.sample_variance() * f.tau0
-        white[ax], white_sd[ax] = np.sqrt(max(level, 0.0)), _sd_of_root(level, float(g @ np.nan_to_num(cov) @ g))
+        level, level_var = f.sample_variance() * f.tau0, float(g @ np.nan_to_num(cov) @ g)
+        if spread is not None and (lo > 0 or f.sample_variance() > spread[ax] + SPREAD_SIGMAS * spread_sd[ax]):
+            # the fit does not describe the noise of one sample (it left those taus out) or claims more than the
+            # samples hold: the samples' own spread is that noise
+            level, level_var, source[ax] = spread[ax] * f.tau0, (spread_sd[ax] * f.tau0) ** 2, "spread"
+        white[ax], white_sd[ax] = np.sqrt(max(level, 0.0)), _sd_of_root(level, level_var)
         bias[ax], bias_sd[ax] = np.sqrt(max(coef[1], 0.0)), _sd_of_root(coef[1], cov[1, 1])
         walk[ax], walk_sd[ax] = np.sqrt(max(coef[2], 0.0)), _sd_of_root(coef[2], cov[2, 2])
     return StaticNoise(rate_hz=float(rate_hz), white=white, white_std=white_sd, bias_instability=bias,
                        bias_instability_std=bias_sd, random_walk=walk, random_walk_std=walk_sd, taus=taus,
                        adev=np.sqrt(avar), adev_fit=fit, fit_from=first, stretches=tuple(pieces),
-                       n_samples=int(sum(b - a for a, b in pieces)))
+                       n_samples=int(sum(b - a for a, b in pieces)), white_from=tuple(source))
 
 
-__all__ = ["REST_SPREAD_FACTOR", "StaticNoise", "rest_stretches", "static_noise"]
+__all__ = ["REST_SPREAD_FACTOR", "StaticNoise", "rest_stretches", "short_term_spread", "static_noise"]
