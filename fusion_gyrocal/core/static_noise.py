@@ -33,7 +33,7 @@ from .allan import allan_deviation, edf_table, fit_allan
 REST_SPREAD_FACTOR = 2.0     # a rest window's spread is at most this times the quiet level
 MIN_STRETCH_S = 4.0          # shorter rest stretches are not used
 SPREAD_BLOCK_S = 1.0         # blocks of the short-term spread: a tone above 1 Hz inside one, a drift not
-SPREAD_SIGMAS = 3.0          # the fit's variance per sample beyond the spread by more than this many sigmas contradicts it
+SPREAD_SIGMAS = 3.0          # the fit's variance per sample beyond the spread by more sigmas contradicts it
 
 
 def _windows(omega, valid, w: int):
@@ -183,9 +183,9 @@ def short_term_spread(omega, pieces, rate_hz: float):
     values, counts = [], []
     for a, b in pieces:
         width = min(m, b - a)
-        k = (b - a) // width
         if width < 8:
             continue
+        k = (b - a) // width
         x = omega[a:a + k * width].reshape(k, width, 3)
         dev = x - x.mean(axis=1, keepdims=True)
         values.append(np.einsum("kwi,kwi->i", dev, dev) / (k * (width - 1)))
