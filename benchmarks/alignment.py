@@ -23,7 +23,11 @@ t_2=...)`` against ``np.interp`` of gyro 2's three axes at gyro 1's instants (th
 ``X.T @ X`` of the stacked (N, 6) samples, timed in the same process, and the pipeline's peak memory beyond the
 inputs (peak RSS reset through ``/proc/self/clear_refs``) in bytes per sample.
 
-Run: ``python benchmarks/alignment.py [--runs 100] [--seed 1] [--clocks-only | --pipeline-only] [--n 1e7]``.
+``--where`` adds a diagnostic: the highest RSS a thread reading ``/proc/self/status`` every 2 ms saw during the
+pipeline and the library frames running then (the measure above is unchanged; the watch is off without it).
+
+Run: ``python benchmarks/alignment.py [--runs 100] [--seed 1] [--clocks-only | --pipeline-only] [--n 1e7]
+[--where]``.
 """
 
 from __future__ import annotations
@@ -128,8 +132,42 @@ def clocks(seed: int = 0) -> None:
               f"{1e3 * (float(est.offset_at(300.0)) - tau):+14.5f} {1e3 * est.std_s:8.5f} {dt:7.2f}")
 
 
-def pipeline_child(n: int) -> dict:
-    """One process: the reference, the pipeline, the reference again; the pipeline's peak RSS beyond the inputs."""
+def _rss_watch(interval: float = 0.002):
+    """Diagnostic (``--where``): a thread reading VmRSS every ``interval`` s and, at its highest reading, the main
+    thread's innermost library frames; call the returned ``stop()`` for ``(rss, frames)``."""
+    import threading
+
+    main, best, done = threading.get_ident(), [0, ()], threading.Event()
+
+    def frames():
+        f, out = sys._current_frames().get(main), []
+        while f is not None and len(out) < 4:
+            if "fusion_gyrocal" in f.f_code.co_filename:
+                out.append(f"{os.path.basename(f.f_code.co_filename)}:{f.f_code.co_name}:{f.f_lineno}")
+            f = f.f_back
+        return tuple(reversed(out))
+
+    def watch():
+        while not done.is_set():
+            with open("/proc/self/status") as fh:
+                rss = next(int(line.split()[1]) * 1024 for line in fh if line.startswith("VmRSS:"))
+            if rss > best[0]:
+                best[:] = [rss, frames()]
+            done.wait(interval)
+
+    thread = threading.Thread(target=watch, daemon=True)
+    thread.start()
+
+    def stop():
+        done.set()
+        thread.join()
+        return best[0], best[1]
+    return stop
+
+
+def pipeline_child(n: int, where: bool = False) -> dict:
+    """One process: the reference, the pipeline, the reference again; the pipeline's peak RSS beyond the inputs
+    (``where``: also the library frames at the highest RSS a watching thread read)."""
     from pathlib import Path
 
     from scaling import _hwm, _rss, make_inputs
@@ -148,17 +186,20 @@ def pipeline_child(n: int) -> dict:
     refs = [reference()]
     base = _rss()
     Path("/proc/self/clear_refs").write_text("5")
+    stop = _rss_watch() if where else None
     t0, c0 = time.perf_counter(), time.process_time()
     run = run_pipeline(w1, w2, t_1=t1, t_2=t2)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     peak = _hwm() - base
+    seen = stop() if where else None
     refs.append(reference())
     return {"n": n, "pipeline_s": wall, "pipeline_cpu_s": cpu, "reference_s": [r[0] for r in refs],
             "reference_cpu_s": [r[1] for r in refs], "peak_bytes": peak,
-            "offset_err_us": 1e6 * (run.aligned.time_offset_s - offset)}
+            "offset_err_us": 1e6 * (run.aligned.time_offset_s - offset),
+            "where": None if seen is None else [(seen[0] - base) / n, list(seen[1])]}
 
 
-def pipeline(ns) -> None:
+def pipeline(ns, where: bool = False) -> None:
     import json
     import subprocess
     import sys
@@ -168,7 +209,8 @@ def pipeline(ns) -> None:
     print(f"  {'N':>10} {'pipeline s':>11} {'reference s':>16} {'ratio':>7} {'CPU s':>7} {'ref CPU s':>10} "
           f"{'CPU ratio':>9} {'peak B/sample':>14} {'offset err us':>14}")
     for n in ns:
-        out = subprocess.run([sys.executable, __file__, "--child", str(int(n))], capture_output=True, text=True)
+        out = subprocess.run([sys.executable, __file__, "--child", str(int(n))] + (["--where"] if where else []),
+                             capture_output=True, text=True)
         if out.returncode:
             print(f"  {int(n):10d} failed: {out.stderr.strip().splitlines()[-1] if out.stderr else out.returncode}")
             continue
@@ -177,6 +219,9 @@ def pipeline(ns) -> None:
         print(f"  {r['n']:10d} {r['pipeline_s']:11.2f} {min(refs):7.2f} ({max(refs):5.2f}) "
               f"{r['pipeline_s'] / min(refs):7.2f} {r['pipeline_cpu_s']:7.2f} {min(cpus):10.2f} "
               f"{r['pipeline_cpu_s'] / min(cpus):9.2f} {r['peak_bytes'] / r['n']:14.1f} {r['offset_err_us']:14.3f}")
+        if r["where"] is not None:
+            print(f"  {'':10} highest RSS a 2 ms watch read: {r['where'][0]:.1f} B/sample, in "
+                  + (" > ".join(r["where"][1]) or "no library frame"))
     print("  (ratios to the faster of the two reference runs, wall and CPU time (all threads); the references' "
           "spread shows the machine's load; target <= 4.5, peak <= 60 B/sample)")
 
@@ -188,17 +233,19 @@ def main(argv=None) -> None:
     parser.add_argument("--clocks-only", action="store_true")
     parser.add_argument("--pipeline-only", action="store_true")
     parser.add_argument("--n", type=float, nargs="+", default=[1e6, 1e7])
+    parser.add_argument("--where", action="store_true",
+                        help="diagnostic: also where the pipeline's RSS was highest (a thread reading it every 2 ms)")
     parser.add_argument("--child", type=int, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child is not None:
         import json
-        print(json.dumps(pipeline_child(args.child)))
+        print(json.dumps(pipeline_child(args.child, args.where)))
         return
     if args.clocks_only:
         clocks(args.seed)
         return
     if args.pipeline_only:
-        pipeline(args.n)
+        pipeline(args.n, args.where)
         return
     rng = np.random.default_rng(args.seed)
     run("paper's motion", args.runs, rng, duration=60.0, rms=1.0)
@@ -206,7 +253,7 @@ def main(argv=None) -> None:
     run("short recording", args.runs, rng, duration=10.0, rms=1.0)
     run("equal rates, slow motion", args.runs, rng, duration=60.0, rms=0.2, rates=((200.0, 200.0),))
     clocks(args.seed)
-    pipeline(args.n)
+    pipeline(args.n, args.where)
 
 
 if __name__ == "__main__":

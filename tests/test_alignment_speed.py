@@ -29,8 +29,8 @@ def _setup(seed=3, duration=300.0, rates=(200.0, 200.0), offset=0.0371):
     ok1, ok2 = np.ones(t1.size, dtype=bool), np.ones(t2.size, dtype=bool)
     p1, p2 = _nominal_period(t1), _nominal_period(t2)
     h = min(p1, p2)
-    _, spl2, x1, y1 = al._instants(t1, w1, ok1, t2, w2, ok2, h * al._EVAL_STEP, h, DEFAULT_GAP_PERIODS * p1,
-                                   DEFAULT_GAP_PERIODS * p2, al.MAX_EVAL, [offset])
+    spl2, x1, y1 = al._instants(t1, w1, ok1, t2, w2, ok2, h * al._EVAL_STEP, h, DEFAULT_GAP_PERIODS * p1,
+                                DEFAULT_GAP_PERIODS * p2, al.MAX_EVAL, [offset])
     return spl2, x1, y1, h, offset
 
 

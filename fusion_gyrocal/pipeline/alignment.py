@@ -627,8 +627,8 @@ def _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, min_correlation, max_eval,
     # periods, so their phases w.r.t. gyro 2's samples stay uniformly spread for every trial offset
     # and the variance of the interpolated noise (lowest between samples) cannot pull the offset
     he = h * _EVAL_STEP
-    spl1, spl2, x1, y1 = _instants(t1, w1, ok1, t2, w2, ok2, he, h, gap1, gap2, max_eval,
-                                   [s for s in starts if s is not None])
+    spl2, x1, y1 = _instants(t1, w1, ok1, t2, w2, ok2, he, h, gap1, gap2, max_eval,
+                             [s for s in starts if s is not None])
 
     def on_edge(i):
         return i == 0 or i == lags.size - 1 or not (np.isfinite(r[i - 1]) and np.isfinite(r[i + 1]))
@@ -705,7 +705,7 @@ def _drift_again(t1, w1, ok1, t2, w2, ok2, line, h: float, gap1, gap2, max_eval)
     t2c = (t2 + tau_mid - k * mid) / (1.0 - k) - tau_mid
     he = h * _EVAL_STEP
     try:
-        _, spl2, x1, y1 = _instants(t1, w1, ok1, t2c, w2, ok2, he, h, gap1, gap2, max_eval, [tau_mid])
+        spl2, x1, y1 = _instants(t1, w1, ok1, t2c, w2, ok2, he, h, gap1, gap2, max_eval, [tau_mid])
         _, lin, _ = _polish(spl2, x1, y1, _refine(spl2, *_thinned(x1, y1), tau_mid, h)[0], h)
     except TimeAlignmentError:
         return line
@@ -790,21 +790,26 @@ def _local_peak(t1, w1, ok1, t2, w2, ok2, win, tau_c: float, half_width: float, 
 
 
 def _instants(t1, w1, ok1, t2, w2, ok2, he, h, gap1, gap2, max_eval, starts):
-    """Gyro 1's splines, gyro 2's, the refinement instants (multiples of ``he`` inside gyro 1's runs) and gyro 1's
-    rates there; long records: the most excited windows, splines built near them and the offsets ``starts``."""
+    """Gyro 2's splines, the refinement instants (multiples of ``he`` inside gyro 1's runs) and gyro 1's rates there
+    (from gyro 1's splines, dropped before gyro 2's are built); long records: the most excited windows, splines
+    built near them and the offsets ``starts``."""
     j_lo, j_hi = int(np.ceil(t1[0] / he)), int(np.floor(t1[-1] / he)) + 1
-    if max_eval is None or j_hi - j_lo <= max_eval or not starts:
+    whole = max_eval is None or j_hi - j_lo <= max_eval or not starts
+    if whole:
         spl1 = _RunSplines(t1, w1, ok1, gap1)
-        spl2 = _RunSplines(t2, w2, ok2, gap2)
         x1 = np.arange(j_lo, j_hi) * he
     else:  # the most excited windows carry the offset information: a bounded subsample of them
         x1, (first, last) = _excited_instants(t1, w1, ok1, he, int(max_eval))
-        pad = 12.0 * h                                     # room for the refinement bracket to move (6 x 1.5 steps)
         spl1 = _RunSplines(*_near(t1, w1, ok1, first, last), gap1)
-        spl2 = _RunSplines(*_near(t2, w2, ok2, first - max(starts) - pad, last - min(starts) + pad), gap2)
     x1 = x1[spl1.run_of(x1) >= 0]
     y1 = spl1(x1, inside=np.ones(x1.size, dtype=bool))[0]
-    return spl1, spl2, x1, y1
+    del spl1
+    if whole:
+        spl2 = _RunSplines(t2, w2, ok2, gap2)
+    else:
+        pad = 12.0 * h                                     # room for the refinement bracket to move (6 x 1.5 steps)
+        spl2 = _RunSplines(*_near(t2, w2, ok2, first - max(starts) - pad, last - min(starts) + pad), gap2)
+    return spl2, x1, y1
 
 
 def _drift_line(t1, w1, ok1, t2, w2, ok2, tau: float, h: float, gap1, gap2, max_eval, fitted,
@@ -846,7 +851,7 @@ def _drift_line(t1, w1, ok1, t2, w2, ok2, tau: float, h: float, gap1, gap2, max_
                 if start is None:
                     break
                 try:
-                    spl1, spl2, x, y = _instants(*s1, t2, w2, ok2, he, h, gap1, gap2, per, [start])
+                    spl2, x, y = _instants(*s1, t2, w2, ok2, he, h, gap1, gap2, per, [start])
                 except TimeAlignmentError:
                     break
             else:   # the whole record's instants in this stretch, its splines (built for offsets near tau):

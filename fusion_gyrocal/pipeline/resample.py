@@ -239,14 +239,25 @@ def resample(t_src, omega_src, t_grid, *, valid=None, max_gap_s: float | None = 
     return _resample_checked(t, w, ok, grid, gap)
 
 
-def _query_period(grid: np.ndarray) -> float:
-    """Median spacing (s) of the finite instants of ``grid`` in time order (NaN with fewer than two)."""
-    g = grid[np.isfinite(grid)]
+def _query_steps(grid: np.ndarray) -> tuple[float, bool]:
+    """``(period, increasing)``: the median spacing (s) of the finite instants of ``grid`` in time order (NaN with
+    fewer than two) and whether ``grid`` is finite and strictly increasing.
+
+    One temporary of the steps, partitioned in place by the median (a long grid is not copied: only one with
+    non-finite instants is compressed first).
+    """
+    finite = bool(np.isfinite(grid).all())
+    g = grid if finite else grid[np.isfinite(grid)]
     if g.size < 2:
-        return float("nan")
-    if not np.all(np.diff(g) > 0):
+        return float("nan"), finite
+    steps = np.diff(g)
+    increasing = bool((steps > 0).all())
+    if not increasing:
         g = np.unique(g)
-    return float(np.median(np.diff(g))) if g.size >= 2 else float("nan")
+        if g.size < 2:
+            return float("nan"), False
+        steps = np.diff(g)
+    return float(np.median(steps, overwrite_input=True)), finite and increasing
 
 
 def _lowpass(ratio: float) -> np.ndarray:
@@ -295,10 +306,11 @@ def _antialiased(t: np.ndarray, w: np.ndarray, ok: np.ndarray, gap: float, query
 
 def _resample_checked(t, w, ok, grid, gap: float):
     """:func:`resample` of a checked stream (``_stream``) onto the 1-D float64 ``grid`` with the gap ``gap`` (s)."""
-    t, w = _antialiased(t, w, ok, gap, _query_period(grid))
+    period, increasing = _query_steps(grid)
+    t, w = _antialiased(t, w, ok, gap, period)
     t_ref = t[0]  # splines in relative time: absolute (epoch) seconds lose precision in the cubic terms
-    finite_grid = np.isfinite(grid)
-    if grid.size <= _GRID_BLOCK or not np.all(np.diff(grid) > 0):
+    if grid.size <= _GRID_BLOCK or not increasing:
+        finite_grid = np.isfinite(grid)
         spl = _RunSplines(t - t_ref, w, ok, gap)
         out, inside = spl(np.where(finite_grid, grid - t_ref, -np.inf))
         inside &= finite_grid
@@ -341,12 +353,15 @@ def noise_factors(t_src, t_query, *, max_points: int = 1 << 16, block: int = 64,
     """
     t = np.asarray(t_src, dtype=np.float64)
     q = np.asarray(t_query, dtype=np.float64)
-    q = q[(q >= t[0]) & (q <= t[-1])]
+    if q.size > 1 and np.isfinite(t[0]) and np.isfinite(t[-1]) and bool((q[1:] >= q[:-1]).all()):
+        q = q[np.searchsorted(q, t[0], side="left"):np.searchsorted(q, t[-1], side="right")]   # in order: a view
+    else:
+        q = q[(q >= t[0]) & (q <= t[-1])]
     if q.size < 4 * block or t.size < 16:
         return 1.0, 1.0, 1.0, 1
     mid = q.size // 2
     period = _nominal_period(t)
-    ratio = _query_period(q) / period if period > 0 else float("nan")
+    ratio = _query_steps(q)[0] / period if period > 0 else float("nan")
     if not np.isfinite(ratio):
         ratio = 1.0
     if ratio > 1.0:       # queries sparser than the samples: at most _MAX_SOURCE samples of noise behind them

@@ -464,7 +464,7 @@ def timed_stream(name_t, t, name_w, omega, valid):
 
 
 def _nominal_period(t: np.ndarray) -> float:
-    return float(np.median(np.diff(t)))
+    return float(np.median(np.diff(t), overwrite_input=True))   # the steps partitioned in place: one temporary
 
 
 def grid_rate(t) -> float | None:
