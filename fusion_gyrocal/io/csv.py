@@ -21,7 +21,7 @@ import numpy as np
 
 from ..errors import FormatError, InputError
 from ..units import RATE_UNIT_HINTS, RATE_UNIT_LABELS, RATE_UNITS, TIME_UNIT_LABELS, TIME_UNITS
-from .stream import ImuStream, input_path, int_time_to_seconds, rate_factor
+from .stream import ImuStream, hand_over, input_path, int_time_to_seconds, rate_factor
 from .binary import check_text_file
 from .profiles import header_keys, match_profile, select_instance
 from .text import data_end, dropped_note, head_lines, is_number, read_columns, sniff_delimiter, split_fields
@@ -58,7 +58,8 @@ def _rates_by_unit(raw: np.ndarray) -> tuple[float, dict[str, float], dict[str, 
     """Median positive step of raw timestamps, the rate each time unit gives, and the plausible ones."""
     raw = np.asarray(raw)
     d = np.diff(raw)
-    d = d[d > 0]
+    if not (d.size and d.min() > 0):   # all positive (the usual case): no copy
+        d = d[d > 0]
     if d.size == 0 or not np.isfinite(raw[[0, -1]]).all():
         return float("nan"), {}, {}
     step = float(np.median(d))
@@ -259,13 +260,14 @@ def read_csv(path, *, time_column=None, columns=None, unit: str | None = None, s
     _check_time_unit(raw, time_unit, how, fname, column)
     if raw.dtype.kind == "i":
         t = int_time_to_seconds(raw, TIME_UNITS[time_unit])
-    else:   # seconds as parsed (ImuStream keeps its own copy)
+    else:   # seconds as parsed
         t = raw / 10.0 ** TIME_UNITS[time_unit] if TIME_UNITS[time_unit] else raw
-    if factor != 1.0:        # rad/s as parsed (ImuStream keeps its own copy)
-        w = w * factor
+    if factor != 1.0:        # rad/s as parsed; the parsed array is this reader's own
+        w *= factor
     if name is None:
         name = path.parent.name if path.name == "data.csv" else path.stem
-    return ImuStream(t, w, name=name, source=str(path), unit_in=unit, notes=tuple(notes))
+    del raw                  # the arrays are handed over (ImuStream keeps them instead of a copy)
+    return ImuStream(hand_over(t), hand_over(w), name=name, source=str(path), unit_in=unit, notes=tuple(notes))
 
 
 # ----------------------------------------------------------------------------- the steps of read_csv
