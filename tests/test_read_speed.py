@@ -164,3 +164,18 @@ def test_run_pipeline_on_a_streams_own_arrays_equals_on_copies(tmp_path):
     for f in ("R_1_2", "scale_1", "scale_2", "bias", "covariance", "time_offset_s", "time_offset_std_s"):
         np.testing.assert_array_equal(getattr(own, f), getattr(copies, f))
     assert own.timestamp_quality == copies.timestamp_quality and own.notes == copies.notes
+
+
+def test_timestamp_quality_histogram_counts_the_bins_of_a_sorted_search():
+    rng = np.random.default_rng(6)
+    for _ in range(50):
+        n = int(rng.integers(2, 2000))
+        step = rng.choice([0.01, 0.0025, 0.0075, 0.0125, 0.015, 0.025, 0.0, -0.01, 1.0], n)
+        step = step + rng.normal(0, rng.choice([0.0, 1e-4, 3e-3]), n)
+        q = streams._quality("t", step, n + 1)
+        if not np.isfinite(q.period_s):
+            continue
+        pos = step[step > 0]
+        edges = np.array(streams._STEP_BINS[1:-1]) * q.period_s
+        want = np.bincount(np.searchsorted(edges, pos, side="right"), minlength=len(streams._STEP_BINS) - 1)
+        assert q.step_histogram == (step.size - pos.size, *(int(c) for c in want))
