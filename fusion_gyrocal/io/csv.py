@@ -272,8 +272,8 @@ def read_csv(path, *, time_column=None, columns=None, unit: str | None = None, s
         _check_time_unit(raw, time_unit, how, fname, column)
         t = hand_over(int_time_to_seconds(raw, TIME_UNITS[time_unit]) if raw.dtype.kind == "i"
                       else raw / 10.0 ** TIME_UNITS[time_unit])
-    if factor != 1.0:        # rad/s as parsed; the parsed array is this reader's own
-        w *= factor
+    if factor != 1.0:        # rad/s in place: the parsed array is this reader's own (unless a parser froze it)
+        w = np.multiply(w, factor, out=w if w.flags.writeable else None)
     del raw                  # the arrays are handed over (ImuStream keeps them instead of a copy)
     return ImuStream(t, hand_over(w), name=name, source=str(path), unit_in=unit, notes=tuple(notes))
 

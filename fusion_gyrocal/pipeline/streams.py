@@ -169,7 +169,6 @@ def timestamp_quality(name: str, t) -> TimestampQuality:
     return _quality(name, np.diff(arr), arr.size)
 
 
-
 # ---------------------------------------------------------------------------------------------- checked timestamps
 @dataclass(frozen=True)
 class _Known:
@@ -183,8 +182,8 @@ _KNOWN: dict = {}   # id(array) -> (weak reference to the array, _Known)
 
 
 def median_step(step: np.ndarray, quality: TimestampQuality) -> float:
-    """``median(step)`` of checked timestamps' steps: their diagnosis's period (of bursty ones: computed here, their
-    period is the mean step outside the pauses)."""
+    """``median(step)`` of checked timestamps' steps: the period of their diagnosis, unless they are bursty (that
+    period is then the mean step outside the pauses, and the median is computed here)."""
     return quality.period_s if not quality.bursty else float(np.median(step))
 
 
@@ -199,7 +198,8 @@ def remember_timestamps(t: np.ndarray, median: float, quality: TimestampQuality)
             or t.ndim != 1:
         return
     key = id(t)
-    _KNOWN[key] = (weakref.ref(t, lambda _, key=key: _KNOWN.pop(key, None)), _Known(quality, float(median)))
+    forget = _KNOWN.pop        # bound now: the entry goes when the array does, also at interpreter exit
+    _KNOWN[key] = (weakref.ref(t, lambda _, key=key: forget(key, None)), _Known(quality, float(median)))
 
 
 def _known(t) -> _Known | None:
