@@ -170,7 +170,8 @@ def run(args) -> int:
 
             s1, s2 = streams
             options = options_from_args(args, rate_hz=s1.rate_hz)
-            run_ = run_pipeline(s1.masked_omega, s2.masked_omega, t_1=s1.t, t_2=s2.t, options=options)
+            run_ = run_pipeline(*(s.masked_omega if not s.valid.all() else s.omega for s in (s1, s2)), t_1=s1.t,
+                                t_2=s2.t, options=options)   # masked_omega copies: only where a sample is masked
             rejected = 0 if run_.valid is None or run_.used is None else int(np.sum(run_.valid & ~run_.used))
             prov = command_provenance(sources, streams, options, n_used=run_.calibration.n_samples,
                                       n_rejected=rejected)

@@ -20,8 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FormatError, InputError
+from ..pipeline.streams import _checked_timestamps, median_step, remember_timestamps
 from ..units import RATE_UNIT_HINTS, RATE_UNIT_LABELS, RATE_UNITS, TIME_UNIT_LABELS, TIME_UNITS
-from .stream import ImuStream, input_path, int_time_to_seconds, rate_factor
+from .stream import ImuStream, hand_over, input_path, int_time_to_seconds, rate_factor
 from .binary import check_text_file
 from .profiles import header_keys, match_profile, select_instance
 from .text import data_end, dropped_note, head_lines, is_number, read_columns, sniff_delimiter, split_fields
@@ -54,14 +55,18 @@ PLAUSIBLE_RATE_HZ = (1.0, 1e5)
 _MAX_TIME_S = 1e10  # about the year 2286 as a Unix time: larger "seconds" are in a finer unit
 
 
-def _rates_by_unit(raw: np.ndarray) -> tuple[float, dict[str, float], dict[str, float]]:
-    """Median positive step of raw timestamps, the rate each time unit gives, and the plausible ones."""
+def _rates_by_unit(raw: np.ndarray, step: float | None = None) -> tuple[float, dict[str, float], dict[str, float]]:
+    """Median positive step of raw timestamps, the rate each time unit gives, and the plausible ones.
+
+    ``step``: that median when already known (of timestamps checked to increase strictly)."""
     raw = np.asarray(raw)
-    d = np.diff(raw)
-    d = d[d > 0]
-    if d.size == 0 or not np.isfinite(raw[[0, -1]]).all():
-        return float("nan"), {}, {}
-    step = float(np.median(d))
+    if step is None:
+        d = np.diff(raw)
+        if not (d.size and d.min() > 0):   # all positive (the usual case): no copy
+            d = d[d > 0]
+        if d.size == 0 or not np.isfinite(raw[[0, -1]]).all():
+            return float("nan"), {}, {}
+        step = float(np.median(d))
     size = float(np.max(np.abs(raw[[0, -1]].astype(np.float64))))
     rates = {u: 10.0 ** dec / step for u, dec in TIME_UNITS.items()}
     lo, hi = PLAUSIBLE_RATE_HZ
@@ -69,12 +74,14 @@ def _rates_by_unit(raw: np.ndarray) -> tuple[float, dict[str, float], dict[str, 
     return step, rates, ok
 
 
-def _check_time_unit(raw: np.ndarray, unit: str, how: str, fname: str, column: str) -> None:
+def _check_time_unit(raw: np.ndarray, unit: str, how: str, fname: str, column: str,
+                     step: float | None = None) -> None:
     """Refuse timestamps whose unit makes an implausible rate when another unit makes a plausible one.
 
-    ``how`` says where ``unit`` came from (the option, the header, the default), for the message.
+    ``how`` says where ``unit`` came from (the option, the header, the default), for the message; ``step``: their
+    median positive step when already known.
     """
-    step, rates, ok = _rates_by_unit(raw)
+    step, rates, ok = _rates_by_unit(raw, step)
     if not ok or unit in ok:
         return
     likely = min(ok, key=lambda u: abs(np.log10(ok[u] / 200.0)))  # nearest to a typical IMU rate
@@ -256,16 +263,36 @@ def read_csv(path, *, time_column=None, columns=None, unit: str | None = None, s
             raw, w = raw[keep], w[keep]
             notes.append(f"IMU instance {imu}: {int(keep.sum())} of {keep.size} rows")
     column = layout.header[k_t] if layout.header is not None else f"#{k_t}"
-    _check_time_unit(raw, time_unit, how, fname, column)
-    if raw.dtype.kind == "i":
-        t = int_time_to_seconds(raw, TIME_UNITS[time_unit])
-    else:   # seconds as parsed (ImuStream keeps its own copy)
-        t = raw / 10.0 ** TIME_UNITS[time_unit] if TIME_UNITS[time_unit] else raw
-    if factor != 1.0:        # rad/s as parsed (ImuStream keeps its own copy)
-        w = w * factor
     if name is None:
         name = path.parent.name if path.name == "data.csv" else path.stem
-    return ImuStream(t, w, name=name, source=str(path), unit_in=unit, notes=tuple(notes))
+    if raw.dtype.kind == "f" and not TIME_UNITS[time_unit]:   # seconds as parsed: one look at the steps
+        t = hand_over(raw)
+        _checked_seconds(t, f"{name}.t", time_unit, how, fname, column)
+    else:
+        _check_time_unit(raw, time_unit, how, fname, column)
+        t = hand_over(int_time_to_seconds(raw, TIME_UNITS[time_unit]) if raw.dtype.kind == "i"
+                      else raw / 10.0 ** TIME_UNITS[time_unit])
+    if factor != 1.0:        # rad/s in place: the parsed array is this reader's own (unless a parser froze it)
+        w = np.multiply(w, factor, out=w if w.flags.writeable else None)
+    del raw                  # the arrays are handed over (ImuStream keeps them instead of a copy)
+    return ImuStream(t, hand_over(w), name=name, source=str(path), unit_in=unit, notes=tuple(notes))
+
+
+def _checked_seconds(t: np.ndarray, name_t: str, unit: str, how: str, fname: str, column: str) -> None:
+    """:func:`_check_time_unit` and :class:`ImuStream`'s check of timestamps read as seconds, on one look at
+    their steps: their median step, which the first reads, is the diagnosis's period unless they are bursty.
+
+    The refusals and their order are those of the two checks made one after the other; what the stream's
+    check found is remembered for it (:func:`~fusion_gyrocal.pipeline.streams.remember_timestamps`).
+    """
+    try:
+        _, step, quality = _checked_timestamps(name_t, t)
+    except InputError:
+        _check_time_unit(t, unit, how, fname, column)   # its refusal, naming the unit they look like, first
+        raise
+    median = median_step(step, quality)
+    _check_time_unit(t, unit, how, fname, column, step=median)   # all steps positive: the median positive step
+    remember_timestamps(t, median, quality)
 
 
 # ----------------------------------------------------------------------------- the steps of read_csv

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..core.moments import finite_rows
 from ..errors import FormatError, InputError, OptionError
-from ..pipeline.streams import check_timestamps, to_rad_per_s
+from ..pipeline.streams import _checked_timestamps, _known, median_step, remember_timestamps, to_rad_per_s
 from ..units import RATE_UNITS
 
 
@@ -31,6 +31,10 @@ class ImuStream:
     omega : ndarray (N, 3)
         Angular rate in rad/s in the sensor's own frame (float64, read-only). Rows that could
         not be measured (non-finite, saturated) stay in place and are flagged in ``valid``.
+        ``t`` and ``omega`` are copies of what was given, except float64 arrays that are already
+        read-only and own their data (what a reader hands over, :func:`hand_over`; another stream's
+        arrays): those are kept as they are. What the check of ``t`` found (its diagnosis, its median
+        step) is kept for the alignment (:func:`~fusion_gyrocal.pipeline.streams.remember_timestamps`).
     name : str
         Sensor name (topic, file stem, ``"imu3"``, ...).
     source : str
@@ -64,11 +68,17 @@ class ImuStream:
 
     def __post_init__(self):
         name = self.name
-        omega = np.array(self.omega, dtype=np.float64)
+        omega = self.omega if _handed_over(self.omega) else np.array(self.omega, dtype=np.float64)
         if omega.ndim != 2 or omega.shape[1] != 3:
             raise InputError(f"{name}: expected angular rates of shape (N, 3), got {omega.shape}")
-        t = np.array(check_timestamps(f"{name}.t", self.t, length=omega.shape[0]), dtype=np.float64)
-        dt = np.diff(t)
+        t, known = self.t, _known(self.t)
+        if known is not None and t.shape[0] == omega.shape[0]:   # a stream's (dataclasses.replace): checked then
+            quality, median = known.quality, known.median_step
+        else:
+            t, step, quality = _checked_timestamps(f"{name}.t", t, length=omega.shape[0])
+            if not _handed_over(t):
+                t = np.array(t, dtype=np.float64)
+            median = median_step(step, quality)
         valid = finite_rows(omega)
         if self.valid is not None:
             given = np.asarray(self.valid)
@@ -77,11 +87,12 @@ class ImuStream:
             valid &= given.astype(bool)
         if self.unit_in not in RATE_UNITS:
             raise InputError(f"{name}: expected unit_in in {RATE_UNITS}, got {self.unit_in!r}")
-        rate = float(1.0 / np.median(dt)) if self.rate_hz is None else float(self.rate_hz)
+        rate = float(1.0 / median) if self.rate_hz is None else float(self.rate_hz)
         if not (np.isfinite(rate) and rate > 0):
             raise InputError(f"{name}: expected a positive finite rate_hz, got {self.rate_hz!r}")
         for a in (t, omega, valid):
             a.flags.writeable = False
+        remember_timestamps(t, median, quality)
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "omega", omega)
         object.__setattr__(self, "valid", valid)
@@ -103,6 +114,22 @@ class ImuStream:
 
 
 # ----------------------------------------------------------------------------- what every reader shares
+def _handed_over(arr) -> bool:
+    """A float64 array that is read-only and owns its data: kept by :class:`ImuStream` as it is (what a reader
+    hands over, :func:`hand_over`; another stream's arrays), where any other input is copied."""
+    return isinstance(arr, np.ndarray) and arr.dtype == np.float64 and arr.base is None and not arr.flags.writeable
+
+
+def hand_over(arr: np.ndarray) -> np.ndarray:
+    """``arr`` (an array the reader made and keeps no reference to) made read-only: :class:`ImuStream` then keeps
+    it instead of copying it. C-contiguous float64 first (a copy only where it is not)."""
+    out = np.ascontiguousarray(arr, dtype=np.float64)
+    if out.base is not None:
+        out = out.copy()
+    out.flags.writeable = False
+    return out
+
+
 def input_path(path, what: str = "file", *, folder: bool = False) -> Path:
     """``path`` as a Path that exists and is a regular file (or a folder when ``folder``).
 

@@ -258,7 +258,7 @@ def _data_start(path: Path, skiprows: int) -> int | None:
 
 
 def _pyarrow_floats(path: Path, *, skiprows: int, delimiter: str, usecols: Sequence[int],
-                    end: int | None = None) -> np.ndarray | None:
+                    end: int | None = None, split: bool = False):
     """What ``_load_columns(..., dtype=np.float64)`` returns, parsed by ``pyarrow.csv``; or None.
 
     The file is memory-mapped and only the data rows (after ``skiprows`` lines, before ``end``)
@@ -267,7 +267,10 @@ def _pyarrow_floats(path: Path, *, skiprows: int, delimiter: str, usecols: Seque
     installed, the data hold a ``#`` anywhere (``np.loadtxt`` cuts comments, also in unused
     columns), or pyarrow does not read the rows cleanly: a parse or conversion error (an empty
     field, a blank or short row, a word), or a non-finite value. pyarrow parses floats exactly
-    (correctly rounded), so a result is the array ``np.loadtxt`` would return.
+    (correctly rounded), so a result is the array ``np.loadtxt`` would return. The data are searched
+    for a ``#`` only when the first data row has columns that are not used: pyarrow refuses a row
+    with another number of fields and a number holding a ``#``, so where every column is used a
+    ``#`` cannot pass. ``split``: ``(first column (N,), the others (N, k - 1))``, each C-contiguous.
     """
     try:
         import pyarrow as pa
@@ -281,7 +284,10 @@ def _pyarrow_floats(path: Path, *, skiprows: int, delimiter: str, usecols: Seque
     if start is None or stop <= start:
         return None
     with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
-        if mm.find(b"#", start, stop) >= 0:
+        eol = mm.find(b"\n", start, stop)
+        first = mm[start:stop if eol < 0 else eol]
+        every_column = set(usecols) == set(range(first.count(delimiter.encode()) + 1))
+        if not every_column and mm.find(b"#", start, stop) >= 0:
             return None
     names = [f"f{k}" for k in usecols]
     try:
@@ -296,16 +302,24 @@ def _pyarrow_floats(path: Path, *, skiprows: int, delimiter: str, usecols: Seque
                                                      strings_can_be_null=False, quoted_strings_can_be_null=False))
     except (pa.ArrowException, ValueError, OSError):   # np.loadtxt then reads the file or says what is wrong
         return None
-    x = np.empty((table.num_rows, len(names)))
-    for j, name in enumerate(names):   # from the value buffers: (Chunked)Array.to_numpy would import pandas
+    n = table.num_rows
+    if split:
+        first_col, rest = np.empty(n), np.empty((n, len(names) - 1))
+        targets = [first_col] + [rest[:, j] for j in range(len(names) - 1)]
+    else:
+        x = np.empty((n, len(names)))
+        targets = [x[:, j] for j in range(len(names))]
+    for name, out in zip(names, targets):   # from the value buffers: (Chunked)Array.to_numpy would import pandas
         row = 0
         for chunk in table.column(name).chunks:
             if chunk.null_count:
                 return None
-            n = len(chunk)
-            x[row:row + n, j] = np.frombuffer(chunk.buffers()[1], dtype=np.float64, count=n, offset=8 * chunk.offset)
-            row += n
-    return x if x.shape[0] and np.isfinite(x).all() else None
+            m = len(chunk)
+            out[row:row + m] = np.frombuffer(chunk.buffers()[1], dtype=np.float64, count=m, offset=8 * chunk.offset)
+            row += m
+    if not n or not all(np.isfinite(out).all() for out in ((first_col, rest) if split else (x,))):
+        return None
+    return (first_col, rest) if split else x
 
 
 def _pandas_floats(path: Path, *, skiprows: int, delimiter: str | None, usecols: Sequence[int],
@@ -336,19 +350,20 @@ def _pandas_floats(path: Path, *, skiprows: int, delimiter: str | None, usecols:
 
 
 def _fast_floats(path: Path, *, skiprows: int, delimiter: str | None, usecols: Sequence[int],
-                 end: int | None = None) -> np.ndarray | None:
+                 end: int | None = None, split: bool = False):
     """Float columns of a big file by pyarrow (:func:`_pyarrow_floats`), else pandas (:func:`_pandas_floats`).
 
     None (``np.loadtxt`` reads the file) for files smaller than :data:`PANDAS_MIN_BYTES`, a column
     used twice, a delimiter longer than one character, or when neither parser is installed or
-    reads the file cleanly. pyarrow needs a delimiter (whitespace runs go to pandas).
+    reads the file cleanly. pyarrow needs a delimiter (whitespace runs go to pandas). ``split``: pyarrow's
+    columns as :func:`_pyarrow_floats` splits them (pandas': as one array).
     """
     if len(set(usecols)) < len(usecols) or (delimiter is not None and len(delimiter) != 1):
         return None
     if path.stat().st_size < PANDAS_MIN_BYTES:
         return None
     kw = dict(skiprows=skiprows, delimiter=delimiter, usecols=usecols, end=end)
-    x = _pyarrow_floats(path, **kw) if delimiter is not None else None
+    x = _pyarrow_floats(path, **kw, split=split) if delimiter is not None else None
     return x if x is not None else _pandas_floats(path, **kw)
 
 
@@ -374,5 +389,8 @@ def read_columns(path: Path, *, skiprows: int, delimiter: str | None, k_t: int, 
     if int_time:
         t = _load_columns(path, usecols=[k_t], dtype=np.int64, **kw)[:, 0]
         return t, read_floats(path, usecols=k_w, **kw)
-    x = read_floats(path, usecols=[k_t, *k_w], **kw)
+    x = _fast_floats(path, usecols=[k_t, *k_w], split=True, **kw)
+    if isinstance(x, tuple):
+        return x
+    x = x if x is not None else _load_columns(path, usecols=[k_t, *k_w], dtype=np.float64, **kw)
     return x[:, 0], x[:, 1:]

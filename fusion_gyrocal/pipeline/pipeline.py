@@ -126,11 +126,12 @@ def prepare_samples(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options:
 
 
 def _prepare(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Options | None = None,
-             moments: bool = True):
+             moments: bool = True, grid_options: Options | None = None):
     """:func:`prepare_samples` and, last, the moments of every prepared sample when the clipping test of
     sample-aligned input read them in its pass (:func:`~fusion_gyrocal.core.moments.moments_with_extremes`;
-    ``moments``: the caller solves on them) and nothing was masked (else None)."""
-    o = slow_grid(t_1, t_2, Options.of(options))
+    ``moments``: the caller solves on them) and nothing was masked (else None). ``grid_options``: the caller's
+    :func:`slow_grid` of ``options`` when already known."""
+    o = slow_grid(t_1, t_2, Options.of(options)) if grid_options is None else grid_options
     pair, base = None, None
     if (t_1 is None) != (t_2 is None):
         raise InputError("t_1 and t_2: expected both timestamps or neither (sample-aligned input)")
@@ -235,8 +236,9 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
                  **keywords) -> PipelineRun:
     """:func:`calibrate_pair` returning its intermediate products too (same parameters)."""
     given = Options.of(options, **keywords).require("pair", "calibrate_pair")
-    w1, w2, mask, pair, notes, base = _prepare(omega_1, omega_2, t_1=t_1, t_2=t_2, mask=mask, options=given)
     o = slow_grid(t_1, t_2, given)
+    w1, w2, mask, pair, notes, base = _prepare(omega_1, omega_2, t_1=t_1, t_2=t_2, mask=mask, options=given,
+                                               grid_options=o)
     resampling = _resampling(t_1, t_2, pair, o)
     run = _calibrate(w1, w2, mask, pair, resampling, o, base)
     carried = {}
@@ -264,7 +266,8 @@ def _same_instants(t_1, t_2) -> bool:
 def _mean_rate(t) -> float:
     """Mean sample rate (Hz) of timestamps ``t`` over their finite span (NaN without one)."""
     t = np.asarray(t, dtype=np.float64).ravel()
-    t = t[np.isfinite(t)]
+    finite = np.isfinite(t)
+    t = t if finite.all() else t[finite]
     return float((t.size - 1) / (t[-1] - t[0])) if t.size >= 2 and t[-1] > t[0] else float("nan")
 
 

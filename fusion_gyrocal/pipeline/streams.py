@@ -1,8 +1,14 @@
-"""Stream checks and unit conversion at the edge: timestamps, rate units, saturated and non-finite samples."""
+"""Stream checks and unit conversion at the edge: timestamps, rate units, saturated and non-finite samples.
+
+What a check found out about timestamps the library holds (an :class:`~fusion_gyrocal.io.ImuStream`'s: read-only
+arrays that own their data) is kept beside them (:func:`remember_timestamps`): their diagnosis and median step are
+then not computed again by the alignment, the resampling or a second check of the same array.
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import weakref
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -130,8 +136,8 @@ def _quality(name: str, step: np.ndarray, n: int) -> TimestampQuality:
         return TimestampQuality(name, n, float("nan"), (int(step.size),) + (0,) * 6, float("nan"), 0.0, 0, 0,
                                 0.0, int(step.size))
     edges = np.array(_STEP_BINS[1:-1]) * period
-    counts = np.bincount(np.searchsorted(edges, pos, side="right"), minlength=len(_STEP_BINS) - 1)
-    hist = [int(step.size - pos.size)] + [int(c) for c in counts]
+    below = [0] + [int(np.count_nonzero(pos < e)) for e in edges] + [pos.size]   # a count per edge: no sort
+    hist = [int(step.size - pos.size)] + [b - a for a, b in zip(below[:-1], below[1:])]
     sub = pos[::max(1, pos.size // (1 << 16))] / period
     regular = sub[(sub >= 0.75) & (sub < 1.25)]
     jitter = float(1.4826 * np.median(np.abs(regular - np.median(regular)))) if regular.size else float("nan")
@@ -163,6 +169,47 @@ def timestamp_quality(name: str, t) -> TimestampQuality:
     return _quality(name, np.diff(arr), arr.size)
 
 
+# ---------------------------------------------------------------------------------------------- checked timestamps
+@dataclass(frozen=True)
+class _Known:
+    """What a check found out about one timestamp array: finite, strictly increasing, a plausible rate."""
+
+    quality: TimestampQuality   # its diagnosis (named as the check named it)
+    median_step: float          # ``median(diff(t))``, its nominal period (:func:`_nominal_period`)
+
+
+_KNOWN: dict = {}   # id(array) -> (weak reference to the array, _Known)
+
+
+def median_step(step: np.ndarray, quality: TimestampQuality) -> float:
+    """``median(step)`` of checked timestamps' steps: the period of their diagnosis, unless they are bursty (that
+    period is then the mean step outside the pauses, and the median is computed here)."""
+    return quality.period_s if not quality.bursty else float(np.median(step))
+
+
+def remember_timestamps(t: np.ndarray, median: float, quality: TimestampQuality) -> None:
+    """Keep what :func:`check_timestamps` found out about ``t`` (its diagnosis, its ``median`` step) for later steps.
+
+    Only for a read-only float64 array that owns its data (an :class:`~fusion_gyrocal.io.ImuStream`'s ``t``): such
+    an array does not change, so its checks, diagnosis and median step hold as long as it lives (the entry goes
+    with it). Other arrays are not remembered: every step checks them again.
+    """
+    if not isinstance(t, np.ndarray) or t.flags.writeable or t.base is not None or t.dtype != np.float64 \
+            or t.ndim != 1:
+        return
+    key = id(t)
+    forget = _KNOWN.pop        # bound now: the entry goes when the array does, also at interpreter exit
+    _KNOWN[key] = (weakref.ref(t, lambda _, key=key: forget(key, None)), _Known(quality, float(median)))
+
+
+def _known(t) -> _Known | None:
+    """What :func:`remember_timestamps` kept about the array ``t`` (None when nothing, or it became writeable)."""
+    entry = _KNOWN.get(id(t))
+    if entry is None or entry[0]() is not t or t.flags.writeable:
+        return None
+    return entry[1]
+
+
 # ---------------------------------------------------------------------------------------------- stream checks
 def check_timestamps(name: str, t, *, length: int | None = None) -> np.ndarray:
     """Return timestamps as a 1-D float64 array of seconds, checking that they can be used.
@@ -192,6 +239,14 @@ def check_timestamps(name: str, t, *, length: int | None = None) -> np.ndarray:
         10 times N median steps (a corrupt timestamp: resampling such a span would allocate
         without bound; the message names the sample).
     """
+    known = _known(t)
+    if known is not None and (length is None or t.shape[0] == length):
+        return t                  # checked when it was remembered, and read-only since
+    return _checked_timestamps(name, t, length=length)[0]
+
+
+def _checked_timestamps(name: str, t, *, length: int | None = None):
+    """:func:`check_timestamps`, returning ``(t as float64, its steps, its TimestampQuality)``."""
     arr = np.asarray(t)
     if arr.dtype.kind not in "fiu":
         raise InputError(f"{name}: expected numeric timestamps in seconds, got dtype {arr.dtype}")
@@ -208,8 +263,9 @@ def check_timestamps(name: str, t, *, length: int | None = None) -> np.ndarray:
                          f"({bad.size} non-finite)")
     step = np.diff(arr)
     _check_increasing(name, arr, step, None)
-    _check_time_scale(name, arr, step, _quality(name, step, arr.size))
-    return arr
+    quality = _quality(name, step, arr.size)
+    _check_time_scale(name, arr, step, quality)
+    return arr, step, quality
 
 
 def _check_increasing(name: str, arr: np.ndarray, step: np.ndarray, quality: TimestampQuality | None) -> None:
@@ -422,6 +478,11 @@ def timed_stream(name_t, t, name_w, omega, valid):
     refused as :func:`check_timestamps` does, naming the diagnosis.
     """
     w = as_rates(name_w, omega)
+    known = _known(t)
+    if known is not None and t.shape[0] == w.shape[0] and t.shape[0] >= 3 and not known.quality.bursty:
+        # remembered (remember_timestamps): finite, strictly increasing, a plausible rate: nothing to repair
+        return t, w, _and_valid(finite_rows(w), valid, f"valid mask for {name_w}"), \
+            replace(known.quality, name=name_t), ()
     arr = np.asarray(t)
     if arr.dtype.kind not in "fiu" or arr.ndim != 1 or arr.shape[0] != w.shape[0] or arr.shape[0] < 3:
         tt = check_timestamps(name_t, t, length=w.shape[0])   # the specific refusal
@@ -431,7 +492,7 @@ def timed_stream(name_t, t, name_w, omega, valid):
         check_timestamps(name_t, arr)
     ok = _and_valid(finite_rows(w), valid, f"valid mask for {name_w}")
     step = np.diff(arr)
-    q = _quality(name_t, step, arr.size)
+    q = _quality(name_t, step, arr.size) if known is None else replace(known.quality, name=name_t)
     notes = []
     if not q.bursty and q.backward:
         bad = _out_of_place(arr)
@@ -464,7 +525,10 @@ def timed_stream(name_t, t, name_w, omega, valid):
 
 
 def _nominal_period(t: np.ndarray) -> float:
-    return float(np.median(np.diff(t), overwrite_input=True))   # the steps partitioned in place: one temporary
+    """``median(diff(t))`` (kept for remembered timestamps, :func:`remember_timestamps`; else the steps partitioned
+    in place: one temporary)."""
+    known = _known(t)
+    return known.median_step if known is not None else float(np.median(np.diff(t), overwrite_input=True))
 
 
 def grid_rate(t) -> float | None:
