@@ -97,8 +97,13 @@ class TimingModel:
 
     def compensate(self, t, omega_2) -> np.ndarray:
         """Gyro 2's rates moved to the instants they describe: ``omega_2 + d(omega_2)/dt * delay(t)``."""
-        w2 = np.asarray(omega_2, dtype=float)
-        return w2 + derivative(t, w2) * self.delay(t)[:, None]
+        return _moved(t, np.asarray(omega_2, dtype=float), self.delay(t))
+
+
+def _moved(t, w, delay) -> np.ndarray:
+    """Rates ``w`` moved by ``delay`` (per sample) to the instants they describe, first order:
+    ``w + dw/dt * delay``."""
+    return w + derivative(t, w) * delay[:, None]
 
 
 def derivative(t, w) -> np.ndarray:
@@ -150,12 +155,9 @@ def _high_pass(r, ok, window: int) -> np.ndarray:
 
 
 def _design(t, tones, harmonics) -> np.ndarray:
-    cols = [np.ones_like(t)]
-    for f in tones:
-        for h in range(1, harmonics + 1):
-            phase = 2.0 * np.pi * h * f * t
-            cols += [np.cos(phase), np.sin(phase)]
-    return np.stack(cols, axis=1)
+    """The delay's design: a column of ones, then ``cos, sin`` of every harmonic of every tone (:func:`_rows`
+    transposed)."""
+    return _rows(t, tones, harmonics).T
 
 
 def _fit(t, ru, uu, tones, harmonics):
@@ -300,14 +302,12 @@ class ArrayTimingModel:
     def compensate(self, j: int, t, omega_j):
         """Gyro ``j``'s rates moved to the instants the reference's describe (:meth:`TimingModel.compensate` of
         ``relative[j]``) and that delay at ``t``: ``(rates, delay)``."""
-        model, t = self.relative[j], np.asarray(t, dtype=float)
-        delay = model.coefficients @ _rows(t, model.tones_hz, self.harmonics)
-        w = np.asarray(omega_j, dtype=float)
-        return w + derivative(t, w) * delay[:, None], delay
+        delay = self.relative[j].delay(t)
+        return _moved(t, np.asarray(omega_j, dtype=float), delay), delay
 
 
 def _rows(t, tones, harmonics) -> np.ndarray:
-    """:func:`_design` transposed (a row per column), its tones by :func:`_tone_rows`."""
+    """The delay's design as rows (a row per column of :func:`_design`), its tones by :func:`_tone_rows`."""
     return np.vstack([np.ones((1, len(t)))] + [_tone_rows(t, f, harmonics) for f in tones])
 
 
