@@ -16,7 +16,8 @@ import numpy as np
 
 from ..core.moments import finite_rows
 from ..errors import FormatError, InputError, OptionError
-from ..pipeline.streams import _checked_timestamps, _known, median_step, remember_timestamps, to_rad_per_s
+from ..pipeline.streams import (_checked_timestamps, _known, _trusted, median_step, remember_timestamps,
+                                to_rad_per_s)
 from ..units import RATE_UNITS
 
 
@@ -68,7 +69,7 @@ class ImuStream:
 
     def __post_init__(self):
         name = self.name
-        omega = self.omega if _handed_over(self.omega) else np.array(self.omega, dtype=np.float64)
+        omega = self.omega if _trusted(self.omega) else np.array(self.omega, dtype=np.float64)
         if omega.ndim != 2 or omega.shape[1] != 3:
             raise InputError(f"{name}: expected angular rates of shape (N, 3), got {omega.shape}")
         t, known = self.t, _known(self.t)
@@ -76,7 +77,7 @@ class ImuStream:
             quality, median = known.quality, known.median_step
         else:
             t, step, quality = _checked_timestamps(f"{name}.t", t, length=omega.shape[0])
-            if not _handed_over(t):
+            if not _trusted(t):
                 t = np.array(t, dtype=np.float64)
             median = median_step(step, quality)
         valid = finite_rows(omega)
@@ -114,12 +115,6 @@ class ImuStream:
 
 
 # ----------------------------------------------------------------------------- what every reader shares
-def _handed_over(arr) -> bool:
-    """A float64 array that is read-only and owns its data: kept by :class:`ImuStream` as it is (what a reader
-    hands over, :func:`hand_over`; another stream's arrays), where any other input is copied."""
-    return isinstance(arr, np.ndarray) and arr.dtype == np.float64 and arr.base is None and not arr.flags.writeable
-
-
 def hand_over(arr: np.ndarray) -> np.ndarray:
     """``arr`` (an array the reader made and keeps no reference to) made read-only: :class:`ImuStream` then keeps
     it instead of copying it. C-contiguous float64 first (a copy only where it is not)."""

@@ -24,17 +24,24 @@ CORRUPT_SPAN_FACTOR = 10.0     # ... that stretches the span beyond this many ti
 _TIME_UNITS = tuple((u, 10.0 ** -d) for u, d in TIME_UNITS.items() if d)   # ms, us, ns: unit in s
 
 
+def _trusted(arr, dtype=np.float64, view: bool = False) -> bool:
+    """An ndarray (of ``dtype`` unless None) that is read-only and owns its data (or, with ``view``, a read-only
+    view): the library's own (a result, a reader's hand-over), which does not change, so it is kept as it is
+    (no second copy of a long record) and what was checked about it holds."""
+    return (isinstance(arr, np.ndarray) and (arr.base is None or view) and not arr.flags.writeable
+            and (dtype is None or arr.dtype == dtype))
+
+
 def _freeze(obj, names, dtype=None, views=()) -> None:
     """Replace the array fields ``names`` of a frozen dataclass by read-only copies.
 
-    An array that is already read-only and owns its data (the library's own results, e.g. of
+    An array that is already read-only and owns its data (:func:`_trusted`: the library's own results, e.g. of
     :func:`~fusion_gyrocal.pipeline.alignment.align_streams`) is kept as it is: no second copy of a
     long record; so is a read-only view for the fields ``views`` (gyro 1's samples on its own timestamps).
     """
     for name in names:
         arr = getattr(obj, name)
-        if not (isinstance(arr, np.ndarray) and (arr.base is None or name in views) and not arr.flags.writeable
-                and (dtype is None or arr.dtype == dtype)):
+        if not _trusted(arr, dtype, name in views):
             arr = np.array(arr, dtype=dtype)
             arr.flags.writeable = False
         object.__setattr__(obj, name, arr)
@@ -194,8 +201,7 @@ def remember_timestamps(t: np.ndarray, median: float, quality: TimestampQuality)
     an array does not change, so its checks, diagnosis and median step hold as long as it lives (the entry goes
     with it). Other arrays are not remembered: every step checks them again.
     """
-    if not isinstance(t, np.ndarray) or t.flags.writeable or t.base is not None or t.dtype != np.float64 \
-            or t.ndim != 1:
+    if not _trusted(t) or t.ndim != 1:
         return
     key = id(t)
     forget = _KNOWN.pop        # bound now: the entry goes when the array does, also at interpreter exit
