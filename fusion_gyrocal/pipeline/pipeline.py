@@ -431,7 +431,7 @@ def _calibrate(w1, w2, mask, pair, resampling, o: Options, base: Moments | None 
         noise_model = _identify(w1, w2, mask, rate_hz, base, resampling)
         if noise_model is not None:
             noise_std = noise_model.noise_std
-    if noise_std is None and noise is None:  # split the residual variance by each stream's high-frequency noise
+    if noise_std is None:  # split the residual variance by each stream's high-frequency noise
         d1, d2 = (difference_noise_std(w, mask) for w in (w1, w2))  # a bounded subsample of the log
         noise_ratio = d1 / d2 if d1 > 0 and d2 > 0 else None
     bias = BiasModel.of(o, noise_std, noise_model)
