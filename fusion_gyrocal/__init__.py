@@ -22,6 +22,7 @@ _LAZY = {
     "GyroPairTracker": "online.tracker", "TrackerConfig": "online.config",
     "calibrate_pair_graph": "graph", "GyroPairGraph": "graph",
     "run_fleet": "distributed.fleet",
+    "compare_sessions": "core.sessions", "SessionComparison": "core.sessions",
 }
 
 __all__ = ["__version__", *_LAZY]

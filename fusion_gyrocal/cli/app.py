@@ -44,6 +44,7 @@ EXIT_ERROR = 1
 EXIT_USAGE = 2  # argparse's own exit for a bad command line
 EXIT_NOT_RIGID = 3
 EXIT_SOME_FAILED = 4
+EXIT_CHANGED = 5
 EXIT_INTERNAL = 70
 EXIT_INTERRUPTED = 130
 
@@ -53,6 +54,7 @@ EXIT_MEANINGS = (
     (EXIT_USAGE, "a bad command line (usage)"),
     (EXIT_NOT_RIGID, "the gyros are not rigid (--allow-not-rigid: a flagged result and exit 0, pairs only)"),
     (EXIT_SOME_FAILED, "(fleet) some devices failed"),
+    (EXIT_CHANGED, "(sessions) the device changed between sessions"),
     (EXIT_INTERNAL, "an unexpected error (--debug shows the traceback)"),
     (EXIT_INTERRUPTED, "interrupted"),
 )
@@ -92,7 +94,7 @@ def one_line(text: str) -> str:
     return " ".join(" ".join(line.split()) for line in str(text).splitlines()
                     if line.strip() and not _CARETS.match(line))
 
-COMMANDS = ("calibrate", "report", "noise", "demo", "compare", "fleet", "track")
+COMMANDS = ("calibrate", "report", "noise", "demo", "compare", "fleet", "track", "sessions")
 """The command modules of this package, in the order ``gyrocal --help`` lists them."""
 
 EXAMPLES = """examples:
@@ -107,6 +109,7 @@ EXAMPLES = """examples:
   gyrocal calibrate exp_1.npz --nominal "180 deg about (1,-1,0)" --ros ros/ --noise imu.yaml --openvins chain.yaml
   gyrocal noise static.csv --kalibr imu.yaml --plot allan.png          (Allan analysis of a static recording)
   gyrocal track pair.csv --seed cal.json --follow                                    (live drift, JSON lines)
+  gyrocal sessions monday.json tuesday.json wednesday.json         (did the device change? exit 5 if it did)
 
 """ + textwrap.fill("exit codes: " + "; ".join(f"{code} {meaning}" for code, meaning in EXIT_MEANINGS),
                     width=118, break_on_hyphens=False) + "\n"
