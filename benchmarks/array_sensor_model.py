@@ -97,7 +97,7 @@ def mimu(linear_maps, timing_models, keywords: dict) -> None:
               f"views without the reference: mean {np.mean(shifts) / MDEG:.2f}, largest {np.max(shifts) / MDEG:.2f} "
               f"mdeg; view vs the pair solver on the same moments: RMS {np.sqrt(np.mean(np.square(gaps))) / MDEG:.1f} "
               "mdeg")
-        consistency(per_pair, PAIRS)
+        consistency(per_pair, PAIRS, arrays)
         site_check(per_pair, PAIRS, lambda k, l: [a.pair(k - 1, l - 1) for a in arrays], d.parent)
     for lm in linear_maps:
         if (lm, "off") in seconds and (lm, "auto") in seconds:

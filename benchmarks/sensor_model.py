@@ -12,14 +12,15 @@ and the defaults (or ``--linear-map``), this prints per pair the RMS session-to-
 residual's chi2/dof, the robust inflation, how many sessions used the full linear map and its largest
 cross-axis term.
 
-Then a leave-one-session-out consistency check: per session, how far its rotation sits from the mean of the other
-eight in units of its covariance (``z^2`` of the difference against the session's repeatable covariance plus that
-of the others' mean, 3 dof), the median over the pairs and the pairs where it exceeds the chi-square 99.9 % point
-(16.3). A session beyond that point in more than half of the pairs is flagged (a board that changed in that
-session, not noise), and the target figures are printed again without the flagged sessions. The library keeps
-every session: the check is the benchmark's, the decision the reader's. Last, per site of two co-located chips
-(top and bottom of the board at one x, y): both chips' deviations from chip 1 in the sessions that stand out, and
-the co-located pair's own leave-one-out z^2; two different chips that moved alike while their own pair stayed put
+Then the library's change test (:func:`fusion_gyrocal.compare_sessions`) per pair: per session, how far its rotation
+sits from the information-weighted mean of the consistent others in units of its repeatable covariance plus the
+mean's (``z^2``, 3 dof), the median over the pairs and the pairs where the test says the session changed (beyond the
+chi-square point of a 1 % false-alarm rate over the nine sessions). A session changed in more than half of the pairs
+is flagged (a board that changed in that session, not noise), and the target figures are printed again without the
+flagged sessions. The library keeps
+every session and tests each pair; the flagging over pairs is the benchmark's, the decision the reader's. Last, per
+site of two co-located chips (top and bottom of the board at one x, y): both chips' deviations from chip 1 in the
+sessions that stand out, and the co-located pair's own change-test z^2; two different chips that moved alike while their own pair stayed put
 are a site of the board that moved (a bend), not an estimate that erred.
 
 With ``--broad``, BROAD's undisturbed trials split into halves, one half against the other (a truth within a trial).
@@ -37,7 +38,7 @@ import time
 
 import numpy as np
 
-from fusion_gyrocal import calibrate_pair
+from fusion_gyrocal import calibrate_pair, compare_sessions
 from fusion_gyrocal.evaluate.sim import shared_data_dir
 from fusion_gyrocal.lie import log
 
@@ -62,20 +63,10 @@ def session_pairs(cals):
     return float(np.sqrt(np.mean(d2))), np.array(z2)
 
 
-#: chi-square (3 dof) 99.9 % point: a session's leave-one-out z^2 beyond it is not noise
-LOO_LIMIT = 16.27
-
-
-def leave_one_out(cals) -> np.ndarray:
-    """Per session, the z^2 (3 dof) of its rotation against the mean of the others, in units of its repeatable
-    covariance plus that of the others' mean (``sum P_k / (n - 1)^2``)."""
-    out = []
-    for e, c in enumerate(cals):
-        others = [o for k, o in enumerate(cals) if k != e]
-        d = np.mean([log(o.R_1_2 @ c.R_1_2.T) for o in others], axis=0)   # the others' mean about session e
-        P = repeatable(c) + sum(repeatable(o) for o in others) / len(others) ** 2
-        out.append(float(d @ np.linalg.solve(P, d)))
-    return np.array(out)
+def session_test(cals):
+    """The library's change test of one pair's sessions (:func:`fusion_gyrocal.compare_sessions`): each session
+    against the consistent others' mean, in units of the repeatable covariances."""
+    return compare_sessions(cals, [f"exp_{e + 1}" for e in range(len(cals))])
 
 
 def summary(per_pair, sessions) -> str:
@@ -87,27 +78,37 @@ def summary(per_pair, sessions) -> str:
             f"{np.concatenate(z2).mean():.2f} (3 dof)")
 
 
-def consistency(per_pair, pairs) -> None:
-    """Print the leave-one-session-out check and the target figures with and without the flagged sessions."""
-    loo = np.array([leave_one_out(cals) for cals in per_pair])          # (pairs, sessions)
-    n = loo.shape[1]
-    print(f"\nleave-one-session-out: each session against the mean of the other {n - 1}, z2 (3 dof) in units of "
-          f"its covariance; flagged when beyond {LOO_LIMIT:g} (chi2 99.9 %) in more than half of the pairs")
-    print(f"{'session':>8} {'median z2':>10} {'max z2':>8} {'pairs beyond':>13}  worst pairs")
+def consistency(per_pair, pairs, arrays=None) -> None:
+    """Print the change test per session (the library's, per pair; with ``arrays``, also the arrays' joint test)
+    and the target figures with and without the flagged sessions: those the joint test finds changed (arrays), else
+    those changed in more than half of the pairs."""
+    tests = [session_test(cals) for cals in per_pair]
+    z2 = np.array([t.z2 for t in tests])          # (pairs, sessions)
+    changed = np.array([t.changed for t in tests])
+    n = z2.shape[1]
+    print(f"\nchange test (compare_sessions): each session against the consistent others' mean, z2 (3 dof) in units "
+          f"of their covariances; changed beyond {tests[0].limit:.1f} (false alarms 1 % over the {n} sessions); "
+          + ("flagged when changed in more than half of the pairs" if arrays is None else
+             "flagged when the arrays' joint test finds the session changed"))
+    joint = None if arrays is None else compare_sessions(arrays, [f"exp_{e + 1}" for e in range(len(arrays))])
+    print(f"{'session':>8} {'median z2':>10} {'max z2':>8} {'pairs changed':>14}  worst pairs"
+          + ("" if joint is None else f"   array jointly ({joint.dof} dof, changed beyond {joint.limit:.1f})"))
     flagged = []
     for e in range(n):
-        beyond = loo[:, e] > LOO_LIMIT
-        worst = np.argsort(loo[:, e])[::-1][:3]
-        print(f"{'exp_' + str(e + 1):>8} {np.median(loo[:, e]):10.1f} {loo[:, e].max():8.1f} "
-              f"{int(beyond.sum()):>6d}/{len(pairs):<6d}  "
-              + ", ".join(f"{pairs[k][0]}-{pairs[k][1]} ({loo[k, e]:.0f})" for k in worst))
-        if beyond.sum() > len(pairs) / 2:
+        worst = np.argsort(z2[:, e])[::-1][:3]
+        print(f"{'exp_' + str(e + 1):>8} {np.median(z2[:, e]):10.1f} {z2[:, e].max():8.1f} "
+              f"{int(changed[:, e].sum()):>7d}/{len(pairs):<6d}  "
+              + ", ".join(f"{pairs[k][0]}-{pairs[k][1]} ({z2[k, e]:.0f})" for k in worst)
+              + ("" if joint is None else f"   z2 {joint.z2[e]:.1f}{' CHANGED' if joint.changed[e] else ''}"))
+        if (changed[:, e].sum() > len(pairs) / 2) if joint is None else joint.changed[e]:
             flagged.append(e)
     everything = list(range(n))
     print(f"all {n} sessions: {summary(per_pair, everything)}")
+    if joint is not None:
+        print(f"array jointly: the consistent sessions' spread is {joint.spread:.2f} per dof ({joint.spread_dof} dof)")
     if flagged:
         names = ", ".join(f"exp_{e + 1}" for e in flagged)
-        print(f"without {names} (beyond the 99.9 % point in more than half of the pairs): "
+        print(f"without {names} ({'changed in more than half of the pairs' if joint is None else 'changed jointly'}): "
               f"{summary(per_pair, [e for e in everything if e not in flagged])}")
     else:
         print("no session flagged")
@@ -121,29 +122,27 @@ def sites(folder) -> list[tuple[int, int]]:
 
 
 def site_check(per_pair, pairs, co_located, folder) -> None:
-    """Did a flagged session's chips move, or did the estimate err? Per site of two co-located chips k, l (top and
-    bottom of the board, different chips with different axes), each chip's leave-one-out deviation from reference
-    chip 1 (rotation vector in chip 1's frame) beside the leave-one-out z^2 of the pair k-l itself: a site that moved
-    as a whole shows the same deviation on both chips and a small z^2 of k-l (a deformation of the board between
-    the sites; noise or a chip's own sensor model would not move two chips alike). ``co_located(k, l)``: the pair
-    k-l's calibrations, one per session."""
-    def deviation(cals, e):
-        return np.mean([log(o.R_1_2 @ cals[e].R_1_2.T) for k, o in enumerate(cals) if k != e], axis=0)
-
-    print("\nsites (co-located chips, IMU_positions.csv): each chip's leave-one-out deviation from chip 1 (mdeg, "
-          "about chip 1's x, y, z) and the leave-one-out z2 of the co-located pair itself")
+    """Did a changed session's chips move, or did the estimate err? Per site of two co-located chips k, l (top and
+    bottom of the board, different chips with different axes), each chip's deviation from its consistent sessions'
+    mean against reference chip 1 (:func:`fusion_gyrocal.compare_sessions`, rotation vector in chip 1's frame) beside
+    the change test's z^2 of the pair k-l itself: a site that moved as a whole shows the same deviation on both chips
+    and a small z^2 of k-l (a deformation of the board between the sites; noise or a chip's own sensor model would
+    not move two chips alike). ``co_located(k, l)``: the pair k-l's calibrations, one per session."""
+    print("\nsites (co-located chips, IMU_positions.csv): each chip's deviation from its consistent sessions' mean "
+          "against chip 1 (mdeg, about chip 1's x, y, z) and the change test's z2 of the co-located pair itself")
     given = dict(zip(pairs, per_pair))
     for k, l in sites(folder):
         if (1, k) not in given or (1, l) not in given:
             continue
         own = co_located(k, l)
-        loo = leave_one_out(own)
+        test = session_test(own)
+        dk_all, dl_all = (session_test(given[(1, m)]).deviation[:, 0] / DEG * 1e3 for m in (k, l))
         for e in range(len(own)):
-            dk, dl = (deviation(given[(1, m)], e) / DEG * 1e3 for m in (k, l))
-            if max(np.abs(dk).max(), np.abs(dl).max()) < 15.0 and loo[e] < LOO_LIMIT:
+            dk, dl = dk_all[e], dl_all[e]
+            if max(np.abs(dk).max(), np.abs(dl).max()) < 15.0 and not test.changed[e]:
                 continue
             print(f"  site {k}/{l} exp_{e + 1}: chip {k} [{dk[0]:6.1f} {dk[1]:6.1f} {dk[2]:6.1f}], chip {l} "
-                  f"[{dl[0]:6.1f} {dl[1]:6.1f} {dl[2]:6.1f}]; pair {k}-{l} z2 {loo[e]:.1f}")
+                  f"[{dl[0]:6.1f} {dl[1]:6.1f} {dl[2]:6.1f}]; pair {k}-{l} z2 {test.z2[e]:.1f}")
         print(f"  site {k}/{l}: pair {k}-{l} over all sessions: {summary([own], list(range(len(own))))}")
 
 
