@@ -10,6 +10,14 @@
      rate_scale     gyro 2's scale error grows with the rate: 0.2 % per rad/s of |omega|
      flex_smooth    the mounting bends with the rate above 2.5 rad/s, up to 1 deg at 5 rad/s (200 s, 1 rad/s RMS;
                     benchmarks/flex_gate.py compares it with the same runs without flex)
+     impacts        heavy-tailed noise: each gyro on its own has bursts of 10 samples at 10x its noise std
+                    starting at 0.5 % of the samples (shocks, vibration a chip rectifies); the bound is the white
+                    noise's without the bursts
+     jitter         gyro 2 sampled late by a random delay per sample, uniform in [0, 2] ms (a chip's sampling
+                    instant wandering against the read-out: a residual of the rate's derivative times the delay,
+                    largest where the motion turns fast), 1 rad/s RMS
+   ``--robust-weights auto`` runs every case with the per-sample weights (``robust_weights``, off by default) to
+   see whether the covariance still covers the error with them.
    Printed: rotation and scale RMSE / Cramer-Rao bound of the white-noise model (for coloured noise, of
    white noise with the same per-sample variance), the mean z^2 of the rotation error against the
    reported rotation covariance (3 = honest; [0.75, 6] accepted), failed runs, the covariance basis.
@@ -19,6 +27,7 @@
    noise against each IMU's first 20 s at rest; then the same for the joint calibration of all 8 IMUs.
 
     python benchmarks/honesty.py [--runs 50] [--workers 2] [--cases nominal,coloured] [--no-mimu]
+                                 [--robust-weights auto|off]
 """
 
 from __future__ import annotations
@@ -34,15 +43,27 @@ from scipy.signal import lfilter
 from fusion_gyrocal import calibrate_pair
 from fusion_gyrocal.core.observability import cramer_rao_bound
 from fusion_gyrocal.errors import GyroCalError
-from fusion_gyrocal.evaluate.sim import (DEG, PAPER_BIAS_WALK_STD, PAPER_NOISE_STD, general_rotation, rotation_error,
-                                         scale_error, shared_data_dir, simulate_pair)
+from fusion_gyrocal.evaluate.sim import (DEG, PAPER_BIAS_WALK_STD, PAPER_NOISE_STD, PAPER_RATE_HZ, HumanMotion,
+                                         general_rotation, rotation_error, scale_error, shared_data_dir, simulate_pair)
 from fusion_gyrocal.lie import log
 
-CASES = ("nominal", "weak_axis", "slow_motion", "coloured", "drifting_bias", "rate_scale", "flex_smooth")
+CASES = ("nominal", "weak_axis", "slow_motion", "coloured", "drifting_bias", "rate_scale", "flex_smooth", "impacts",
+         "jitter")
+JITTER_S = 2e-3   # the jitter case: gyro 2's sampling delay is uniform in [0, JITTER_S]
+BURST, BURST_GAIN, BURST_RATE = 1, 8.0, 0.01  # the impacts case: samples per burst, noise gain, starts per sample
 RHO = 0.9
 
 
-def case(name: str, k: int) -> dict:
+def _bursts(n: int, noise: float, rng) -> np.ndarray:
+    """(n, 3) extra noise of one gyro: bursts of :data:`BURST` samples at :data:`BURST_GAIN` times ``noise`` (the
+    burst's variance beyond the white noise's) starting at a :data:`BURST_RATE` share of the samples."""
+    on = np.zeros(n, bool)
+    for a in np.flatnonzero(rng.random(n) < BURST_RATE):
+        on[a:a + BURST] = True
+    return np.where(on[:, None], rng.normal(0.0, noise * np.sqrt(BURST_GAIN ** 2 - 1.0), (n, 3)), 0.0)
+
+
+def case(name: str, k: int, keywords=None) -> dict:
     rng = np.random.default_rng([zlib.crc32(name.encode()), k])
     R = general_rotation(rng)
     s1, s2 = rng.normal(1.0, 0.01, 3), rng.normal(1.0, 0.01, 3)
@@ -53,9 +74,10 @@ def case(name: str, k: int) -> dict:
         rms = 0.02
     elif name == "drifting_bias":
         n, walk = 60000, 100 * PAPER_BIAS_WALK_STD
-    elif name == "flex_smooth":
-        n, rms = 20000, 1.0
-    sim = simulate_pair(n=n, rms=rms, R_1_2=R, scale_1=s1, scale_2=s2, bias_walk_std=walk,
+    elif name in ("flex_smooth", "jitter"):
+        n, rms = 20000 if name == "flex_smooth" else n, 1.0
+    motion, t = HumanMotion(rms, rng=rng), np.arange(n) / PAPER_RATE_HZ
+    sim = simulate_pair(motion(t), R_1_2=R, scale_1=s1, scale_2=s2, bias_walk_std=walk,
                         noise_std=1e-12 if name == "coloured" else noise, rng=rng)
     w1, w2 = sim.omega_1, sim.omega_2
     w2_true = sim.omega_true_1 @ R                       # gyro 2's true rate (its own frame)
@@ -67,10 +89,14 @@ def case(name: str, k: int) -> dict:
     elif name == "flex_smooth":
         from fusion_gyrocal.evaluate.sim import bend_with_rate
         w2 = bend_with_rate(sim, rng=rng)[0].omega_2
+    elif name == "jitter":   # gyro 2's true rate at its late instants instead of the nominal ones
+        w2 = w2 + (motion(t + rng.uniform(0.0, JITTER_S, n)) - sim.omega_true_1) @ R * s2
+    elif name == "impacts":
+        w1, w2 = w1 + _bursts(n, noise, rng), w2 + _bursts(n, noise, rng)
     bound = cramer_rao_bound(R, s1, s2, (noise, noise), w2_true * s2)
     out = {"bound": (bound.rotation_rmse, bound.scale_rmse), "fail": None}
     try:
-        cal = calibrate_pair(w1, w2)
+        cal = calibrate_pair(w1, w2, **(keywords or {}))
     except GyroCalError as exc:
         out["fail"] = f"{type(exc).__name__}: {exc}"[:120]
         return out
@@ -79,7 +105,7 @@ def case(name: str, k: int) -> dict:
     out.update(rot=rotation_error(cal.R_1_2, R), scale=scale_error(cal.scale_1, cal.scale_2, s1, s2),
                z2=float(d @ np.linalg.solve(P, d)), basis=cal.covariance_basis.split(" (")[0],
                inflation=cal.robust_inflation, kind=cal.noise_model.kind if cal.noise_model else cal.noise_source,
-               rejected=cal.rejected_fraction)
+               rejected=cal.rejected_fraction, weighted=any(n.startswith("robust weights") for n in cal.notes))
     return out
 
 
@@ -87,14 +113,15 @@ def _run(args):
     return case(*args)
 
 
-def simulations(runs: int, workers: int, names) -> None:
-    print(f"1. {runs} Monte Carlo runs per case, calibrate_pair(omega_1, omega_2) with the defaults; RMSE / Cramer-Rao "
-          "bound; z^2 = rotation error against the reported covariance (3 = honest)")
+def simulations(runs: int, workers: int, names, keywords=None) -> None:
+    print(f"1. {runs} Monte Carlo runs per case, calibrate_pair(omega_1, omega_2) with "
+          f"{keywords or 'the defaults'}; RMSE / Cramer-Rao bound; z^2 = rotation error against the reported "
+          "covariance (3 = honest); weighted = runs the per-sample weights were kept in")
     print(f"{'case':>14} {'rot/bound':>10} {'scale/bound':>12} {'mean z2':>8} {'median z2':>10} {'failed':>7} "
-          f"{'rejected':>9} {'robust used':>12} {'noise identified as (most runs)':>40}")
+          f"{'rejected':>9} {'robust used':>12} {'weighted':>9} {'noise identified as (most runs)':>40}")
     with ProcessPoolExecutor(workers) as pool:
         for name in names:
-            res = list(pool.map(_run, [(name, k) for k in range(runs)], chunksize=2))
+            res = list(pool.map(_run, [(name, k, keywords) for k in range(runs)], chunksize=2))
             ok = [r for r in res if r["fail"] is None]
             if not ok:
                 print(f"{name:>14} every run failed: {res[0]['fail']}")
@@ -109,7 +136,8 @@ def simulations(runs: int, workers: int, names) -> None:
             kind = max(set(kinds), key=kinds.count)
             rej = np.mean([r["rejected"] for r in ok])
             print(f"{name:>14} {er / br:10.3f} {es / bs:12.3f} {z2.mean():8.2f} {np.median(z2):10.2f} "
-                  f"{len(res) - len(ok):7d} {100 * rej:8.1f}% {robust:>7d}/{len(ok):<4d} {kind:>40}")
+                  f"{len(res) - len(ok):7d} {100 * rej:8.1f}% {robust:>7d}/{len(ok):<4d} "
+                  f"{sum(r['weighted'] for r in ok):>5d}/{len(ok):<3d} {kind:>40}")
             for r in res:
                 if r["fail"] is not None:
                     print(f"{'':>14} failed: {r['fail']}")
@@ -178,12 +206,13 @@ def main(argv=None):
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--cases", default=",".join(CASES))
     ap.add_argument("--no-mimu", action="store_true")
+    ap.add_argument("--robust-weights", default=None, help="the robust_weights option (default: the library's)")
     a = ap.parse_args(argv)
     names = [c for c in a.cases.split(",") if c]
     unknown = sorted(set(names) - set(CASES))
     if unknown:
         ap.error(f"unknown case(s) {unknown}; expected some of {', '.join(CASES)}")
-    simulations(a.runs, a.workers, names)
+    simulations(a.runs, a.workers, names, None if a.robust_weights is None else {"robust_weights": a.robust_weights})
     if not a.no_mimu:
         mimu()
 
