@@ -112,11 +112,14 @@ class SessionComparison:
         lines = [f"{len(self.names)} sessions, {', '.join(self.rotations)} compared; changed where z2 > "
                  f"{self.limit:.1f} ({self.dof} dof, false alarms {self.alpha:g} over all sessions)"]
         for e, name in enumerate(self.names):
-            parts = "; ".join(f"{r}: [{', '.join(f'{v:7.1f}' for v in self.deviation[e, k] * mdeg)}] +- "
-                              f"[{', '.join(f'{v:5.1f}' for v in self.deviation_std[e, k] * mdeg)}]"
-                              for k, r in enumerate(self.rotations))
-            verdict = "CHANGED" if self.changed[e] else "consistent"
-            lines.append(f"{name:>{width}}  {parts} mdeg  z2 {self.z2[e]:7.1f}  p {self.p_value[e]:.2g}  {verdict}")
+            rows = [f"{r}: [{', '.join(f'{v:7.1f}' for v in self.deviation[e, k] * mdeg)}] +- "
+                    f"[{', '.join(f'{v:5.1f}' for v in self.deviation_std[e, k] * mdeg)}] mdeg"
+                    for k, r in enumerate(self.rotations)]
+            verdict = f"z2 {self.z2[e]:7.1f}  p {self.p_value[e]:.2g}  {'CHANGED' if self.changed[e] else 'consistent'}"
+            if len(rows) == 1:
+                lines.append(f"{name:>{width}}  {rows[0]}  {verdict}")
+            else:   # an array: the verdict, then each rotation's deviation
+                lines += [f"{name:>{width}}  {verdict}"] + [f"{'':>{width}}    {row}" for row in rows]
         lines.append(f"consistent sessions' spread: z2 per dof {self.spread:.2f} ({self.spread_dof} dof; 1 when their "
                      "covariances explain it)")
         lines += list(self.notes)
