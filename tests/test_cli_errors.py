@@ -120,3 +120,29 @@ def test_monte_carlo_worker_warnings_are_returned_to_the_parent(monkeypatch):
     record, caught = montecarlo._pool_task(("nominal", 1.0, None), (0, 0), ("rotation_only",), Options())
     assert record.estimates[0].ok
     assert ("from a worker", RuntimeWarning) in [(m, c) for m, c, _, _ in caught]
+
+
+def test_run_command_closed_pipe_is_quiet(capsys):
+    """A reader that closed the pipe (``gyrocal sessions ... | head``) ends the command with 141 and no message."""
+    import argparse
+    import subprocess
+    import sys
+
+    from fusion_gyrocal.cli.app import EXIT_PIPE_CLOSED, run_command
+
+    def writes_to_a_closed_pipe(args):
+        raise BrokenPipeError(32, "Broken pipe")
+
+    assert run_command(writes_to_a_closed_pipe, argparse.Namespace()) == EXIT_PIPE_CLOSED
+    assert capsys.readouterr().err == ""
+    code = ("import sys; from fusion_gyrocal.cli.app import run_command\n"
+            "def run(args):\n"
+            "    for _ in range(200000):\n"
+            "        print('x' * 60)\n"
+            "sys.exit(run_command(run, None))\n")
+    writer = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    writer.stdout.read(100)
+    writer.stdout.close()                     # the reader goes away, as head does
+    err = writer.stderr.read().decode()
+    assert writer.wait(timeout=60) == EXIT_PIPE_CLOSED
+    assert err == ""

@@ -47,6 +47,7 @@ EXIT_SOME_FAILED = 4
 EXIT_CHANGED = 5
 EXIT_INTERNAL = 70
 EXIT_INTERRUPTED = 130
+EXIT_PIPE_CLOSED = 141   # 128 + SIGPIPE: what a shell reports for a writer whose reader went away
 
 EXIT_MEANINGS = (
     (EXIT_OK, "calibrated"),
@@ -57,6 +58,7 @@ EXIT_MEANINGS = (
     (EXIT_CHANGED, "(sessions) the device changed between sessions"),
     (EXIT_INTERNAL, "an unexpected error (--debug shows the traceback)"),
     (EXIT_INTERRUPTED, "interrupted"),
+    (EXIT_PIPE_CLOSED, "the reader of the output closed it (| head): no message"),
 )
 
 
@@ -73,6 +75,7 @@ ERROR_EXIT_CODES = (
     ExitRule(NotRigidError, EXIT_NOT_RIGID, "{prog}: {exc}"),
     ExitRule(GyroCalError, EXIT_ERROR, "{prog}: error: {exc}"),
     ExitRule(KeyboardInterrupt, EXIT_INTERRUPTED, "{prog}: interrupted"),
+    ExitRule(BrokenPipeError, EXIT_PIPE_CLOSED, ""),
     ExitRule(MemoryError, EXIT_ERROR, "{prog}: error: out of memory ({what}): the recording is too large for this "
              "machine or its timestamps are corrupt (a huge span or gap makes a huge time grid)", debug_raises=True),
     ExitRule(OSError, EXIT_ERROR, "{prog}: error: {exc}", debug_raises=True),
@@ -82,7 +85,8 @@ ERROR_EXIT_CODES = (
 """The error -> exit-code map of every command; the first row whose ``errors`` match wins.
 
 A row's ``message`` may use ``{prog}``, ``{exc}`` (the error's message, or its type when it has none),
-``{kind}`` (its type) and ``{what}`` (``kind: message``, or the type alone).
+``{kind}`` (its type) and ``{what}`` (``kind: message``, or the type alone); an empty one prints nothing (a closed
+pipe: the reader wanted no more, as ``head`` does).
 """
 
 _CARETS = re.compile(r"^\s*\^+\s*(\(line: \d+\))?\s*$")   # a parser's marker line under a quoted snippet
@@ -136,6 +140,15 @@ def flag_hint(message: str) -> str:
     return f"{message} (command line: {'; '.join(hints)})" if hints else message
 
 
+def _stdout_to_devnull() -> None:
+    try:
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, sys.stdout.fileno())
+        os.close(null)
+    except (OSError, ValueError, AttributeError):   # no file descriptor behind stdout (captured): nothing to do
+        pass
+
+
 def run_command(func, args, *, prog: str = "gyrocal", debug: bool | None = None) -> int:
     """Run ``func(args)`` and map what it raises to one stderr line and an exit code (:data:`ERROR_EXIT_CODES`).
 
@@ -159,6 +172,10 @@ def run_command(func, args, *, prog: str = "gyrocal", debug: bool | None = None)
             rule = next((r for r in ERROR_EXIT_CODES if isinstance(exc, r.errors)), None)
             if rule is None or (debug and rule.debug_raises):
                 raise
+            if isinstance(exc, BrokenPipeError):   # what is still buffered for the closed pipe goes nowhere, so
+                _stdout_to_devnull()               # the interpreter's last flush does not fail again at exit
+            if not rule.message:
+                return rule.code
             message = one_line(exc)
             kind = type(exc).__name__
             text = flag_hint(message) if isinstance(exc, GyroCalError) else message
