@@ -332,19 +332,18 @@ def _thinned(x1, y1):
     return x1[keep], y1[keep]
 
 
-def _newton(spl2: _RunSplines, x1, y1, tau0: float, h: float):
-    """Newton steps on the profiled misfit on all the instants ``x1`` from ``tau0``: ``(tau, lin, std)``, ``lin`` the
-    :class:`_Linearised` where ``std`` was taken; None where they do not settle.
+def _polish(spl2: _RunSplines, x1, y1, tau0: float, h: float):
+    """The offset minimising the profiled misfit on all the instants ``x1``, from ``tau0`` (the bracketed search's on
+    :func:`_thinned` instants): ``(tau, lin, std)``, ``lin`` the :class:`_Linearised` where ``std`` was taken.
 
-    Each step is :meth:`_Linearised.std_step`'s (the exact derivative ``C'``, the curvature by central
-    differences); the steps stop when one is within :func:`_tolerance`, which is then added: the result is the
-    minimum to well within the bracketed search's tolerance (after a step ``s`` the remaining error is ``s`` times
-    the curvature's relative error). A step within ``delta`` keeps the instants and the curvature
-    (:meth:`_Linearised.moved`: only the values and slopes at the new offset), so the usual two steps cost the
-    evaluations the std needs anyway and one more of the values and slopes. None (the caller searches with
-    brackets) where fewer than 16 instants stay inside gyro 2's runs, a step is not finite or longer than half a
-    step of the grid, the steps do not settle within ``_NEWTON_STEPS``, or they leave ``tau0 +- 1.5`` steps (the
-    bracketed search's first bracket).
+    Newton steps (:meth:`_Linearised.std_step`: the exact derivative ``C'``, the curvature by central differences)
+    until one is within :func:`_tolerance`, which is then added: the result is the minimum to well within the
+    bracketed search's tolerance (after a step ``s`` the remaining error is ``s`` times the curvature's relative
+    error). A step within ``delta`` keeps the instants and the curvature (:meth:`_Linearised.moved`: only the
+    values and slopes at the new offset), so the usual two steps cost the evaluations the std needs anyway and
+    one more of the values and slopes, where that search on all the instants takes six or more of the misfit.
+    Where a step is not finite, longer than half a step of the grid, or the steps do not settle, the bracketed
+    search (:func:`_refine`) runs on all the instants.
     """
     tau, lin = tau0, None
     for _ in range(_NEWTON_STEPS):
@@ -352,27 +351,12 @@ def _newton(spl2: _RunSplines, x1, y1, tau0: float, h: float):
             lin = lin.moved(spl2, tau, half_curv)
         else:
             lin = _linearise(spl2, x1, y1, tau, h)
-            if lin.x.size < 16:
-                return None
         std, step, half_curv = lin.std_step()
         if not (np.isfinite(step) and abs(step) <= 0.5 * h):
-            return None
+            break
         if abs(step) <= _tolerance(tau, h):
-            return (tau + step, lin, std) if abs(tau + step - tau0) <= 1.5 * h else None
+            return tau + step, lin, std
         tau += step
-    return None
-
-
-def _polish(spl2: _RunSplines, x1, y1, tau0: float, h: float):
-    """The offset minimising the profiled misfit on all the instants ``x1``, from ``tau0`` (the bracketed search's on
-    :func:`_thinned` instants): ``(tau, lin, std)``, ``lin`` the :class:`_Linearised` where ``std`` was taken.
-
-    :func:`_newton` steps, where the bracketed search on all the instants takes six or more evaluations of the
-    misfit; where they do not settle, the bracketed search (:func:`_refine`) runs on all the instants.
-    """
-    done = _newton(spl2, x1, y1, tau0, h)
-    if done is not None:
-        return done
     tau = _refine(spl2, x1, y1, tau0, h)[0]
     lin = _linearise(spl2, x1, y1, tau, h)
     return tau, lin, lin.std_step()[0]
@@ -500,14 +484,13 @@ def estimate_time_offset(t_1, omega_1, t_2, omega_2, *, max_offset_s: float | No
        golden-ratio spacing keeps the instants' phases relative to gyro 2's samples uniformly
        spread at every trial offset; evaluating at gyro 1's own sample times instead lets the
        phase-dependent variance of the interpolated noise pull the offset (up to ~0.1 ms for
-       two 200 Hz streams with slow motion). The 1-D minimisation is Newton's method on all the instants
-       (the exact derivative of the misfit, its curvature by central differences) until a step is within a
-       ten-thousandth of a grid step: from the correlation peak when there is one lobe, which costs the
-       evaluations the uncertainty (step 3) needs and one more of the values and slopes. With several lobes,
-       or where the steps do not settle within +-1.5 steps of the peak, Brent's method first searches a
-       +-1.5-step bracket around each peak, on every k-th 0.25 s block of the instants when there are
-       4 x 16384 or more (about 16384 of them; the lobes are compared there), and the Newton steps start
-       from the best lobe's minimum.
+       two 200 Hz streams with slow motion). The 1-D minimisation is Brent's method on a
+       +-1.5-step bracket around the coarse peak, on every k-th 0.25 s block of the instants when there
+       are 4 x 16384 or more (about 16384 of them; the lobes are compared there), then Newton steps on all
+       the instants (the exact derivative of the misfit, its curvature by central differences) until a step
+       is within Brent's tolerance (a ten-thousandth of a grid step): the minimum on all the instants with
+       the evaluations the uncertainty (step 3) needs there and one more of the values and slopes, where Brent
+       took six or more.
     3. Uncertainty: first order, ``offset_hat - offset = -sum_m d_m . r_m / (C''/2)`` with
        ``d_m = P A d/dt omega_2(x_m - offset)`` (``P`` projects out the directions of the profiled
        ``A`` and ``b``), residuals ``r_m`` and ``C''`` the curvature of the profiled misfit (central
@@ -657,53 +640,44 @@ def _estimate(t1, w1, ok1, t2, w2, ok2, max_offset_s, min_correlation, max_eval,
             f"the correlation peak ({r[i]:.3f}) lies on the search boundary at {lags[i]:+.4f} s; the offset may "
             f"lie beyond {what}: pass {more}")
 
-    # one lobe: Newton steps on all the instants from its peak; several (or Newton unsettled): the bracketed search
-    # on the thinned instants from each peak, the lobes compared by their misfits there, Newton steps from the best
-    polished = _newton(spl2, x1, y1, starts[0], h) if len(starts) == 1 and starts[0] is not None else None
-    if polished is not None:
-        i = cands[0]
-        if on_edge(i) or not lags[0] - hc <= polished[0] <= lags[-1] + hc:
+    fits, failures = [], []
+    for start in starts:
+        if start is None:
+            fits.append(None)
+            failures.append(TimeAlignmentError("the full-rate correlation found no peak near a coarse lobe"))
+            continue
+        try:
+            fits.append(_refine(spl2, *_thinned(x1, y1), start, h))
+        except TimeAlignmentError as exc:  # e.g. a lobe on the boundary whose minimum lies outside
+            fits.append(None)
+            failures.append(exc)
+    score = np.array([np.inf if fit is None else fit[3] for fit in fits])
+    best = int(np.argmin(score))
+    i = cands[best]
+    if not np.isfinite(score[best]):
+        if on_edge(i):
             raise boundary_error(i)
-    else:
-        fits, failures = [], []
-        for start in starts:
-            if start is None:
-                fits.append(None)
-                failures.append(TimeAlignmentError("the full-rate correlation found no peak near a coarse lobe"))
-                continue
-            try:
-                fits.append(_refine(spl2, *_thinned(x1, y1), start, h))
-            except TimeAlignmentError as exc:  # e.g. a lobe on the boundary whose minimum lies outside
-                fits.append(None)
-                failures.append(exc)
-        score = np.array([np.inf if fit is None else fit[3] for fit in fits])
-        best = int(np.argmin(score))
-        i = cands[best]
-        if not np.isfinite(score[best]):
-            if on_edge(i):
-                raise boundary_error(i)
-            if drift and starts[best] is not None:   # a drifting clock smears the whole-log misfit: per stretch
-                line = _drift_line(t1, w1, ok1, t2, w2, ok2, starts[best], h, gap1, gap2, max_eval, (spl2, x1, y1))
-                if line is not None:
-                    line = _drift_again(t1, w1, ok1, t2, w2, ok2, line, h, gap1, gap2, max_eval)
-                    return _drift_offset(line, t_ref, lags, r, float(r[i]), compensated=True)
-            raise failures[best]
-        if on_edge(i) or not lags[0] - hc <= fits[best][0] <= lags[-1] + hc:
-            raise boundary_error(i)
-        for j, c in enumerate(cands):  # a lobe on the boundary may hide a better offset outside the range
-            if on_edge(c) and not score[j] >= _AMBIGUITY_RATIO * score[best]:
-                raise boundary_error(c)
-        if len(cands) > 1:  # periodic norms: let the full rigid-model misfit decide, if it can
-            k = int(np.argsort(score)[1])
-            if score[k] < _AMBIGUITY_RATIO * score[best]:
-                raise TimeAlignmentError(
-                    f"ambiguous time offset: the rate norms correlate at {lags[i]:+.4f} s ({r[i]:.4f}) and at "
-                    f"{lags[cands[k]]:+.4f} s ({r[cands[k]]:.4f}), and the rigid-model misfits there differ by only "
-                    f"{score[k] / score[best]:.3g}x; periodic motion? record less repetitive motion, give the offset "
-                    "if you know it (time_offset_s), or a max_offset_s that leaves the other lobe out")
-        polished = _polish(spl2, x1, y1, fits[best][0], h)
+        if drift and starts[best] is not None:   # a drifting clock smears the whole-log misfit: per stretch
+            line = _drift_line(t1, w1, ok1, t2, w2, ok2, starts[best], h, gap1, gap2, max_eval, (spl2, x1, y1))
+            if line is not None:
+                line = _drift_again(t1, w1, ok1, t2, w2, ok2, line, h, gap1, gap2, max_eval)
+                return _drift_offset(line, t_ref, lags, r, float(r[i]), compensated=True)
+        raise failures[best]
+    if on_edge(i) or not lags[0] - hc <= fits[best][0] <= lags[-1] + hc:
+        raise boundary_error(i)
+    for j, c in enumerate(cands):  # a lobe on the boundary may hide a better offset outside the range
+        if on_edge(c) and not score[j] >= _AMBIGUITY_RATIO * score[best]:
+            raise boundary_error(c)
+    if len(cands) > 1:  # periodic norms: let the full rigid-model misfit decide, if it can
+        k = int(np.argsort(score)[1])
+        if score[k] < _AMBIGUITY_RATIO * score[best]:
+            raise TimeAlignmentError(
+                f"ambiguous time offset: the rate norms correlate at {lags[i]:+.4f} s ({r[i]:.4f}) and at "
+                f"{lags[cands[k]]:+.4f} s ({r[cands[k]]:.4f}), and the rigid-model misfits there differ by only "
+                f"{score[k] / score[best]:.3g}x; periodic motion? record less repetitive motion, give the offset if you "
+                "know it (time_offset_s), or a max_offset_s that leaves the other lobe out")
     peak = float(r[i])
-    tau, lin, std = polished
+    tau, lin, std = _polish(spl2, x1, y1, fits[best][0], h)
     line = (_drift_line(t1, w1, ok1, t2, w2, ok2, lin.tau, h, gap1, gap2, max_eval, (spl2, x1, y1), lin) if drift
             else None)
     if line is not None:
