@@ -6,7 +6,8 @@ then measures in one run:
 * as a user sees it (the comparison of issue 25's target): the whole ``gyrocal calibrate a.csv b.csv --unit2
   deg/s`` process beside ``python -c "import pandas; read both files"``, interpreter start and imports included,
   over interleaved rounds after a warm-up; wall time and the children's CPU time (user + system: on a shared
-  machine the wall time also counts other processes' turns), with the ratio's spread over the rounds;
+  machine the wall time also counts other processes' turns), with the ratio's spread over the rounds, and the
+  command's imports (one ``-X importtime`` run: their sum, scipy's part);
 * in this process (imports done): the whole command, its parts (reading both files, alignment: offset estimate
   + resampling, and of that the checks and resampling alone with the offset given; solving: moments, ML, flex
   checks) beside the time pandas and pyarrow need just to read the
@@ -140,6 +141,19 @@ def main(argv=None):
           f"{wall_ratios[0]:.2f}-{wall_ratios[-1]:.2f}, median {float(np.median(wall_ratios)):.2f})")
     print(f"process ratio, CPU time                       {cc / pc:8.2f} x (per round {cpu_ratios[0]:.2f}-"
           f"{cpu_ratios[-1]:.2f}, median {float(np.median(cpu_ratios)):.2f})")
+    # where the command's process spends its imports: one more run with -X importtime (its own overhead
+    # included), the top-level imports summed, scipy's named apart (it loads with the first spline and the noise fit)
+    trace = subprocess.run([sys.executable, "-X", "importtime", *cli_args], check=True, capture_output=True,
+                           env=env, text=True).stderr
+    top = {}
+    for line in trace.splitlines():
+        parts = line.split("|")
+        if line.startswith("import time:") and len(parts) == 3 and parts[1].strip().isdigit() \
+                and not parts[2].startswith("  "):
+            top[parts[2].strip()] = 1e-6 * int(parts[1])
+    scipy_s = sum(v for k, v in top.items() if k.split(".")[0] == "scipy")
+    print(f"{'process: imports (one -X importtime run)':<45} {sum(top.values()):8.3f} s, of which scipy "
+          f"{scipy_s:.3f} s ({', '.join(f'{k} {v:.3f}' for k, v in top.items() if k.split('.')[0] == 'scipy')})")
     shutil.rmtree(cache, ignore_errors=True)
     t_ref = dict(rows).get("pandas.read_csv of both files")
     if t_ref:

@@ -38,24 +38,26 @@ def _runs(t: np.ndarray, valid: np.ndarray, max_gap_s: float) -> list[np.ndarray
     return [idx[a:b] for a, b in zip(np.r_[0, cut], np.r_[cut, idx.size]) if b - a >= 2]
 
 
-def _spline_slopes(x: np.ndarray, Y: np.ndarray, first: np.ndarray, last: np.ndarray) -> np.ndarray:
-    """Knot slopes of the not-a-knot cubic spline of each run ``first[k]..last[k]`` of ``(x, Y)``.
+def _spline_slopes(x: np.ndarray, dx: np.ndarray, slope: np.ndarray, first: np.ndarray,
+                   last: np.ndarray) -> np.ndarray:
+    """Knot slopes ``(k, m)`` of the not-a-knot cubic spline of each run ``first[j]..last[j]`` of the knots ``x``
+    (``(m,)``, steps ``dx``) through values whose chord slopes are ``slope`` (``(k, m - 1)``).
 
     The same equations as scipy's ``CubicSpline`` (tridiagonal continuity of the second
     derivative, not-a-knot end rows in their tridiagonal form), with no coupling between runs, solved by
-    ``scipy.linalg.solve_banded`` (imported here: off the command line's start-up).
+    ``scipy.linalg.solve_banded`` (imported here: off the command line's start-up). The right-hand sides are laid
+    out one value channel per row, which is the column-major ``(m, k)`` block LAPACK solves in place (no copy in,
+    none out) and the layout :func:`_hermite_coefficients` reads.
     """
     from scipy.linalg import solve_banded
 
     m = x.size
-    dx = np.diff(x)
-    slope = np.diff(Y, axis=0) / dx[:, None]
     ab = np.zeros((3, m))  # banded storage: ab[1 + i - j, j] = a[i, j]
-    rhs = np.zeros_like(Y)
+    rhs = np.zeros((slope.shape[0], m))
     ab[1, 1:-1] = 2.0 * (dx[:-1] + dx[1:])
     ab[0, 2:] = dx[:-1]
     ab[2, :-2] = dx[1:]
-    rhs[1:-1] = 3.0 * (dx[1:, None] * slope[:-1] + dx[:-1, None] * slope[1:])
+    rhs[:, 1:-1] = 3.0 * (dx[1:] * slope[:, :-1] + dx[:-1] * slope[:, 1:])
     n = last - first + 1
     # cut the coupling between consecutive runs
     ab[2, first[first > 0] - 1] = 0.0
@@ -65,54 +67,49 @@ def _spline_slopes(x: np.ndarray, Y: np.ndarray, first: np.ndarray, last: np.nda
     d0 = x[i0 + 2] - x[i0]
     ab[1, i0] = dx[i0 + 1]
     ab[0, i0 + 1] = d0
-    rhs[i0] = (((dx[i0] + 2.0 * d0) * dx[i0 + 1])[:, None] * slope[i0]
-               + (dx[i0] ** 2)[:, None] * slope[i0 + 1]) / d0[:, None]
+    rhs[:, i0] = ((dx[i0] + 2.0 * d0) * dx[i0 + 1] * slope[:, i0] + dx[i0] ** 2 * slope[:, i0 + 1]) / d0
     d1 = x[i1] - x[i1 - 2]
     ab[1, i1] = dx[i1 - 2]
     ab[2, i1 - 1] = d1
-    rhs[i1] = ((dx[i1 - 1] ** 2)[:, None] * slope[i1 - 2]
-               + ((2.0 * d1 + dx[i1 - 1]) * dx[i1 - 2])[:, None] * slope[i1 - 1]) / d1[:, None]
+    rhs[:, i1] = (dx[i1 - 1] ** 2 * slope[:, i1 - 2] + (2.0 * d1 + dx[i1 - 1]) * dx[i1 - 2] * slope[:, i1 - 1]) / d1
     # short runs: explicit slopes (two samples: the line; three: the parabola through them)
     fixed, values = [], []
     for k in np.flatnonzero(~big):
         j = first[k]
         if n[k] == 2:
             fixed += [j, j + 1]
-            values += [slope[j], slope[j]]
+            values += [slope[:, j], slope[:, j]]
         else:
-            c = (slope[j + 1] - slope[j]) / (dx[j] + dx[j + 1])
+            c = (slope[:, j + 1] - slope[:, j]) / (dx[j] + dx[j + 1])
             fixed += [j, j + 1, j + 2]
-            values += [slope[j] - dx[j] * c, slope[j] + dx[j] * c, slope[j + 1] + dx[j + 1] * c]
+            values += [slope[:, j] - dx[j] * c, slope[:, j] + dx[j] * c, slope[:, j + 1] + dx[j + 1] * c]
     if fixed:
         fixed = np.asarray(fixed)
         ab[1, fixed] = 1.0
         ab[0, fixed[fixed < m - 1] + 1] = 0.0
         ab[2, fixed[fixed > 0] - 1] = 0.0
-        rhs[fixed] = np.asarray(values)
-    return solve_banded((1, 1), ab, rhs, check_finite=False)
+        rhs[:, fixed] = np.asarray(values).T
+    return solve_banded((1, 1), ab, rhs.T, overwrite_ab=True, overwrite_b=True, check_finite=False).T
 
 
-def _hermite_coefficients(x: np.ndarray, Y: np.ndarray, S: np.ndarray) -> np.ndarray:
-    """Coefficients ``(4, k, m - 1)`` of the piecewise cubic through ``(x, Y)`` (``(m, k)``) with knot slopes ``S``.
+def _hermite_coefficients(y: np.ndarray, s: np.ndarray, dx: np.ndarray, slope: np.ndarray) -> np.ndarray:
+    """Coefficients ``(4, k, m - 1)`` of the piecewise cubic through the values ``y`` (``(k, m)``, one channel per
+    row) at knots ``dx`` apart with knot slopes ``s`` (``(k, m)``) and chord slopes ``slope`` (``(k, m - 1)``).
 
     On ``[x_i, x_{i+1}]``: ``y = ((c0 d + c1) d + c2) d + c3`` with ``d = x - x_i`` (the cubic Hermite
     interpolant, as scipy's ``CubicHermiteSpline``). Laid out interval-last, so an evaluation gathers
     all ``4 k`` coefficients of its intervals with one ``take`` of 8-byte items.
     """
-    Yt, St = np.ascontiguousarray(Y.T), np.ascontiguousarray(S.T)
-    dx = np.diff(x)
-    c = np.empty((4,) + Yt.shape[:1] + (x.size - 1,))
-    slope = np.diff(Yt, axis=1)
-    slope /= dx
-    t = np.add(St[:, :-1], St[:, 1:], out=c[1])
+    c = np.empty((4,) + y.shape[:1] + (dx.size,))
+    t = np.add(s[:, :-1], s[:, 1:], out=c[1])
     t -= 2.0 * slope
     t /= dx                                  # c[1] holds t for now
     np.divide(t, dx, out=c[0])
-    np.subtract(slope, St[:, :-1], out=c[2])
+    np.subtract(slope, s[:, :-1], out=c[2])
     c[2] /= dx
     np.subtract(c[2], t, out=c[1])
-    c[2] = St[:, :-1]
-    c[3] = Yt[:, :-1]
+    c[2] = s[:, :-1]
+    c[3] = y[:, :-1]
     return c
 
 
@@ -141,7 +138,11 @@ class _RunSplines:
         last = first + lens - 1
         self.starts, self.ends = x[first], x[last]
         self.knots = x
-        self.coef = _hermite_coefficients(x, Y, _spline_slopes(x, Y, first, last))
+        Yt = np.ascontiguousarray(Y.T)       # one channel per row: each pass below runs along a row
+        dx = np.diff(x)
+        slope = np.diff(Yt, axis=1)
+        slope /= dx
+        self.coef = _hermite_coefficients(Yt, _spline_slopes(x, dx, slope, first, last), dx, slope)
 
     def run_of(self, x: np.ndarray) -> np.ndarray:
         """Index of the run containing each query time, -1 outside every run."""
