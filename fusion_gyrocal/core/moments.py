@@ -27,7 +27,12 @@ import numpy as np
 
 from ..errors import InputError, OptionError
 
-CHUNK_SIZE = 8192    # rows per chunk: the (7, 8192) float64 buffer (448 KiB per thread) stays in the L2 cache
+CHUNK_SIZE = 8192    # rows per chunk of the drifting-bias filter's windows (random_walk_bias_moments)
+# rows per chunk of the moments pass (Moments.from_samples): the (7, 6144) float64 buffer (336 KiB per worker)
+# stays in the L2 cache, and each chunk's product (7 x 6 x 6144 multiply-adds) stays below OpenBLAS's threading
+# threshold (4 x 65536): it runs on the calling worker instead of waking OpenBLAS's threads, which the pass's own
+# two workers would wait on
+PASS_ROWS = 6144
 
 
 # ---------------------------------------------------------------------------------------------- row helpers
@@ -219,8 +224,8 @@ def _accumulate(w1, w2, mask, lo, hi, chunk_size, extremes=None):
         np.subtract(w1[start:stop].T, s1, out=x[:3])
         np.subtract(w2[start:stop].T, s2, out=x[3:6])
         if extremes is not None:          # of the shifted values: rounding keeps their order
-            np.max(x[:6], axis=1, out=extremes[0][i])
-            np.min(x[:6], axis=1, out=extremes[1][i])
+            np.maximum.reduce(x[:6], axis=1, out=extremes[0][i])   # the ufuncs' own reductions: no wrappers
+            np.minimum.reduce(x[:6], axis=1, out=extremes[1][i])
         if keep is not None and not keep.all():
             x = x[:, keep]
         with np.errstate(over="ignore", invalid="ignore"):   # overflow is checked once below
@@ -355,7 +360,7 @@ class Moments:
         return cls(0.0, np.zeros(6), np.zeros((6, 6)), 0)
 
     @classmethod
-    def from_samples(cls, omega_1, omega_2, *, mask=None, weights=None, chunk_size: int = CHUNK_SIZE,
+    def from_samples(cls, omega_1, omega_2, *, mask=None, weights=None, chunk_size: int | None = None,
                      threads: int | None = None) -> "Moments":
         """Accumulate the moments of two sample-aligned rate streams in bounded memory.
 
@@ -372,8 +377,9 @@ class Moments:
             weights ``sigma^2 / sigma_k^2`` (sample ``k``'s residual variance against a reference white noise
             ``sigma``) the cost of Eq. 12-17 and its refinement is the likelihood of heteroscedastic samples.
             None (default): every sample weighs 1 (the unweighted pass, unchanged).
-        chunk_size : int
-            Rows per chunk; memory beyond the inputs is ``O(chunk_size * threads)``.
+        chunk_size : int, optional
+            Rows per chunk; memory beyond the inputs is ``O(chunk_size * threads)`` (default :data:`PASS_ROWS`,
+            with weights :data:`CHUNK_SIZE`).
         threads : int, optional
             Worker threads for long inputs (default: up to 2, bounded by the CPU count).
 
@@ -384,8 +390,9 @@ class Moments:
         """
         w1, w2, mask = as_rate_pair(omega_1, omega_2, mask)
         if weights is not None:
-            return weighted_moments(w1, w2, sample_weights(weights, w1.shape[0]), mask=mask, chunk_size=chunk_size)
-        return _moments(w1, w2, mask, chunk_size, threads)
+            return weighted_moments(w1, w2, sample_weights(weights, w1.shape[0]), mask=mask,
+                                    chunk_size=CHUNK_SIZE if chunk_size is None else chunk_size)
+        return _moments(w1, w2, mask, PASS_ROWS if chunk_size is None else chunk_size, threads)
 
     # ------------------------------------------------------------------ algebra
     def merge(self, other: "Moments") -> "Moments":
@@ -582,7 +589,7 @@ def weighted_moments(w1, w2, weights, *, mask=None, chunk_size: int = CHUNK_SIZE
     return Moments(count, mean, 0.5 * (scat + scat.T), 1 if count > 0 else 0)
 
 
-def moments_with_extremes(omega_1, omega_2, *, chunk_size: int = CHUNK_SIZE, threads: int | None = None):
+def moments_with_extremes(omega_1, omega_2, *, chunk_size: int = PASS_ROWS, threads: int | None = None):
     """``(moments, extremes_1, extremes_2)``: :meth:`Moments.from_samples` of every sample and each stream's
     :func:`column_extremes` ``(hi, lo, hi_repeats, lo_repeats)``, read in the same pass (what the clipping test
     of :func:`~fusion_gyrocal.pipeline.streams.saturation_mask` needs, at the cost of the chunks' extremes from
