@@ -30,6 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core.moments import median
+
 #: Tones searched (one per chip against the read-out clock).
 MAX_TONES = 2
 #: Harmonics of each tone (a sawtooth's shape).
@@ -139,7 +141,7 @@ def _is_line(power, i: int) -> bool:
     tone is a line; coloured noise or a wandering bias is a smooth spectrum, whose peaks are not."""
     lo, hi = max(i - LINE_CELLS * PADDING, 0), min(i + LINE_CELLS * PADDING + 1, len(power))
     around = np.concatenate([power[lo:max(i - 2 * PADDING, lo)], power[min(i + 2 * PADDING + 1, hi):hi]])
-    return around.size > 0 and power[i] > LINE_FACTOR * float(np.median(around))
+    return around.size > 0 and power[i] > LINE_FACTOR * float(median(around))
 
 
 def _high_pass(r, ok, window: int) -> np.ndarray:
@@ -199,7 +201,7 @@ def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int =
     ok &= np.all(np.isfinite(w1), axis=1) & np.all(np.isfinite(w2), axis=1)
     if np.count_nonzero(ok) < 100 * (1 + 2 * harmonics * max_tones):
         return NONE
-    dt = float(np.median(np.diff(t)))
+    dt = float(median(np.diff(t)))
     window = max(int(round(1.0 / dt)), 3) if dt < 1.0 else 64   # about a second (64 samples without timestamps)
     u = derivative(t, w2) @ np.asarray(A).T
     r = _high_pass(w1 - w2 @ np.asarray(A).T - bias, ok, window)
@@ -208,7 +210,7 @@ def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int =
     keep = uu > 0
     if not keep.any() or energy <= 0:
         return NONE
-    sigma2 = float(np.median(ru[keep] ** 2 / uu[keep])) / 0.455        # the residual along u, robustly (chi2_1)
+    sigma2 = float(median(ru[keep] ** 2 / uu[keep])) / 0.455        # the residual along u, robustly (chi2_1)
     slot = np.round((tt - tt[0]) / dt).astype(np.int64)                # each sample's place on a uniform grid
     cells = int(slot[-1]) + 1                                           # (logs with gaps: by time, not by index)
     if cells > 4 * len(t):
@@ -429,7 +431,7 @@ def estimate_array_timing(t, omegas, maps, biases, mask=None, *, reference: int 
     max_own = MAX_TONES - 1 if len(others) > 1 else MAX_TONES     # one tone per chip; one pair: both to gyro j
     if np.count_nonzero(ok) < 100 * (1 + 2 * harmonics * MAX_TONES):
         return nothing
-    dt = float(np.median(np.diff(t)))
+    dt = float(median(np.diff(t)))
     window = max(int(round(1.0 / dt)), 3) if dt < 1.0 else 64   # about a second (64 samples without timestamps)
     tt = t[ok]
     slot = np.round((tt - tt[0]) / dt).astype(np.int64)          # each sample's place on a uniform grid
@@ -452,7 +454,7 @@ def estimate_array_timing(t, omegas, maps, biases, mask=None, *, reference: int 
         energy = float(np.einsum("ij,ij->", r[ok], r[ok]))
         keep = uu > 0
         if keep.any() and energy > 0:
-            series[j] = _PairSeries(ru, uu, energy, float(np.median(ru[keep] ** 2 / uu[keep])) / 0.455)
+            series[j] = _PairSeries(ru, uu, energy, float(median(ru[keep] ** 2 / uu[keep])) / 0.455)
     if not series:
         return nothing
 
