@@ -66,15 +66,3 @@ def test_moments_pass_chunks_agree_to_rounding(threads):
     m, e1, e2 = moments_with_extremes(w1, w2, threads=threads)
     assert np.array_equal(m.scatter, a.scatter) and np.array_equal(e1[0], w1.max(axis=0))
     assert np.array_equal(e2[1], w2.min(axis=0))
-
-
-def test_edf_table_equals_the_scalar_formulas():
-    from fusion_gyrocal.core.allan import edf, edf_table
-
-    rng = np.random.default_rng(6)
-    for axes in (1, 3):
-        sub_m = np.array([1.0, 1.0, 2.0, 4.0, 4.0, 2.0, 1.0])
-        sub_n = rng.integers(10, 10**6, sub_m.size).astype(float)
-        want = np.maximum([[axes * edf(a, float(m), float(n)) for a in (0, -1, -2, 2)]
-                           for n, m in zip(sub_n, sub_m)], 1.0)
-        assert np.array_equal(edf_table(sub_n, sub_m, axes=axes), want)

@@ -212,17 +212,11 @@ def edf(alpha: int, m: float, N: float) -> float:
 def edf_table(sub_n, sub_m, axes: int = 3):
     """Equivalent degrees of freedom of each tau (``axes`` independent axes) for white, flicker and random-walk
     rate noise and white angle noise (alpha = 0, -1, -2, +2), :func:`edf` on the subsampled phase."""
-    N = np.asarray(sub_n, dtype=np.float64).reshape(-1)
-    m = np.asarray(sub_m, dtype=np.float64).reshape(-1)
-    out = np.empty((N.size, 4))
-    with np.errstate(divide="ignore", invalid="ignore"):   # :func:`edf`'s formulas, element-wise, in its order
-        white = (3.0 * (N - 1.0) / (2.0 * m) - 2.0 * (N - 2.0) / N) * 4.0 * m * m / (4.0 * m * m + 5.0)
-        out[:, 0] = white
-        out[:, 1] = np.where(m == 1, white, 5.0 * N * N / (4.0 * m * (N + 3.0 * m)))
-        out[:, 2] = np.where(m == 1, white, (N - 2.0) / m * ((N - 1.0) ** 2 - 3.0 * m * (N - 1.0) + 4.0 * m * m)
-                             / (N - 3.0) ** 2)
-        out[:, 3] = (N + 1.0) * (N - 2.0 * m) / (2.0 * (N - m))
-    return np.maximum(axes * out, 1.0)
+    out = np.empty((sub_n.size, 4))
+    for i, (n, m) in enumerate(zip(sub_n, sub_m)):
+        for j, alpha in enumerate((0, -1, -2, 2)):
+            out[i, j] = axes * edf(alpha, float(m), float(n))
+    return np.maximum(out, 1.0)
 
 
 def filtered_shape(taus, tc: float) -> np.ndarray:
