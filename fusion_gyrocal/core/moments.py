@@ -232,28 +232,28 @@ def _accumulate(w1, w2, mask, lo, hi, chunk_size, extremes=None):
     G = np.zeros((7, 6))
     n_tot = 0
     shift = None
-    for i, start in enumerate(range(lo, hi, chunk_size)):
-        stop = min(start + chunk_size, hi)
-        keep = None if mask is None else mask[start:stop]
-        x = buf[:, : stop - start]
-        if shift is None:                 # the first chunk with a kept sample: its mean is the shift
-            if keep is not None and not keep.any():
-                continue
-            first = [np.asarray(w[start:stop] if keep is None else w[start:stop][keep]) for w in (w1, w2)]
-            shift = np.concatenate([f.mean(axis=0, dtype=np.float64) for f in first])
-            if not np.isfinite(shift).all():
-                shift = np.zeros(6)       # the non-finite sums below name the first bad row
-            s1, s2 = shift[:3, None], shift[3:, None]
-        np.subtract(w1[start:stop].T, s1, out=x[:3])
-        np.subtract(w2[start:stop].T, s2, out=x[3:6])
-        if extremes is not None:          # of the shifted values: rounding keeps their order
-            np.maximum.reduce(x[:6], axis=1, out=extremes[0][i])   # the ufuncs' own reductions: no wrappers
-            np.minimum.reduce(x[:6], axis=1, out=extremes[1][i])
-        if keep is not None and not keep.all():
-            x = x[:, keep]
-        with np.errstate(over="ignore", invalid="ignore"):   # overflow is checked once below
-            G += np.dot(x, x[:6].T)       # products and (row of ones) sums; a plain gemm, measured faster
-        n_tot += x.shape[1]               # than numpy's syrk for A A^T at this shape
+    with np.errstate(over="ignore", invalid="ignore"):   # non-finite or overflowing sums are checked once below
+        for i, start in enumerate(range(lo, hi, chunk_size)):
+            stop = min(start + chunk_size, hi)
+            keep = None if mask is None else mask[start:stop]
+            x = buf[:, : stop - start]
+            if shift is None:                 # the first chunk with a kept sample: its mean is the shift
+                if keep is not None and not keep.any():
+                    continue
+                first = [np.asarray(w[start:stop] if keep is None else w[start:stop][keep]) for w in (w1, w2)]
+                shift = np.concatenate([f.mean(axis=0, dtype=np.float64) for f in first])
+                if not np.isfinite(shift).all():
+                    shift = np.zeros(6)       # the non-finite sums below name the first bad row
+                s1, s2 = shift[:3, None], shift[3:, None]
+            np.subtract(w1[start:stop].T, s1, out=x[:3])
+            np.subtract(w2[start:stop].T, s2, out=x[3:6])
+            if extremes is not None:          # of the shifted values: rounding keeps their order
+                np.maximum.reduce(x[:6], axis=1, out=extremes[0][i])   # the ufuncs' own reductions: no wrappers
+                np.minimum.reduce(x[:6], axis=1, out=extremes[1][i])
+            if keep is not None and not keep.all():
+                x = x[:, keep]
+            G += np.dot(x, x[:6].T)           # products and (row of ones) sums; a plain gemm, measured faster
+            n_tot += x.shape[1]               # than numpy's syrk for A A^T at this shape
     if n_tot == 0:
         return 0, np.zeros(6), np.zeros((6, 6))
     _check_gram(G, w1, w2, lo, hi)
