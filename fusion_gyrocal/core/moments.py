@@ -211,6 +211,7 @@ def noise_pair(noise_std) -> tuple[float, float]:
 
 
 _THREADS = max(1, min(2, os.cpu_count() or 1))   # default worker threads of a long pass
+_PARTS_PER_WORKER = 4    # parts of a long pass per worker thread (each at least 16 chunks)
 
 
 def _accumulate(w1, w2, mask, lo, hi, chunk_size, extremes=None):
@@ -514,14 +515,17 @@ def _chunk_rows(chunk_size) -> int:
 
 def _moments(w1, w2, mask, chunk_size, threads, extremes: bool = False):
     """:meth:`Moments.from_samples` of checked rates; with ``extremes`` (``mask`` None) also the per-chunk
-    ``(hi, lo)`` (chunks, 6) of :func:`_accumulate`, the chunk size and the first chunk of each worker (each
-    shifts by its own mean), as ``(moments, (hi, lo), chunk_size, bounds)``."""
+    ``(hi, lo)`` (chunks, 6) of :func:`_accumulate`, the chunk size and the first chunk of each part (each
+    shifts by its own mean), as ``(moments, (hi, lo), chunk_size, bounds)``. Long inputs are cut into up to
+    :data:`_PARTS_PER_WORKER` parts per worker thread, merged in order (:meth:`Moments.merge`)."""
     n = w1.shape[0]
     chunk_size = min(_chunk_rows(chunk_size), max(n, 1))   # the buffer is bounded by the data
     n_chunks = -(-n // chunk_size)
     ext = (np.empty((n_chunks, 6)), np.empty((n_chunks, 6))) if extremes else None
     workers = max(1, min(threads or _THREADS, n_chunks // 4))
-    bounds = np.linspace(0, n_chunks, workers + 1).astype(int)
+    # several parts per worker, taken in turn: a worker slowed by the host's other work takes fewer of them
+    parts_n = 1 if workers == 1 else max(workers, min(_PARTS_PER_WORKER * workers, n_chunks // 16))
+    bounds = np.linspace(0, n_chunks, parts_n + 1).astype(int)
 
     def part(i):
         lo, hi = int(bounds[i]), int(bounds[i + 1])
@@ -535,7 +539,7 @@ def _moments(w1, w2, mask, chunk_size, threads, extremes: bool = False):
         from concurrent.futures import ThreadPoolExecutor
 
         with ThreadPoolExecutor(workers) as pool:  # numpy releases the GIL in BLAS and copies
-            parts = list(pool.map(part, range(workers)))
+            parts = list(pool.map(part, range(parts_n)))
         out = Moments.merge_all(Moments(c, mu, sc, 1 if c else 0) for c, mu, sc in parts)
     return out if not extremes else (out, ext, chunk_size, bounds)
 
@@ -634,7 +638,7 @@ def moments_with_extremes(omega_1, omega_2, *, chunk_size: int = PASS_ROWS, thre
             level, rep = np.empty(3), np.zeros(3, dtype=bool)
             for j in range(3):
                 col = per_chunk[:, 3 * k + j]
-                cands = []      # chunks whose shifted extreme is their worker's: one of them holds the exact one
+                cands = []      # chunks whose shifted extreme is their part's: one of them holds the exact one
                 for a, b in zip(bounds[:-1], bounds[1:]):
                     if b > a:
                         best = col[a:b].max() if top else col[a:b].min()
