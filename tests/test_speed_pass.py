@@ -66,3 +66,63 @@ def test_moments_pass_chunks_agree_to_rounding(threads):
     m, e1, e2 = moments_with_extremes(w1, w2, threads=threads)
     assert np.array_equal(m.scatter, a.scatter) and np.array_equal(e1[0], w1.max(axis=0))
     assert np.array_equal(e2[1], w2.min(axis=0))
+
+
+def _cases():
+    """Simulated pairs the default path is checked on: nominal, a drifting bias, clipped input with a mask, and
+    a pair whose gyro 2 lags by beat tones (the timing model)."""
+    from fusion_gyrocal.evaluate.sim import PAPER_BIAS_WALK_STD, HumanMotion, random_rotation, simulate_pair
+
+    sim = simulate_pair(n=400_000, rng=3)     # several parts per worker
+    yield "nominal", (sim.omega_1, sim.omega_2), {}
+    sim = simulate_pair(n=120_000, bias_walk_std=100 * PAPER_BIAS_WALK_STD, rng=1)
+    yield "drifting bias", (sim.omega_1, sim.omega_2), {}
+    sim = simulate_pair(n=80_000, rng=5, rms=2.0)
+    keep = np.ones(80_000, bool)
+    keep[1000:5000] = False
+    yield "clipped and masked", (np.clip(sim.omega_1, -3.0, 3.0), np.clip(sim.omega_2, -3.0, 3.0)), {"mask": keep}
+    rng = np.random.default_rng([42, 0])
+    t = np.arange(40_000) / 200.0
+    motion = HumanMotion(3.0, max_freq_hz=4.0, rng=rng)
+    d2 = 0.5e-3 * (1.0 + np.sin(2 * np.pi * 0.35 * t)) + 0.4e-3 * np.sin(2 * np.pi * 2.5 * t + 1.0)
+    R = random_rotation(rng)
+    w1 = motion(t) + rng.normal(0, 1e-3, (t.size, 3)) + 0.01
+    w2 = motion(t - d2) @ R + rng.normal(0, 1e-3, (t.size, 3)) - 0.01
+    yield "timing model", (w1, w2), {"t_1": t, "t_2": t}
+
+
+def _relative(a, b):
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return float(np.max(np.abs(a - b)) / max(np.max(np.abs(a)), 1e-300))
+
+
+@pytest.mark.parametrize("case", [c[0] for c in _cases()])
+def test_calibrate_pair_pass_layout_changes_only_rounding(case, monkeypatch):
+    """The moments pass as it was (8192-row chunks, one part per worker) and as it is give the same calibration:
+    estimate and bias within 1e-9, covariance within 1e-8 relative (the residual's cancellation amplifies the
+    sums' rounding: the same spread as between one and two worker threads), and the same decisions."""
+    import warnings
+
+    import fusion_gyrocal.core.moments as moments
+    from fusion_gyrocal import calibrate_pair
+
+    name, args, keywords = next(c for c in _cases() if c[0] == case)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        now = calibrate_pair(*args, **keywords)
+        monkeypatch.setattr(moments, "PASS_ROWS", 8192)
+        monkeypatch.setattr(moments, "_PARTS_PER_WORKER", 1)
+        before = calibrate_pair(*args, **keywords)
+    assert now.rigid == before.rigid and now.configuration == before.configuration
+    assert now.n_samples == before.n_samples and now.rejected_fraction == before.rejected_fraction
+    assert now.noise_model.bias_model == before.noise_model.bias_model
+    assert now.noise_model.noise_kind == before.noise_model.noise_kind
+    assert len(now.notes) == len(before.notes)
+    assert _relative(now.R_1_2, before.R_1_2) < 1e-9
+    assert _relative(now.scale_1, before.scale_1) < 1e-9 and _relative(now.scale_2, before.scale_2) < 1e-9
+    assert _relative(now.bias, before.bias) < 1e-9
+    assert _relative(now.covariance, before.covariance) < 1e-8
+    assert _relative(now.noise_std, before.noise_std) < 1e-9
+    if case == "timing model":
+        assert now.timing_tones_hz and len(now.timing_tones_hz) == len(before.timing_tones_hz)
+        assert _relative(now.timing_tones_hz, before.timing_tones_hz) < 1e-9

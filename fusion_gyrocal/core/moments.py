@@ -616,7 +616,7 @@ def weighted_moments(w1, w2, weights, *, mask=None, chunk_size: int = CHUNK_SIZE
     return Moments(count, mean, 0.5 * (scat + scat.T), 1 if count > 0 else 0)
 
 
-def moments_with_extremes(omega_1, omega_2, *, chunk_size: int = PASS_ROWS, threads: int | None = None):
+def moments_with_extremes(omega_1, omega_2, *, chunk_size: int | None = None, threads: int | None = None):
     """``(moments, extremes_1, extremes_2)``: :meth:`Moments.from_samples` of every sample and each stream's
     :func:`column_extremes` ``(hi, lo, hi_repeats, lo_repeats)``, read in the same pass (what the clipping test
     of :func:`~fusion_gyrocal.pipeline.streams.saturation_mask` needs, at the cost of the chunks' extremes from
@@ -630,7 +630,8 @@ def moments_with_extremes(omega_1, omega_2, *, chunk_size: int = PASS_ROWS, thre
     w1, w2, _ = as_rate_pair(omega_1, omega_2)
     if w1.shape[0] == 0:
         raise InputError("omega_1 and omega_2: expected samples to take the moments of, got 0")
-    m, (hi, lo), size, bounds = _moments(w1, w2, None, chunk_size, threads, extremes=True)
+    m, (hi, lo), size, bounds = _moments(w1, w2, None, PASS_ROWS if chunk_size is None else chunk_size, threads,
+                                         extremes=True)
     out = []
     for k, w in enumerate((w1, w2)):
         found = []
