@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from fusion_gyrocal.core.array import check_distinct
-from fusion_gyrocal.core.moments import PASS_ROWS, Moments, median, moments_with_extremes
+from fusion_gyrocal.core.moments import CHUNK_SIZE, Moments, median, moments_with_extremes
 from fusion_gyrocal.errors import InputError
 
 
@@ -48,24 +48,28 @@ def test_check_distinct_refuses_the_same_stream_and_passes_constant_ones():
 
 
 @pytest.mark.parametrize("threads", [1, 2])
-def test_moments_pass_chunks_agree_to_rounding(threads):
-    """The pass's chunk size (PASS_ROWS) changes only the order of the sums: the moments agree to rounding with
-    another chunking, and with numpy's own mean and centred scatter, for a large bias too."""
+def test_moments_pass_parts_agree_to_rounding(threads, monkeypatch):
+    """The parts a long pass is cut into (several per worker) change only the order of the sums: the moments agree
+    to rounding with one part per worker, and with numpy's own mean and centred scatter, for a large bias too."""
+    import fusion_gyrocal.core.moments as moments
+
     rng = np.random.default_rng(5)
-    n = 3 * PASS_ROWS + 17
+    n = 70 * CHUNK_SIZE + 17
     w1 = rng.standard_normal((n, 3)) + np.array([0.3, -0.2, 0.1])
     w2 = 1e-3 * rng.standard_normal((n, 3)) + 5.0
     a = Moments.from_samples(w1, w2, threads=threads)
-    b = Moments.from_samples(w1, w2, chunk_size=8192, threads=threads)
+    m, e1, e2 = moments_with_extremes(w1, w2, threads=threads)
+    monkeypatch.setattr(moments, "_PARTS_PER_WORKER", 1)
+    b = Moments.from_samples(w1, w2, threads=threads)
     x = np.hstack([w1, w2])
     c = x - x.mean(axis=0)
-    for m in (a, b):
-        assert m.count == n
-        assert np.allclose(m.mean, x.mean(axis=0), rtol=1e-13, atol=0)
-        assert np.allclose(m.scatter, c.T @ c, rtol=1e-11, atol=1e-12 * np.abs(c.T @ c).max())
-    m, e1, e2 = moments_with_extremes(w1, w2, threads=threads)
+    for mom in (a, b):
+        assert mom.count == n
+        assert np.allclose(mom.mean, x.mean(axis=0), rtol=1e-13, atol=0)
+        assert np.allclose(mom.scatter, c.T @ c, rtol=1e-11, atol=1e-12 * np.abs(c.T @ c).max())
     assert np.array_equal(m.scatter, a.scatter) and np.array_equal(e1[0], w1.max(axis=0))
     assert np.array_equal(e2[1], w2.min(axis=0))
+
 
 
 def _cases():
@@ -73,7 +77,7 @@ def _cases():
     a pair whose gyro 2 lags by beat tones (the timing model)."""
     from fusion_gyrocal.evaluate.sim import PAPER_BIAS_WALK_STD, HumanMotion, random_rotation, simulate_pair
 
-    sim = simulate_pair(n=400_000, rng=3)     # several parts per worker
+    sim = simulate_pair(n=200_000, rng=3)
     yield "nominal", (sim.omega_1, sim.omega_2), {}
     sim = simulate_pair(n=120_000, bias_walk_std=100 * PAPER_BIAS_WALK_STD, rng=1)
     yield "drifting bias", (sim.omega_1, sim.omega_2), {}
@@ -98,7 +102,7 @@ def _relative(a, b):
 
 @pytest.mark.parametrize("case", [c[0] for c in _cases()])
 def test_calibrate_pair_pass_layout_changes_only_rounding(case, monkeypatch):
-    """The moments pass as it was (8192-row chunks, one part per worker) and as it is give the same calibration:
+    """The moments pass as it was (one part per worker thread) and as it is (several) give the same calibration:
     estimate and bias within 1e-9, covariance within 1e-8 relative (the residual's cancellation amplifies the
     sums' rounding: the same spread as between one and two worker threads), and the same decisions."""
     import warnings
@@ -109,8 +113,8 @@ def test_calibrate_pair_pass_layout_changes_only_rounding(case, monkeypatch):
     name, args, keywords = next(c for c in _cases() if c[0] == case)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
+        monkeypatch.setattr(moments, "_MIN_PART_CHUNKS", 1)    # these short logs cut into parts as long ones are
         now = calibrate_pair(*args, **keywords)
-        monkeypatch.setattr(moments, "PASS_ROWS", 8192)
         monkeypatch.setattr(moments, "_PARTS_PER_WORKER", 1)
         before = calibrate_pair(*args, **keywords)
     assert now.rigid == before.rigid and now.configuration == before.configuration

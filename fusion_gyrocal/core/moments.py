@@ -27,12 +27,7 @@ import numpy as np
 
 from ..errors import InputError, OptionError
 
-CHUNK_SIZE = 8192    # rows per chunk of the drifting-bias filter's windows (random_walk_bias_moments)
-# rows per chunk of the moments pass (Moments.from_samples): the (7, 6144) float64 buffer (336 KiB per worker)
-# stays in the L2 cache, and each chunk's product (7 x 6 x 6144 multiply-adds) stays below OpenBLAS's threading
-# threshold (4 x 65536): it runs on the calling worker instead of waking OpenBLAS's threads, which the pass's own
-# two workers would wait on
-PASS_ROWS = 6144
+CHUNK_SIZE = 8192    # rows per chunk: the (7, 8192) float64 buffer (448 KiB per thread) stays in the L2 cache
 
 
 # ---------------------------------------------------------------------------------------------- row helpers
@@ -211,7 +206,8 @@ def noise_pair(noise_std) -> tuple[float, float]:
 
 
 _THREADS = max(1, min(2, os.cpu_count() or 1))   # default worker threads of a long pass
-_PARTS_PER_WORKER = 4    # parts of a long pass per worker thread (each at least 16 chunks)
+_PARTS_PER_WORKER = 4    # parts of a long pass per worker thread,
+_MIN_PART_CHUNKS = 16    # each of at least this many chunks
 
 
 def _accumulate(w1, w2, mask, lo, hi, chunk_size, extremes=None):
@@ -384,7 +380,7 @@ class Moments:
         return cls(0.0, np.zeros(6), np.zeros((6, 6)), 0)
 
     @classmethod
-    def from_samples(cls, omega_1, omega_2, *, mask=None, weights=None, chunk_size: int | None = None,
+    def from_samples(cls, omega_1, omega_2, *, mask=None, weights=None, chunk_size: int = CHUNK_SIZE,
                      threads: int | None = None) -> "Moments":
         """Accumulate the moments of two sample-aligned rate streams in bounded memory.
 
@@ -401,9 +397,8 @@ class Moments:
             weights ``sigma^2 / sigma_k^2`` (sample ``k``'s residual variance against a reference white noise
             ``sigma``) the cost of Eq. 12-17 and its refinement is the likelihood of heteroscedastic samples.
             None (default): every sample weighs 1 (the unweighted pass, unchanged).
-        chunk_size : int, optional
-            Rows per chunk; memory beyond the inputs is ``O(chunk_size * threads)`` (default :data:`PASS_ROWS`,
-            with weights :data:`CHUNK_SIZE`).
+        chunk_size : int
+            Rows per chunk; memory beyond the inputs is ``O(chunk_size * threads)``.
         threads : int, optional
             Worker threads for long inputs (default: up to 2, bounded by the CPU count).
 
@@ -414,9 +409,8 @@ class Moments:
         """
         w1, w2, mask = as_rate_pair(omega_1, omega_2, mask)
         if weights is not None:
-            return weighted_moments(w1, w2, sample_weights(weights, w1.shape[0]), mask=mask,
-                                    chunk_size=CHUNK_SIZE if chunk_size is None else chunk_size)
-        return _moments(w1, w2, mask, PASS_ROWS if chunk_size is None else chunk_size, threads)
+            return weighted_moments(w1, w2, sample_weights(weights, w1.shape[0]), mask=mask, chunk_size=chunk_size)
+        return _moments(w1, w2, mask, chunk_size, threads)
 
     # ------------------------------------------------------------------ algebra
     def merge(self, other: "Moments") -> "Moments":
@@ -524,7 +518,7 @@ def _moments(w1, w2, mask, chunk_size, threads, extremes: bool = False):
     ext = (np.empty((n_chunks, 6)), np.empty((n_chunks, 6))) if extremes else None
     workers = max(1, min(threads or _THREADS, n_chunks // 4))
     # several parts per worker, taken in turn: a worker slowed by the host's other work takes fewer of them
-    parts_n = 1 if workers == 1 else max(workers, min(_PARTS_PER_WORKER * workers, n_chunks // 16))
+    parts_n = 1 if workers == 1 else max(workers, min(_PARTS_PER_WORKER * workers, n_chunks // _MIN_PART_CHUNKS))
     bounds = np.linspace(0, n_chunks, parts_n + 1).astype(int)
 
     def part(i):
@@ -616,7 +610,7 @@ def weighted_moments(w1, w2, weights, *, mask=None, chunk_size: int = CHUNK_SIZE
     return Moments(count, mean, 0.5 * (scat + scat.T), 1 if count > 0 else 0)
 
 
-def moments_with_extremes(omega_1, omega_2, *, chunk_size: int | None = None, threads: int | None = None):
+def moments_with_extremes(omega_1, omega_2, *, chunk_size: int = CHUNK_SIZE, threads: int | None = None):
     """``(moments, extremes_1, extremes_2)``: :meth:`Moments.from_samples` of every sample and each stream's
     :func:`column_extremes` ``(hi, lo, hi_repeats, lo_repeats)``, read in the same pass (what the clipping test
     of :func:`~fusion_gyrocal.pipeline.streams.saturation_mask` needs, at the cost of the chunks' extremes from
@@ -630,8 +624,7 @@ def moments_with_extremes(omega_1, omega_2, *, chunk_size: int | None = None, th
     w1, w2, _ = as_rate_pair(omega_1, omega_2)
     if w1.shape[0] == 0:
         raise InputError("omega_1 and omega_2: expected samples to take the moments of, got 0")
-    m, (hi, lo), size, bounds = _moments(w1, w2, None, PASS_ROWS if chunk_size is None else chunk_size, threads,
-                                         extremes=True)
+    m, (hi, lo), size, bounds = _moments(w1, w2, None, chunk_size, threads, extremes=True)
     out = []
     for k, w in enumerate((w1, w2)):
         found = []
