@@ -130,3 +130,31 @@ def test_calibrate_pair_pass_layout_changes_only_rounding(case, monkeypatch):
     if case == "timing model":
         assert now.timing_tones_hz and len(now.timing_tones_hz) == len(before.timing_tones_hz)
         assert _relative(now.timing_tones_hz, before.timing_tones_hz) < 1e-9
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_moments_with_extremes_exact_over_many_parts(threads, monkeypatch):
+    """Each part shifts by its own mean; the column extremes and their repeats stay exact when the extreme sits in
+    two parts, or in one part only with another part's extreme a rounding away from it."""
+    import fusion_gyrocal.core.moments as moments
+
+    monkeypatch.setattr(moments, "_MIN_PART_CHUNKS", 1)
+    rng = np.random.default_rng(8)
+    n = 40 * 1000 + 321
+    w1 = rng.standard_normal((n, 3)) * 1e-3 + np.array([7.0, -3.0, 0.25])
+    w1[:20_000] += 1e-6 * np.arange(20_000)[:, None]          # parts with quite different means (shifts)
+    w2 = np.clip(rng.standard_normal((n, 3)), -2.0, 2.5)
+    top = w1[:, 0].max()
+    w1[500, 0] = w1[39_000, 0] = top + 1e-9                   # a repeated maximum in the first and the last part
+    near = np.nextafter(w1[:, 1].max(), np.inf)
+    w1[12_345, 1] = near                                       # a maximum one rounding above the next part's
+    w1[30_000, 1] = np.nextafter(near, -np.inf)
+    for w in (w1, w2):
+        w[-1] = w[:-1].min(axis=0)                            # repeated minima at the very end
+    m, e1, e2 = moments_with_extremes(w1, w2, chunk_size=1000, threads=threads)
+    for got, w in ((e1, w1), (e2, w2)):
+        hi, lo = w.max(axis=0), w.min(axis=0)
+        assert np.array_equal(got[0], hi) and np.array_equal(got[1], lo)
+        assert np.array_equal(got[2], (w == hi).sum(axis=0) >= 2)
+        assert np.array_equal(got[3], (w == lo).sum(axis=0) >= 2)
+    assert e1[2][0] and not e1[2][1] and e1[3].all() and e2[2].all()
