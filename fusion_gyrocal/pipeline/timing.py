@@ -128,11 +128,12 @@ def _excited_stretch(w2, ok, length: int) -> int:
     """Start of the stretch of ``length`` samples (from block starts) with the most motion of gyro 2."""
     step, stride = length // 4, 64
     starts = np.arange(0, len(w2) - length + 1, step)
-    sub = np.where(ok[::stride, None], w2[::stride], 0.0)
+    keep = ok[::stride]
+    sub = w2[::stride] if keep.all() else np.where(keep[:, None], w2[::stride], 0.0)   # every sample: no copy
     energy = np.cumsum(np.concatenate([[0.0], np.nan_to_num(np.einsum("ij,ij->i", sub, sub))]))
     width = length // stride
-    return int(starts[int(np.argmax([energy[min(s // stride + width, len(sub))] - energy[s // stride]
-                                     for s in starts]))])
+    first = starts // stride
+    return int(starts[int(np.argmax(energy[np.minimum(first + width, len(sub))] - energy[first]))])
 
 
 def _is_line(power, i: int) -> bool:
