@@ -125,11 +125,12 @@ NONE = TimingModel((), np.zeros(1), HARMONICS, 0.0, 0.0)
 
 
 def _excited_stretch(w2, ok, length: int) -> int:
-    """Start of the stretch of ``length`` samples (from block starts) with the most motion of gyro 2."""
+    """Start of the stretch of ``length`` samples (from block starts) with the most motion of gyro 2 (the samples
+    ``ok``; None: all)."""
     step, stride = length // 4, 64
     starts = np.arange(0, len(w2) - length + 1, step)
-    keep = ok[::stride]
-    sub = w2[::stride] if keep.all() else np.where(keep[:, None], w2[::stride], 0.0)   # every sample: no copy
+    keep = None if ok is None else ok[::stride]
+    sub = w2[::stride] if keep is None or keep.all() else np.where(keep[:, None], w2[::stride], 0.0)   # no copy
     energy = np.cumsum(np.concatenate([[0.0], np.nan_to_num(np.einsum("ij,ij->i", sub, sub))]))
     width = length // stride
     first = starts // stride
@@ -189,12 +190,13 @@ def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int =
     """
     w1, w2 = np.asarray(omega_1, dtype=float), np.asarray(omega_2, dtype=float)
     n = len(w1)
-    ok = np.ones(n, bool) if mask is None else np.asarray(mask, bool).copy()
+    ok = None if mask is None else np.asarray(mask, bool).copy()
     if n > max_samples:          # the most excited stretch of a long log (the tones are stationary)
         start = _excited_stretch(w2, ok, max_samples)
         part = slice(start, start + max_samples)
         t = np.arange(start, start + max_samples, dtype=float) if t is None else np.asarray(t, dtype=float)[part]
-        w1, w2, ok = w1[part], w2[part], ok[part]
+        w1, w2, ok = w1[part], w2[part], None if ok is None else ok[part]
+    ok = np.ones(len(w1), bool) if ok is None else ok     # (of the stretch only: no flag per sample of a long log)
     t = np.arange(n, dtype=float) if t is None else np.asarray(t, dtype=float)
     if len(t) > DETECT_SAMPLES and not estimate_timing(t, w1, w2, A, bias, ok, max_tones=1, harmonics=harmonics,
                                                        max_samples=DETECT_SAMPLES).significant:
