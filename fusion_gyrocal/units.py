@@ -70,7 +70,7 @@ def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT, *, per
     its MEMS limit (:data:`MEMS_LIMITS`, times ``limit / 100``): signs that the rates are in deg/s, not rad/s.
     A bounded subsample (:data:`_EVIDENCE_SAMPLES` samples in contiguous blocks spread over the log) is used.
     """
-    from .core.moments import finite_rows
+    from .core.moments import finite_rows, median
 
     scale = float(limit) / _DEFAULT_LIMIT
     figures = {"noise": 0.0, "bias": float("nan"), "offset": float("nan"), "range": 0.0}
@@ -94,7 +94,7 @@ def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT, *, per
         d3 = np.diff(good, n=3, axis=0)
         finite = finite_rows(d3)
         d3 = d3 if finite.all() else d3[finite]
-        noise = float(np.sqrt(np.median(d3 ** 2) / 20.0 / 0.4549)) if len(d3) else 0.0   # median of chi2_1 = 0.4549
+        noise = float(np.sqrt(median(d3 ** 2) / 20.0 / 0.4549)) if len(d3) else 0.0   # median of chi2_1 = 0.4549
         norms = _row_norms(good if everything else good[ok])
         own = {"noise": noise, "bias": float("nan"), "offset": float("nan"),
                "range": float(np.quantile(norms, 0.99))}

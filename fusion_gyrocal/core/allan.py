@@ -136,8 +136,16 @@ def _stretch_points(y: np.ndarray, rate_hz: float, lengths: list) -> AllanPoints
     sums = sum(q[1][0][:T] for q in parts)
     counts = sum(q[1][-1][:T] for q in parts)
     sub_n, sub_m = sum(q[2][:T] for q in parts), parts[0][3][:T]   # the stretches' phase points, pooled
-    edf_1 = np.sum([edf_table(q[2][:T], q[3][:T], axes=1)[:, 0] for q in parts], axis=0)
-    edf_3 = np.sum([edf_table(q[2][:T], q[3][:T], axes=3)[:, 0] for q in parts], axis=0)
+    tables: dict = {}     # stretches of one length share their phase points: each table computed once
+
+    def white_edf(q, axes):
+        key = (q[2][:T].tobytes(), q[3][:T].tobytes(), axes)
+        if key not in tables:
+            tables[key] = edf_table(q[2][:T], q[3][:T], axes=axes)[:, 0]
+        return tables[key]
+
+    edf_1 = np.sum([white_edf(q, 1) for q in parts], axis=0)
+    edf_3 = np.sum([white_edf(q, 3) for q in parts], axis=0)
     stationary = np.column_stack([2.0 / edf_1] * 3 + [2.0 / edf_3])
     each = np.stack([q[1][0][:T] / q[1][-1][:T, None] for q in parts], axis=2)   # (T, 3, K): each stretch's AVAR
     return AllanPoints(taus, np.sqrt(sums / counts[:, None]), sub_n, sub_m,

@@ -59,6 +59,29 @@ def row_norms(x) -> np.ndarray:
     return np.sqrt(row_sumsq(x))
 
 
+def median(x, axis=None):
+    """``np.median(x, axis)`` of a float64 array, the same values, partitioned at one point instead of numpy's three
+    (the two middle ones and the last, its NaN test: about 4x the time): the lower middle value of an even count is
+    the largest below the upper one, and the two are averaged as numpy's mean does. ``axis``: None (all values) or
+    the last; any other, another dtype, no values, or a NaN or inf among them: ``np.median`` itself."""
+    x = np.asarray(x)
+    last = axis is None or axis == -1 or axis == x.ndim - 1
+    if x.dtype != np.float64 or not last or x.size == 0 or x.ndim == 0:
+        return np.median(x, axis=axis)
+    with np.errstate(invalid="ignore", over="ignore"):
+        if not np.isfinite(np.add.reduce(x, axis=None)):
+            return np.median(x, axis=axis)
+    if axis is None:
+        x = x.reshape(-1)
+    n = x.shape[-1]
+    k = n // 2
+    part = np.partition(x, k, axis=-1)
+    hi = part[..., k]
+    if n % 2:
+        return hi
+    return (np.maximum.reduce(part[..., :k], axis=-1) + hi) / 2.0
+
+
 _PRODUCT_ROWS = 16384   # rows per product of rows_times: one BLAS call each, below OpenBLAS's threading threshold
 
 
@@ -183,6 +206,8 @@ def noise_pair(noise_std) -> tuple[float, float]:
 
 
 _THREADS = max(1, min(2, os.cpu_count() or 1))   # default worker threads of a long pass
+_PARTS_PER_WORKER = 4    # parts of a long pass per worker thread,
+_MIN_PART_CHUNKS = 16    # each of at least this many chunks
 
 
 def _accumulate(w1, w2, mask, lo, hi, chunk_size, extremes=None):
@@ -196,36 +221,39 @@ def _accumulate(w1, w2, mask, lo, hi, chunk_size, extremes=None):
     would cost more than ~6 of 16 digits, e.g. a large drift), the range is redone chunk by chunk
     with Chan's pairwise update (:func:`_accumulate_chan`).
 
-    ``extremes``: ``(hi, lo)``, two (chunks, 6) arrays (``mask`` None) that receive each chunk's largest and
-    smallest shifted value per channel, read from the cache-resident buffer (:func:`moments_with_extremes`).
+    ``extremes``: ``(hi, lo, shift)``, two (chunks, 6) arrays (``mask`` None) that receive each chunk's largest and
+    smallest shifted value per channel, read from the cache-resident buffer (:func:`moments_with_extremes`), and a
+    (6,) array that receives the shift.
     """
     buf = np.empty((7, chunk_size))
     buf[6] = 1.0
     G = np.zeros((7, 6))
     n_tot = 0
     shift = None
-    for i, start in enumerate(range(lo, hi, chunk_size)):
-        stop = min(start + chunk_size, hi)
-        keep = None if mask is None else mask[start:stop]
-        x = buf[:, : stop - start]
-        if shift is None:                 # the first chunk with a kept sample: its mean is the shift
-            if keep is not None and not keep.any():
-                continue
-            first = [np.asarray(w[start:stop] if keep is None else w[start:stop][keep]) for w in (w1, w2)]
-            shift = np.concatenate([f.mean(axis=0, dtype=np.float64) for f in first])
-            if not np.isfinite(shift).all():
-                shift = np.zeros(6)       # the non-finite sums below name the first bad row
-            s1, s2 = shift[:3, None], shift[3:, None]
-        np.subtract(w1[start:stop].T, s1, out=x[:3])
-        np.subtract(w2[start:stop].T, s2, out=x[3:6])
-        if extremes is not None:          # of the shifted values: rounding keeps their order
-            np.max(x[:6], axis=1, out=extremes[0][i])
-            np.min(x[:6], axis=1, out=extremes[1][i])
-        if keep is not None and not keep.all():
-            x = x[:, keep]
-        with np.errstate(over="ignore", invalid="ignore"):   # overflow is checked once below
-            G += np.dot(x, x[:6].T)       # products and (row of ones) sums; a plain gemm, measured faster
-        n_tot += x.shape[1]               # than numpy's syrk for A A^T at this shape
+    with np.errstate(over="ignore", invalid="ignore"):   # non-finite or overflowing sums are checked once below
+        for i, start in enumerate(range(lo, hi, chunk_size)):
+            stop = min(start + chunk_size, hi)
+            keep = None if mask is None else mask[start:stop]
+            x = buf[:, : stop - start]
+            if shift is None:                 # the first chunk with a kept sample: its mean is the shift
+                if keep is not None and not keep.any():
+                    continue
+                first = [np.asarray(w[start:stop] if keep is None else w[start:stop][keep]) for w in (w1, w2)]
+                shift = np.concatenate([f.mean(axis=0, dtype=np.float64) for f in first])
+                if not np.isfinite(shift).all():
+                    shift = np.zeros(6)       # the non-finite sums below name the first bad row
+                s1, s2 = shift[:3, None], shift[3:, None]
+                if extremes is not None:
+                    extremes[2][:] = shift
+            np.subtract(w1[start:stop].T, s1, out=x[:3])
+            np.subtract(w2[start:stop].T, s2, out=x[3:6])
+            if extremes is not None:          # of the shifted values: rounding keeps their order
+                np.maximum.reduce(x[:6], axis=1, out=extremes[0][i])   # the ufuncs' own reductions: no wrappers
+                np.minimum.reduce(x[:6], axis=1, out=extremes[1][i])
+            if keep is not None and not keep.all():
+                x = x[:, keep]
+            G += np.dot(x, x[:6].T)           # products and (row of ones) sums; a plain gemm, measured faster
+            n_tot += x.shape[1]               # than numpy's syrk for A A^T at this shape
     if n_tot == 0:
         return 0, np.zeros(6), np.zeros((6, 6))
     _check_gram(G, w1, w2, lo, hi)
@@ -484,18 +512,23 @@ def _chunk_rows(chunk_size) -> int:
 
 def _moments(w1, w2, mask, chunk_size, threads, extremes: bool = False):
     """:meth:`Moments.from_samples` of checked rates; with ``extremes`` (``mask`` None) also the per-chunk
-    ``(hi, lo)`` (chunks, 6) of :func:`_accumulate`, the chunk size and the first chunk of each worker (each
-    shifts by its own mean), as ``(moments, (hi, lo), chunk_size, bounds)``."""
+    ``(hi, lo)`` (chunks, 6) of :func:`_accumulate` with each part's shift (parts, 6), the chunk size and the first
+    chunk of each part (each shifts by its own mean), as ``(moments, (hi, lo, shifts), chunk_size, bounds)``. Long inputs are cut into up to
+    :data:`_PARTS_PER_WORKER` parts per worker thread, merged in order (:meth:`Moments.merge`)."""
     n = w1.shape[0]
     chunk_size = min(_chunk_rows(chunk_size), max(n, 1))   # the buffer is bounded by the data
     n_chunks = -(-n // chunk_size)
     ext = (np.empty((n_chunks, 6)), np.empty((n_chunks, 6))) if extremes else None
     workers = max(1, min(threads or _THREADS, n_chunks // 4))
-    bounds = np.linspace(0, n_chunks, workers + 1).astype(int)
+    # several parts per worker, taken in turn: a worker slowed by the host's other work takes fewer of them
+    parts_n = 1 if workers == 1 else max(workers, min(_PARTS_PER_WORKER * workers, n_chunks // _MIN_PART_CHUNKS))
+    bounds = np.linspace(0, n_chunks, parts_n + 1).astype(int)
+    if ext is not None:
+        ext = ext + (np.full((parts_n, 6), np.nan),)     # each part's shift
 
     def part(i):
         lo, hi = int(bounds[i]), int(bounds[i + 1])
-        sub = None if ext is None else (ext[0][lo:hi], ext[1][lo:hi])
+        sub = None if ext is None else (ext[0][lo:hi], ext[1][lo:hi], ext[2][i])
         return _accumulate(w1, w2, mask, lo * chunk_size, min(hi * chunk_size, n), chunk_size, sub)
 
     if workers == 1:
@@ -505,7 +538,7 @@ def _moments(w1, w2, mask, chunk_size, threads, extremes: bool = False):
         from concurrent.futures import ThreadPoolExecutor
 
         with ThreadPoolExecutor(workers) as pool:  # numpy releases the GIL in BLAS and copies
-            parts = list(pool.map(part, range(workers)))
+            parts = list(pool.map(part, range(parts_n)))
         out = Moments.merge_all(Moments(c, mu, sc, 1 if c else 0) for c, mu, sc in parts)
     return out if not extremes else (out, ext, chunk_size, bounds)
 
@@ -596,7 +629,8 @@ def moments_with_extremes(omega_1, omega_2, *, chunk_size: int = CHUNK_SIZE, thr
     w1, w2, _ = as_rate_pair(omega_1, omega_2)
     if w1.shape[0] == 0:
         raise InputError("omega_1 and omega_2: expected samples to take the moments of, got 0")
-    m, (hi, lo), size, bounds = _moments(w1, w2, None, chunk_size, threads, extremes=True)
+    m, (hi, lo, shifts), size, bounds = _moments(w1, w2, None, chunk_size, threads, extremes=True)
+    spans = [(p, int(a), int(b)) for p, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])) if b > a]
     out = []
     for k, w in enumerate((w1, w2)):
         found = []
@@ -604,22 +638,35 @@ def moments_with_extremes(omega_1, omega_2, *, chunk_size: int = CHUNK_SIZE, thr
             level, rep = np.empty(3), np.zeros(3, dtype=bool)
             for j in range(3):
                 col = per_chunk[:, 3 * k + j]
-                cands = []      # chunks whose shifted extreme is their worker's: one of them holds the exact one
-                for a, b in zip(bounds[:-1], bounds[1:]):
-                    if b > a:
-                        best = col[a:b].max() if top else col[a:b].min()
-                        cands.extend(a + np.flatnonzero(col[a:b] == best))
-                rows = [w[c * size:(c + 1) * size, j] for c in cands]
-                level[j] = max(r.max() for r in rows) if top else min(r.min() for r in rows)
-                count = 0
-                for r in rows:
-                    count += int(np.count_nonzero(r == level[j]))
-                    if count >= 2:
-                        break
-                rep[j] = count >= 2
+                level[j], rep[j] = _exact_extreme(w[:, j], col, shifts[:, 3 * k + j], spans, size, top)
             found.append((level, rep))
         out.append((found[0][0], found[1][0], found[0][1], found[1][1]))
     return m, out[0], out[1]
+
+
+def _exact_extreme(x, per_chunk, shifts, spans, size: int, top: bool) -> tuple[float, bool]:
+    """The largest (``top``) or smallest value of the column ``x`` and whether it occurs in two rows or more, from
+    each chunk's shifted extreme ``per_chunk`` (parts ``spans`` of ``(part, first chunk, end)``, each shifted by
+    its ``shifts`` entry): only the parts whose extreme, shifted back, comes within rounding of the best part's can
+    hold it (a row equal to it is its part's extreme), and within them only the chunks holding the part's extreme
+    are read again, exactly."""
+    sign = 1.0 if top else -1.0
+    bests = np.array([sign * (per_chunk[a:b].max() if top else per_chunk[a:b].min()) for _, a, b in spans])
+    back = bests + sign * shifts[[p for p, _, _ in spans]]                  # in the data's values (times sign)
+    slack = 4.0 * np.finfo(np.float64).eps * (np.abs(bests) + np.abs(back))  # two roundings, generously
+    g = int(np.argmax(back))
+    cands = []
+    for (_, a, b), best, v, e in zip(spans, bests, back, slack):
+        if v + e >= back[g] - slack[g]:    # this part's extreme may equal the best part's
+            cands.extend(a + np.flatnonzero(sign * per_chunk[a:b] == best))
+    rows = [x[c * size:(c + 1) * size] for c in cands]
+    level = max(r.max() for r in rows) if top else min(r.min() for r in rows)
+    count = 0
+    for r in rows:
+        count += int(np.count_nonzero(r == level))
+        if count >= 2:
+            break
+    return float(level), count >= 2
 
 
 def window_moments(omega_1, omega_2, window: int, *, mask=None, with_starts: bool = False) -> list:

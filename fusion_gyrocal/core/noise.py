@@ -54,7 +54,7 @@ import numpy as np
 from ..errors import InputError, OptionError
 from .allan import (FILTERED, FIT_FACTOR, FLICKER_TERM, QUANTISATION, TERMS, WALK, AllanFit, allan_points,
                     edf_table, fit_allan, second_differences)
-from .moments import NOMINAL_WINDOW, as_rates, finite_rows, rows_times
+from .moments import NOMINAL_WINDOW, as_rates, finite_rows, median, rows_times
 
 MISFIT_SHARE = 0.1                    # rate-explained share of the residual variance that is flagged
 WALK_Z = 3.0                          # significance of K for a random-walk bias
@@ -117,9 +117,9 @@ def difference_noise_std(omega, mask=None, *, max_samples: int = NOISE_SPLIT_SAM
     d = np.concatenate(parts, axis=1) if parts else np.zeros((3, 0))
     if d.shape[1] < 10:
         return float("nan")
-    d -= np.median(d, axis=1)[:, None]
+    d -= median(d, axis=1)[:, None]
     np.abs(d, out=d)
-    return float(np.median(1.4826 * np.median(d, axis=1, overwrite_input=True)) / np.sqrt(20.0))
+    return float(median(1.4826 * median(d, axis=1)) / np.sqrt(20.0))
 
 
 
@@ -482,7 +482,7 @@ def _misfit_fit(win: _Windows):
     phi = np.linspace(0.0, np.pi, 61)[:-1]  # direction of (a, b); the fit is linear in (sigma_0^2, g^2)
     U = (np.cos(phi)[:, None] ** 2 * P[:, 0] + 2.0 * (np.cos(phi) * np.sin(phi))[:, None] * P[:, 1]
          + np.sin(phi)[:, None] ** 2 * P[:, 2])  # (directions, windows)
-    pred = np.full_like(v, max(float(np.median(v)), 1e-300))
+    pred = np.full_like(v, max(float(median(v)), 1e-300))
     for _ in range(3):
         wt2 = (dof / 2.0) / np.maximum(pred, 1e-300) ** 2
         # weighted two-parameter least squares for every direction at once, clipped to g^2 >= 0
@@ -817,7 +817,7 @@ def _misfit_test(win: _Windows, valid, rate_hz, sources: dict, notes: list) -> _
     # windows, the fastest quarter of the windows with twice the median mean square of the slowest quarter
     order = np.argsort(win.rate_powers[:, 0])
     q = max(order.size // 4, 1)
-    contrast = float(np.median(win.v_r[order[-q:]]) / max(np.median(win.v_r[order[:q]]), 1e-300))
+    contrast = float(median(win.v_r[order[-q:]]) / max(median(win.v_r[order[:q]]), 1e-300))
     misfit = share > MISFIT_SHARE and (drop > 25.0 or contrast > 2.0)
     use = valid.copy()
     few_quiet = False

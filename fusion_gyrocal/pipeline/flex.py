@@ -24,7 +24,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..core.moments import finite_rows, row_norms, row_sumsq
+from ..core.moments import finite_rows, median, row_norms, row_sumsq
 
 CHI2_3_MEDIAN = 2.365973884375338   # median of chi-square with 3 dof
 CHI2_3_GATE = 14.156413609126677    # chi2.ppf(0.9973, 3): the 3-sigma false-alarm rate in 3-D
@@ -98,7 +98,7 @@ def robust_whitener(w1, w2, A, bias, mask, window, ranges) -> np.ndarray:
     C = scatter_cov(sample) + 1e-300 * np.eye(3)
     L = np.linalg.cholesky(np.linalg.inv(C))
     d2 = row_sumsq(sample @ L)
-    return L * np.sqrt(CHI2_3_MEDIAN / max(float(np.median(d2)), 1e-300))
+    return L * np.sqrt(CHI2_3_MEDIAN / max(float(median(d2)), 1e-300))
 
 
 def outliers(w1, w2, A, bias, mask, window, ranges, L) -> np.ndarray:
@@ -142,8 +142,8 @@ def _rate_bins(d2: np.ndarray, rate: np.ndarray, bins: int, order: np.ndarray | 
     ``order`` is ``argsort(rate)`` when the caller has it.
     """
     groups = np.array_split(np.argsort(rate) if order is None else order, bins)
-    medians = np.array([np.median(d2[g]) for g in groups])
-    ref = np.median(medians[: bins // 2])
+    medians = np.array([median(d2[g]) for g in groups])
+    ref = median(medians[: bins // 2])
     se = ref * MEDIAN_REL_SE / np.sqrt(len(groups[0]))
     return groups, medians, ref, medians > ref + 5.0 * se
 

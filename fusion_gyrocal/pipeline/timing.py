@@ -30,6 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core.moments import median
+
 #: Tones searched (one per chip against the read-out clock).
 MAX_TONES = 2
 #: Harmonics of each tone (a sawtooth's shape).
@@ -123,14 +125,16 @@ NONE = TimingModel((), np.zeros(1), HARMONICS, 0.0, 0.0)
 
 
 def _excited_stretch(w2, ok, length: int) -> int:
-    """Start of the stretch of ``length`` samples (from block starts) with the most motion of gyro 2."""
+    """Start of the stretch of ``length`` samples (from block starts) with the most motion of gyro 2 (the samples
+    ``ok``; None: all)."""
     step, stride = length // 4, 64
     starts = np.arange(0, len(w2) - length + 1, step)
-    sub = np.where(ok[::stride, None], w2[::stride], 0.0)
+    keep = None if ok is None else ok[::stride]
+    sub = w2[::stride] if keep is None or keep.all() else np.where(keep[:, None], w2[::stride], 0.0)   # no copy
     energy = np.cumsum(np.concatenate([[0.0], np.nan_to_num(np.einsum("ij,ij->i", sub, sub))]))
     width = length // stride
-    return int(starts[int(np.argmax([energy[min(s // stride + width, len(sub))] - energy[s // stride]
-                                     for s in starts]))])
+    first = starts // stride
+    return int(starts[int(np.argmax(energy[np.minimum(first + width, len(sub))] - energy[first]))])
 
 
 def _is_line(power, i: int) -> bool:
@@ -139,7 +143,7 @@ def _is_line(power, i: int) -> bool:
     tone is a line; coloured noise or a wandering bias is a smooth spectrum, whose peaks are not."""
     lo, hi = max(i - LINE_CELLS * PADDING, 0), min(i + LINE_CELLS * PADDING + 1, len(power))
     around = np.concatenate([power[lo:max(i - 2 * PADDING, lo)], power[min(i + 2 * PADDING + 1, hi):hi]])
-    return around.size > 0 and power[i] > LINE_FACTOR * float(np.median(around))
+    return around.size > 0 and power[i] > LINE_FACTOR * float(median(around))
 
 
 def _high_pass(r, ok, window: int) -> np.ndarray:
@@ -186,12 +190,13 @@ def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int =
     """
     w1, w2 = np.asarray(omega_1, dtype=float), np.asarray(omega_2, dtype=float)
     n = len(w1)
-    ok = np.ones(n, bool) if mask is None else np.asarray(mask, bool).copy()
+    ok = None if mask is None else np.asarray(mask, bool).copy()
     if n > max_samples:          # the most excited stretch of a long log (the tones are stationary)
         start = _excited_stretch(w2, ok, max_samples)
         part = slice(start, start + max_samples)
         t = np.arange(start, start + max_samples, dtype=float) if t is None else np.asarray(t, dtype=float)[part]
-        w1, w2, ok = w1[part], w2[part], ok[part]
+        w1, w2, ok = w1[part], w2[part], None if ok is None else ok[part]
+    ok = np.ones(len(w1), bool) if ok is None else ok     # (of the stretch only: no flag per sample of a long log)
     t = np.arange(n, dtype=float) if t is None else np.asarray(t, dtype=float)
     if len(t) > DETECT_SAMPLES and not estimate_timing(t, w1, w2, A, bias, ok, max_tones=1, harmonics=harmonics,
                                                        max_samples=DETECT_SAMPLES).significant:
@@ -199,7 +204,7 @@ def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int =
     ok &= np.all(np.isfinite(w1), axis=1) & np.all(np.isfinite(w2), axis=1)
     if np.count_nonzero(ok) < 100 * (1 + 2 * harmonics * max_tones):
         return NONE
-    dt = float(np.median(np.diff(t)))
+    dt = float(median(np.diff(t)))
     window = max(int(round(1.0 / dt)), 3) if dt < 1.0 else 64   # about a second (64 samples without timestamps)
     u = derivative(t, w2) @ np.asarray(A).T
     r = _high_pass(w1 - w2 @ np.asarray(A).T - bias, ok, window)
@@ -208,7 +213,7 @@ def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int =
     keep = uu > 0
     if not keep.any() or energy <= 0:
         return NONE
-    sigma2 = float(np.median(ru[keep] ** 2 / uu[keep])) / 0.455        # the residual along u, robustly (chi2_1)
+    sigma2 = float(median(ru[keep] ** 2 / uu[keep])) / 0.455        # the residual along u, robustly (chi2_1)
     slot = np.round((tt - tt[0]) / dt).astype(np.int64)                # each sample's place on a uniform grid
     cells = int(slot[-1]) + 1                                           # (logs with gaps: by time, not by index)
     if cells > 4 * len(t):
@@ -429,7 +434,7 @@ def estimate_array_timing(t, omegas, maps, biases, mask=None, *, reference: int 
     max_own = MAX_TONES - 1 if len(others) > 1 else MAX_TONES     # one tone per chip; one pair: both to gyro j
     if np.count_nonzero(ok) < 100 * (1 + 2 * harmonics * MAX_TONES):
         return nothing
-    dt = float(np.median(np.diff(t)))
+    dt = float(median(np.diff(t)))
     window = max(int(round(1.0 / dt)), 3) if dt < 1.0 else 64   # about a second (64 samples without timestamps)
     tt = t[ok]
     slot = np.round((tt - tt[0]) / dt).astype(np.int64)          # each sample's place on a uniform grid
@@ -452,7 +457,7 @@ def estimate_array_timing(t, omegas, maps, biases, mask=None, *, reference: int 
         energy = float(np.einsum("ij,ij->", r[ok], r[ok]))
         keep = uu > 0
         if keep.any() and energy > 0:
-            series[j] = _PairSeries(ru, uu, energy, float(np.median(ru[keep] ** 2 / uu[keep])) / 0.455)
+            series[j] = _PairSeries(ru, uu, energy, float(median(ru[keep] ** 2 / uu[keep])) / 0.455)
     if not series:
         return nothing
 
