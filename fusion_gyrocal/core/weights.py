@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .moments import row_sumsq
+from .moments import row_sumsq, rows_times
 
 
 #: Samples (centred on each) over which the local residual variance of :func:`residual_weights` is averaged.
@@ -54,7 +54,7 @@ def _residual_energy(w1, w2, A, bias, mask=None, stride: int = 1):
     block = _ENERGY_ROWS * stride
     with np.errstate(invalid="ignore", over="ignore"):
         for a in range(0, n, block):
-            r = np.asarray(w1[a:a + block:stride], float) - np.asarray(w2[a:a + block:stride], float) @ A.T - bias
+            r = np.asarray(w1[a:a + block:stride], float) - rows_times(w2[a:a + block:stride], A.T) - bias
             rr[a // stride:a // stride + len(r)] = row_sumsq(r) / 3.0
     ok = np.isfinite(rr)
     if mask is not None:
