@@ -132,3 +132,13 @@ def test_compare_sessions_mimu_flags_the_bent_session():
     r = compare_sessions(cals, [f"exp_{e}" for e in range(1, 10)])
     assert r.changed.tolist() == [e == 6 for e in range(1, 10)]
     assert abs(np.degrees(r.deviation[5, 0, 0]) * 1e3) > 25.0    # about x, tens of mdeg
+
+
+def test_compare_sessions_refuses_a_rotation_without_covariance(steady):
+    import dataclasses
+
+    cov = np.array(steady[1].covariance)
+    cov[:3, :3] = np.nan
+    blind = dataclasses.replace(steady[1], covariance=cov)
+    with pytest.raises(InputError, match="positive definite rotation covariance"):
+        compare_sessions([steady[0], blind])

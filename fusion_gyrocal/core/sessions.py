@@ -156,9 +156,10 @@ def _chi2_isf(p: float, dof: int) -> float:
 
 
 def _inverse(P, name: str) -> np.ndarray:
+    """The inverse of a session's rotation covariance; refused where it is not positive definite (or not finite)."""
     P = 0.5 * (P + P.T)
-    lam = np.linalg.eigvalsh(P)
-    if not (np.all(np.isfinite(P)) and lam.min() > 1e-12 * max(lam.max(), 0.0) and lam.max() > 0):
+    lam = np.linalg.eigvalsh(P) if np.all(np.isfinite(P)) else np.full(len(P), np.nan)
+    if not (lam.min() > 1e-12 * max(lam.max(), 0.0) and lam.max() > 0):
         raise InputError(f"{name}: expected a positive definite rotation covariance (a calibration that estimated the "
                          f"rotation), got eigenvalues {np.array2string(lam, precision=3)}")
     return np.linalg.inv(P)
