@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _timing import best_of  # noqa: E402  (benchmarks/ is the script's folder)
+from _timing import best_of, installed_like_env  # noqa: E402  (benchmarks/ is the script's folder)
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))   # this checkout's package, in-process and in the subprocesses (not an installed one)
@@ -109,12 +109,9 @@ def main(argv=None):
     # environment sets PYTHONDONTWRITEBYTECODE. Rounds interleave the two commands so both see the same load.
     import resource
     import subprocess
-    import tempfile
 
-    cache = tempfile.mkdtemp(prefix="gyrocal_pycache_")
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
-    env.update(PYTHONPATH=os.pathsep.join(filter(None, (str(ROOT), os.environ.get("PYTHONPATH")))),
-               PYTHONPYCACHEPREFIX=cache)
+    env = installed_like_env(ROOT)
+    cache = env["PYTHONPYCACHEPREFIX"]
 
     def process(args):
         """(wall s, CPU s of the child: user + system) of one run."""

@@ -28,6 +28,7 @@ Then the start-up row: ``gyrocal --help`` (``python -m fusion_gyrocal.cli --help
 
 from __future__ import annotations
 
+import shutil
 import statistics
 import subprocess
 import sys
@@ -42,7 +43,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))   # this checkout's package (not an installed one)
 
 import numpy as np  # noqa: E402
-from _timing import best_of  # noqa: E402  (benchmarks/ is the script's folder)
+from _timing import best_of, installed_like_env  # noqa: E402  (benchmarks/ is the script's folder)
 
 from fusion_gyrocal import Moments, calibrate_pair, solve
 from fusion_gyrocal.evaluate.sim import PAPER_BIAS_WALK_STD, PAPER_NOISE_STD, random_rotation, simulate_pair
@@ -119,16 +120,20 @@ def drift(n=1_000_000, rounds=5, k=3):
 
 
 def startup(runs=15):
-    """``gyrocal --help`` against ``import numpy``, fresh interpreters, interleaved."""
-    root = str(Path(__file__).resolve().parent.parent)     # this checkout's package, not an installed one
+    """``gyrocal --help`` against ``import numpy``, fresh interpreters, interleaved, after a warm-up round (the
+    package's bytecode cached as an installed package's is: :func:`_timing.installed_like_env`)."""
+    root = str(Path(__file__).resolve().parent.parent)     # this checkout's package, its bytecode cached as an
+    env = installed_like_env(root)                          # installed package's is
     cmds = {"import numpy": [sys.executable, "-c", "import numpy"],
             "gyrocal --help": [sys.executable, "-m", "fusion_gyrocal.cli", "--help"]}
     times = {k: [] for k in cmds}
-    for _ in range(runs):
+    for r in range(runs + 1):                               # the first round fills the bytecode cache
         for name, cmd in cmds.items():
             t0 = time.perf_counter()
-            subprocess.run(cmd, cwd=root, check=True, stdout=subprocess.DEVNULL)
-            times[name].append(time.perf_counter() - t0)
+            subprocess.run(cmd, cwd=root, check=True, stdout=subprocess.DEVNULL, env=env)
+            if r:
+                times[name].append(time.perf_counter() - t0)
+    shutil.rmtree(env["PYTHONPYCACHEPREFIX"], ignore_errors=True)
     med = {k: statistics.median(v) for k, v in times.items()}
     ratios = [h / n for h, n in zip(times["gyrocal --help"], times["import numpy"])]
     print(f"\nstart-up, fresh interpreters, median of {runs} interleaved runs")
