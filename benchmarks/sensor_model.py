@@ -17,11 +17,11 @@ sits from the information-weighted mean of the consistent others in units of its
 mean's (``z^2``, 3 dof), the median over the pairs and the pairs where the test says the session changed (beyond the
 chi-square point of a 1 % false-alarm rate over the nine sessions). A session changed in more than half of the pairs
 is flagged (a board that changed in that session, not noise), and the target figures are printed again without the
-flagged sessions. The library keeps
-every session and tests each pair; the flagging over pairs is the benchmark's, the decision the reader's. Last, per
-site of two co-located chips (top and bottom of the board at one x, y): both chips' deviations from chip 1 in the
-sessions that stand out, and the co-located pair's own change-test z^2; two different chips that moved alike while their own pair stayed put
-are a site of the board that moved (a bend), not an estimate that erred.
+flagged sessions. The library keeps every session and tests each pair; the flagging over pairs is the benchmark's,
+the decision the reader's. Last, per site of two co-located chips (top and bottom of the board at one x, y): both
+chips' deviations from chip 1 in the sessions that stand out, and the co-located pair's own change-test z^2; two
+different chips that moved alike while their own pair stayed put are a site of the board that moved (a bend), not an
+estimate that erred.
 
 With ``--broad``, BROAD's undisturbed trials split into halves, one half against the other (a truth within a trial).
 
