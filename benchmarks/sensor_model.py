@@ -10,7 +10,8 @@ and the defaults (or ``--linear-map``), this prints per pair the RMS session-to-
 ``skew_rotation_covariance``: the board's constant cross-axis, which the difference of two sessions cancels), the mean
 ``z^2`` of the differences against the sum of the two sessions' rotation covariances (3 dof: 3 is honest), the
 residual's chi2/dof, the robust inflation, how many sessions used the full linear map and its largest
-cross-axis term.
+cross-axis term, and the mean z^2 per axis of the session-to-session differences of the relative scale factors
+(``scale_ratio``) against their reported 1-sigma.
 
 Then the library's change test (:func:`fusion_gyrocal.compare_sessions`) per pair: per session, how far its rotation
 sits from the information-weighted mean of the consistent others in units of its repeatable covariance plus the
@@ -61,6 +62,14 @@ def session_pairs(cals):
         z2.append(float(diff @ np.linalg.solve(repeatable(a) + repeatable(b), diff)))
         d2.append(float(diff @ diff))
     return float(np.sqrt(np.mean(d2))), np.array(z2)
+
+
+def scale_pairs(cals) -> float:
+    """Mean z^2 per axis of the session-to-session differences of the relative scale factors
+    (``scale_ratio``, gauge-invariant) against their reported 1-sigma (1 is honest)."""
+    z2 = [((a.scale_ratio - b.scale_ratio) ** 2 / (a.scale_ratio_std ** 2 + b.scale_ratio_std ** 2)).mean()
+          for a, b in itertools.combinations(cals, 2)]
+    return float(np.mean(z2))
 
 
 def session_test(cals):
@@ -272,8 +281,8 @@ def main(argv=None) -> int:
     sessions = [read_npz(d / f"exp_{e}.npz") for e in range(1, 10)]
     print(f"MIMU board, 9 sessions, {len(pairs)} pairs, timestamps given, options {keywords or 'defaults'}")
     print(f"{'pair':>5} {'rms diff mdeg':>14} {'sigma mdeg':>11} {'mean z2':>8} {'max z2':>7} {'chi2/dof':>9} "
-          f"{'inflation':>10} {'full':>6} {'max |K| %':>10}")
-    rms_all, z2_all, per_pair, t0 = [], [], [], time.perf_counter()
+          f"{'inflation':>10} {'full':>6} {'max |K| %':>10} {'scale z2':>9}")
+    rms_all, z2_all, scale_z2, per_pair, t0 = [], [], [], [], time.perf_counter()
     for i, j in pairs:
         cals = [calibrate_pair(s[i - 1].omega, s[j - 1].omega, t_1=s[i - 1].t, t_2=s[j - 1].t, **keywords)
                 for s in sessions]
@@ -285,15 +294,18 @@ def main(argv=None) -> int:
         K = max(float(np.abs(getattr(c, "cross_axis_terms", np.zeros(3))).max()) for c in cals)
         rms_all.append(rms)
         z2_all.append(z2)
+        scale_z2.append(scale_pairs(cals))
         print(f"{i}-{j:<3} {rms / DEG * 1e3:14.1f} {sigma / DEG * 1e3:11.1f} {z2.mean():8.2f} {z2.max():7.1f} "
               f"{np.mean([c.lack_of_fit for c in cals]):9.3g} {np.mean([c.robust_inflation for c in cals]):10.3g} "
-              f"{model:>6} {100 * K:10.2f}")
+              f"{model:>6} {100 * K:10.2f} {scale_z2[-1]:9.2f}")
         sys.stdout.flush()
     rms_all = np.array(rms_all)
     print(f"all {len(pairs)} pairs: RMS session-to-session rotation difference "
           f"{np.sqrt(np.mean(rms_all ** 2)) / DEG * 1e3:.1f} mdeg ({rms_all.min() / DEG * 1e3:.0f}-"
           f"{rms_all.max() / DEG * 1e3:.0f} per pair); mean z2 {np.concatenate(z2_all).mean():.2f} (3 dof); "
           f"{time.perf_counter() - t0:.1f} s")
+    print(f"relative scale factors (scale_2 / scale_1 on parallel axes), session to session: mean z2 per axis "
+          f"{np.mean(scale_z2):.2f} ({min(scale_z2):.2f}-{max(scale_z2):.2f} per pair; 1 is honest)")
     if len(sessions) >= 3:
         consistency(per_pair, pairs)
         site_check(per_pair, pairs, lambda k, l: [calibrate_pair(s[k - 1].omega, s[l - 1].omega, t_1=s[k - 1].t,
