@@ -36,7 +36,7 @@ from fusion_gyrocal import solve
 from fusion_gyrocal.core.array import calibrate_array
 from fusion_gyrocal.evaluate.sim import PAPER_NOISE_STD, PAPER_RATE_HZ, HumanMotion, general_rotation, shared_data_dir
 from fusion_gyrocal.lie import log
-from sensor_model import PAIRS, consistency, repeatable, session_pairs, site_check
+from sensor_model import PAIRS, consistency, session_pairs, site_check
 
 DEG = np.pi / 180.0
 MDEG = DEG * 1e-3
@@ -77,12 +77,12 @@ def mimu(linear_maps, timing_models, keywords: dict) -> None:
             views = [a.pair(i - 1, j - 1) for a in arrays]
             per_pair.append(views)
             rms, z2 = session_pairs(views)
-            sigma = np.mean([np.sqrt(np.trace(repeatable(v)) / 3.0) for v in views])
+            sigma = np.mean([np.sqrt(np.trace(v.repeatable_rotation_covariance) / 3.0) for v in views])
             shift = [np.linalg.norm(log(v.R_1_2 @ (a.R_ref_k[j - 1].T @ a.R_ref_k[i - 1]))) for v, a in
                      zip(views, arrays)]
             pairs = [solve(a.moments.pair(i - 1, j - 1), linear_map=lm) for a in arrays]
             gap = [np.linalg.norm(log(v.R_1_2 @ p.R_1_2.T)) for v, p in zip(views, pairs)]
-            psig = np.mean([np.sqrt(np.trace(repeatable(p)) / 3.0) for p in pairs])
+            psig = np.mean([np.sqrt(np.trace(p.repeatable_rotation_covariance) / 3.0) for p in pairs])
             rms_all.append(rms)
             z2_all.append(z2)
             shifts += shift

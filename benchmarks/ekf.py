@@ -142,7 +142,7 @@ def _z_at_alarm(tr, batch) -> tuple[float, float, float]:
     R0, P0 = tr.state_at_alarm[0], tr.state_at_alarm[4]
     d = np.linalg.norm(log(R0 @ batch.R_1_2.T))
     se = np.sqrt(np.trace(P0[:3, :3]))
-    sb = np.sqrt(np.trace(np.asarray(batch.covariance)[:3, :3] - batch.skew_rotation_covariance))
+    sb = np.sqrt(np.trace(batch.repeatable_rotation_covariance))
     return tr.open_alarm[0], d / DEG * 1e3, d / np.hypot(se, sb)
 
 
@@ -171,7 +171,7 @@ def mimu(sessions=range(1, 10), imus=(2, 3, 6), seed_s=120.0):
             h = tr.run(t[n0:], w1[n0:], w2[n0:], block_size=int(round(rate)))
             d = log(tr.R_1_2 @ batch.R_1_2.T)
             se = np.sqrt(np.trace(tr.error_covariance[:3, :3]))
-            rep = np.asarray(batch.covariance)[:3, :3] - batch.skew_rotation_covariance   # without the skew
+            rep = batch.repeatable_rotation_covariance   # without the skew
             sb = np.sqrt(np.trace(rep))                       # budget: constant, the tracker's seed drops it too
             rows.append((s, k, len(h.reseeds), sum(ev.accepted for ev in h.reseeds), np.linalg.norm(d) / DEG * 1e3,
                          se / DEG * 1e3, sb / DEG * 1e3, np.linalg.norm(d) / np.hypot(se, sb),

@@ -74,8 +74,10 @@ def case(name: str, k: int, keywords=None) -> dict:
         rms = 0.02
     elif name == "drifting_bias":
         n, walk = 60000, 100 * PAPER_BIAS_WALK_STD
-    elif name in ("flex_smooth", "jitter"):
-        n, rms = 20000 if name == "flex_smooth" else n, 1.0
+    elif name == "flex_smooth":
+        n, rms = 20000, 1.0
+    elif name == "jitter":
+        rms = 1.0
     motion, t = HumanMotion(rms, rng=rng), np.arange(n) / PAPER_RATE_HZ
     sim = simulate_pair(motion(t), R_1_2=R, scale_1=s1, scale_2=s2, bias_walk_std=walk,
                         noise_std=1e-12 if name == "coloured" else noise, rng=rng)
@@ -166,7 +168,7 @@ def mimu() -> None:
             at_rest = [float(np.mean(g.omega[rest].std(axis=0, ddof=1))) for g in (s[0], s[k])]
             ratios.append([cal.noise_std[0] / at_rest[0], cal.noise_std[1] / at_rest[1]])
         # the board's cross-axis terms are the same in every session: a difference cancels the skew budget
-        rep = [c.covariance[:3, :3] - c.skew_rotation_covariance for c in cals]
+        rep = [c.repeatable_rotation_covariance for c in cals]
         z2, d2 = [], []
         for (a, Pa), (b, Pb) in itertools.combinations(zip(cals, rep), 2):
             diff = log(a.R_1_2 @ b.R_1_2.T)
@@ -192,7 +194,7 @@ def mimu() -> None:
         for a, b in itertools.combinations(arrays, 2):
             pa, pb = a.pair(0, k), b.pair(0, k)
             diff = log(pa.R_1_2 @ pb.R_1_2.T)
-            rep = [p.covariance[:3, :3] - p.skew_rotation_covariance for p in (pa, pb)]   # the board's constant
+            rep = [p.repeatable_rotation_covariance for p in (pa, pb)]   # the board's constant
             z2.append(float(diff @ np.linalg.solve(rep[0] + rep[1], diff)))                 # skew cancels
         z2_k.append(np.mean(z2))
     print(f"calibrate_array, all 8 IMUs jointly (defaults): mean z2 per IMU {', '.join(f'{z:.2f}' for z in z2_k)}; "

@@ -48,18 +48,13 @@ PAIRS = ((1, 2), (1, 3), (1, 4), (1, 5), (1, 6), (1, 7), (1, 8),
          (2, 4), (3, 5), (3, 7), (5, 7), (2, 6), (4, 8), (6, 8))
 
 
-def repeatable(cal):
-    """The rotation covariance without the skew budget (``skew_rotation_covariance``: the board's constant
-    cross-axis, which the difference of two sessions cancels)."""
-    return cal.covariance[:3, :3] - cal.skew_rotation_covariance
-
-
 def session_pairs(cals):
     """RMS rotation difference (rad) and the z^2 of each session pair against the repeatable rotation covariances."""
     z2, d2 = [], []
     for a, b in itertools.combinations(cals, 2):
         diff = log(a.R_1_2 @ b.R_1_2.T)
-        z2.append(float(diff @ np.linalg.solve(repeatable(a) + repeatable(b), diff)))
+        z2.append(float(diff @ np.linalg.solve(a.repeatable_rotation_covariance + b.repeatable_rotation_covariance,
+                                                      diff)))
         d2.append(float(diff @ diff))
     return float(np.sqrt(np.mean(d2))), np.array(z2)
 
@@ -177,8 +172,9 @@ def broad_halves(keywords) -> None:
         rms, z = session_pairs(cals)
         z2.append(z[0])
         d2.append(rms ** 2)
-        print(f"{f.stem[:34]:>34}: difference {rms / DEG * 1e3:6.1f} mdeg, 1-sigma "
-              f"{np.mean([np.sqrt(np.trace(repeatable(c)) / 3.0) for c in cals]) / DEG * 1e3:5.1f}, z2 {z[0]:6.2f}")
+        sigma = np.mean([np.sqrt(np.trace(c.repeatable_rotation_covariance) / 3.0) for c in cals])
+        print(f"{f.stem[:34]:>34}: difference {rms / DEG * 1e3:6.1f} mdeg, 1-sigma {sigma / DEG * 1e3:5.1f}, "
+              f"z2 {z[0]:6.2f}")
     print(f"BROAD halves: RMS difference {np.sqrt(np.mean(d2)) / DEG * 1e3:.1f} mdeg, mean z2 {np.mean(z2):.2f} (3 dof)")
 
 
@@ -288,7 +284,7 @@ def main(argv=None) -> int:
                 for s in sessions]
         per_pair.append(cals)
         rms, z2 = session_pairs(cals)
-        sigma = np.mean([np.sqrt(np.trace(repeatable(c)) / 3.0) for c in cals])
+        sigma = np.mean([np.sqrt(np.trace(c.repeatable_rotation_covariance) / 3.0) for c in cals])
         n_full = sum(getattr(c, "linear_map", "rigid") == "full" for c in cals)
         model = f"{n_full}/9"
         K = max(float(np.abs(getattr(c, "cross_axis_terms", np.zeros(3))).max()) for c in cals)

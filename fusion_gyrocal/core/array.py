@@ -1031,8 +1031,7 @@ def _rotation_sd(cal: ArrayCalibration) -> float:
     """RMS 1-sigma of the non-reference gyros' rotations per axis (rad), without the skew budget (what the data
     determine)."""
     n = cal.n_gyros
-    P = cal.covariance[:3 * n, :3 * n] - cal.skew_rotation_covariance
-    var = np.diag(P).reshape(n, 3)[[j for j in range(n) if j != cal.reference]]
+    var = np.diag(cal.repeatable_rotation_covariance).reshape(n, 3)[[j for j in range(n) if j != cal.reference]]
     return float(np.sqrt(max(var.mean(), 0.0)))
 
 

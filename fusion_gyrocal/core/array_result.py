@@ -315,6 +315,14 @@ class ArrayCalibration:
         return rotation_deviation(self.R_ref_k[k], self.nominal_R_ref_k[k], C)
 
     @property
+    def repeatable_rotation_covariance(self) -> np.ndarray:
+        """(3N, 3N) the rotation blocks of ``covariance`` without ``skew_rotation_covariance``: what the data
+        determine, and what two sessions of one board differ by (see :attr:`PairCalibration.
+        repeatable_rotation_covariance`); the reference's block is zero."""
+        n = self.n_gyros
+        return self.covariance[:3 * n, :3 * n] - self.skew_rotation_covariance
+
+    @property
     def rotation_std_rad(self) -> np.ndarray:
         """(N, 3) 1-sigma rotation uncertainty per axis of the reference frame (rad)."""
         return np.sqrt(np.clip(np.diag(self.covariance)[:3 * self.n_gyros], 0, None)).reshape(-1, 3)

@@ -445,6 +445,13 @@ class PairCalibration:
         return np.sqrt(np.diag(self.covariance)[ROT])
 
     @property
+    def repeatable_rotation_covariance(self) -> np.ndarray:
+        """(3, 3) the rotation covariance without ``skew_rotation_covariance``: what the data determine, and what
+        two sessions of one device differ by (the skew budget is the same in every session, so their difference
+        cancels it)."""
+        return self.covariance[ROT, ROT] - self.skew_rotation_covariance
+
+    @property
     def scale_std(self) -> np.ndarray:
         """(2, 3) 1-sigma scale-factor uncertainty in the gauge (inf where undetermined)."""
         d = np.diag(self.covariance)

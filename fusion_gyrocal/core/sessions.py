@@ -8,7 +8,7 @@ What is compared: a pair's ``R_1_2``; an array's ``R_ref_k`` of every gyro but t
 that turns several gyros a little shows in the joint test before it shows in any one of them). Their covariance
 without ``skew_rotation_covariance`` (the rotation the sensors' constant cross-axis terms leave undetermined,
 Appendix D, Eq. 40-41: the same in every session of one device, so the difference of two sessions cancels it): the
-*repeatable* covariance ``P_e``.
+results' ``repeatable_rotation_covariance`` ``P_e``.
 
 Per session ``e``: its deviation ``d_e`` from the information-weighted mean of the other consistent sessions
 (``R_e = Exp(d_e) R_mean``, the reference frame, as everywhere: :mod:`~fusion_gyrocal.lie`) and
@@ -132,13 +132,11 @@ def _rotations_of(cal) -> tuple[list, np.ndarray, tuple]:
     from .model import PairCalibration
 
     if isinstance(cal, PairCalibration):
-        return [cal.R_1_2], cal.covariance[:3, :3] - cal.skew_rotation_covariance, ("R_1_2",)
+        return [cal.R_1_2], cal.repeatable_rotation_covariance, ("R_1_2",)
     if isinstance(cal, ArrayCalibration):
         ks = [k for k in range(cal.n_gyros) if k != cal.reference]
         idx = np.concatenate([np.arange(3 * k, 3 * k + 3) for k in ks])
-        P = cal.covariance[np.ix_(idx, idx)]
-        if cal.skew_rotation_covariance is not None:
-            P = P - cal.skew_rotation_covariance[np.ix_(idx, idx)]
+        P = cal.repeatable_rotation_covariance[np.ix_(idx, idx)]
         return [cal.R_ref_k[k] for k in ks], P, tuple(f"R_{cal.reference + 1}_{k + 1}" for k in ks)
     raise InputError(f"sessions: expected PairCalibration or ArrayCalibration results, got {type(cal).__name__}")
 

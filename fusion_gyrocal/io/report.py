@@ -240,7 +240,7 @@ def uncertainty_basis(cal) -> str:
 def sensor_model_lines(cal: PairCalibration) -> list[str]:
     """What the sensor model of ``cal`` found (``linear_map``, cross-axis terms, gyro 2's intrinsics, timing), a
     line each, with the rotation's repeatable 1-sigma beside its skew budget."""
-    rep = np.sqrt(np.clip(np.diag(cal.covariance[:3, :3] - cal.skew_rotation_covariance), 0.0, None))
+    rep = np.sqrt(np.clip(np.diag(cal.repeatable_rotation_covariance), 0.0, None))
     budget = np.sqrt(np.clip(np.diag(cal.skew_rotation_covariance), 0.0, None))
     lines = [f"model: {cal.linear_map}; rotation 1-sigma {np.array2string(np.rad2deg(rep) * 1e3, precision=2)} mdeg "
              f"repeatable, skew budget {np.array2string(np.rad2deg(budget) * 1e3, precision=1)} mdeg"]

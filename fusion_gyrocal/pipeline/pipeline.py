@@ -406,8 +406,7 @@ def _with_weights(run: PipelineRun, pair, resampling, o: Options, carried: dict)
 
 def _rotation_sd(cal: PairCalibration) -> float:
     """RMS 1-sigma of the rotation per axis (rad) without the skew budget (what the data determine)."""
-    P = cal.covariance[:3, :3] - cal.skew_rotation_covariance
-    return float(np.sqrt(max(np.trace(P), 0.0) / 3.0))
+    return float(np.sqrt(max(np.trace(cal.repeatable_rotation_covariance), 0.0) / 3.0))
 
 
 def _calibrate(w1, w2, mask, pair, resampling, o: Options, base: Moments | None = None,
