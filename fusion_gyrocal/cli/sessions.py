@@ -49,5 +49,6 @@ def run(args) -> int:
 
         from ..io.writers import atomic_write
 
-        print(f"wrote {atomic_write(args.output, json.dumps(result.to_dict(), indent=2, allow_nan=False) + chr(10))}")
+        text = json.dumps(result.to_dict(), indent=2, allow_nan=False) + "\n"
+        print(f"wrote {atomic_write(args.output, text)}")
     return EXIT_CHANGED if result.changed.any() else EXIT_OK

@@ -513,8 +513,9 @@ def _chunk_rows(chunk_size) -> int:
 def _moments(w1, w2, mask, chunk_size, threads, extremes: bool = False):
     """:meth:`Moments.from_samples` of checked rates; with ``extremes`` (``mask`` None) also the per-chunk
     ``(hi, lo)`` (chunks, 6) of :func:`_accumulate` with each part's shift (parts, 6), the chunk size and the first
-    chunk of each part (each shifts by its own mean), as ``(moments, (hi, lo, shifts), chunk_size, bounds)``. Long inputs are cut into up to
-    :data:`_PARTS_PER_WORKER` parts per worker thread, merged in order (:meth:`Moments.merge`)."""
+    chunk of each part (each shifts by its own mean), as ``(moments, (hi, lo, shifts), chunk_size, bounds)``. Long
+    inputs are cut into up to :data:`_PARTS_PER_WORKER` parts per worker thread, merged in order
+    (:meth:`Moments.merge`)."""
     n = w1.shape[0]
     chunk_size = min(_chunk_rows(chunk_size), max(n, 1))   # the buffer is bounded by the data
     n_chunks = -(-n // chunk_size)
