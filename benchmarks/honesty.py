@@ -16,6 +16,9 @@
      jitter         gyro 2 sampled late by a random delay per sample, uniform in [0, 2] ms (a chip's sampling
                     instant wandering against the read-out: a residual of the rate's derivative times the delay,
                     largest where the motion turns fast), 1 rad/s RMS
+     beat           gyro 2 sampled late by a sawtooth of 8 ms at 1.7 Hz (a chip's clock beating against the
+                    read-out, the MIMU board's timing; the timing model fits the tone with three harmonics, so
+                    the sawtooth's jumps stay in the residual as a heavy tail), 1 rad/s RMS
    ``--robust-weights auto`` runs every case with the per-sample weights (``robust_weights``, off by default) to
    see whether the covariance still covers the error with them.
    Printed: rotation and scale RMSE / Cramer-Rao bound of the white-noise model (for coloured noise, of
@@ -48,8 +51,9 @@ from fusion_gyrocal.evaluate.sim import (DEG, PAPER_BIAS_WALK_STD, PAPER_NOISE_S
 from fusion_gyrocal.lie import log
 
 CASES = ("nominal", "weak_axis", "slow_motion", "coloured", "drifting_bias", "rate_scale", "flex_smooth", "impacts",
-         "jitter")
+         "jitter", "beat")
 JITTER_S = 2e-3   # the jitter case: gyro 2's sampling delay is uniform in [0, JITTER_S]
+BEAT_S, BEAT_HZ = 8e-3, 1.7   # the beat case: gyro 2's sampling delay a sawtooth of BEAT_S at BEAT_HZ
 BURST, BURST_GAIN, BURST_RATE = 1, 8.0, 0.01  # the impacts case: samples per burst, noise gain, starts per sample
 RHO = 0.9
 
@@ -76,7 +80,7 @@ def case(name: str, k: int, keywords=None) -> dict:
         n, walk = 60000, 100 * PAPER_BIAS_WALK_STD
     elif name == "flex_smooth":
         n, rms = 20000, 1.0
-    elif name == "jitter":
+    elif name in ("jitter", "beat"):
         rms = 1.0
     motion, t = HumanMotion(rms, rng=rng), np.arange(n) / PAPER_RATE_HZ
     sim = simulate_pair(motion(t), R_1_2=R, scale_1=s1, scale_2=s2, bias_walk_std=walk,
@@ -93,6 +97,8 @@ def case(name: str, k: int, keywords=None) -> dict:
         w2 = bend_with_rate(sim, rng=rng)[0].omega_2
     elif name == "jitter":   # gyro 2's true rate at its late instants instead of the nominal ones
         w2 = w2 + (motion(t + rng.uniform(0.0, JITTER_S, n)) - sim.omega_true_1) @ R * s2
+    elif name == "beat":     # ... at instants late by a sawtooth: its clock beating against the read-out
+        w2 = w2 + (motion(t + BEAT_S * ((BEAT_HZ * t + rng.random()) % 1.0)) - sim.omega_true_1) @ R * s2
     elif name == "impacts":
         w1, w2 = w1 + _bursts(n, noise, rng), w2 + _bursts(n, noise, rng)
     bound = cramer_rao_bound(R, s1, s2, (noise, noise), w2_true * s2)
