@@ -57,7 +57,10 @@ def _spline_slopes(x: np.ndarray, dx: np.ndarray, slope: np.ndarray, first: np.n
     ab[1, 1:-1] = 2.0 * (dx[:-1] + dx[1:])
     ab[0, 2:] = dx[:-1]
     ab[2, :-2] = dx[1:]
-    rhs[:, 1:-1] = 3.0 * (dx[1:] * slope[:, :-1] + dx[:-1] * slope[:, 1:])
+    inner = rhs[:, 1:-1]                   # 3 (dx[1:] slope[:, :-1] + dx[:-1] slope[:, 1:]), in place
+    np.multiply(dx[1:], slope[:, :-1], out=inner)
+    inner += dx[:-1] * slope[:, 1:]
+    inner *= 3.0
     n = last - first + 1
     # cut the coupling between consecutive runs
     ab[2, first[first > 0] - 1] = 0.0
@@ -130,9 +133,12 @@ class _RunSplines:
         runs = _runs(t, valid, max_gap_s)
         if not runs:
             return
-        sel = runs[0] if len(runs) == 1 else np.concatenate(runs)
-        x = t[sel]
-        Y = y[sel].reshape(sel.size, -1)
+        if len(runs) == 1:                   # a run is a range of samples: one run is a slice (no gather)
+            a, b = int(runs[0][0]), int(runs[0][-1]) + 1
+            x, Y = t[a:b], y[a:b].reshape(b - a, -1)
+        else:
+            sel = np.concatenate(runs)
+            x, Y = t[sel], y[sel].reshape(sel.size, -1)
         lens = np.array([r.size for r in runs])
         first = np.r_[0, np.cumsum(lens)[:-1]]
         last = first + lens - 1
@@ -373,7 +379,9 @@ def noise_factors(t_src, t_query, *, max_points: int = 1 << 16, block: int = 64,
     i1 = min(int(np.searchsorted(t, q[-1])) + reach, t.size)
     noise = np.random.default_rng(seed).standard_normal((i1 - i0, 3))
     ts = timed_stream("t_src", t[i0:i1], "noise", noise, None)[0]   # repaired as the alignment repairs them
-    out, inside = resample(ts, noise, q)
+    # resample(ts, noise, q) without checking ts a second time (the noise is finite: every sample valid)
+    out, inside = _resample_checked(ts, noise, np.ones(noise.shape[0], dtype=bool), q,
+                                    DEFAULT_GAP_PERIODS * _nominal_period(ts))
     if not inside.all():        # a gap: the consecutive stretch before it
         stop = int(np.argmin(inside)) if inside[0] else 0
         out, q = out[:stop], q[:stop]
