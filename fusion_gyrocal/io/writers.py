@@ -72,7 +72,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.array import ARRAY_KIND, ArrayCalibration
+from ..core.array_result import ARRAY_KIND, ArrayCalibration   # the result types only: not the joint solver
 from ..core.model import PairCalibration, parallel_axes
 from ..errors import FormatError, InputError
 from ..lie import canonical_rotvec, log

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..core.moments import Moments, row_norms, row_sumsq, rows_times
 from ..errors import OptionError, TimeAlignmentError
-from .resample import _MARGIN, _RunSplines, _resample_checked, _runs
+from .resample import _MARGIN, _RunSplines, _ranges, _resample_checked, _runs
 from .streams import DEFAULT_GAP_PERIODS, _freeze, _nominal_period, _stream, timed_stream, valid_mask
 
 _AMBIGUITY_RATIO = 1.5         # a second lobe with misfit (1 - r) below this times the peak's is ambiguous
@@ -176,11 +176,10 @@ def _norm_on_grid(t, w, ok, k_lo: int, k_hi: int, h: float, gap):
         i0 = max(int(np.searchsorted(t, grid[0], side="right")) - 2, 0)
         i1 = min(int(np.searchsorted(t, grid[-1], side="left")) + 2, t.size)
         tl, wl, okl = t[i0:i1], w[i0:i1], ok[i0:i1]
-        runs = _runs(tl, okl, gap)
-        if not runs:
+        first, last = _runs(tl, okl, gap)
+        if not first.size:
             continue
-        first = np.array([r[0] for r in runs])
-        last = np.array([r[-1] for r in runs])
+        last = last - 1
         k = np.searchsorted(tl[first], grid, side="right") - 1
         ins = (k >= 0) & (grid <= tl[last[np.clip(k, 0, None)]])
         sel = np.flatnonzero(okl)
@@ -226,12 +225,6 @@ def _misfit(y, w2) -> float:
     ``tr(S11 - S12 S22^+ S12^T)`` of the centred scatter."""
     m, _, A = _profile_fit(y, w2)
     return float(np.trace(m.S11) - np.trace(A @ m.S12.T))
-
-
-def _ranges(starts: np.ndarray, stops: np.ndarray) -> np.ndarray:
-    """The integers of the ranges ``[starts_i, stops_i)`` (each non-empty), one after the other."""
-    n = stops - starts
-    return np.repeat(starts - np.cumsum(n) + n, n) + np.arange(int(n.sum()))
 
 
 def _excited_instants(t1, w1, ok1, he: float, max_eval: int):

@@ -28,14 +28,23 @@ _ATTENUATION_DB = 100.0        # stopband attenuation and passband ripple (1e-5)
 
 
 # ---------------------------------------------------------------------------------------------- resampling
-def _runs(t: np.ndarray, valid: np.ndarray, max_gap_s: float) -> list[np.ndarray]:
-    """Sample indices of each contiguous run (>= 2 samples) of valid samples without a gap."""
+def _runs(t: np.ndarray, valid: np.ndarray, max_gap_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(first, stop)``: each contiguous run (>= 2 samples) of valid samples without a gap is the range of samples
+    ``first[k]:stop[k]`` (found in a few array passes, however many runs a masked record has)."""
     idx = np.flatnonzero(valid)
     if idx.size < 2:
-        return []
+        return np.empty(0, dtype=np.intp), np.empty(0, dtype=np.intp)
     brk = (np.diff(idx) > 1) | (np.diff(t[idx]) > max_gap_s)
     cut = np.flatnonzero(brk) + 1
-    return [idx[a:b] for a, b in zip(np.r_[0, cut], np.r_[cut, idx.size]) if b - a >= 2]
+    a, b = np.r_[0, cut], np.r_[cut, idx.size]
+    long = b - a >= 2
+    return idx[a[long]], idx[b[long] - 1] + 1
+
+
+def _ranges(starts: np.ndarray, stops: np.ndarray) -> np.ndarray:
+    """The integers of the ranges ``[starts_i, stops_i)`` (each non-empty), one after the other."""
+    n = stops - starts
+    return np.repeat(starts - np.cumsum(n) + n, n) + np.arange(int(n.sum()))
 
 
 def _spline_slopes(x: np.ndarray, dx: np.ndarray, slope: np.ndarray, first: np.ndarray,
@@ -57,7 +66,10 @@ def _spline_slopes(x: np.ndarray, dx: np.ndarray, slope: np.ndarray, first: np.n
     ab[1, 1:-1] = 2.0 * (dx[:-1] + dx[1:])
     ab[0, 2:] = dx[:-1]
     ab[2, :-2] = dx[1:]
-    rhs[:, 1:-1] = 3.0 * (dx[1:] * slope[:, :-1] + dx[:-1] * slope[:, 1:])
+    inner = rhs[:, 1:-1]                   # 3 (dx[1:] slope[:, :-1] + dx[:-1] slope[:, 1:]), in place
+    np.multiply(dx[1:], slope[:, :-1], out=inner)
+    inner += dx[:-1] * slope[:, 1:]
+    inner *= 3.0
     n = last - first + 1
     # cut the coupling between consecutive runs
     ab[2, first[first > 0] - 1] = 0.0
@@ -127,13 +139,16 @@ class _RunSplines:
     def __init__(self, t: np.ndarray, y: np.ndarray, valid: np.ndarray, max_gap_s: float):
         self.width = y.shape[1:]
         self.starts, self.ends, self.knots, self.coef = np.empty(0), np.empty(0), None, None
-        runs = _runs(t, valid, max_gap_s)
-        if not runs:
+        run_first, run_stop = _runs(t, valid, max_gap_s)
+        if not run_first.size:
             return
-        sel = runs[0] if len(runs) == 1 else np.concatenate(runs)
-        x = t[sel]
-        Y = y[sel].reshape(sel.size, -1)
-        lens = np.array([r.size for r in runs])
+        if run_first.size == 1:              # one run: a slice of the samples (no gather)
+            a, b = int(run_first[0]), int(run_stop[0])
+            x, Y = t[a:b], y[a:b].reshape(b - a, -1)
+        else:
+            sel = _ranges(run_first, run_stop)
+            x, Y = t[sel], y[sel].reshape(sel.size, -1)
+        lens = run_stop - run_first
         first = np.r_[0, np.cumsum(lens)[:-1]]
         last = first + lens - 1
         self.starts, self.ends = x[first], x[last]
@@ -292,8 +307,7 @@ def _antialiased(t: np.ndarray, w: np.ndarray, ok: np.ndarray, gap: float, query
     numtaps = h.size
     half = numtaps // 2
     t_out, w_out = t.copy(), w.copy()
-    for run in _runs(t, ok, gap):
-        a, b = int(run[0]), int(run[-1]) + 1            # a run is a contiguous range of samples
+    for a, b in zip(*(r.tolist() for r in _runs(t, ok, gap))):
         if b - a <= numtaps:
             continue
         tf = t[a] + oaconvolve(t[a:b] - t[a], h, mode="valid")
@@ -373,7 +387,9 @@ def noise_factors(t_src, t_query, *, max_points: int = 1 << 16, block: int = 64,
     i1 = min(int(np.searchsorted(t, q[-1])) + reach, t.size)
     noise = np.random.default_rng(seed).standard_normal((i1 - i0, 3))
     ts = timed_stream("t_src", t[i0:i1], "noise", noise, None)[0]   # repaired as the alignment repairs them
-    out, inside = resample(ts, noise, q)
+    # resample(ts, noise, q) without checking ts a second time (the noise is finite: every sample valid)
+    out, inside = _resample_checked(ts, noise, np.ones(noise.shape[0], dtype=bool), q,
+                                    DEFAULT_GAP_PERIODS * _nominal_period(ts))
     if not inside.all():        # a gap: the consecutive stretch before it
         stop = int(np.argmin(inside)) if inside[0] else 0
         out, q = out[:stop], q[:stop]
