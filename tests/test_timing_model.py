@@ -62,3 +62,44 @@ def test_timing_model_rotation_error_honest(runs):
         assert err < err_off          # the delay modelled: closer to the truth than without it
         z2.append(z)
     assert max(z2) < 16.3             # chi2_3's 99.9 % point: the reported covariance covers the error
+
+
+def _beat_pair(seed: int, delay_s):
+    """100 Hz, 60 s of human motion; gyro 2's samples describe the instants ``t + delay_s(t)``; R the rotation."""
+    rng = np.random.default_rng([7, seed])
+    R = general_rotation(rng)
+    t = np.arange(6000) / 100.0
+    motion = HumanMotion(1.0, rng=rng)
+    w1 = motion(t) + rng.normal(0, 1.7e-3, (len(t), 3))
+    w2 = motion(t + delay_s(t)) @ R + rng.normal(0, 1.7e-3, (len(t), 3))
+    return t, w1, w2, R
+
+
+def test_estimate_timing_fits_a_sawtooth_delay_as_one():
+    from fusion_gyrocal.pipeline.timing import estimate_timing
+
+    for seed in range(2):
+        phase = 0.25 + 0.5 * seed
+        late = lambda t: 8e-3 * np.mod(1.7 * t + phase, 1.0)      # noqa: E731  a chip's clock beating, 8 ms
+        t, w1, w2, R = _beat_pair(seed, late)
+        model = estimate_timing(t, w1, w2, R, np.zeros(3))
+        assert len(model.tones_hz) == 1 and abs(model.tones_hz[0] - 1.7) < 1e-3
+        assert len(model.phases) == 1 and np.isfinite(model.phases[0])      # a sawtooth, not its harmonics
+        delay = model.delay(t)
+        assert np.corrcoef(delay, -late(t))[0, 1] > 0.99
+        assert delay.std() == pytest.approx(8e-3 / np.sqrt(12.0), rel=0.05)
+        assert model.explained > 0.95
+        harmonics = estimate_timing(t, w1, w2, R, np.zeros(3), sawtooth=False)
+        assert harmonics.phases == () and harmonics.explained < model.explained
+
+
+def test_estimate_timing_high_pass_keeps_the_delay_amplitude():
+    """The residual is high-passed over a second (a drifting bias is slow); the delay's columns are too, so a
+    delay at 1.3 Hz keeps its amplitude (15 % less when only the residual was high-passed)."""
+    from fusion_gyrocal.pipeline.timing import estimate_timing
+
+    late = lambda t: 3e-3 * np.sin(2 * np.pi * 1.3 * t)            # noqa: E731
+    t, w1, w2, R = _beat_pair(5, late)
+    model = estimate_timing(t, w1, w2, R, np.zeros(3), sawtooth=False)
+    assert len(model.tones_hz) == 1 and abs(model.tones_hz[0] - 1.3) < 1e-3
+    assert model.delay(t).std() == pytest.approx(3e-3 / np.sqrt(2.0), rel=0.03)

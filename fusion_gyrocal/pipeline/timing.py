@@ -14,6 +14,10 @@ finds up to :data:`MAX_TONES` tones (one per chip against the read-out), each wi
 for the sawtooth's shape, by least squares of ``r_k . u_k`` on ``|u_k|^2 delta(t_k)`` (frequencies from the
 periodogram of ``r_k . u_k``, refined on a fine grid), and keeps them only where the peak is a spectral line
 (far above the periodogram around it) and explains far more than noise would over a search of every frequency.
+A tone whose delay is the sawtooth itself (the time since the chip's last sample, wrapping once per beat) is then
+fitted as one: ``a (frac(f t + phi) - 1/2)``, its phase and frequency searched (:func:`_sawtooth`), kept where it
+explains at least what the harmonics do with one coefficient instead of ``2 x HARMONICS``: the harmonics cannot
+follow its jumps, whose residual is otherwise left for the flex gate.
 A constant delay alone (a filter's group delay, in sample-aligned input where no offset was estimated) is kept
 when it explains far more than noise would. :meth:`TimingModel.compensate` moves gyro 2's samples to the
 instants they describe (``omega_2 + d(omega_2)/dt delta``), after which the pair is calibrated again.
@@ -76,6 +80,9 @@ class TimingModel:
         significant.
     delay_std : float
         Standard deviation of the modelled delay over the samples used (s; samples without timestamps).
+    phases : tuple of float
+        Per tone, the phase ``phi`` (cycles) of a sawtooth ``frac(f t + phi) - 1/2`` (one coefficient) where the
+        tone was fitted as one, NaN where by its harmonics; empty: every tone by its harmonics.
     """
 
     tones_hz: tuple
@@ -83,6 +90,7 @@ class TimingModel:
     harmonics: int
     explained: float
     delay_std: float
+    phases: tuple = ()
 
     @property
     def significant(self) -> bool:
@@ -95,7 +103,7 @@ class TimingModel:
 
     def delay(self, t) -> np.ndarray:
         """The modelled delay at the instants ``t``."""
-        return _design(np.asarray(t, dtype=float), self.tones_hz, self.harmonics) @ self.coefficients
+        return _design(np.asarray(t, dtype=float), self.tones_hz, self.harmonics, self.phases) @ self.coefficients
 
     def compensate(self, t, omega_2) -> np.ndarray:
         """Gyro 2's rates moved to the instants they describe: ``omega_2 + d(omega_2)/dt * delay(t)``."""
@@ -158,23 +166,41 @@ def _high_pass(r, ok, window: int) -> np.ndarray:
     return r - (c[hi] - c[lo]) / count[:, None]
 
 
-def _design(t, tones, harmonics) -> np.ndarray:
-    """The delay's design: a column of ones, then ``cos, sin`` of every harmonic of every tone (:func:`_rows`
-    transposed)."""
-    return _rows(t, tones, harmonics).T
+def _design(t, tones, harmonics, phases=()) -> np.ndarray:
+    """The delay's design: a column of ones, then ``cos, sin`` of every harmonic of every tone, or one sawtooth
+    column for a tone with a phase in ``phases`` (:func:`_rows` transposed)."""
+    return _rows(t, tones, harmonics, phases).T
 
 
-def _fit(t, ru, uu, tones, harmonics):
+def _fit(t, ru, uu, tones, harmonics, phases=()):
     """Least squares of ``sum |r - u delta|^2`` over the delay's coefficients: ``(coefficients, explained energy)``."""
-    X = _design(t, tones, harmonics)
+    X = _design(t, tones, harmonics, phases)
     G = (X * uu[:, None]).T @ X
     h = X.T @ ru
     c = np.linalg.lstsq(G, h, rcond=None)[0]
     return c, float(h @ c)
 
 
+def _high_passed_gram(X, r, u, ok, window: int):
+    """``(G, h)`` of the least squares of the high-passed residual ``r`` (:func:`_high_pass`) on the delay's
+    columns ``X`` (samples x p) with each column's residual ``u X_j`` high-passed the same way: a delay's residual
+    has slow parts too, which the high-pass takes from ``r`` alone and which would shrink the fitted delay (by 15 %
+    for a sawtooth at 1.7 Hz against a one-second window). The samples ``ok`` count."""
+    cols = [_high_pass(u * X[:, [j]], ok, window)[ok] for j in range(X.shape[1])]
+    G = np.array([[float(np.einsum("ij,ij->", a, b)) for b in cols] for a in cols])
+    return G, np.array([float(np.einsum("ij,ij->", a, r[ok])) for a in cols])
+
+
+def _fit_high_passed(t, r, u, ok, window: int, tones, harmonics, phases=()):
+    """The delay's coefficients and explained energy as :func:`_fit`, each column high-passed as the residual
+    (:func:`_high_passed_gram`)."""
+    G, h = _high_passed_gram(_design(t, tones, harmonics, phases), r, u, ok, window)
+    c = np.linalg.lstsq(G, h, rcond=None)[0]
+    return c, float(h @ c)
+
+
 def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int = MAX_TONES,
-                    harmonics: int = HARMONICS, max_samples: int = MAX_SAMPLES) -> TimingModel:
+                    harmonics: int = HARMONICS, max_samples: int = MAX_SAMPLES, sawtooth: bool = True) -> TimingModel:
     """The delay of gyro 2 against gyro 1 that the residual of ``(A, bias)`` shows (:class:`TimingModel`).
 
     Parameters
@@ -187,6 +213,9 @@ def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int =
     A, bias : the calibration's map and combined bias (``omega_1 ~ A omega_2 + bias``).
     mask : array_like of bool (N,), optional
         Samples to use (the derivative is one-sided beside an invalid one).
+    sawtooth : bool
+        Whether a tone may be fitted as a sawtooth (:func:`_sawtooth`); False: by its harmonics only, as
+        :func:`estimate_array_timing` fits every tone.
     """
     w1, w2 = np.asarray(omega_1, dtype=float), np.asarray(omega_2, dtype=float)
     n = len(w1)
@@ -199,7 +228,7 @@ def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int =
     ok = np.ones(len(w1), bool) if ok is None else ok     # (of the stretch only: no flag per sample of a long log)
     t = np.arange(n, dtype=float) if t is None else np.asarray(t, dtype=float)
     if len(t) > DETECT_SAMPLES and not estimate_timing(t, w1, w2, A, bias, ok, max_tones=1, harmonics=harmonics,
-                                                       max_samples=DETECT_SAMPLES).significant:
+                                                       max_samples=DETECT_SAMPLES, sawtooth=False).significant:
         return NONE                   # nothing on the most excited stretch: not worth the longer search
     ok &= np.all(np.isfinite(w1), axis=1) & np.all(np.isfinite(w2), axis=1)
     if np.count_nonzero(ok) < 100 * (1 + 2 * harmonics * max_tones):
@@ -221,16 +250,16 @@ def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int =
     n_freq = cells / 2.0                                                # independent frequencies searched
     _, constant = _fit(tt, ru, uu, [], harmonics)                     # one delay: a filter's group delay
     explained = constant if constant / sigma2 > CONSTANT_SIGNIFICANCE else 0.0
-    tones = []
+    tones, phases = [], []
     for _ in range(max_tones):
-        c, _ = _fit(tt, ru, uu, tones, harmonics)
+        c, _ = _fit(tt, ru, uu, tones, harmonics, phases)
         x = np.zeros(cells)
-        x[slot] = ru - uu * (_design(tt, tones, harmonics) @ c)
+        x[slot] = ru - uu * (_design(tt, tones, harmonics, phases) @ c)
         power = np.abs(np.fft.rfft(x, PADDING * cells)) ** 2
         freq = np.fft.rfftfreq(PADDING * cells, dt)
         allowed = freq > 2.0 / (cells * dt)                             # at least two periods in the log
-        for f in tones:                                                 # not a harmonic of a tone found
-            for h in range(1, harmonics + 1):
+        for f, p in zip(tones, phases):          # not a harmonic of a tone found (a sawtooth has them all)
+            for h in range(1, (harmonics if np.isnan(p) else int(0.5 / (f * dt))) + 1):
                 allowed &= np.abs(freq - h * f) > 2.0 / (cells * dt)
         if not allowed.any():
             break
@@ -240,20 +269,27 @@ def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int =
         peak = freq[i]
         span = REFINE_CELLS / (cells * dt)
         grid = np.linspace(peak - span, peak + span, 41)
-        gains = [_fit(tt, ru, uu, tones + [f], harmonics)[1] for f in grid]
+        gains = [_fit(tt, ru, uu, tones + [f], harmonics, phases)[1] for f in grid]
         best = float(grid[int(np.argmax(gains))])
         gain = max(gains) - explained
         if gain / sigma2 < SIGNIFICANCE * (1 + 2 * harmonics + 2.0 * np.log(n_freq)):
             break
         tones.append(best)
+        phases.append(np.nan)
         explained = max(gains)
+        if not sawtooth:
+            continue
+        f, phase, saw = _sawtooth(tt, ru, uu, tones, harmonics, phases, len(tones) - 1, 1.0 / (cells * dt))
+        if saw >= explained:          # the sawtooth itself: one coefficient explains at least the harmonics' share
+            tones[-1], phases[-1], explained = f, phase, saw
     if not tones and not explained:
         return NONE
-    c, explained = _fit(tt, ru, uu, tones, harmonics)
+    c, explained = _fit_high_passed(t, r, u, ok, window, tones, harmonics, phases)
     if explained < MIN_EXPLAINED * energy:                              # significant, but too small to matter
         return NONE
-    delay = _design(tt, tones, harmonics) @ c
-    return TimingModel(tuple(tones), c, harmonics, explained / energy, float(delay.std()))
+    delay = _design(tt, tones, harmonics, phases) @ c
+    return TimingModel(tuple(tones), c, harmonics, explained / energy, float(delay.std()),
+                       tuple(phases) if not np.isnan(phases).all() else ())
 
 
 # ---------------------------------------------------------------------------------------- N gyros: one delay per chip
@@ -311,9 +347,57 @@ class ArrayTimingModel:
         return _moved(t, np.asarray(omega_j, dtype=float), delay), delay
 
 
-def _rows(t, tones, harmonics) -> np.ndarray:
-    """The delay's design as rows (a row per column of :func:`_design`), its tones by :func:`_tone_rows`."""
-    return np.vstack([np.ones((1, len(t)))] + [_tone_rows(t, f, harmonics) for f in tones])
+def _rows(t, tones, harmonics, phases=()) -> np.ndarray:
+    """The delay's design as rows (a row per column of :func:`_design`), its tones by :func:`_tone_rows`, or by
+    :func:`_saw_row` where ``phases`` gives the tone a sawtooth's phase (not NaN)."""
+    phases = tuple(phases) + (np.nan,) * (len(tones) - len(phases))
+    return np.vstack([np.ones((1, len(t)))] + [_tone_rows(t, f, harmonics) if np.isnan(p) else _saw_row(t, f, p)
+                                               for f, p in zip(tones, phases)])
+
+
+def _saw_row(t, f: float, phase: float) -> np.ndarray:
+    """A sawtooth of frequency ``f`` and ``phase`` (cycles), zero-mean over a period: ``frac(f t + phase) - 1/2``
+    as one row."""
+    x = f * t + phase
+    return (x - np.floor(x) - 0.5)[None, :]
+
+
+#: Phases of a tone's sawtooth tried (cycles) at the tone's frequency; then a pattern search of frequency and phase
+#: from steps of a quarter resolution cell and one phase step, halved this many times (the jumps make the fit
+#: sensitive to both: a frequency off by a tenth of a cell moves the last jump by a twentieth of a period).
+SAW_PHASES, SAW_LEVELS = 48, 8
+
+
+def _sawtooth(t, ru, uu, tones, harmonics, phases, i: int, cell_hz: float):
+    """Tone ``i`` of ``tones`` fitted as a sawtooth (the others as they are): ``(frequency, phase, explained)``
+    of the best of a scan of phases at its frequency, refined by a pattern search of frequency and phase (the
+    phase measured at the middle of ``t``, so that a change of frequency leaves the phase there in place).
+    ``cell_hz``: the resolution cell (1 / the log's duration). The other tones' columns are fixed once
+    (:class:`_PairSeries`): each trial adds one column."""
+    mid = 0.5 * (t[0] + t[-1])
+    fixed = _PairSeries(ru, uu, 0.0, 1.0)
+    fixed.fix(_rows(t, tones[:i] + tones[i + 1:], harmonics, phases[:i] + phases[i + 1:]))
+
+    def explained(f, mid_phase):
+        return fixed.gain(_saw_row(t, f, (mid_phase - f * mid) % 1.0))
+
+    f0 = tones[i]
+    grid = np.arange(SAW_PHASES) / SAW_PHASES
+    gains = [explained(f0, p) for p in grid]
+    best = (max(gains), f0, float(grid[int(np.argmax(gains))]))
+    df, dp = 0.25 * cell_hz, 1.0 / SAW_PHASES
+    for _ in range(SAW_LEVELS):
+        centre = best
+        for a in (-1.0, 0.0, 1.0):
+            for b in (-1.0, 0.0, 1.0):
+                if a or b:
+                    f, p = centre[1] + a * df, (centre[2] + b * dp) % 1.0
+                    gain = explained(f, p)
+                    if gain > best[0]:
+                        best = (gain, float(f), float(p))
+        df, dp = df / 2.0, dp / 2.0
+    gain, f, mid_phase = best
+    return f, (mid_phase - f * mid) % 1.0, gain
 
 
 def _tone_rows(t, f: float, harmonics: int) -> np.ndarray:
@@ -458,6 +542,7 @@ def estimate_array_timing(t, omegas, maps, biases, mask=None, *, reference: int 
         keep = uu > 0
         if keep.any() and energy > 0:
             series[j] = _PairSeries(ru, uu, energy, float(median(ru[keep] ** 2 / uu[keep])) / 0.455)
+            series[j].r, series[j].u = r, u      # for the final fit (:func:`_high_passed_gram`)
     if not series:
         return nothing
 
@@ -519,8 +604,9 @@ def estimate_array_timing(t, omegas, maps, biases, mask=None, *, reference: int 
     grams = {}
     for j, c0 in offset.items():
         s = series[j]
-        X = np.vstack([_rows(tt, own[j], harmonics)] + ref_cols)
-        grams[j] = (X * s.uu) @ X.T, X @ s.ru, X @ X.T / len(tt)        # weighted, against ru, plain
+        X = np.vstack([_rows(t, own[j], harmonics)] + [_tone_rows(t, f, harmonics) for f in ref_tones])
+        weighted, along = _high_passed_gram(X.T, s.r, s.u, ok, window)
+        grams[j] = weighted, along, X[:, ok] @ X[:, ok].T / len(tt)      # weighted, against r, plain
         idx = np.r_[c0:c0 + len(X) - n_ref, 0:n_ref]
         sign = np.r_[np.ones(len(X) - n_ref), -np.ones(n_ref)]        # d_j - d_ref
         G[np.ix_(idx, idx)] += sign[:, None] * grams[j][0] * sign[None, :] / s.sigma2
