@@ -844,8 +844,12 @@ def stacked_window_stats(streams, window: int, *, mask=None, pooled: bool = Fals
                                                                                              65536 // window * window)]
         wins = sum((q.stop - q.start) // window for q in sl)
         x = np.empty((wins, width, window))   # windows x channels x samples: sums run along contiguous rows
-        for k, w in enumerate(streams):
-            x[:, 3 * k:3 * k + 3, :] = np.concatenate([w[q] for q in sl]).reshape(wins, window, 3).transpose(0, 2, 1)
+        at = 0
+        for q in sl:                          # each slice straight into its windows (no joined copy first)
+            k_q = (q.stop - q.start) // window
+            for k, w in enumerate(streams):
+                x[at:at + k_q, 3 * k:3 * k + 3, :] = w[q].reshape(k_q, window, 3).transpose(0, 2, 1)
+            at += k_q
         m = None if mask is None else np.concatenate([mask[q] for q in sl]).reshape(-1, window)
         run = np.repeat(np.arange(lo, lo + len(sl)) if run_len != n_win else np.zeros(len(sl), int),
                         [(q.stop - q.start) // window for q in sl])
