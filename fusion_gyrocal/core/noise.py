@@ -103,7 +103,11 @@ def difference_noise_std(omega, mask=None, *, max_samples: int = NOISE_SPLIT_SAM
     x = np.concatenate([np.asarray(w[a:b], dtype=np.float64) for a, b in spans])
     if mask is None and x.shape[0] > 3 and np.isfinite(x.sum()):   # all whole: differenced at once, (3, blocks, len)
         x = np.ascontiguousarray(x.T).reshape(3, len(spans), -1)
-        parts = [((x[..., 3:] - x[..., :-3]) - 3.0 * (x[..., 2:-1] - x[..., 1:-2])).reshape(3, -1)]
+        d = x[..., 3:] - x[..., :-3]
+        inner = x[..., 2:-1] - x[..., 1:-2]
+        inner *= 3.0
+        d -= inner                         # (x3 - x0) - 3 (x2 - x1), as written below, in two temporaries
+        parts = [d.reshape(3, -1)]
     else:
         parts = []
         for a, b in spans:
