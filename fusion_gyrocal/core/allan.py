@@ -174,19 +174,22 @@ def second_differences(ys, rate_hz: float, pairs=(), batches: bool = False):
     sub_n, sub_m = np.empty(ms.size), np.empty(ms.size)
     batch = []
     b = 1
-    for i, m in enumerate(ms):
+    work = [(np.empty_like(x), np.empty_like(x)) for x in blocks]   # each stream's moving sums and differences:
+    for i, m in enumerate(ms):                                      # two buffers for all taus, no fresh arrays
         while b < max(1, int(m) // 4):      # sums of 2b samples from those of b
             k = blocks[0].shape[-1] // 2
             blocks = [x[..., 0:2 * k:2] + x[..., 1:2 * k:2] for x in blocks]
             b *= 2
         mm = int(m) // b
         ds = []
-        for x in blocks:
-            s, width = x, 1
+        for x, pair in zip(blocks, work):
+            s, width, free = x, 1, 0
             while width < mm:                    # moving sums of mm blocks (mm is 1, 2 or 4)
-                s = s[..., :-width] + s[..., width:]
+                s = np.add(s[..., :-width], s[..., width:], out=pair[free][..., :s.shape[-1] - width])
                 width *= 2
-            ds.append(s[..., mm:] - s[..., :-mm])    # (x_{i+2m} - 2 x_{i+m} + x_i) * rate_hz
+                free = 1 - free
+            # (x_{i+2m} - 2 x_{i+m} + x_i) * rate_hz, into the buffer s is not in
+            ds.append(np.subtract(s[..., mm:], s[..., :-mm], out=pair[free][..., :s.shape[-1] - mm]))
         for j, d in enumerate(ds):
             out[j][i] = np.einsum("...k,...k->...", d, d)
         if batches:   # BATCHES consecutive batches (elements of d are b samples apart), each >= BATCH_TAUS 2 tau
