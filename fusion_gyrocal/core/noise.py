@@ -106,7 +106,7 @@ def difference_noise_std(omega, mask=None, *, max_samples: int = NOISE_SPLIT_SAM
         d = x[..., 3:] - x[..., :-3]
         inner = x[..., 2:-1] - x[..., 1:-2]
         inner *= 3.0
-        d -= inner                         # (x3 - x0) - 3 (x2 - x1), as written below, in two temporaries
+        d -= inner                         # (x3 - x0) - 3 (x2 - x1): the loop's operations, two temporaries
         parts = [d.reshape(3, -1)]
     else:
         parts = []
@@ -438,8 +438,9 @@ class _Windows:
     length: int
 
 
-_WINDOW_GROUP = 4096   # samples of the windows _windows reduces at a time: each stream's (3, samples) copy, 96 KiB,
-#                        reuses freed memory (larger copies are fresh pages of the OS each time: ~4x the time)
+_WINDOW_GROUP = 4096   # samples of the windows _windows reduces at a time: each stream's (3, samples) copy (96 KiB)
+#                        reuses memory just freed; copies of a whole long log's stretches (1.5 MiB each) were
+#                        fresh pages from the OS on every call, page faults costing more than the reductions
 
 
 def _windows(r, w1, aw2, valid, w) -> _Windows:
@@ -457,11 +458,8 @@ def _windows(r, w1, aw2, valid, w) -> _Windows:
         sel = idx[lo:lo + per]
         a, b = int(sel[0]) * w, (int(sel[-1]) + 1) * w
         pick = slice(None) if sel.size == (b - a) // w else sel - sel[0]   # no copy when every window is kept
-
-        def per_window(x):   # (3, windows, w): sums along contiguous rows (numpy sums (N, 3) along axis 0 slowly)
-            return np.ascontiguousarray(x[a:b].T).reshape(3, -1, w)[:, pick]
-
-        R, X1, X2 = per_window(r), per_window(w1), per_window(aw2)
+        # (3, windows, w): sums along contiguous rows (numpy sums (N, 3) along axis 0 slowly)
+        R, X1, X2 = (np.ascontiguousarray(x[a:b].T).reshape(3, -1, w)[:, pick] for x in (r, w1, aw2))
         part = slice(lo, lo + sel.size)
         v_r[part] = np.einsum("ijk,ijk->j", R, R)
         sq = np.einsum("ijk,ijk->jk", X1, X1)        # |omega_1|^2 of each sample
