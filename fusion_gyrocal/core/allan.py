@@ -122,12 +122,22 @@ def _batch_scatter(stationary: np.ndarray, batches: list) -> np.ndarray:
     return scatter
 
 
+#: samples of the stretches :func:`_stretch_points` differences in one pass: their copies (a few hundred KiB) reuse
+#: memory just freed, where all of a long log's stretches at once (several MiB) were fresh pages from the OS on every
+#: call (each stretch's sums are its own: the same numbers either way)
+_GROUP_SAMPLES = 16384
+
+
 def _stretch_points(y: np.ndarray, rate_hz: float, lengths: list) -> AllanPoints:
     """:func:`allan_points` of consecutive stretches of ``lengths`` samples, each on its own (``stretches=``)."""
-    if min(lengths) == max(lengths) >= 8:     # stretches of one length (every sample kept): all in one pass
-        taus, sums, sub_n, sub_m = second_differences([y[:sum(lengths)].reshape(len(lengths), lengths[0], 3)],
-                                                      rate_hz)
-        parts = [(taus, (sums[0][:, k], sums[-1]), sub_n, sub_m) for k in range(len(lengths))]
+    if min(lengths) == max(lengths) >= 8:     # stretches of one length (every sample kept): a few in each pass
+        n = lengths[0]
+        x = y[:n * len(lengths)].reshape(len(lengths), n, 3)
+        per = max(1, _GROUP_SAMPLES // n)
+        parts = []
+        for k0 in range(0, len(lengths), per):
+            taus, sums, sub_n, sub_m = second_differences([x[k0:k0 + per]], rate_hz)
+            parts += [(taus, (sums[0][:, k], sums[-1]), sub_n, sub_m) for k in range(sums[0].shape[1])]
     else:
         ends = np.cumsum(lengths)
         parts = [second_differences([y[b - n:b]], rate_hz) for n, b in zip(lengths, ends) if n >= 8]
