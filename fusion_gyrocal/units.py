@@ -105,7 +105,9 @@ def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT, *, per
         full = np.ones(len(win), bool) if everything else np.isfinite(win).all(axis=(1, 2))
         if full.sum() >= _MIN_QUIET_WINDOWS and noise > 0:
             win = win if everything else win[full]
-            spread = np.sqrt(win.var(axis=1).sum(axis=1) / 3.0)
+            # each window's variance per axis, reduced along contiguous rows (down a window's (32, 3) rows numpy
+            # reduces slowly)
+            spread = np.sqrt(np.ascontiguousarray(win.transpose(2, 0, 1)).var(axis=2).sum(axis=0) / 3.0)
             quiet = spread <= _QUIET_SPREAD * noise
             if quiet.sum() >= _MIN_QUIET_WINDOWS:   # the floor of the rate at rest (slow turns are not rest)
                 bias = float(np.quantile(np.linalg.norm(win[quiet].mean(axis=1), axis=1), 0.1))
@@ -118,12 +120,14 @@ def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT, *, per
         both = ok1 & ok2
         if not both.all():
             w1, w2 = w1[both], w2[both]
-        sv = np.linalg.svd(w2 - w2.mean(axis=0), compute_uv=False) if len(w2) >= 16 else np.zeros(3)
-        if sv[-1] > 1e-6 * sv[0]:   # gyro 2 moves about every axis: the fit's offset is determined
-            X = np.column_stack([w2, np.ones(len(w2))])
-            coef = np.linalg.lstsq(X, w1, rcond=None)[0]
-            if np.isfinite(coef).all():
-                figures["offset"] = float(np.linalg.norm(coef[3]))
+        if len(w2) >= 16:   # the least-squares fit of w1 on w2 and a constant, centred: from the SVD of gyro 2's
+            ones = np.ones(len(w2))          # centred rates (also its test of gyro 2's motion about every axis)
+            m1, m2 = ones @ w1 / len(w1), ones @ w2 / len(w2)
+            U, sv, Vt = np.linalg.svd(w2 - m2, full_matrices=False)
+            if sv[-1] > 1e-6 * sv[0]:   # gyro 2 moves about every axis: the fit's offset is determined
+                offset = m1 - m2 @ (Vt.T @ ((U.T @ (w1 - m1)) / sv[:, None]))
+                if np.isfinite(offset).all():
+                    figures["offset"] = float(np.linalg.norm(offset))
     signs = [k for k, lim in MEMS_LIMITS.items() if figures[k] > lim * scale]
     return figures, signs
 

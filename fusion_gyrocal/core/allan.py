@@ -122,12 +122,22 @@ def _batch_scatter(stationary: np.ndarray, batches: list) -> np.ndarray:
     return scatter
 
 
+#: samples of the stretches :func:`_stretch_points` differences in one pass: their copies (a few hundred KiB) reuse
+#: memory just freed, where all of a long log's stretches at once (several MiB) were fresh pages from the OS on every
+#: call (each stretch's sums are its own: the same numbers either way)
+_GROUP_SAMPLES = 16384
+
+
 def _stretch_points(y: np.ndarray, rate_hz: float, lengths: list) -> AllanPoints:
     """:func:`allan_points` of consecutive stretches of ``lengths`` samples, each on its own (``stretches=``)."""
-    if min(lengths) == max(lengths) >= 8:     # stretches of one length (every sample kept): all in one pass
-        taus, sums, sub_n, sub_m = second_differences([y[:sum(lengths)].reshape(len(lengths), lengths[0], 3)],
-                                                      rate_hz)
-        parts = [(taus, (sums[0][:, k], sums[-1]), sub_n, sub_m) for k in range(len(lengths))]
+    if min(lengths) == max(lengths) >= 8:     # stretches of one length (every sample kept): a few in each pass
+        n = lengths[0]
+        x = y[:n * len(lengths)].reshape(len(lengths), n, 3)
+        per = max(1, _GROUP_SAMPLES // n)
+        parts = []
+        for k0 in range(0, len(lengths), per):
+            taus, sums, sub_n, sub_m = second_differences([x[k0:k0 + per]], rate_hz)
+            parts += [(taus, (sums[0][:, k], sums[-1]), sub_n, sub_m) for k in range(sums[0].shape[1])]
     else:
         ends = np.cumsum(lengths)
         parts = [second_differences([y[b - n:b]], rate_hz) for n, b in zip(lengths, ends) if n >= 8]
@@ -174,19 +184,22 @@ def second_differences(ys, rate_hz: float, pairs=(), batches: bool = False):
     sub_n, sub_m = np.empty(ms.size), np.empty(ms.size)
     batch = []
     b = 1
-    for i, m in enumerate(ms):
+    work = [(np.empty_like(x), np.empty_like(x)) for x in blocks]   # each stream's moving sums and differences:
+    for i, m in enumerate(ms):                                      # two buffers for all taus, no fresh arrays
         while b < max(1, int(m) // 4):      # sums of 2b samples from those of b
             k = blocks[0].shape[-1] // 2
             blocks = [x[..., 0:2 * k:2] + x[..., 1:2 * k:2] for x in blocks]
             b *= 2
         mm = int(m) // b
         ds = []
-        for x in blocks:
-            s, width = x, 1
+        for x, pair in zip(blocks, work):
+            s, width, free = x, 1, 0
             while width < mm:                    # moving sums of mm blocks (mm is 1, 2 or 4)
-                s = s[..., :-width] + s[..., width:]
+                s = np.add(s[..., :-width], s[..., width:], out=pair[free][..., :s.shape[-1] - width])
                 width *= 2
-            ds.append(s[..., mm:] - s[..., :-mm])    # (x_{i+2m} - 2 x_{i+m} + x_i) * rate_hz
+                free = 1 - free
+            # (x_{i+2m} - 2 x_{i+m} + x_i) * rate_hz, into the buffer s is not in
+            ds.append(np.subtract(s[..., mm:], s[..., :-mm], out=pair[free][..., :s.shape[-1] - mm]))
         for j, d in enumerate(ds):
             out[j][i] = np.einsum("...k,...k->...", d, d)
         if batches:   # BATCHES consecutive batches (elements of d are b samples apart), each >= BATCH_TAUS 2 tau

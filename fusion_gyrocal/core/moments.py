@@ -755,6 +755,10 @@ def window_samples(rate_hz: float | None) -> int:
 
 MAX_SCORE_WINDOWS = 1024   # windows behind a block-robust covariance: all of them up to this many
 _RUN = 16                  # else runs of this many consecutive windows, spread evenly over the log
+#: samples window_stats copies at a time (each window's statistics are its own: the same numbers at any size); a
+#: (windows, 6, window) copy under a MiB reuses memory just freed, where the 3 MiB of 65536 samples were fresh pages
+#: from the OS on every call
+_GATHER_SAMPLES = 16384
 
 
 @dataclass(frozen=True)
@@ -836,16 +840,22 @@ def stacked_window_stats(streams, window: int, *, mask=None, pooled: bool = Fals
         starts, run_len = np.linspace(0, n_win - _RUN, max_windows // _RUN).astype(int), _RUN
     mask = None if mask is None else np.asarray(mask, bool)
     parts = []
-    per_chunk = max(1, 65536 // (run_len * window))   # runs per gather: a few MiB at a time
+    per_chunk = max(1, _GATHER_SAMPLES // (run_len * window))   # runs per gather: under a MiB at a time
     for lo in range(0, starts.size, per_chunk):
         sl = [slice(int(st) * window, (int(st) + run_len) * window) for st in starts[lo:lo + per_chunk]]
-        if run_len * window > 65536:   # one long run (every window of a long log): in pieces
-            sl = [slice(a, min(a + 65536 // window * window, s.stop)) for s in sl for a in range(s.start, s.stop,
-                                                                                             65536 // window * window)]
+        # a long run in pieces: every window of a log (one run) by _GATHER_SAMPLES, a run of _RUN windows beyond
+        # 65536 samples by those (each piece then numbered as a run of its own)
+        piece = max(1, (_GATHER_SAMPLES if run_len == n_win else 65536) // window) * window
+        if run_len * window > piece:
+            sl = [slice(a, min(a + piece, s.stop)) for s in sl for a in range(s.start, s.stop, piece)]
         wins = sum((q.stop - q.start) // window for q in sl)
         x = np.empty((wins, width, window))   # windows x channels x samples: sums run along contiguous rows
-        for k, w in enumerate(streams):
-            x[:, 3 * k:3 * k + 3, :] = np.concatenate([w[q] for q in sl]).reshape(wins, window, 3).transpose(0, 2, 1)
+        at = 0
+        for q in sl:                          # each slice straight into its windows (no joined copy first)
+            k_q = (q.stop - q.start) // window
+            for k, w in enumerate(streams):
+                x[at:at + k_q, 3 * k:3 * k + 3, :] = w[q].reshape(k_q, window, 3).transpose(0, 2, 1)
+            at += k_q
         m = None if mask is None else np.concatenate([mask[q] for q in sl]).reshape(-1, window)
         run = np.repeat(np.arange(lo, lo + len(sl)) if run_len != n_win else np.zeros(len(sl), int),
                         [(q.stop - q.start) // window for q in sl])

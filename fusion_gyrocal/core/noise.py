@@ -103,7 +103,11 @@ def difference_noise_std(omega, mask=None, *, max_samples: int = NOISE_SPLIT_SAM
     x = np.concatenate([np.asarray(w[a:b], dtype=np.float64) for a, b in spans])
     if mask is None and x.shape[0] > 3 and np.isfinite(x.sum()):   # all whole: differenced at once, (3, blocks, len)
         x = np.ascontiguousarray(x.T).reshape(3, len(spans), -1)
-        parts = [((x[..., 3:] - x[..., :-3]) - 3.0 * (x[..., 2:-1] - x[..., 1:-2])).reshape(3, -1)]
+        d = x[..., 3:] - x[..., :-3]
+        inner = x[..., 2:-1] - x[..., 1:-2]
+        inner *= 3.0
+        d -= inner                         # (x3 - x0) - 3 (x2 - x1): the loop's operations, two temporaries
+        parts = [d.reshape(3, -1)]
     else:
         parts = []
         for a, b in spans:
@@ -434,6 +438,11 @@ class _Windows:
     length: int
 
 
+_WINDOW_GROUP = 4096   # samples of the windows _windows reduces at a time: each stream's (3, samples) copy (96 KiB)
+#                        reuses memory just freed; copies of a whole long log's stretches (1.5 MiB each) were
+#                        fresh pages from the OS on every call, page faults costing more than the reductions
+
+
 def _windows(r, w1, aw2, valid, w) -> _Windows:
     """Statistics of consecutive windows of ``w`` samples with at least half of them valid (the invalid
     samples are zero in ``r``, ``w1`` and ``aw2`` and left out of every sum)."""
@@ -441,23 +450,30 @@ def _windows(r, w1, aw2, valid, w) -> _Windows:
     m = n_win * w
     cnt = valid[:m].reshape(n_win, w).sum(axis=1)
     idx = np.flatnonzero(cnt >= max(w // 2, 4))
-    pick = slice(None) if idx.size == n_win else idx  # no copy when every window is kept
-    cnt = cnt[pick].astype(float)
-
-    def per_window(a):   # (3, windows, w): sums along contiguous rows (numpy sums (N, 3) along axis 0 slowly)
-        return np.ascontiguousarray(a[:m].T).reshape(3, n_win, w)[:, pick]
-
-    R, X1, X2 = per_window(r), per_window(w1), per_window(aw2)
-    v_r = np.einsum("ijk,ijk->j", R, R) / (3.0 * cnt)
-    sq = np.einsum("ijk,ijk->jk", X1, X1)
-    rate_powers = (np.column_stack([sq.sum(axis=1), (sq * np.sqrt(sq)).sum(axis=1), (sq * sq).sum(axis=1)])
-                   / (3.0 * cnt[:, None]))  # per axis
+    cnt = cnt[idx].astype(float)
+    v_r, m1, m2 = np.empty(idx.size), np.empty((3, idx.size)), np.empty((3, idx.size))
+    powers, ss2, s12 = np.empty((idx.size, 3)), np.empty(idx.size), np.empty(idx.size)
+    per = max(1, _WINDOW_GROUP // w)
+    for lo in range(0, idx.size, per):      # the kept windows, a group of consecutive ones at a time
+        sel = idx[lo:lo + per]
+        a, b = int(sel[0]) * w, (int(sel[-1]) + 1) * w
+        pick = slice(None) if sel.size == (b - a) // w else sel - sel[0]   # no copy when every window is kept
+        # (3, windows, w): sums along contiguous rows (numpy sums (N, 3) along axis 0 slowly)
+        R, X1, X2 = (np.ascontiguousarray(x[a:b].T).reshape(3, -1, w)[:, pick] for x in (r, w1, aw2))
+        part = slice(lo, lo + sel.size)
+        v_r[part] = np.einsum("ijk,ijk->j", R, R)
+        sq = np.einsum("ijk,ijk->jk", X1, X1)        # |omega_1|^2 of each sample
+        powers[part] = np.column_stack([sq.sum(axis=1), (sq * np.sqrt(sq)).sum(axis=1), (sq * sq).sum(axis=1)])
+        m1[:, part], m2[:, part] = X1.sum(axis=2), X2.sum(axis=2)
+        ss2[part] = np.einsum("ijk,ijk->j", X2, X2)
+        s12[part] = np.einsum("ijk,ijk->j", X1, X2)
+    v_r /= 3.0 * cnt
+    rate_powers = powers / (3.0 * cnt[:, None])  # per axis
     # centred (co)variances per axis from window sums (rates and biases are far below 1e8 x the noise)
-    m1, m2 = X1.sum(axis=2), X2.sum(axis=2)
     k = 3.0 * (cnt - 1.0)
-    v1 = (sq.sum(axis=1) - np.einsum("ij,ij->j", m1, m1) / cnt) / k
-    v2 = (np.einsum("ijk,ijk->j", X2, X2) - np.einsum("ij,ij->j", m2, m2) / cnt) / k
-    c = (np.einsum("ijk,ijk->j", X1, X2) - np.einsum("ij,ij->j", m1, m2) / cnt) / k
+    v1 = (powers[:, 0] - np.einsum("ij,ij->j", m1, m1) / cnt) / k
+    v2 = (ss2 - np.einsum("ij,ij->j", m2, m2) / cnt) / k
+    c = (s12 - np.einsum("ij,ij->j", m1, m2) / cnt) / k
     return _Windows(idx * w, v_r, rate_powers, v1 - c, v2 - c, c, w)
 
 
@@ -1049,7 +1065,11 @@ def _within_residual(r, use, a: float, fit: _AllanFit, levels, sources: dict, no
     Returns ``(noise_std, noise_sd, densities^2)``."""
     (s1, s2), sd, dens_sq = levels
     x = r if use is None or use.all() else r[use]
-    ms = float(np.mean((x - x.mean(axis=0)) ** 2)) if x.size else 0.0
+    if x.size:   # the mean square about the mean per axis (numpy reduces an (N, 3) array down its rows slowly)
+        d = x - (np.ones(x.shape[0]) @ x) / x.shape[0]
+        ms = float(np.einsum("ij,ij->", d, d) / d.size)
+    else:
+        ms = 0.0
     implied = s1 * s1 + a * s2 * s2
     if not (ms > 0 and implied > CONTRADICT * ms) or fit.coef[FILTERED] > 0:
         return levels

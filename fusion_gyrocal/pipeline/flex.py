@@ -92,9 +92,10 @@ def _window_means(r, used, w: int) -> np.ndarray:
     return np.repeat(means, w, axis=0)[:n]
 
 
-def robust_whitener(w1, w2, A, bias, mask, window, ranges) -> np.ndarray:
-    """``L`` with ``||r @ L||^2`` chi-square(3)-distributed for inliers (robust scale by the median)."""
-    sample = used_residuals(w1, w2, A, bias, mask, window, ranges)[0]
+def robust_whitener(w1, w2, A, bias, mask, window, ranges, *, residuals=None) -> np.ndarray:
+    """``L`` with ``||r @ L||^2`` chi-square(3)-distributed for inliers (robust scale by the median);
+    ``residuals``: :func:`used_residuals` of the same arguments when the caller has them."""
+    sample = (used_residuals(w1, w2, A, bias, mask, window, ranges) if residuals is None else residuals)[0]
     C = scatter_cov(sample) + 1e-300 * np.eye(3)
     L = np.linalg.cholesky(np.linalg.inv(C))
     d2 = row_sumsq(sample @ L)
@@ -268,16 +269,17 @@ def along_rate_share(r: np.ndarray, w: np.ndarray, noise_cov: np.ndarray) -> flo
 
 
 def rate_dependence(w1, w2, A, bias, mask, window, ranges, L, bins: int = 20,
-                    order: np.ndarray | None = None) -> RateDependence | None:
+                    order: np.ndarray | None = None, *, residuals=None) -> RateDependence | None:
     """How the residual grows with the rate, or None when it does not (no inflated rate bin).
 
     The used samples of ``ranges`` (the subsample) are binned by gyro 1's rate norm (20 equal-count
     bins; a bin is inflated when its median squared whitened residual exceeds that of the slower half
     by 5 standard errors); in the inflated bins the share of the excess residual along the rate is
     measured (:func:`along_rate_share`) against the noise covariance of the slower half. ``order``: the
-    argsort of those samples' rate norms, when the caller has it (:class:`RateOrder`).
+    argsort of those samples' rate norms, when the caller has it (:class:`RateOrder`); ``residuals``:
+    :func:`used_residuals` of the same arguments when the caller has them.
     """
-    r, w = used_residuals(w1, w2, A, bias, mask, window, ranges)
+    r, w = used_residuals(w1, w2, A, bias, mask, window, ranges) if residuals is None else residuals
     d2, rate = row_sumsq(r @ L), row_norms(w)
     if d2.size < 20 * bins:
         return None
@@ -417,8 +419,11 @@ def gate(w1, w2, mask, cal, mom, bias, solve_on, options):
 
     ranks = RateOrder(g1)
     A_ls, b_ls = solve_A(mom)
-    L = robust_whitener(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole)
-    grows = rate_dependence(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole, L, order=ranks.of(on_sub(keep)))
+    sub_keep = on_sub(keep)
+    first = used_residuals(g1, g2, A_ls, b_ls, sub_keep, gate_window, whole)   # read by the three steps below
+    L = robust_whitener(g1, g2, A_ls, b_ls, sub_keep, gate_window, whole, residuals=first)
+    grows = rate_dependence(g1, g2, A_ls, b_ls, sub_keep, gate_window, whole, L, order=ranks.of(sub_keep),
+                            residuals=first)
     if grows is not None and not grows.is_flex:   # spikes tilt A too: is the growth still there without them?
         clean = np.ones(g1.shape[0], bool) if keep is None else on_sub(keep).copy()
         clean[dilate(outliers(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole, L), o.flex_margin,
@@ -438,7 +443,11 @@ def gate(w1, w2, mask, cal, mom, bias, solve_on, options):
                      f"({int(np.count_nonzero(glitch))} gross outlier sample(s) removed)")
     else:
         n_sub = g1.shape[0] if mask is None else int(np.count_nonzero(on_sub(mask)))
-        frac = outliers(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole, L).size / max(n_sub, 1)
+        if keep is None:     # every sample of the subsample used: its residuals are those above, in order
+            n_out = int(np.count_nonzero(row_sumsq(first[0] @ L) > CHI2_3_GATE))
+        else:
+            n_out = outliers(g1, g2, A_ls, b_ls, sub_keep, gate_window, whole, L).size
+        frac = n_out / max(n_sub, 1)
         if o.flex_rejection is True or frac > 0.01:  # the paper's gate, iterated until nothing new is rejected
             everything = block_ranges(n, gate_window)
             for _ in range(5):
