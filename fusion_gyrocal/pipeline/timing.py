@@ -155,15 +155,25 @@ def _is_line(power, i: int) -> bool:
 
 
 def _high_pass(r, ok, window: int) -> np.ndarray:
-    """The residual less its moving mean over ``window`` samples (about 1 s): a drifting bias is slow, the
+    """The residual (N, k) less its moving mean over ``window`` samples (about 1 s): a drifting bias is slow, the
     residual of a delay moves with the motion."""
+    n = len(r)
     x = np.where(ok[:, None], np.nan_to_num(r), 0.0)
-    c = np.cumsum(np.vstack([np.zeros((1, 3)), x]), axis=0)
-    n = np.cumsum(np.concatenate([[0.0], ok.astype(float)]))
-    lo = np.clip(np.arange(len(r)) - window // 2, 0, len(r))
-    hi = np.clip(lo + window, 0, len(r))
-    count = np.maximum(n[hi] - n[lo], 1.0)
-    return r - (c[hi] - c[lo]) / count[:, None]
+    c = np.empty((n + 1, x.shape[1]))
+    c[0] = 0.0
+    np.cumsum(x, axis=0, out=c[1:])
+    m = np.cumsum(np.concatenate([[0.0], ok.astype(float)]))
+    half = window // 2
+    lo = np.clip(np.arange(n) - half, 0, n)
+    hi = np.clip(lo + window, 0, n)
+    count = np.maximum(m[hi] - m[lo], 1.0)
+    sums = np.empty_like(x)
+    a, b = half, max(min(n - window + half + 1, n), half)     # where the window lies whole in the log: slices
+    np.subtract(c[window:b - half + window], c[:b - half], out=sums[a:b])
+    edge = np.r_[0:min(a, n), b:n]
+    sums[edge] = c[hi[edge]] - c[lo[edge]]
+    sums /= count[:, None]
+    return np.subtract(r, sums, out=sums)
 
 
 def _design(t, tones, harmonics, phases=()) -> np.ndarray:
@@ -186,9 +196,9 @@ def _high_passed_gram(X, r, u, ok, window: int):
     columns ``X`` (samples x p) with each column's residual ``u X_j`` high-passed the same way: a delay's residual
     has slow parts too, which the high-pass takes from ``r`` alone and which would shrink the fitted delay (by 15 %
     for a sawtooth at 1.7 Hz against a one-second window). The samples ``ok`` count."""
-    cols = [_high_pass(u * X[:, [j]], ok, window)[ok] for j in range(X.shape[1])]
-    G = np.array([[float(np.einsum("ij,ij->", a, b)) for b in cols] for a in cols])
-    return G, np.array([float(np.einsum("ij,ij->", a, r[ok])) for a in cols])
+    n, p = X.shape
+    cols = _high_pass((u[:, :, None] * X[:, None, :]).reshape(n, 3 * p), ok, window)[ok].reshape(-1, p)
+    return cols.T @ cols, cols.T @ r[ok].reshape(-1)
 
 
 def _fit_high_passed(t, r, u, ok, window: int, tones, harmonics, phases=()):
