@@ -73,7 +73,8 @@ class TimingModel:
         Beat frequencies found (Hz; cycles per sample for input without timestamps); empty when none is
         significant (a constant delay may still be).
     coefficients : ndarray
-        ``[mean, (cos, sin) per harmonic per tone]`` of the delay (s; samples without timestamps).
+        ``[mean, per tone (cos, sin) per harmonic or one sawtooth amplitude]`` of the delay (s; samples without
+        timestamps).
     harmonics : int
     explained : float
         Fraction of the residual's energy the delay explains; 0 when neither a constant delay nor a tone is
