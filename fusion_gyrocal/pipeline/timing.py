@@ -159,7 +159,7 @@ def _high_pass(r, ok, window: int) -> np.ndarray:
     """The residual (N, k) less its moving mean over ``window`` samples (about 1 s): a drifting bias is slow, the
     residual of a delay moves with the motion."""
     n = len(r)
-    x = np.where(ok[:, None], np.nan_to_num(r), 0.0)
+    x = np.where(ok[:, None] & np.isfinite(r), r, 0.0)         # a non-finite value counts as 0, as a sample not used
     c = np.empty((n + 1, x.shape[1]))
     c[0] = 0.0
     np.cumsum(x, axis=0, out=c[1:])
