@@ -193,21 +193,39 @@ def _fit(t, ru, uu, tones, harmonics, phases=()):
 
 
 def _high_passed_gram(X, r, u, ok, window: int):
-    """``(G, h)`` of the least squares of the high-passed residual ``r`` (:func:`_high_pass`) on the delay's
-    columns ``X`` (samples x p) with each column's residual ``u X_j`` high-passed the same way: a delay's residual
-    has slow parts too, which the high-pass takes from ``r`` alone and which would shrink the fitted delay (by 15 %
-    for a sawtooth at 1.7 Hz against a one-second window). The samples ``ok`` count."""
+    """``(G, h, energy)`` of the least squares of the residual ``r`` (N, 3) on the delay's columns ``X`` (N, p), both high-
+    passed: the residual less its mean over blocks of ``window`` samples, and each column's residual ``u X_j`` less
+    its own (the samples ``ok`` only). The search (:func:`estimate_timing`) high-passes the residual alone, against a
+    drifting bias; a delay's residual has slow parts too, which that takes from ``r`` alone and which would shrink
+    the fitted delay (by 15 % for a sawtooth at 1.7 Hz against a one-second window). ``energy``: the high-passed
+    residual's, what the explained energy is a share of. Without an (N, 3, p) array: the block means' part is one
+    batched product per block."""
     n, p = X.shape
-    cols = _high_pass((u[:, :, None] * X[:, None, :]).reshape(n, 3 * p), ok, window)[ok].reshape(-1, p)
-    return cols.T @ cols, cols.T @ r[ok].reshape(-1)
+    used = ok[:, None] & np.isfinite(r)
+    rr, uw = np.where(used, r, 0.0), np.where(ok[:, None], u, 0.0)
+    G = (X * np.einsum("ka,ka->k", uw, uw)[:, None]).T @ X
+    h = X.T @ np.einsum("ka,ka->k", rr, uw)
+    blocks = -(-n // window)
+    pad = blocks * window - n
+
+    def blocked(a):
+        return np.concatenate([a, np.zeros((pad,) + a.shape[1:])]).reshape((blocks, window) + a.shape[1:])
+
+    S = np.matmul(blocked(uw).transpose(0, 2, 1), blocked(X))            # (blocks, 3, p): sums of u X_j
+    count = np.maximum(blocked(ok.astype(float)).sum(axis=1), 1.0)
+    scaled = S / np.sqrt(count)[:, None, None]
+    G -= scaled.reshape(-1, p).T @ scaled.reshape(-1, p)
+    R = blocked(rr).sum(axis=1)                                          # (blocks, 3): sums of r
+    h -= np.einsum("bap,ba->p", S / count[:, None, None], R)
+    return G, h, float(np.einsum("ka,ka->", rr, rr) - np.sum(R ** 2 / count[:, None]))
 
 
 def _fit_high_passed(t, r, u, ok, window: int, tones, harmonics, phases=()):
-    """The delay's coefficients and explained energy as :func:`_fit`, each column high-passed as the residual
-    (:func:`_high_passed_gram`)."""
-    G, h = _high_passed_gram(_design(t, tones, harmonics, phases), r, u, ok, window)
+    """The delay's coefficients and explained energy as :func:`_fit`, the residual ``r`` and each column high-passed
+    alike (:func:`_high_passed_gram`), and the high-passed residual's energy."""
+    G, h, energy = _high_passed_gram(_design(t, tones, harmonics, phases), r, u, ok, window)
     c = np.linalg.lstsq(G, h, rcond=None)[0]
-    return c, float(h @ c)
+    return c, float(h @ c), energy
 
 
 def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int = MAX_TONES,
@@ -247,7 +265,8 @@ def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int =
     dt = float(median(np.diff(t)))
     window = max(int(round(1.0 / dt)), 3) if dt < 1.0 else 64   # about a second (64 samples without timestamps)
     u = derivative(t, w2) @ np.asarray(A).T
-    r = _high_pass(w1 - w2 @ np.asarray(A).T - bias, ok, window)
+    raw = w1 - w2 @ np.asarray(A).T - bias
+    r = _high_pass(raw, ok, window)
     tt, ru, uu = t[ok], np.einsum("ij,ij->i", r, u)[ok], np.einsum("ij,ij->i", u, u)[ok]
     energy = float(np.einsum("ij,ij->", r[ok], r[ok]))
     keep = uu > 0
@@ -295,7 +314,7 @@ def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int =
             tones[-1], phases[-1], explained = f, phase, saw
     if not tones and not explained:
         return NONE
-    c, explained = _fit_high_passed(t, r, u, ok, window, tones, harmonics, phases)
+    c, explained, energy = _fit_high_passed(t, raw, u, ok, window, tones, harmonics, phases)
     if explained < MIN_EXPLAINED * energy:                              # significant, but too small to matter
         return NONE
     delay = _design(tt, tones, harmonics, phases) @ c
@@ -547,13 +566,14 @@ def estimate_array_timing(t, omegas, maps, biases, mask=None, *, reference: int 
     for j in others:
         A = np.asarray(maps[j], dtype=float)
         u = derivative(t, rates[j]) @ A.T
-        r = _high_pass(rates[reference] - rates[j] @ A.T - np.asarray(biases[j], dtype=float), ok, window)
+        raw = rates[reference] - rates[j] @ A.T - np.asarray(biases[j], dtype=float)
+        r = _high_pass(raw, ok, window)
         ru, uu = np.einsum("ij,ij->i", r, u)[ok], np.einsum("ij,ij->i", u, u)[ok]
         energy = float(np.einsum("ij,ij->", r[ok], r[ok]))
         keep = uu > 0
         if keep.any() and energy > 0:
             series[j] = _PairSeries(ru, uu, energy, float(median(ru[keep] ** 2 / uu[keep])) / 0.455)
-            series[j].r, series[j].u = r, u      # for the final fit (:func:`_high_passed_gram`)
+            series[j].raw, series[j].u = raw, u      # for the final fit (:func:`_high_passed_gram`)
     if not series:
         return nothing
 
@@ -616,7 +636,7 @@ def estimate_array_timing(t, omegas, maps, biases, mask=None, *, reference: int 
     for j, c0 in offset.items():
         s = series[j]
         X = np.vstack([_rows(t, own[j], harmonics)] + [_tone_rows(t, f, harmonics) for f in ref_tones])
-        weighted, along = _high_passed_gram(X.T, s.r, s.u, ok, window)
+        weighted, along, s.energy = _high_passed_gram(X.T, s.raw, s.u, ok, window)
         grams[j] = weighted, along, X[:, ok] @ X[:, ok].T / len(tt)      # weighted, against r, plain
         idx = np.r_[c0:c0 + len(X) - n_ref, 0:n_ref]
         sign = np.r_[np.ones(len(X) - n_ref), -np.ones(n_ref)]        # d_j - d_ref
