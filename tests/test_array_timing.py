@@ -230,7 +230,7 @@ def test_estimate_array_timing_one_pair_gives_both_tones_to_gyro_2():
 
     t, w1, w2, R, relative = simulated_pair(0)
     A, b = R, np.zeros(3)                                # omega_1 ~ R omega_2
-    pair = estimate_timing(t, w1, w2, A, b, sawtooth=False)          # the array fits every tone by its harmonics
+    pair = estimate_timing(t, w1, w2, A, b)
     model = estimate_array_timing(t, [w1, w2], [np.eye(3), A], [b, b])
     assert model.tones_hz[0] == () and model.relative[0].explained == 0.0
     assert np.allclose(sorted(model.tones_hz[1]), sorted(pair.tones_hz), atol=0.002)

@@ -243,8 +243,7 @@ def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int =
     mask : array_like of bool (N,), optional
         Samples to use (the derivative is one-sided beside an invalid one).
     sawtooth : bool
-        Whether a tone may be fitted as a sawtooth (:func:`_sawtooth`); False: by its harmonics only, as
-        :func:`estimate_array_timing` fits every tone.
+        Whether a tone may be fitted as a sawtooth (:func:`_sawtooth`); False: by its harmonics only.
     """
     w1, w2 = np.asarray(omega_1, dtype=float), np.asarray(omega_2, dtype=float)
     n = len(w1)
@@ -346,14 +345,17 @@ class ArrayTimingModel:
         found in all pairs at once, every other chip's in its pair with the reference. Empty where none is
         significant.
     coefficients : tuple of ndarray (N,)
-        Every chip's delay, ``[mean, (cos, sin) per harmonic per tone]`` (s; samples without timestamps); the
-        reference's mean is 0. A chip without a delay has all zeros.
+        Every chip's delay, ``[mean, per tone (cos, sin) per harmonic or one sawtooth amplitude]`` (s; samples
+        without timestamps); the reference's mean is 0. A chip without a delay has all zeros.
     harmonics : int
     relative : tuple of TimingModel (N,)
         Every gyro's delay against the reference (``d_j - d_ref``) as the pair's :class:`TimingModel` (its own
         tones first, then the reference's), with the fraction of its pair's residual energy that it explains;
         :data:`NONE` for the reference and where the delay explains less than :data:`MIN_EXPLAINED` or nothing
         significant was found.
+    phases : tuple of tuple of float (N,)
+        Per chip, per tone, the phase of the sawtooth it was fitted as (NaN: by its harmonics), as
+        :attr:`TimingModel.phases`; empty: every tone by its harmonics.
     """
 
     reference: int
@@ -361,6 +363,7 @@ class ArrayTimingModel:
     coefficients: tuple
     harmonics: int
     relative: tuple
+    phases: tuple = ()
 
     @property
     def significant(self) -> bool:
@@ -368,7 +371,8 @@ class ArrayTimingModel:
 
     def delay(self, k: int, t) -> np.ndarray:
         """Chip ``k``'s own delay against the read-out at the instants ``t`` (the reference's mean taken as 0)."""
-        return self.coefficients[k] @ _rows(np.asarray(t, dtype=float), self.tones_hz[k], self.harmonics)
+        phases = self.phases[k] if self.phases else ()
+        return self.coefficients[k] @ _rows(np.asarray(t, dtype=float), self.tones_hz[k], self.harmonics, phases)
 
     def compensate(self, j: int, t, omega_j):
         """Gyro ``j``'s rates moved to the instants the reference's describe (:meth:`TimingModel.compensate` of
@@ -395,7 +399,7 @@ def _saw_row(t, f: float, phase: float) -> np.ndarray:
 #: Phases of a tone's sawtooth tried (cycles) at the tone's frequency; then a pattern search of frequency and phase
 #: from steps of a quarter resolution cell and one phase step, halved this many times (the jumps make the fit
 #: sensitive to both: a frequency off by a tenth of a cell moves the last jump by a twentieth of a period).
-SAW_PHASES, SAW_LEVELS = 48, 8
+SAW_PHASES, SAW_LEVELS = 32, 7
 
 
 def _sawtooth(t, ru, uu, tones, harmonics, phases, i: int, cell_hz: float):
@@ -511,7 +515,8 @@ def estimate_array_timing(t, omegas, maps, biases, mask=None, *, reference: int 
     explained energy (each over its residual's variance along ``u``), and kept when that sum exceeds what noise
     would give over a search of every frequency. Every other chip's tone is searched once, in its pair's residual
     with the reference's tone fitted (the same line and significance tests as :func:`estimate_timing`; a constant
-    delay alone when it explains far more than noise would). Then one weighted least-squares fit over all pairs
+    delay alone when it explains far more than noise would), and kept as one sawtooth (:func:`_sawtooth`) where that
+    explains at least what its harmonics do in its pair. Then one weighted least-squares fit over all pairs
     gives every chip's delay (the reference's shared by all pairs), so the pair ``(i, j)``'s delay is ``d_j - d_i``
     with the reference's part cancelled. With two gyros there is one pair and no telling the chips apart: both
     tones go to gyro ``j`` (then this is :func:`estimate_timing` without its first, cheap look).
@@ -601,7 +606,7 @@ def estimate_array_timing(t, omegas, maps, biases, mask=None, *, reference: int 
                 ref_tones.append(f)
     ref_cols = [_tone_rows(tt, f, harmonics) for f in ref_tones]
 
-    own, constant = {}, {}
+    own, own_phases, constant = {}, {}, {}
     for j, s in series.items():   # every other chip's tone, in its pair with the reference's tone fitted
         s.fix(np.vstack([np.ones((1, len(tt)))] + ref_cols))
         explained = s.explained
@@ -618,24 +623,31 @@ def estimate_array_timing(t, omegas, maps, biases, mask=None, *, reference: int 
             explained = gain
             if len(tones) < max_own:          # another tone to search: this one becomes part of the fixed design
                 s.fix(np.vstack([s.X, _tone_rows(tt, f, harmonics)]))
-        own[j] = tones
+        own[j], own_phases[j] = tones, [np.nan] * len(tones)
+        for i in range(len(tones)):       # a chip's own tone as one sawtooth where that explains at least its harmonics
+            both, phases = tones + ref_tones, own_phases[j] + [np.nan] * len(ref_tones)
+            harmonic = _fit(tt, s.ru, s.uu, both, harmonics, phases)[1]
+            f, phase, saw = _sawtooth(tt, s.ru, s.uu, both, harmonics, phases, i, 1.0 / (cells * dt))
+            if saw >= harmonic:
+                tones[i], own_phases[j][i] = f, phase
         if tones:
             constant[j] = True
 
     # one weighted least-squares fit of every chip's delay: [reference's tone coefficients, per gyro: mean, tones]
     n_ref = 2 * harmonics * len(ref_tones)
     offset, columns = {}, n_ref
+    width = {j: 1 + sum(2 * harmonics if np.isnan(p) else 1 for p in own_phases[j]) for j in series}
     for j in series:
         if constant[j]:
             offset[j] = columns
-            columns += 1 + 2 * harmonics * len(own[j])
+            columns += width[j]
     if not offset:
         return nothing
     G, h = np.zeros((columns, columns)), np.zeros(columns)
     grams = {}
     for j, c0 in offset.items():
         s = series[j]
-        X = np.vstack([_rows(t, own[j], harmonics)] + [_tone_rows(t, f, harmonics) for f in ref_tones])
+        X = np.vstack([_rows(t, own[j], harmonics, own_phases[j])] + [_tone_rows(t, f, harmonics) for f in ref_tones])
         weighted, along, s.energy = _high_passed_gram(X.T, s.raw, s.u, ok, window)
         grams[j] = weighted, along, X[:, ok] @ X[:, ok].T / len(tt)      # weighted, against r, plain
         idx = np.r_[c0:c0 + len(X) - n_ref, 0:n_ref]
@@ -648,17 +660,22 @@ def estimate_array_timing(t, omegas, maps, biases, mask=None, *, reference: int 
     coefficients[reference] = np.r_[0.0, ref_c]
     for j, c0 in offset.items():
         s = series[j]
-        chip = c[c0:c0 + 1 + 2 * harmonics * len(own[j])]
+        chip = c[c0:c0 + width[j]]
         coefficients[j] = chip
         rel = np.r_[chip, -ref_c]
         weighted, along, plain = grams[j]
         explained = float(2.0 * rel @ along - rel @ weighted @ rel)      # the energy removed from the residual
         if explained >= MIN_EXPLAINED * s.energy:
             std = np.sqrt(max(float(rel @ plain @ rel) - float(plain[0] @ rel) ** 2, 0.0))
-            relative[j] = TimingModel(tuple(own[j]) + tuple(ref_tones), rel, harmonics, explained / s.energy, std)
+            phases = tuple(own_phases[j]) + (np.nan,) * len(ref_tones)
+            relative[j] = TimingModel(tuple(own[j]) + tuple(ref_tones), rel, harmonics, explained / s.energy, std,
+                                      phases if not np.isnan(phases).all() else ())
     tones = [tuple(own.get(j, ())) for j in range(n_g)]
     tones[reference] = tuple(ref_tones)
-    return ArrayTimingModel(reference, tuple(tones), tuple(coefficients), harmonics, tuple(relative))
+    chip_phases = [tuple(own_phases.get(j, ())) for j in range(n_g)]
+    chip_phases[reference] = (np.nan,) * len(ref_tones)
+    return ArrayTimingModel(reference, tuple(tones), tuple(coefficients), harmonics, tuple(relative),
+                            tuple(chip_phases) if not all(np.isnan(p).all() for p in chip_phases if p) else ())
 
 
 def _fast_length(n: int) -> int:
