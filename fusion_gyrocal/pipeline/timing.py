@@ -193,13 +193,13 @@ def _fit(t, ru, uu, tones, harmonics, phases=()):
 
 
 def _high_passed_gram(X, r, u, ok, window: int):
-    """``(G, h, energy)`` of the least squares of the residual ``r`` (N, 3) on the delay's columns ``X`` (N, p), both high-
-    passed: the residual less its mean over blocks of ``window`` samples, and each column's residual ``u X_j`` less
-    its own (the samples ``ok`` only). The search (:func:`estimate_timing`) high-passes the residual alone, against a
-    drifting bias; a delay's residual has slow parts too, which that takes from ``r`` alone and which would shrink
-    the fitted delay (by 15 % for a sawtooth at 1.7 Hz against a one-second window). ``energy``: the high-passed
-    residual's, what the explained energy is a share of. Without an (N, 3, p) array: the block means' part is one
-    batched product per block."""
+    """``(G, h, energy)`` of the least squares of the residual ``r`` (N, 3) on the delay's columns ``X`` (N, p),
+    both high-passed: the residual less its mean over blocks of ``window`` samples, and each column's residual
+    ``u X_j`` less its own (the samples ``ok`` only). The search (:func:`estimate_timing`) high-passes the residual
+    alone, against a drifting bias; a delay's residual has slow parts too, which that takes from ``r`` alone and
+    which would shrink the fitted delay (by 15 % for a sawtooth at 1.7 Hz against a one-second window). ``energy``:
+    the high-passed residual's, what the explained energy is a share of. Without an (N, 3, p) array: the block
+    means' part is one batched product per block."""
     n, p = X.shape
     used = ok[:, None] & np.isfinite(r)
     rr, uw = np.where(used, r, 0.0), np.where(ok[:, None], u, 0.0)
