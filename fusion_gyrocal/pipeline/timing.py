@@ -156,25 +156,15 @@ def _is_line(power, i: int) -> bool:
 
 
 def _high_pass(r, ok, window: int) -> np.ndarray:
-    """The residual (N, k) less its moving mean over ``window`` samples (about 1 s): a drifting bias is slow, the
+    """The residual less its moving mean over ``window`` samples (about 1 s): a drifting bias is slow, the
     residual of a delay moves with the motion."""
-    n = len(r)
-    x = np.where(ok[:, None] & np.isfinite(r), r, 0.0)         # a non-finite value counts as 0, as a sample not used
-    c = np.empty((n + 1, x.shape[1]))
-    c[0] = 0.0
-    np.cumsum(x, axis=0, out=c[1:])
-    m = np.cumsum(np.concatenate([[0.0], ok.astype(float)]))
-    half = window // 2
-    lo = np.clip(np.arange(n) - half, 0, n)
-    hi = np.clip(lo + window, 0, n)
-    count = np.maximum(m[hi] - m[lo], 1.0)
-    sums = np.empty_like(x)
-    a, b = half, max(min(n - window + half + 1, n), half)     # where the window lies whole in the log: slices
-    np.subtract(c[window:b - half + window], c[:b - half], out=sums[a:b])
-    edge = np.r_[0:min(a, n), b:n]
-    sums[edge] = c[hi[edge]] - c[lo[edge]]
-    sums /= count[:, None]
-    return np.subtract(r, sums, out=sums)
+    x = np.where(ok[:, None], np.nan_to_num(r), 0.0)
+    c = np.cumsum(np.vstack([np.zeros((1, 3)), x]), axis=0)
+    n = np.cumsum(np.concatenate([[0.0], ok.astype(float)]))
+    lo = np.clip(np.arange(len(r)) - window // 2, 0, len(r))
+    hi = np.clip(lo + window, 0, len(r))
+    count = np.maximum(n[hi] - n[lo], 1.0)
+    return r - (c[hi] - c[lo]) / count[:, None]
 
 
 def _design(t, tones, harmonics, phases=()) -> np.ndarray:
