@@ -17,8 +17,8 @@
                     instant wandering against the read-out: a residual of the rate's derivative times the delay,
                     largest where the motion turns fast), 1 rad/s RMS
      beat           gyro 2 sampled late by a sawtooth of 8 ms at 1.7 Hz (a chip's clock beating against the
-                    read-out, the MIMU board's timing; the timing model fits the tone with three harmonics, so
-                    the sawtooth's jumps stay in the residual as a heavy tail), 1 rad/s RMS
+                    read-out, the MIMU board's timing: the timing model fits the tone as one sawtooth; fitted by
+                    three harmonics, the sawtooth's jumps stayed in the residual as a heavy tail), 1 rad/s RMS
    ``--robust-weights auto`` runs every case with the per-sample weights (``robust_weights``, off by default) to
    see whether the covariance still covers the error with them.
    Printed: rotation and scale RMSE / Cramer-Rao bound of the white-noise model (for coloured noise, of
