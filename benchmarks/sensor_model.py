@@ -24,10 +24,13 @@ chips' deviations from chip 1 in the sessions that stand out, and the co-located
 different chips that moved alike while their own pair stayed put are a site of the board that moved (a bend), not an
 estimate that erred.
 
-With ``--broad``, BROAD's undisturbed trials split into halves, one half against the other (a truth within a trial).
+With ``--halves``, each MIMU session's first half against its second (a truth within a session, which a bend of the
+board between sessions cannot touch): the RMS rotation difference, the mean and median z^2 against the halves'
+repeatable covariances (3 dof) and the relative scale factors' mean z^2 per axis (1 is honest). With ``--broad``,
+BROAD's undisturbed trials split into halves, one half against the other (a truth within a trial).
 
     python benchmarks/sensor_model.py [--linear-map auto|rigid|full] [--robust-weights auto|off] [--pairs 1-2,2-4]
-                                      [--broad] [--no-mimu] [--sim N]
+                                      [--halves] [--broad] [--no-mimu] [--sim N]
 """
 
 from __future__ import annotations
@@ -150,6 +153,29 @@ def site_check(per_pair, pairs, co_located, folder) -> None:
         print(f"  site {k}/{l}: pair {k}-{l} over all sessions: {summary([own], list(range(len(own))))}")
 
 
+def session_halves(sessions, pairs, keywords) -> None:
+    """Each session's first half against its second, per pair: a truth within one session (the board cannot
+    bend between the halves of one recording unless it bent during it)."""
+    print(f"\nMIMU, each session's first half against its second, {len(pairs)} pairs, options {keywords or 'defaults'}")
+    d2, z2, scale = [], [], []
+    for i, j in pairs:
+        per_pair = []
+        for s in sessions:
+            a, b = s[i - 1], s[j - 1]
+            h = len(a.t) // 2
+            cals = [calibrate_pair(a.omega[u:v], b.omega[u:v], t_1=a.t[u:v], t_2=b.t[u:v], **keywords)
+                    for u, v in ((0, h), (h, len(a.t)))]
+            rms, z = session_pairs(cals)
+            d2.append(rms ** 2)
+            z2.append(z[0])
+            per_pair.append(z[0])
+            scale.append(scale_pairs(cals))
+        print(f"  {i}-{j}: mean z2 {np.mean(per_pair):.2f}")
+        sys.stdout.flush()
+    print(f"halves: RMS rotation difference {np.sqrt(np.mean(d2)) / DEG * 1e3:.1f} mdeg, mean z2 {np.mean(z2):.2f} "
+          f"(median {np.median(z2):.2f}; 3 dof); relative scale factors mean z2 per axis {np.mean(scale):.2f} (1)")
+
+
 def broad_halves(keywords) -> None:
     """BROAD's ten undisturbed trials (the IMU against the rate from motion capture), each split into halves: the
     rotation of one half against the other's, in units of their repeatable covariances (a truth within one trial:
@@ -259,6 +285,7 @@ def main(argv=None) -> int:
     ap.add_argument("--sim", type=int, default=0, help="also simulate this many cross-axis pairs per configuration")
     ap.add_argument("--no-mimu", action="store_true")
     ap.add_argument("--broad", action="store_true", help="also the BROAD within-trial halves")
+    ap.add_argument("--halves", action="store_true", help="also each MIMU session's halves, one against the other")
     a = ap.parse_args(argv)
     if a.sim:
         simulations(a.sim)
@@ -275,6 +302,8 @@ def main(argv=None) -> int:
 
     pairs = PAIRS if a.pairs is None else tuple(tuple(int(v) for v in p.split("-")) for p in a.pairs.split(","))
     sessions = [read_npz(d / f"exp_{e}.npz") for e in range(1, 10)]
+    if a.halves:
+        session_halves(sessions, pairs, keywords)
     print(f"MIMU board, 9 sessions, {len(pairs)} pairs, timestamps given, options {keywords or 'defaults'}")
     print(f"{'pair':>5} {'rms diff mdeg':>14} {'sigma mdeg':>11} {'mean z2':>8} {'max z2':>7} {'chi2/dof':>9} "
           f"{'inflation':>10} {'full':>6} {'max |K| %':>10} {'scale z2':>9}")

@@ -381,13 +381,17 @@ class Options(FrozenOptions):
         "local variance (impacts, transients faster than the read-out, spikes after clipping weigh little), the "
         "pair (N gyros: each sample at its smallest weight over the gyros' pairs with the reference) is calibrated "
         "again on the weighted moments and the result kept when its rotation is better determined (constant bias, "
-        "identified or given noise). ``'off'`` (default): every sample weighs 1. On the "
-        "MIMU board (benchmarks/sensor_model.py) the weighted rotations repeat to 17.6 mdeg RMS over nine sessions "
-        "(25.6 unweighted) and to 9.2 mdeg, mean z^2 5.81, without the one session where IMUs 3 and 4 turned "
-        "against the others (7.6 mdeg, z^2 4.23 without exp_7 too, where they turned by ~17 mdeg); with it, mean z^2 "
-        "25.0; calibrate_array of all 8 IMUs 23.4 mdeg, mean z^2 3.97 (25.4 / 4.60 unweighted). Not the default: "
-        "where the heavy tail is a timing model's misfit (a simulated chip clock beating against the read-out, "
-        "timestamped), the weighted covariance no longer covers the error (mean z^2 6.6 against 4.0 unweighted).",
+        "identified or given noise). ``'off'`` (default): every sample weighs 1. On the MIMU board "
+        "(benchmarks/sensor_model.py) the weighted rotations repeat to 17.5 mdeg RMS over nine sessions (25.7 "
+        "unweighted) and to 8.9 mdeg, mean z^2 5.85, without exp_6 (7.4 mdeg, z^2 4.39 without exp_7 too); the "
+        "chips that share a site repeat to 5.6-6.7 mdeg, z^2 3.7-5.0, over all nine; calibrate_array of all 8 IMUs "
+        "22.2 mdeg, mean z^2 3.61 (25.4 / 4.66 unweighted). Not the default: in exp_6 one site of the board turned "
+        "by ~49 mdeg against chip 1 (both of its chips alike, their own pair unmoved), which the weighted "
+        "covariance (~3.6x narrower in sigma) resolves: over all nine sessions mean z^2 26.4 (up to 52 for the "
+        "pairs with that site), where the board is taken as rigid. Within a session the weighted covariance covers "
+        "about as the unweighted one does (a session's halves: mean z^2 5.06 weighted, 4.69 unweighted; batch "
+        "means of the scores over 4-24 segments leave it unchanged). In benchmarks/honesty.py's simulated cases the weights were "
+        "kept in 2 of 200 runs (both of the beat case; 20 per case).",
         "--robust-weights", choices=ROBUST_WEIGHTS,
         help="per-sample weights from the residual's local variance: auto or off (default)")
     flex_rejection: object = _option(
