@@ -227,6 +227,9 @@ def _accumulate(w1, w2, mask, lo, hi, chunk_size, extremes=None):
     """
     buf = np.empty((7, chunk_size))
     buf[6] = 1.0
+    whole = _chunk_views(buf)             # the views of a whole chunk, made once (not per chunk)
+    top, bottom = (None, None) if extremes is None else extremes[:2]
+    sub, dot, hi_of, lo_of = np.subtract, np.dot, np.maximum.reduce, np.minimum.reduce
     G = np.zeros((7, 6))
     n_tot = 0
     shift = None
@@ -234,7 +237,6 @@ def _accumulate(w1, w2, mask, lo, hi, chunk_size, extremes=None):
         for i, start in enumerate(range(lo, hi, chunk_size)):
             stop = min(start + chunk_size, hi)
             keep = None if mask is None else mask[start:stop]
-            x = buf[:, : stop - start]
             if shift is None:                 # the first chunk with a kept sample: its mean is the shift
                 if keep is not None and not keep.any():
                     continue
@@ -245,14 +247,16 @@ def _accumulate(w1, w2, mask, lo, hi, chunk_size, extremes=None):
                 s1, s2 = shift[:3, None], shift[3:, None]
                 if extremes is not None:
                     extremes[2][:] = shift
-            np.subtract(w1[start:stop].T, s1, out=x[:3])
-            np.subtract(w2[start:stop].T, s2, out=x[3:6])
-            if extremes is not None:          # of the shifted values: rounding keeps their order
-                np.maximum.reduce(x[:6], axis=1, out=extremes[0][i])   # the ufuncs' own reductions: no wrappers
-                np.minimum.reduce(x[:6], axis=1, out=extremes[1][i])
+            x, x1, x2, x6, x6t = whole if stop - start == chunk_size else _chunk_views(buf[:, : stop - start])
+            sub(w1[start:stop].T, s1, out=x1)
+            sub(w2[start:stop].T, s2, out=x2)
+            if top is not None:               # of the shifted values: rounding keeps their order
+                hi_of(x6, axis=1, out=top[i])  # the ufuncs' own reductions: no wrappers
+                lo_of(x6, axis=1, out=bottom[i])
             if keep is not None and not keep.all():
                 x = x[:, keep]
-            G += np.dot(x, x[:6].T)           # products and (row of ones) sums; a plain gemm, measured faster
+                x6t = x[:6].T
+            G += dot(x, x6t)                  # products and (row of ones) sums; a plain gemm, measured faster
             n_tot += x.shape[1]               # than numpy's syrk for A A^T at this shape
     if n_tot == 0:
         return 0, np.zeros(6), np.zeros((6, 6))
@@ -263,6 +267,12 @@ def _accumulate(w1, w2, mask, lo, hi, chunk_size, extremes=None):
     if np.any(d**2 > 1e6 * np.maximum(np.diag(scat) / n_tot, 1e-300)):
         return _accumulate_chan(w1, w2, mask, lo, hi, chunk_size)
     return n_tot, shift + d, 0.5 * (scat + scat.T)
+
+
+def _chunk_views(x):
+    """``(x, x[:3], x[3:6], x[:6], x[:6].T)`` of a (7, m) chunk buffer: the rows each step of :func:`_accumulate`
+    writes or reads."""
+    return x, x[:3], x[3:6], x[:6], x[:6].T
 
 
 def _check_gram(G, w1, w2, lo: int, hi: int) -> None:
@@ -631,43 +641,39 @@ def moments_with_extremes(omega_1, omega_2, *, chunk_size: int = CHUNK_SIZE, thr
     if w1.shape[0] == 0:
         raise InputError("omega_1 and omega_2: expected samples to take the moments of, got 0")
     m, (hi, lo, shifts), size, bounds = _moments(w1, w2, None, chunk_size, threads, extremes=True)
-    spans = [(p, int(a), int(b)) for p, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])) if b > a]
-    out = []
-    for k, w in enumerate((w1, w2)):
-        found = []
-        for per_chunk, top in ((hi, True), (lo, False)):
-            level, rep = np.empty(3), np.zeros(3, dtype=bool)
-            for j in range(3):
-                col = per_chunk[:, 3 * k + j]
-                level[j], rep[j] = _exact_extreme(w[:, j], col, shifts[:, 3 * k + j], spans, size, top)
-            found.append((level, rep))
-        out.append((found[0][0], found[1][0], found[0][1], found[1][1]))
-    return m, out[0], out[1]
+    used = np.flatnonzero(bounds[1:] > bounds[:-1])     # the parts that hold chunks, in order, end to end
+    starts = bounds[used]
+    owner = np.repeat(np.arange(used.size), np.diff(np.append(starts, hi.shape[0])))   # each chunk's part
+    tops = _exact_extremes((w1, w2), hi, np.maximum.reduceat(hi, starts, axis=0), shifts[used], owner, size, 1.0)
+    bottoms = _exact_extremes((w1, w2), lo, np.minimum.reduceat(lo, starts, axis=0), shifts[used], owner, size, -1.0)
+    return m, *((tops[0][k], bottoms[0][k], tops[1][k], bottoms[1][k]) for k in (slice(0, 3), slice(3, 6)))
 
 
-def _exact_extreme(x, per_chunk, shifts, spans, size: int, top: bool) -> tuple[float, bool]:
-    """The largest (``top``) or smallest value of the column ``x`` and whether it occurs in two rows or more, from
-    each chunk's shifted extreme ``per_chunk`` (parts ``spans`` of ``(part, first chunk, end)``, each shifted by
-    its ``shifts`` entry): only the parts whose extreme, shifted back, comes within rounding of the best part's can
-    hold it (a row equal to it is its part's extreme), and within them only the chunks holding the part's extreme
-    are read again, exactly."""
-    sign = 1.0 if top else -1.0
-    bests = np.array([sign * (per_chunk[a:b].max() if top else per_chunk[a:b].min()) for _, a, b in spans])
-    back = bests + sign * shifts[[p for p, _, _ in spans]]                  # in the data's values (times sign)
+def _exact_extremes(ws, per_chunk, best, shifts, owner, size: int, sign: float) -> tuple[np.ndarray, np.ndarray]:
+    """The largest (``sign`` 1) or smallest (-1) value of each of the six columns of the streams ``ws`` and whether
+    it occurs in two rows or more, as (6,) arrays, from each chunk's shifted extreme ``per_chunk`` (chunks, 6), each
+    part's extreme ``best`` (parts, 6) and shift ``shifts`` (parts, 6) and each chunk's part ``owner``: only the
+    parts whose extreme, shifted back, comes within rounding of the best part's can hold it (a row equal to it is
+    its part's extreme), and within them only the chunks holding the part's extreme are read again, exactly."""
+    bests = sign * best
+    back = bests + sign * shifts                                            # in the data's values (times sign)
     slack = 4.0 * np.finfo(np.float64).eps * (np.abs(bests) + np.abs(back))  # two roundings, generously
-    g = int(np.argmax(back))
-    cands = []
-    for (_, a, b), best, v, e in zip(spans, bests, back, slack):
-        if v + e >= back[g] - slack[g]:    # this part's extreme may equal the best part's
-            cands.extend(a + np.flatnonzero(sign * per_chunk[a:b] == best))
-    rows = [x[c * size:(c + 1) * size] for c in cands]
-    level = max(r.max() for r in rows) if top else min(r.min() for r in rows)
-    count = 0
-    for r in rows:
-        count += int(np.count_nonzero(r == level))
-        if count >= 2:
-            break
-    return float(level), count >= 2
+    cols = np.arange(6)
+    g = np.argmax(back, axis=0)
+    near = back + slack >= back[g, cols] - slack[g, cols]     # the parts whose extreme may equal the best part's
+    cands = (per_chunk == best[owner]) & near[owner]
+    level, rep = np.empty(6), np.zeros(6, dtype=bool)
+    for c in range(6):
+        x = ws[c // 3][:, c % 3]
+        rows = [x[i * size:(i + 1) * size] for i in np.flatnonzero(cands[:, c])]
+        level[c] = max(r.max() for r in rows) if sign > 0 else min(r.min() for r in rows)
+        count = 0
+        for r in rows:
+            count += int(np.count_nonzero(r == level[c]))
+            if count >= 2:
+                break
+        rep[c] = count >= 2
+    return level, rep
 
 
 def window_moments(omega_1, omega_2, window: int, *, mask=None, with_starts: bool = False) -> list:

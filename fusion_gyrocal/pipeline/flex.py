@@ -24,7 +24,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..core.moments import finite_rows, median, row_norms, row_sumsq
+from ..core.moments import finite_rows, median, row_norms, row_sumsq, rows_times
 
 CHI2_3_MEDIAN = 2.365973884375338   # median of chi-square with 3 dof
 CHI2_3_GATE = 14.156413609126677    # chi2.ppf(0.9973, 3): the 3-sigma false-alarm rate in 3-D
@@ -65,10 +65,14 @@ def scatter_cov(x: np.ndarray) -> np.ndarray:
 
 
 def residual_blocks(w1, w2, A, bias, mask, window, ranges):
-    """Yield ``(start, r, used)`` with ``r = omega_1 - A omega_2 - b`` per block (per-window bias if windowed)."""
+    """Yield ``(start, r, used)`` with ``r = omega_1 - A omega_2 - b`` per block (per-window bias if windowed).
+
+    The products by :func:`~fusion_gyrocal.core.moments.rows_times` (``@`` bit for bit, without OpenBLAS's
+    threads, which wait for each other on a busy host) and the difference into the product: one (N, 3) temporary."""
     At = np.ascontiguousarray(np.asarray(A, float).T)
     for start, stop in ranges:
-        r = np.asarray(w1[start:stop], dtype=np.float64) - np.asarray(w2[start:stop], dtype=np.float64) @ At
+        r = rows_times(w2[start:stop], At)
+        np.subtract(np.asarray(w1[start:stop], dtype=np.float64), r, out=r)
         used = np.ones(stop - start, bool) if mask is None else np.asarray(mask[start:stop], bool)
         if not window:
             r -= bias
@@ -98,7 +102,7 @@ def robust_whitener(w1, w2, A, bias, mask, window, ranges, *, residuals=None) ->
     sample = (used_residuals(w1, w2, A, bias, mask, window, ranges) if residuals is None else residuals)[0]
     C = scatter_cov(sample) + 1e-300 * np.eye(3)
     L = np.linalg.cholesky(np.linalg.inv(C))
-    d2 = row_sumsq(sample @ L)
+    d2 = row_sumsq(rows_times(sample, L))
     return L * np.sqrt(CHI2_3_MEDIAN / max(float(median(d2)), 1e-300))
 
 
@@ -106,7 +110,7 @@ def outliers(w1, w2, A, bias, mask, window, ranges, L) -> np.ndarray:
     """Indices of used samples beyond the gate."""
     out = []
     for start, r, used in residual_blocks(w1, w2, A, bias, mask, window, ranges):
-        out.append(start + np.flatnonzero(used & (row_sumsq(r @ L) > CHI2_3_GATE)))
+        out.append(start + np.flatnonzero(used & (row_sumsq(rows_times(r, L)) > CHI2_3_GATE)))
     return np.concatenate(out) if out else np.zeros(0, int)
 
 
@@ -132,7 +136,7 @@ def used_residuals(w1, w2, A, bias, mask, window, ranges):
 def normalised_residuals(w1, w2, A, bias, mask, window, ranges, L):
     """``(d2, rate)`` of the used samples in ``ranges``: squared whitened residual and gyro 1's rate norm."""
     r, w = used_residuals(w1, w2, A, bias, mask, window, ranges)
-    return row_sumsq(r @ L), row_norms(w)
+    return row_sumsq(rows_times(r, L)), row_norms(w)
 
 
 def _rate_bins(d2: np.ndarray, rate: np.ndarray, bins: int, order: np.ndarray | None = None):
@@ -280,7 +284,7 @@ def rate_dependence(w1, w2, A, bias, mask, window, ranges, L, bins: int = 20,
     :func:`used_residuals` of the same arguments when the caller has them.
     """
     r, w = used_residuals(w1, w2, A, bias, mask, window, ranges) if residuals is None else residuals
-    d2, rate = row_sumsq(r @ L), row_norms(w)
+    d2, rate = row_sumsq(rows_times(r, L)), row_norms(w)
     if d2.size < 20 * bins:
         return None
     groups, means, ref, inflated = _rate_bins(d2, rate, bins, order)
@@ -444,7 +448,7 @@ def gate(w1, w2, mask, cal, mom, bias, solve_on, options):
     else:
         n_sub = g1.shape[0] if mask is None else int(np.count_nonzero(on_sub(mask)))
         if keep is None:     # every sample of the subsample used: its residuals are those above, in order
-            n_out = int(np.count_nonzero(row_sumsq(first[0] @ L) > CHI2_3_GATE))
+            n_out = int(np.count_nonzero(row_sumsq(rows_times(first[0], L)) > CHI2_3_GATE))
         else:
             n_out = outliers(g1, g2, A_ls, b_ls, sub_keep, gate_window, whole, L).size
         frac = n_out / max(n_sub, 1)
