@@ -234,7 +234,9 @@ def _accumulate(w1, w2, mask, lo, hi, chunk_size, extremes=None):
         for i, start in enumerate(range(lo, hi, chunk_size)):
             stop = min(start + chunk_size, hi)
             keep = None if mask is None else mask[start:stop]
-            x = buf[:, : stop - start]
+            # a short last chunk in a buffer of its own: BLAS reads a row-strided slice of the full buffer several
+            # times slower (the same products, bit for bit)
+            x = buf[:, : stop - start] if stop - start == chunk_size else np.ones((7, stop - start))
             if shift is None:                 # the first chunk with a kept sample: its mean is the shift
                 if keep is not None and not keep.any():
                     continue

@@ -213,9 +213,12 @@ def _span_misfit(spl2: _RunSplines, x1, y1, lo: float, hi: float):
     use = (ra >= 0) & (ra == rb)
     xe, ye = x1[use], y1[use]
     inside = np.ones(xe.size, dtype=bool)
+    last = [None]                       # the intervals of the previous trial offset: the next one's start
 
     def cost(tau):
-        return _misfit(ye, spl2(xe - tau, inside=inside)[0])
+        q = xe - tau
+        last[0] = spl2.locate(q, last[0])
+        return _misfit(ye, spl2(q, inside=inside, at=last[0])[0])
 
     return xe, ye, cost
 
@@ -361,7 +364,9 @@ class _Linearised:
     one run of gyro 2 for every offset in ``tau_mid +- delta``: gyro 1's rates ``y`` there, gyro 2's spline values
     ``w2`` and slopes ``dw2`` at ``x - tau`` and its values at ``x - (tau_mid - delta)`` and
     ``x - (tau_mid + delta)`` (the curvature's central differences; ``tau_mid`` is ``tau`` unless moved, then
-    ``w2_mid`` holds the values at ``x - tau_mid``, and ``half_curv`` may hold ``C''/2`` of these instants).
+    ``w2_mid`` holds the values at ``x - tau_mid``, and ``half_curv`` may hold ``C''/2`` of these instants);
+    ``at``: the spline intervals of ``x - tau`` (:meth:`~fusion_gyrocal.pipeline.resample._RunSplines.locate`),
+    from which those at a nearby offset are found.
 
     One evaluation of gyro 2's splines serves the whole record's std and Newton step (:meth:`std_step`) and those
     of every stretch of it (:meth:`within`: the same values, sliced): the drift stretches need no evaluation of
@@ -379,6 +384,7 @@ class _Linearised:
     tau_mid: float | None = None
     w2_mid: np.ndarray | None = None
     half_curv: float | None = None
+    at: np.ndarray | None = None
 
     def __post_init__(self):
         if self.tau_mid is None:
@@ -388,16 +394,18 @@ class _Linearised:
         """The same terms on the instants in ``[a, b)`` (their curvature their own)."""
         j0, j1 = np.searchsorted(self.x, [a, b])
         cut = [None if v is None else v[j0:j1] for v in (self.x, self.y, self.w2, self.dw2, self.w2_minus,
-                                                          self.w2_plus, self.w2_mid)]
-        return _Linearised(self.tau, self.delta, *cut[:6], tau_mid=self.tau_mid, w2_mid=cut[6])
+                                                          self.w2_plus, self.w2_mid, self.at)]
+        return _Linearised(self.tau, self.delta, *cut[:6], tau_mid=self.tau_mid, w2_mid=cut[6], at=cut[7])
 
     def moved(self, spl2: _RunSplines, tau: float, half_curv: float | None = None) -> "_Linearised":
         """The terms at ``tau`` (within ``delta`` of ``tau_mid``) on the same instants, with the same central
         differences (and ``half_curv``, the curvature of all these instants, when given): gyro 2's values and
         slopes evaluated again, at ``x - tau``."""
-        w2, dw2 = spl2.values_and_slopes(self.x - tau)
+        q = self.x - tau
+        at = spl2.locate(q, self.at)          # the intervals from those at the previous offset
+        w2, dw2 = spl2.values_and_slopes(q, at)
         return _Linearised(tau, self.delta, self.x, self.y, w2, dw2, self.w2_minus, self.w2_plus, self.tau_mid,
-                           self.w2 if self.w2_mid is None else self.w2_mid, half_curv)
+                           self.w2 if self.w2_mid is None else self.w2_mid, half_curv, at)
 
     def std_step(self) -> tuple[float, float, float]:
         """``(std, step, half_curv)``: the sandwich standard deviation of the offset that minimises ``C``, the Newton
@@ -439,10 +447,12 @@ def _linearise(spl2: _RunSplines, x1, y1, tau: float, h: float) -> _Linearised:
     """:class:`_Linearised` at ``tau`` on the instants ``x1`` (gyro 1's rates ``y1``), ``delta`` a quarter step."""
     delta = 0.25 * h
     xe, ye, _ = _span_misfit(spl2, x1, y1, tau - delta, tau + delta)
-    w2, dw2 = spl2.values_and_slopes(xe - tau)   # one lookup of the instants' intervals for both
+    q = xe - tau
+    at = spl2.locate(q)
+    w2, dw2 = spl2.values_and_slopes(q, at)   # one lookup of the instants' intervals for both
     inside = np.ones(xe.size, dtype=bool)
-    return _Linearised(tau, delta, xe, ye, w2, dw2, spl2(xe - (tau - delta), inside=inside)[0],
-                       spl2(xe - (tau + delta), inside=inside)[0])
+    minus, plus = (spl2(p, inside=inside, at=spl2.locate(p, at))[0] for p in (xe - (tau - delta), xe - (tau + delta)))
+    return _Linearised(tau, delta, xe, ye, w2, dw2, minus, plus, at=at)
 
 
 def _offset_std(spl2: _RunSplines, x1, y1, tau: float, h: float, newton: bool = False):
