@@ -390,6 +390,16 @@ class _Linearised:
         if self.tau_mid is None:
             object.__setattr__(self, "tau_mid", self.tau)
 
+    def _blocks(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(block, used)``: the consecutive ``_STD_BLOCK_S`` block of each instant of ``x`` and the blocks holding
+        one (the same for every offset: kept, and passed on by :meth:`moved`)."""
+        cached = self.__dict__.get("_block_cache")
+        if cached is None:
+            block = np.floor((self.x - self.x[0]) / _STD_BLOCK_S).astype(np.int64)
+            cached = (block, np.bincount(block) > 0)
+            object.__setattr__(self, "_block_cache", cached)
+        return cached
+
     def within(self, a: float, b: float) -> "_Linearised":
         """The same terms on the instants in ``[a, b)`` (their curvature their own)."""
         j0, j1 = np.searchsorted(self.x, [a, b])
@@ -404,8 +414,11 @@ class _Linearised:
         q = self.x - tau
         at = spl2.locate(q, self.at)          # the intervals from those at the previous offset
         w2, dw2 = spl2.values_and_slopes(q, at)
-        return _Linearised(tau, self.delta, self.x, self.y, w2, dw2, self.w2_minus, self.w2_plus, self.tau_mid,
-                           self.w2 if self.w2_mid is None else self.w2_mid, half_curv, at)
+        out = _Linearised(tau, self.delta, self.x, self.y, w2, dw2, self.w2_minus, self.w2_plus, self.tau_mid,
+                          self.w2 if self.w2_mid is None else self.w2_mid, half_curv, at)
+        if "_block_cache" in self.__dict__:   # the same instants: the same blocks
+            object.__setattr__(out, "_block_cache", self.__dict__["_block_cache"])
+        return out
 
     def std_step(self) -> tuple[float, float, float]:
         """``(std, step, half_curv)``: the sandwich standard deviation of the offset that minimises ``C``, the Newton
@@ -432,12 +445,18 @@ class _Linearised:
             return float("inf"), float("nan"), half_curv
         # the tall (N, 3) x (3, 3) products in blocks of rows (rows_times: one thread each, not OpenBLAS's spinning
         # threads, which cost more CPU time than the products on a busy machine)
-        resid = (ye - m.mean_1) - rows_times(w2 - m.mean_2, A.T)
+        w2c = w2 - m.mean_2
+        resid = ye - m.mean_1
+        resid -= rows_times(w2c, A.T)
         md = Moments.from_samples(dw2, w2)  # project d/dt omega_2 on the regressors [omega_2, 1]
-        d = rows_times((dw2 - md.mean_1) - rows_times(w2 - md.mean_2, (md.S12 @ S22p).T), A.T)
+        if not np.array_equal(md.mean_2, m.mean_2):   # (the same pass over w2: equal, and w2c serves again)
+            w2c = w2 - md.mean_2
+        d = dw2 - md.mean_1
+        d -= rows_times(w2c, (md.S12 @ S22p).T)
+        d = rows_times(d, A.T)
         u = np.einsum("ij,ij->i", d, resid)
-        block = np.floor((self.x - self.x[0]) / _STD_BLOCK_S).astype(np.int64)
-        sums = np.bincount(block, weights=u)[np.bincount(block) > 0]
+        block, used = self._blocks()
+        sums = np.bincount(block, weights=u)[used]
         nb = sums.size
         var_u = float(np.sum(sums**2)) * nb / max(nb - 1, 1)
         return float(np.sqrt(var_u) / half_curv), -float(sums.sum()) / half_curv, half_curv
@@ -733,7 +752,9 @@ def _binned_norms(t, w, ok, k_lo: int, k_hi: int, hc: float):
     s = np.zeros(size)
     c = np.zeros(size)
     for lo in range(0, t.size, _NORM_BLOCK):   # t increases: each block's bins are one stretch of the grid
-        k = np.floor(t[lo:lo + _NORM_BLOCK] * (1.0 / hc) + 0.5).astype(np.int64)
+        x = t[lo:lo + _NORM_BLOCK] * (1.0 / hc)
+        x += 0.5
+        k = np.floor(x, out=x).astype(np.int64)
         k -= k_lo
         a, b = max(int(k[0]), 0), min(int(k[-1]), size - 1)
         if b < a:
@@ -741,6 +762,10 @@ def _binned_norms(t, w, ok, k_lo: int, k_hi: int, hc: float):
         np.clip(k, a - 1, b + 1, out=k)
         k -= a - 1
         okb = ok[lo:lo + _NORM_BLOCK]
+        if okb.all():   # every sample valid (the usual case): the norms as they are, the counts as integers
+            s[a:b + 1] += np.bincount(k, weights=row_norms(w[lo:lo + _NORM_BLOCK]), minlength=b - a + 3)[1:b - a + 2]
+            c[a:b + 1] += np.bincount(k, minlength=b - a + 3)[1:b - a + 2]
+            continue
         s[a:b + 1] += np.bincount(k, weights=np.where(okb, row_norms(w[lo:lo + _NORM_BLOCK]), 0.0),
                                   minlength=b - a + 3)[1:b - a + 2]
         c[a:b + 1] += np.bincount(k, weights=okb, minlength=b - a + 3)[1:b - a + 2]
