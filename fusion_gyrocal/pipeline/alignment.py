@@ -209,8 +209,10 @@ def _span_misfit(spl2: _RunSplines, x1, y1, lo: float, hi: float):
     the profiled misfit ``C(tau)``: the residual sum of squares of ``y = A omega_2(x - tau) + b`` with A and
     b at their least-squares values, ``tr(S11 - S12 S22^+ S12^T)`` of the centred scatter.
     """
-    ra, rb = spl2.run_of(x1 - hi), spl2.run_of(x1 - lo)
-    use = (ra >= 0) & (ra == rb)
+    ra = spl2.run_of(x1 - hi)
+    use = ra >= 0
+    if use.any():                  # and x - lo in the same run: not beyond its end (the next run starts later)
+        use &= x1 - lo <= spl2.ends[np.clip(ra, 0, None)]
     xe, ye = x1[use], y1[use]
     inside = np.ones(xe.size, dtype=bool)
     last = [None]                       # the intervals of the previous trial offset: the next one's start
@@ -245,7 +247,9 @@ def _excited_instants(t1, w1, ok1, he: float, max_eval: int):
         dt = np.diff(t1[lo:hi])
         dw = np.diff(w1[lo:hi], axis=0)
         e = np.einsum("ij,ij->i", dw, dw) / (dt * dt)
-        e[~(ok1[lo:hi - 1] & ok1[lo + 1:hi])] = 0.0
+        both = ok1[lo:hi - 1] & ok1[lo + 1:hi]
+        if not both.all():
+            e[~both] = 0.0
         k = ((t1[lo:hi - 1] - t1[0]) / _STD_BLOCK_S).astype(np.int64)
         score += np.bincount(k, weights=e, minlength=score.size)
     per = _STD_BLOCK_S / he
