@@ -1030,6 +1030,10 @@ def _rate_glitches(w: np.ndarray, ok: np.ndarray) -> np.ndarray:
     if sub.size < 100:
         return out
     lim2 = (GLITCH_FACTOR * float(np.quantile(sub, 0.99))) ** 2      # squared norms against it: no square roots
+    with np.errstate(invalid="ignore"):
+        top = max(abs(float(np.max(w))), abs(float(np.min(w))))        # NaN where a rate is (then the full pass)
+    if 3.0 * top * top * (1.0 + 1e-9) < lim2:   # the usual case: no row's squared norm (rounded) can reach it
+        return out
     for lo in range(0, w.shape[0], _NORM_BLOCK):
         with np.errstate(invalid="ignore"):
             out[lo:lo + _NORM_BLOCK] = row_sumsq(w[lo:lo + _NORM_BLOCK]) > lim2
