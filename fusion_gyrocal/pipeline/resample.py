@@ -231,11 +231,12 @@ class _RunSplines:
         else:
             raise OptionError(f"nu: expected 0 (values) or 1 (first derivatives), got {nu!r}")
         out *= d
-        out += c[2]
         if nu == 0:
+            out += c[2]
             out *= d
-            out += c[3]
-        return np.ascontiguousarray(out.T)
+        rows = np.empty(out.shape[::-1])          # one row per instant: the last term added into it (no copy after)
+        np.add(out, c[3] if nu == 0 else c[2], out=rows.T)
+        return rows
 
     def __call__(self, x: np.ndarray, nu: int = 0, inside: np.ndarray | None = None, at: np.ndarray | None = None):
         """Values (or ``nu``-th derivatives, ``nu`` <= 1) at ``x``, NaN outside the runs; returns (values, inside)
