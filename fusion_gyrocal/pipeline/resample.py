@@ -180,9 +180,9 @@ class _RunSplines:
         """The interval of each instant of ``x`` (1-D): ``searchsorted(knots, x, side="right") - 1``, clipped to the
         intervals.
 
-        ``hint``: the intervals of instants near these (``x`` shifted by a few knot steps at most, e.g. the same
-        instants at another trial offset); the exact ones are then found by stepping from them (a few array passes
-        instead of a binary search per instant), or by the search where that does not settle.
+        ``hint``: the intervals of instants near these (finite ``x`` shifted by a few knot steps at most, e.g. the
+        same instants at another trial offset); the exact ones are then found by stepping from them (a few array
+        passes instead of a binary search per instant), or by the search where that does not settle.
         """
         last = self.knots.size - 2
         if hint is not None and hint.shape == x.shape:
