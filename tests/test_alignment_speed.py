@@ -125,3 +125,72 @@ def test_ranges_concatenates_the_ranges():
     stops = np.array([7, 11, 15, 41, 60])
     np.testing.assert_array_equal(al._ranges(starts, stops),
                                   np.concatenate([np.arange(a, b) for a, b in zip(starts, stops)]))
+
+
+def _search(spl, x):
+    """The interval of each instant by the plain search, as :meth:`_RunSplines.locate` first found it."""
+    return np.clip(np.searchsorted(spl.knots, x, side="right") - 1, 0, spl.knots.size - 2)
+
+
+def test_locate_from_a_hint_equals_the_search():
+    # runs split by gaps and masked samples; instants shifted by a fraction of a step, by several steps, beyond the
+    # steps a hint may take, and outside the knots' span: the intervals are the search's in every case
+    from fusion_gyrocal.pipeline.resample import _LOCATE_STEPS, _RunSplines
+
+    rng = np.random.default_rng(11)
+    t = np.cumsum(rng.uniform(0.004, 0.006, 5000))
+    t[2000:] += 0.5                                               # a gap
+    ok = rng.random(t.size) > 0.02
+    spl = _RunSplines(t, rng.normal(size=(t.size, 3)), ok, 0.0125)
+    x = np.sort(rng.uniform(t[0] - 0.1, t[-1] + 0.1, 30000))
+    x = np.r_[spl.knots[:50], x, spl.knots[-50:], np.nextafter(spl.knots[100:150], -np.inf)]
+    hint = spl.locate(x)
+    np.testing.assert_array_equal(hint, _search(spl, x))
+    for shift in (0.0, 0.00125, -0.00125, 0.011, -0.017, 0.005 * (2 * _LOCATE_STEPS + 3)):
+        np.testing.assert_array_equal(spl.locate(x + shift, hint), _search(spl, x + shift))
+    np.testing.assert_array_equal(spl.locate(x, np.zeros(x.size, dtype=np.intp)), hint)   # a poor hint: searched
+
+
+def test_runs_of_an_all_valid_stream_equal_the_masked_path():
+    from fusion_gyrocal.pipeline.resample import _runs
+
+    def masked_path(t, valid, gap):            # the runs as found for a masked stream (the index array gathered)
+        idx = np.flatnonzero(valid)
+        if idx.size < 2:
+            return np.empty(0, dtype=np.intp), np.empty(0, dtype=np.intp)
+        cut = np.flatnonzero((np.diff(idx) > 1) | (np.diff(t[idx]) > gap)) + 1
+        a, b = np.r_[0, cut], np.r_[cut, idx.size]
+        long = b - a >= 2
+        return idx[a[long]], idx[b[long] - 1] + 1
+
+    rng = np.random.default_rng(12)
+    t = np.cumsum(rng.uniform(0.004, 0.006, 3000))
+    for k in (5, 7, 9, 10, 1500, 2998):
+        t[k:] += 1.0                          # gaps: runs of 5, 2, 2, 1 (dropped), 1490, 1498 and 2 samples
+    every = np.ones(t.size, dtype=bool)
+    for n in (0, 1, 2, 3, 8, 11, t.size):
+        got, want = _runs(t[:n], every[:n], 0.0125), masked_path(t[:n], every[:n], 0.0125)
+        for g, w in zip(got, want):
+            np.testing.assert_array_equal(g, w)
+            assert g.dtype == w.dtype
+
+
+def test_rate_glitches_skip_equals_the_full_pass():
+    from fusion_gyrocal.core.moments import row_norms, row_sumsq
+    from fusion_gyrocal.pipeline.flex import GLITCH_FACTOR
+
+    rng = np.random.default_rng(13)
+    for kind in range(4):
+        w = rng.normal(size=(200000, 3))
+        ok = rng.random(w.shape[0]) > 0.01
+        if kind == 1:
+            w[[10, 5000]] *= 30.0                                 # glitches: the full pass finds them
+        elif kind == 2:
+            w[77, 2] = np.nan                                     # a NaN: no skipping
+        elif kind == 3:
+            w[123] = (25.0, 0.0, 0.0)                             # too large a rate to skip the pass, below the
+                                                                  # level (10x the 99th percentile, ~34)
+        lim2 = (GLITCH_FACTOR * float(np.quantile(row_norms(w[::3][ok[::3]]), 0.99))) ** 2
+        with np.errstate(invalid="ignore"):
+            want = (row_sumsq(w) > lim2) & ok
+        np.testing.assert_array_equal(al._rate_glitches(w, ok), want)

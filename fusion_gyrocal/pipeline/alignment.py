@@ -209,13 +209,18 @@ def _span_misfit(spl2: _RunSplines, x1, y1, lo: float, hi: float):
     the profiled misfit ``C(tau)``: the residual sum of squares of ``y = A omega_2(x - tau) + b`` with A and
     b at their least-squares values, ``tr(S11 - S12 S22^+ S12^T)`` of the centred scatter.
     """
-    ra, rb = spl2.run_of(x1 - hi), spl2.run_of(x1 - lo)
-    use = (ra >= 0) & (ra == rb)
+    ra = spl2.run_of(x1 - hi)
+    use = ra >= 0
+    if use.any():                  # and x - lo in the same run: not beyond its end (the next run starts later)
+        use &= x1 - lo <= spl2.ends[np.clip(ra, 0, None)]
     xe, ye = x1[use], y1[use]
     inside = np.ones(xe.size, dtype=bool)
+    last = [None]                       # the intervals of the previous trial offset: the next one's start
 
     def cost(tau):
-        return _misfit(ye, spl2(xe - tau, inside=inside)[0])
+        q = xe - tau
+        last[0] = spl2.locate(q, last[0])
+        return _misfit(ye, spl2(q, inside=inside, at=last[0])[0])
 
     return xe, ye, cost
 
@@ -242,7 +247,9 @@ def _excited_instants(t1, w1, ok1, he: float, max_eval: int):
         dt = np.diff(t1[lo:hi])
         dw = np.diff(w1[lo:hi], axis=0)
         e = np.einsum("ij,ij->i", dw, dw) / (dt * dt)
-        e[~(ok1[lo:hi - 1] & ok1[lo + 1:hi])] = 0.0
+        both = ok1[lo:hi - 1] & ok1[lo + 1:hi]
+        if not both.all():
+            e[~both] = 0.0
         k = ((t1[lo:hi - 1] - t1[0]) / _STD_BLOCK_S).astype(np.int64)
         score += np.bincount(k, weights=e, minlength=score.size)
     per = _STD_BLOCK_S / he
@@ -361,7 +368,9 @@ class _Linearised:
     one run of gyro 2 for every offset in ``tau_mid +- delta``: gyro 1's rates ``y`` there, gyro 2's spline values
     ``w2`` and slopes ``dw2`` at ``x - tau`` and its values at ``x - (tau_mid - delta)`` and
     ``x - (tau_mid + delta)`` (the curvature's central differences; ``tau_mid`` is ``tau`` unless moved, then
-    ``w2_mid`` holds the values at ``x - tau_mid``, and ``half_curv`` may hold ``C''/2`` of these instants).
+    ``w2_mid`` holds the values at ``x - tau_mid``, and ``half_curv`` may hold ``C''/2`` of these instants);
+    ``at``: the spline intervals of ``x - tau`` (:meth:`~fusion_gyrocal.pipeline.resample._RunSplines.locate`),
+    from which those at a nearby offset are found.
 
     One evaluation of gyro 2's splines serves the whole record's std and Newton step (:meth:`std_step`) and those
     of every stretch of it (:meth:`within`: the same values, sliced): the drift stretches need no evaluation of
@@ -379,25 +388,41 @@ class _Linearised:
     tau_mid: float | None = None
     w2_mid: np.ndarray | None = None
     half_curv: float | None = None
+    at: np.ndarray | None = None
 
     def __post_init__(self):
         if self.tau_mid is None:
             object.__setattr__(self, "tau_mid", self.tau)
 
+    def _blocks(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(block, used)``: the consecutive ``_STD_BLOCK_S`` block of each instant of ``x`` and the blocks holding
+        one (the same for every offset: kept, and passed on by :meth:`moved`)."""
+        cached = self.__dict__.get("_block_cache")
+        if cached is None:
+            block = np.floor((self.x - self.x[0]) / _STD_BLOCK_S).astype(np.int64)
+            cached = (block, np.bincount(block) > 0)
+            object.__setattr__(self, "_block_cache", cached)
+        return cached
+
     def within(self, a: float, b: float) -> "_Linearised":
         """The same terms on the instants in ``[a, b)`` (their curvature their own)."""
         j0, j1 = np.searchsorted(self.x, [a, b])
         cut = [None if v is None else v[j0:j1] for v in (self.x, self.y, self.w2, self.dw2, self.w2_minus,
-                                                          self.w2_plus, self.w2_mid)]
-        return _Linearised(self.tau, self.delta, *cut[:6], tau_mid=self.tau_mid, w2_mid=cut[6])
+                                                          self.w2_plus, self.w2_mid, self.at)]
+        return _Linearised(self.tau, self.delta, *cut[:6], tau_mid=self.tau_mid, w2_mid=cut[6], at=cut[7])
 
     def moved(self, spl2: _RunSplines, tau: float, half_curv: float | None = None) -> "_Linearised":
         """The terms at ``tau`` (within ``delta`` of ``tau_mid``) on the same instants, with the same central
         differences (and ``half_curv``, the curvature of all these instants, when given): gyro 2's values and
         slopes evaluated again, at ``x - tau``."""
-        w2, dw2 = spl2.values_and_slopes(self.x - tau)
-        return _Linearised(tau, self.delta, self.x, self.y, w2, dw2, self.w2_minus, self.w2_plus, self.tau_mid,
-                           self.w2 if self.w2_mid is None else self.w2_mid, half_curv)
+        q = self.x - tau
+        at = spl2.locate(q, self.at)          # the intervals from those at the previous offset
+        w2, dw2 = spl2.values_and_slopes(q, at)
+        out = _Linearised(tau, self.delta, self.x, self.y, w2, dw2, self.w2_minus, self.w2_plus, self.tau_mid,
+                          self.w2 if self.w2_mid is None else self.w2_mid, half_curv, at)
+        if "_block_cache" in self.__dict__:   # the same instants: the same blocks
+            object.__setattr__(out, "_block_cache", self.__dict__["_block_cache"])
+        return out
 
     def std_step(self) -> tuple[float, float, float]:
         """``(std, step, half_curv)``: the sandwich standard deviation of the offset that minimises ``C``, the Newton
@@ -424,12 +449,18 @@ class _Linearised:
             return float("inf"), float("nan"), half_curv
         # the tall (N, 3) x (3, 3) products in blocks of rows (rows_times: one thread each, not OpenBLAS's spinning
         # threads, which cost more CPU time than the products on a busy machine)
-        resid = (ye - m.mean_1) - rows_times(w2 - m.mean_2, A.T)
+        w2c = w2 - m.mean_2
+        resid = ye - m.mean_1
+        resid -= rows_times(w2c, A.T)
         md = Moments.from_samples(dw2, w2)  # project d/dt omega_2 on the regressors [omega_2, 1]
-        d = rows_times((dw2 - md.mean_1) - rows_times(w2 - md.mean_2, (md.S12 @ S22p).T), A.T)
+        if not np.array_equal(md.mean_2, m.mean_2):   # (the same pass over w2: equal, and w2c serves again)
+            w2c = w2 - md.mean_2
+        d = dw2 - md.mean_1
+        d -= rows_times(w2c, (md.S12 @ S22p).T)
+        d = rows_times(d, A.T)
         u = np.einsum("ij,ij->i", d, resid)
-        block = np.floor((self.x - self.x[0]) / _STD_BLOCK_S).astype(np.int64)
-        sums = np.bincount(block, weights=u)[np.bincount(block) > 0]
+        block, used = self._blocks()
+        sums = np.bincount(block, weights=u)[used]
         nb = sums.size
         var_u = float(np.sum(sums**2)) * nb / max(nb - 1, 1)
         return float(np.sqrt(var_u) / half_curv), -float(sums.sum()) / half_curv, half_curv
@@ -439,10 +470,12 @@ def _linearise(spl2: _RunSplines, x1, y1, tau: float, h: float) -> _Linearised:
     """:class:`_Linearised` at ``tau`` on the instants ``x1`` (gyro 1's rates ``y1``), ``delta`` a quarter step."""
     delta = 0.25 * h
     xe, ye, _ = _span_misfit(spl2, x1, y1, tau - delta, tau + delta)
-    w2, dw2 = spl2.values_and_slopes(xe - tau)   # one lookup of the instants' intervals for both
+    q = xe - tau
+    at = spl2.locate(q)
+    w2, dw2 = spl2.values_and_slopes(q, at)   # one lookup of the instants' intervals for both
     inside = np.ones(xe.size, dtype=bool)
-    return _Linearised(tau, delta, xe, ye, w2, dw2, spl2(xe - (tau - delta), inside=inside)[0],
-                       spl2(xe - (tau + delta), inside=inside)[0])
+    minus, plus = (spl2(p, inside=inside, at=spl2.locate(p, at))[0] for p in (xe - (tau - delta), xe - (tau + delta)))
+    return _Linearised(tau, delta, xe, ye, w2, dw2, minus, plus, at=at)
 
 
 def _offset_std(spl2: _RunSplines, x1, y1, tau: float, h: float, newton: bool = False):
@@ -723,7 +756,9 @@ def _binned_norms(t, w, ok, k_lo: int, k_hi: int, hc: float):
     s = np.zeros(size)
     c = np.zeros(size)
     for lo in range(0, t.size, _NORM_BLOCK):   # t increases: each block's bins are one stretch of the grid
-        k = np.floor(t[lo:lo + _NORM_BLOCK] * (1.0 / hc) + 0.5).astype(np.int64)
+        x = t[lo:lo + _NORM_BLOCK] * (1.0 / hc)
+        x += 0.5
+        k = np.floor(x, out=x).astype(np.int64)
         k -= k_lo
         a, b = max(int(k[0]), 0), min(int(k[-1]), size - 1)
         if b < a:
@@ -731,6 +766,10 @@ def _binned_norms(t, w, ok, k_lo: int, k_hi: int, hc: float):
         np.clip(k, a - 1, b + 1, out=k)
         k -= a - 1
         okb = ok[lo:lo + _NORM_BLOCK]
+        if okb.all():   # every sample valid (the usual case): the norms as they are, the counts as integers
+            s[a:b + 1] += np.bincount(k, weights=row_norms(w[lo:lo + _NORM_BLOCK]), minlength=b - a + 3)[1:b - a + 2]
+            c[a:b + 1] += np.bincount(k, minlength=b - a + 3)[1:b - a + 2]
+            continue
         s[a:b + 1] += np.bincount(k, weights=np.where(okb, row_norms(w[lo:lo + _NORM_BLOCK]), 0.0),
                                   minlength=b - a + 3)[1:b - a + 2]
         c[a:b + 1] += np.bincount(k, weights=okb, minlength=b - a + 3)[1:b - a + 2]
@@ -991,6 +1030,10 @@ def _rate_glitches(w: np.ndarray, ok: np.ndarray) -> np.ndarray:
     if sub.size < 100:
         return out
     lim2 = (GLITCH_FACTOR * float(np.quantile(sub, 0.99))) ** 2      # squared norms against it: no square roots
+    with np.errstate(invalid="ignore"):
+        top = max(abs(float(np.max(w))), abs(float(np.min(w))))        # NaN where a rate is (then the full pass)
+    if 3.0 * top * top * (1.0 + 1e-9) < lim2:   # the usual case: no row's squared norm (rounded) can reach it
+        return out
     for lo in range(0, w.shape[0], _NORM_BLOCK):
         with np.errstate(invalid="ignore"):
             out[lo:lo + _NORM_BLOCK] = row_sumsq(w[lo:lo + _NORM_BLOCK]) > lim2

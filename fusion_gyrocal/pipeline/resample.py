@@ -12,10 +12,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core.moments import median
 from ..errors import InputError, OptionError
 from .streams import DEFAULT_GAP_PERIODS, _nominal_period, _stream, timed_stream
 
 _GRID_BLOCK = 1 << 16          # grid points per block of a long resampling
+_LOCATE_STEPS = 8              # most knot steps from a hint (:meth:`_RunSplines.locate`) before a search
 _MARGIN = 40                   # source samples beyond a block's reach: the splines' end conditions act
                                # on a knot k samples away as (2 - sqrt 3)^k, 0.268^40 ~ 1e-23
 #: Instants at least this many times sparser than a stream's samples get the samples low-pass filtered first
@@ -31,6 +33,13 @@ _ATTENUATION_DB = 100.0        # stopband attenuation and passband ripple (1e-5)
 def _runs(t: np.ndarray, valid: np.ndarray, max_gap_s: float) -> tuple[np.ndarray, np.ndarray]:
     """``(first, stop)``: each contiguous run (>= 2 samples) of valid samples without a gap is the range of samples
     ``first[k]:stop[k]`` (found in a few array passes, however many runs a masked record has)."""
+    if valid.all():                  # the usual case: the runs are cut by the gaps alone (no index array to gather)
+        if t.size < 2:
+            return np.empty(0, dtype=np.intp), np.empty(0, dtype=np.intp)
+        cut = np.flatnonzero(np.diff(t) > max_gap_s) + 1
+        a, b = np.r_[0, cut], np.r_[cut, t.size]
+        long = b - a >= 2
+        return a[long], b[long]
     idx = np.flatnonzero(valid)
     if idx.size < 2:
         return np.empty(0, dtype=np.intp), np.empty(0, dtype=np.intp)
@@ -167,23 +176,47 @@ class _RunSplines:
         inside = (r >= 0) & (x <= self.ends[np.clip(r, 0, None)])
         return np.where(inside, r, -1)
 
-    def _gather(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(d, c)``: the offsets of ``x`` (1-D, inside the knots' span) from their intervals' first knots and
-        those intervals' coefficients ``(4, k, len(x))``."""
+    def locate(self, x: np.ndarray, hint: np.ndarray | None = None) -> np.ndarray:
+        """The interval of each instant of ``x`` (1-D): ``searchsorted(knots, x, side="right") - 1``, clipped to the
+        intervals.
+
+        ``hint``: the intervals of instants near these (finite ``x`` shifted by a few knot steps at most, e.g. the
+        same instants at another trial offset); the exact ones are then found by stepping from them (a few array
+        passes instead of a binary search per instant), or by the search where that does not settle.
+        """
+        last = self.knots.size - 2
+        if hint is not None and hint.shape == x.shape:
+            k, i = self.knots, hint.astype(np.intp)     # a copy
+            for _ in range(_LOCATE_STEPS):
+                down = k.take(i) > x                     # the interval starts after x
+                down &= i > 0
+                up = k.take(i + 1) <= x                  # the next one starts at or before x
+                up &= i < last
+                if not (down.any() or up.any()):
+                    return i
+                i -= down
+                i += up
         i = np.searchsorted(self.knots, x, side="right") - 1
-        np.clip(i, 0, self.knots.size - 2, out=i)
+        np.clip(i, 0, last, out=i)
+        return i
+
+    def _gather(self, x: np.ndarray, at: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(d, c)``: the offsets of ``x`` (1-D, inside the knots' span) from their intervals' first knots and
+        those intervals' coefficients ``(4, k, len(x))`` (``at``: the intervals, :meth:`locate`, when known)."""
+        i = self.locate(x) if at is None else at
         d = x - self.knots.take(i)
         k = self.coef.shape[1]
         return d, self.coef.reshape(4 * k, -1).take(i, axis=1).reshape(4, k, -1)
 
-    def _eval(self, x: np.ndarray, nu: int) -> np.ndarray:
+    def _eval(self, x: np.ndarray, nu: int, at: np.ndarray | None = None) -> np.ndarray:
         """Values (``nu`` = 0) or first derivatives (``nu`` = 1) at ``x`` (1-D, inside the knots' span)."""
-        return self._horner(*self._gather(x), nu)
+        return self._horner(*self._gather(x, at), nu)
 
-    def values_and_slopes(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def values_and_slopes(self, x: np.ndarray, at: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Values and first derivatives at ``x`` (1-D, every instant inside a run: ``run_of(x) >= 0``), from one
-        lookup of the instants' intervals; each equals ``self(x, nu)[0]``."""
-        d, c = self._gather(x)
+        lookup of the instants' intervals (``at``: those intervals, :meth:`locate`, when known); each equals
+        ``self(x, nu)[0]``."""
+        d, c = self._gather(x, at)
         return tuple(self._horner(d, c, nu).reshape(x.shape + self.width) for nu in (0, 1))
 
     @staticmethod
@@ -198,18 +231,20 @@ class _RunSplines:
         else:
             raise OptionError(f"nu: expected 0 (values) or 1 (first derivatives), got {nu!r}")
         out *= d
-        out += c[2]
         if nu == 0:
+            out += c[2]
             out *= d
-            out += c[3]
-        return np.ascontiguousarray(out.T)
+        rows = np.empty(out.shape[::-1])          # one row per instant: the last term added into it (no copy after)
+        np.add(out, c[3] if nu == 0 else c[2], out=rows.T)
+        return rows
 
-    def __call__(self, x: np.ndarray, nu: int = 0, inside: np.ndarray | None = None):
-        """Values (or ``nu``-th derivatives, ``nu`` <= 1) at ``x``, NaN outside the runs; returns (values, inside)."""
+    def __call__(self, x: np.ndarray, nu: int = 0, inside: np.ndarray | None = None, at: np.ndarray | None = None):
+        """Values (or ``nu``-th derivatives, ``nu`` <= 1) at ``x``, NaN outside the runs; returns (values, inside)
+        (``at``: the intervals of ``x``, :meth:`locate`, used where every instant is inside)."""
         if inside is None:
             inside = self.run_of(x) >= 0
         if inside.all():
-            return self._eval(x, nu).reshape(x.shape + self.width), inside
+            return self._eval(x, nu, at).reshape(x.shape + self.width), inside
         out = np.full(x.shape + self.width, np.nan)
         if inside.any():
             out[inside] = self._eval(x[inside], nu).reshape((-1,) + self.width)
@@ -259,8 +294,8 @@ def _query_steps(grid: np.ndarray) -> tuple[float, bool]:
     """``(period, increasing)``: the median spacing (s) of the finite instants of ``grid`` in time order (NaN with
     fewer than two) and whether ``grid`` is finite and strictly increasing.
 
-    One temporary of the steps, partitioned in place by the median (a long grid is not copied: only one with
-    non-finite instants is compressed first).
+    One temporary of the steps and its partition at the median (:func:`~fusion_gyrocal.core.moments.median`: numpy's
+    value, one partition point); a long grid is not copied (only one with non-finite instants is compressed first).
     """
     finite = bool(np.isfinite(grid).all())
     g = grid if finite else grid[np.isfinite(grid)]
@@ -273,7 +308,7 @@ def _query_steps(grid: np.ndarray) -> tuple[float, bool]:
         if g.size < 2:
             return float("nan"), False
         steps = np.diff(g)
-    return float(np.median(steps, overwrite_input=True)), finite and increasing
+    return float(median(steps)), finite and increasing
 
 
 def _lowpass(ratio: float) -> np.ndarray:
