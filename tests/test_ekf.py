@@ -881,7 +881,7 @@ _PINNED_RUNS = {
         1.003409186787451, 1.0129186674789123, 1.0228952357953351, 1.0, 1.0, 1.0, 1.0, 0.6666666666666666,
         0.6666666666666666, 0.4160553871895626, 0.575767701690772, 0.6465670706362292, 0.6416141497200059,
         0.6666666666666666, 0.6666666666666666, 0.6666666666666666, 0.6666666666666666, 1.006011375625166,
-        39.06169793024135, 3.0, 0.0],
+        39.061697930094375, 3.0, 0.0],
     ('misfit', 'fast', 50): [
         -0.005974661166309339, -0.6162890305860897, -0.7874973867913492, 0.6324821939371376, 0.6076503794868298,
         -0.48034080678407454, 0.7745518560925488, -0.500947948482443, 0.38616133303946854, 1.0119517490789713,
@@ -893,7 +893,7 @@ _PINNED_RUNS = {
         1.0754781963637114, 1.0402343118619186, 1.0355584994246052, 1.0, 1.0, 1.0, 1.0, 0.6666666666666666,
         0.6666666666666666, 1.1450505756347455, 0.5854341071820184, 0.6113224850121307, 0.5381783606539902,
         0.13030638636059066, 0.6666666666666666, 0.6666666666666666, 0.6666666666666666, 2.6457712173155365,
-        13.608760292762703, 3.0, 0.0],
+        13.608760292786338, 3.0, 0.0],
 }
 
 
@@ -906,7 +906,9 @@ def _pinned_state(tr, h):
 @pytest.mark.parametrize("noise, mode, block", list(_PINNED_RUNS))
 def test_run_final_state_pinned_across_speedups(noise, mode, block):
     """The hot paths' rewrites (scalar per-sample arithmetic, per-bin state as lists, shared temporaries) keep
-    the same arithmetic: the run ends where it ended before them (white noise and an identified misfit)."""
+    the same arithmetic: the run ends where it ended before them (white noise and an identified misfit). The block
+    modes' NIS sums were re-pinned when the moments pass's products became 8 x 6 (the same sums in another order:
+    4e-12 relative; every other entry unchanged)."""
     if noise == "white":
         t, w1, w2, _ = scenario(np.random.default_rng(47), 30.0)
         n0 = 1000
