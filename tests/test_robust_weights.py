@@ -162,6 +162,24 @@ def test_calibrate_pair_gaussian_unchanged():
     assert not any(n.startswith("robust weights") for n in b.notes)
 
 
+def test_calibrate_pair_heavy_tail_noted_when_weights_off():
+    sim, w1 = _spiky(0)
+    off = calibrate_pair(w1, sim.omega_2, flex_rejection=False)
+    assert sum("the residual is heavy-tailed" in n and "--robust-weights auto" in n for n in off.notes) == 1
+    auto = calibrate_pair(w1, sim.omega_2, robust_weights="auto", flex_rejection=False)
+    assert not any("the residual is heavy-tailed" in n for n in auto.notes)
+    gaussian = simulate_pair(n=6000, rng=11)
+    assert not any("heavy-tailed" in n for n in calibrate_pair(gaussian.omega_1, gaussian.omega_2).notes)
+
+
+def test_calibrate_array_heavy_tail_noted_when_weights_off():
+    rates, _ = _spiky_array(0)
+    off = calibrate_array(rates, flex_rejection=False)
+    assert sum("the residual is heavy-tailed" in n for n in off.notes) == 1
+    assert not any("the residual is heavy-tailed" in n
+                   for n in calibrate_array(rates, robust_weights="auto", flex_rejection=False).notes)
+
+
 def test_calibrate_pair_mimu_weighted_sessions_covered_by_the_covariance():
     """IMUs 3 and 4 of the MIMU board (neighbours): with the weights the nine sessions' rotations agree to a few
     mdeg and their differences are explained by the reported covariances (mean z^2 near 3)."""

@@ -973,8 +973,7 @@ def calibrate_array(omegas, options: Options | None = None, *, reference: int = 
         if noise_std is not None:
             o = o.replace(noise_std=noise_std)
     cal = _solve_samples(rates, moments, o, reference, mask, rate_hz, source)
-    if o.robust_weights == "auto":
-        cal = _with_weights(cal, rates, o, mask, rate_hz, source)
+    cal = _with_weights(cal, rates, o, mask, rate_hz, source)
     return cal if timed is None else timed.reported(cal, rate_hz)
 
 
@@ -999,17 +998,22 @@ def _with_weights(cal: ArrayCalibration, rates, o: Options, mask, rate_hz, sourc
     pipeline's rule, :mod:`~fusion_gyrocal.core.weights`): when any gyro's residual against the reference is
     heavy-tailed, each sample weighs its smallest :func:`~fusion_gyrocal.core.weights.residual_weights` over the
     gyros' pairs with the reference (an impact reaches every chip); kept when the rotations are better determined.
-    Only for a constant bias and a white noise identified or given."""
-    from .weights import TAIL_SHARE, WEIGHT_SPAN, residual_tail_share, residual_weights
+    Only for a constant bias and a white noise identified or given. With ``robust_weights`` off, a heavy-tailed
+    residual gets a note saying what the weights would do (:func:`~fusion_gyrocal.core.weights.hint`)."""
+    from .weights import (HINT_SAMPLES, TAIL_SAMPLES, TAIL_SHARE, WEIGHT_SPAN, hint, residual_tail_share,
+                          residual_weights)
 
     if o.noise_std is None or o.bias_window is not None or o.bias_walk_std is not None:
         return cal
     ref = cal.reference
     noise = np.broadcast_to(np.asarray(o.noise_std, dtype=float), (cal.n_gyros,))
     views = {j: cal.pair(ref, j) for j in range(cal.n_gyros) if j != ref}
-    share = max(residual_tail_share(rates[ref], rates[j], v.A, v.bias, mask) for j, v in views.items())
+    samples = TAIL_SAMPLES if o.robust_weights == "auto" else HINT_SAMPLES
+    share = max(residual_tail_share(rates[ref], rates[j], v.A, v.bias, mask, samples) for j, v in views.items())
     if share < TAIL_SHARE:
         return cal
+    if o.robust_weights == "off":       # what the weights would do, in a note
+        return dataclasses.replace(cal, notes=cal.notes + (hint(share),))
     weights = np.minimum.reduce([residual_weights(rates[ref], rates[j], v.A, v.bias, (noise[ref], noise[j]), mask)
                                  for j, v in views.items()])
     moments = ArrayMoments.from_samples(rates, mask=mask, weights=weights)

@@ -17,7 +17,8 @@ from ..core.model import PairCalibration
 from ..core.moments import Moments, as_rate_pair, window_samples
 from ..core.noise import difference_noise_std
 from ..core.solve import solve
-from ..core.weights import TAIL_SHARE, WEIGHT_SPAN, residual_tail_share, residual_weights
+from ..core.weights import (HINT_SAMPLES, TAIL_SAMPLES, TAIL_SHARE, WEIGHT_SPAN, hint, residual_tail_share,
+                            residual_weights)
 from ..errors import InputError, NotRigidError, OptionError
 from ..options import TIMESTAMP_OPTIONS, Options
 from .bias import BiasModel
@@ -244,7 +245,7 @@ def run_pipeline(omega_1, omega_2, *, t_1=None, t_2=None, mask=None, options: Op
     carried = {}
     if o.timing_model == "auto" and run.calibration.rigid:
         run, carried = _with_timing(run, mask, pair, resampling, o)
-    if o.robust_weights == "auto" and run.calibration.rigid:
+    if run.calibration.rigid:
         run = _with_weights(run, pair, resampling, o, carried)
     if notes:
         run = _replace(run, calibration=_replace(run.calibration, notes=run.calibration.notes + notes))
@@ -372,7 +373,8 @@ def _with_weights(run: PipelineRun, pair, resampling, o: Options, carried: dict)
     (:func:`~fusion_gyrocal.core.weights.residual_weights`, at the run's estimate) when the residual is heavy-tailed
     (:func:`~fusion_gyrocal.core.weights.tail_share` above :data:`~fusion_gyrocal.core.weights.TAIL_SHARE`), kept
     when its rotation is better determined (``robust_weights``); ``carried``: the fields earlier steps added to the
-    calibration. Only for a constant bias and a white noise identified or given."""
+    calibration. Only for a constant bias and a white noise identified or given. With ``robust_weights`` off, a
+    heavy-tailed residual gets a note saying what the weights would do (:func:`~fusion_gyrocal.core.weights.hint`)."""
     cal = run.calibration
     if cal.bias_segments != 1 or cal.noise_model is not None and cal.noise_model.bias_walk_std is not None \
             or o.bias_walk_std is not None or o.bias_window is not None:
@@ -380,9 +382,12 @@ def _with_weights(run: PipelineRun, pair, resampling, o: Options, carried: dict)
     if cal.noise_model is None and o.noise_std is None:
         return run                    # no white noise to weigh against (the residual's own variance is the noise)
     use = run.valid                   # the samples before the flex gate, which the weighted run gates again
-    share = residual_tail_share(run.omega_1, run.omega_2, cal.A, cal.bias, use)
+    share = residual_tail_share(run.omega_1, run.omega_2, cal.A, cal.bias, use,
+                                TAIL_SAMPLES if o.robust_weights == "auto" else HINT_SAMPLES)
     if share < TAIL_SHARE:
         return run                    # a residual without a heavy tail: every sample weighs the same
+    if o.robust_weights == "off":     # what the weights would do, in a note
+        return _replace(run, calibration=_replace(cal, notes=cal.notes + (hint(share),)))
     weights = residual_weights(run.omega_1, run.omega_2, cal.A, cal.bias, cal.noise_std, use)
     n_used = float(np.count_nonzero(weights > 0))
     effective = float(weights.sum())
