@@ -91,5 +91,5 @@ def hint(share: float) -> str:
     return (f"the residual is heavy-tailed: its largest 1% of samples carry {100 * share:.0f}% of its energy (4.5% "
             "for Gaussian noise; impacts, transients faster than the read-out, spikes near full scale). "
             "robust_weights='auto' (--robust-weights auto) weighs each sample by its residual's local variance: on "
-            "the MIMU board the weighted rotations repeat about 3x better where the board stayed put, and their "
-            "narrower covariance shows when it did not (compare_sessions)")
+            "the MIMU board the weighted rotations repeat to 8.9 mdeg RMS against 21.0 over the sessions where the "
+            "board stayed put, and their narrower covariance shows when it did not (compare_sessions)")
