@@ -17,6 +17,7 @@ to put them on gyro 1's clock, so gyro 2's sample taken at its own time ``t2`` h
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -394,15 +395,12 @@ class _Linearised:
         if self.tau_mid is None:
             object.__setattr__(self, "tau_mid", self.tau)
 
+    @cached_property
     def _blocks(self) -> tuple[np.ndarray, np.ndarray]:
         """``(block, used)``: the consecutive ``_STD_BLOCK_S`` block of each instant of ``x`` and the blocks holding
         one (the same for every offset: kept, and passed on by :meth:`moved`)."""
-        cached = self.__dict__.get("_block_cache")
-        if cached is None:
-            block = np.floor((self.x - self.x[0]) / _STD_BLOCK_S).astype(np.int64)
-            cached = (block, np.bincount(block) > 0)
-            object.__setattr__(self, "_block_cache", cached)
-        return cached
+        block = np.floor((self.x - self.x[0]) / _STD_BLOCK_S).astype(np.int64)
+        return block, np.bincount(block) > 0
 
     def within(self, a: float, b: float) -> "_Linearised":
         """The same terms on the instants in ``[a, b)`` (their curvature their own)."""
@@ -420,8 +418,8 @@ class _Linearised:
         w2, dw2 = spl2.values_and_slopes(q, at)
         out = _Linearised(tau, self.delta, self.x, self.y, w2, dw2, self.w2_minus, self.w2_plus, self.tau_mid,
                           self.w2 if self.w2_mid is None else self.w2_mid, half_curv, at)
-        if "_block_cache" in self.__dict__:   # the same instants: the same blocks
-            object.__setattr__(out, "_block_cache", self.__dict__["_block_cache"])
+        if "_blocks" in self.__dict__:   # the same instants: the same blocks
+            out.__dict__["_blocks"] = self._blocks
         return out
 
     def std_step(self) -> tuple[float, float, float]:
@@ -459,7 +457,7 @@ class _Linearised:
         d -= rows_times(w2c, (md.S12 @ S22p).T)
         d = rows_times(d, A.T)
         u = np.einsum("ij,ij->i", d, resid)
-        block, used = self._blocks()
+        block, used = self._blocks
         sums = np.bincount(block, weights=u)[used]
         nb = sums.size
         var_u = float(np.sum(sums**2)) * nb / max(nb - 1, 1)
@@ -766,13 +764,11 @@ def _binned_norms(t, w, ok, k_lo: int, k_hi: int, hc: float):
         np.clip(k, a - 1, b + 1, out=k)
         k -= a - 1
         okb = ok[lo:lo + _NORM_BLOCK]
-        if okb.all():   # every sample valid (the usual case): the norms as they are, the counts as integers
-            s[a:b + 1] += np.bincount(k, weights=row_norms(w[lo:lo + _NORM_BLOCK]), minlength=b - a + 3)[1:b - a + 2]
-            c[a:b + 1] += np.bincount(k, minlength=b - a + 3)[1:b - a + 2]
-            continue
-        s[a:b + 1] += np.bincount(k, weights=np.where(okb, row_norms(w[lo:lo + _NORM_BLOCK]), 0.0),
+        norms = row_norms(w[lo:lo + _NORM_BLOCK])
+        full = okb.all()    # every sample valid (the usual case): no masking pass, the counts as integers
+        s[a:b + 1] += np.bincount(k, weights=norms if full else np.where(okb, norms, 0.0),
                                   minlength=b - a + 3)[1:b - a + 2]
-        c[a:b + 1] += np.bincount(k, weights=okb, minlength=b - a + 3)[1:b - a + 2]
+        c[a:b + 1] += np.bincount(k, weights=None if full else okb, minlength=b - a + 3)[1:b - a + 2]
     inside = c > 0
     x = np.zeros(size)
     x[inside] = s[inside] / c[inside]

@@ -429,8 +429,8 @@ def gate(w1, w2, mask, cal, mom, bias, solve_on, options):
     grows = rate_dependence(g1, g2, A_ls, b_ls, sub_keep, gate_window, whole, L, order=ranks.of(sub_keep),
                             residuals=first)
     if grows is not None and not grows.is_flex:   # spikes tilt A too: is the growth still there without them?
-        clean = np.ones(g1.shape[0], bool) if keep is None else on_sub(keep).copy()
-        clean[dilate(outliers(g1, g2, A_ls, b_ls, on_sub(keep), gate_window, whole, L), o.flex_margin,
+        clean = np.ones(g1.shape[0], bool) if keep is None else sub_keep.copy()
+        clean[dilate(outliers(g1, g2, A_ls, b_ls, sub_keep, gate_window, whole, L), o.flex_margin,
                      g1.shape[0])] = False
         A_c, b_c = _subsample_A(g1, g2, clean, gate_window)
         grows = rate_dependence(g1, g2, A_c, b_c, clean, gate_window, whole,
