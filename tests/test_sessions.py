@@ -85,6 +85,50 @@ def test_compare_sessions_arrays_jointly():
     assert abs(r.deviation[4, 1, 2] - 15.0 * sigma) < 4.0 * r.deviation_std[4, 1, 2]
 
 
+def _array_sessions(rotations, turns):
+    """Array calibrations of one simulated device, one per entry of ``turns``: a dict gyro index -> the turn (rad,
+    the reference's frame) of that gyro in that session."""
+    t = np.arange(5000) / 100.0
+    cals = []
+    for seed, turn in enumerate(turns):
+        g = np.random.default_rng(seed)
+        w = HumanMotion(1.0, rng=g)(t)
+        rot = [exp(turn.get(k, np.zeros(3))) @ R for k, R in enumerate(rotations)]
+        cals.append(calibrate_array([w @ R + g.normal(0, 0.1 * DEG, w.shape) for R in rot]))
+    return cals
+
+
+def test_compare_sessions_says_which_gyros_turned_together():
+    rng = np.random.default_rng(4)
+    Rs = [np.eye(3)] + [general_rotation(rng) for _ in range(4)]
+    steady = _array_sessions(Rs, [{}] * 4)
+    sigma = np.sqrt(steady[0].covariance[6, 6])
+    bend = np.array([12.0, -6.0, 3.0]) * sigma
+    cals = steady + _array_sessions(Rs, [{2: bend, 3: bend}])            # gyros 3 and 4 turned as one
+    r = compare_sessions(cals)
+    assert r.changed.tolist() == [False] * 4 + [True]
+    assert r.moved[:4] == ((),) * 4 and r.stayed[4] == (1, 2, 5)
+    (group,) = r.moved[4]
+    assert group.gyros == (3, 4)
+    assert np.all(np.abs(group.rotation - bend) < 4.0 * group.rotation_std)
+    assert np.all(group.rotation_std < 0.8 * r.deviation_std[4, 1])       # the group's turn: both gyros' evidence
+    assert "gyros 3 and 4:" in r.summary() and "against gyros 1, 2 and 5 (which stayed)" in r.summary()
+    saved = json.loads(json.dumps(r.to_dict()))
+    assert saved["moved"][4][0]["gyros"] == [3, 4] and saved["stayed"][4] == [1, 2, 5]
+    # the reference alone turned: every other gyro's rotation moved alike, the opposite way
+    r = compare_sessions(steady + _array_sessions(Rs, [{0: bend}]))
+    assert r.changed[4] and r.stayed[4] == (2, 3, 4, 5)
+    (group,) = r.moved[4]
+    assert group.gyros == (1,) and np.all(np.abs(group.rotation - bend) < 4.0 * group.rotation_std)
+
+
+def test_compare_sessions_pairs_do_not_say_which_gyro_moved(steady):
+    sigma = np.sqrt(np.trace(steady[0].covariance[:3, :3]) / 3.0)
+    moved = _pair_sessions(1, turned=0, turn=np.array([0.0, 20.0 * sigma, 0.0]), seed=400)[0]
+    r = compare_sessions(steady + [moved])
+    assert r.changed[-1] and r.moved == () and r.stayed == ()
+
+
 def test_compare_sessions_refuses_what_is_not_one_device(steady):
     with pytest.raises(InputError, match="at least two calibrations"):
         compare_sessions(steady[:1])
@@ -132,6 +176,26 @@ def test_compare_sessions_mimu_flags_the_bent_session():
     r = compare_sessions(cals, [f"exp_{e}" for e in range(1, 10)])
     assert r.changed.tolist() == [e == 6 for e in range(1, 10)]
     assert abs(np.degrees(r.deviation[5, 0, 0]) * 1e3) > 25.0    # about x, tens of mdeg
+
+
+def test_compare_sessions_mimu_says_the_bent_site_turned():
+    """The MIMU board's IMUs 1-4 as one array, nine sessions: in exp_6 IMUs 3 and 4 (top and bottom of the board at
+    one site, different axes) turned together, ~48 mdeg about x, against IMUs 1 and 2 (the other site): a bend of
+    the board, not an error of either chip's estimate."""
+    from fusion_gyrocal.io import read_npz
+
+    d = data_folder("mimu_8imu_array") / "npz"
+    cals = []
+    for e in range(1, 10):
+        s = read_npz(d / f"exp_{e}.npz")
+        mask = np.all([g.valid for g in s[:4]], axis=0)
+        cals.append(calibrate_array([g.omega for g in s[:4]], mask=mask, rate_hz=62.5))
+    r = compare_sessions(cals, [f"exp_{e}" for e in range(1, 10)])
+    assert r.changed.tolist() == [e == 6 for e in range(1, 10)]
+    assert r.stayed[5] == (1, 2)
+    (group,) = r.moved[5]
+    assert group.gyros == (3, 4)
+    assert np.degrees(group.rotation[0]) * 1e3 < -25.0 and abs(group.rotation[0]) > 5.0 * group.rotation_std[0]
 
 
 def test_compare_sessions_refuses_a_rotation_without_covariance(steady):

@@ -19,7 +19,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         description="Test calibrations of one device from different sessions against one another: each session's "
                     "rotation(s) against the others' mean in units of their covariances (pairs: R_1_2; arrays: "
                     "every gyro's rotation to the reference, jointly). A session beyond the chi-square point "
-                    "changed; exit code 5 says so.",
+                    "changed; exit code 5 says so. For arrays, a changed session also says which gyros turned "
+                    "together and by how much, against the gyros that stayed.",
         epilog="example: gyrocal sessions monday.json tuesday.json wednesday.json")
     p.add_argument("results", nargs="+", metavar="RESULT", help="JSON results of gyrocal calibrate --output (two "
                                                                  "or more, all pairs or all arrays of the same gyros)")

@@ -20,6 +20,14 @@ not which one moved.
 
 Also the spread of the consistent sessions about their mean in units of their covariances (``z2`` per degree of
 freedom): near 1 when the covariances explain the sessions' spread, above when they understate it.
+
+Which gyros moved (arrays): a gyro ``j`` turned by ``phi_j`` against the device turns ``R_ref_k`` by ``phi_k -
+phi_ref`` (first order, the reference's frame), so a changed session's deviations say which gyros turned together.
+Gyros that share one turn are grouped greedily (:func:`_groups`: the two groups whose joining raises the
+least-squares chi-square the least join, while the rise stays below the chi-square point of ``alpha`` for 3 degrees
+of freedom); the largest group (with the reference on a tie) is the device, which stayed, and every other group's
+turn is given against it with its covariance. Chips on one site of a board that bends move as one group; a reference
+that moved alone shows as every other gyro in one group turned the opposite way, and is reported so.
 """
 
 from __future__ import annotations
@@ -36,6 +44,37 @@ from ..lie import exp, log
 MAX_SESSION_ANGLE_DEG = 15.0
 #: default family-wise false-alarm rate of the change test (over all sessions compared)
 ALPHA = 0.01
+
+
+@dataclass(frozen=True)
+class MovedGroup:
+    """Gyros of an array that turned together in a changed session, against the gyros that stayed
+    (:func:`compare_sessions`).
+
+    Attributes
+    ----------
+    gyros : tuple of int
+        The gyros (1-based, as in ``R_1_k``).
+    rotation : ndarray (3,)
+        Their common turn against the gyros that stayed (rad, rotation vector in the reference's frame: a gyro of the
+        group has ``R_ref_k = Exp(rotation) R_ref_k,mean`` when the reference stayed).
+    rotation_std : ndarray (3,)
+        Its 1-sigma per axis.
+    """
+
+    gyros: tuple
+    rotation: np.ndarray
+    rotation_std: np.ndarray
+
+    def __post_init__(self):
+        for name in ("rotation", "rotation_std"):
+            a = np.array(getattr(self, name), dtype=float)
+            a.flags.writeable = False
+            object.__setattr__(self, name, a)
+
+    def to_dict(self) -> dict:
+        return {"gyros": list(self.gyros), "rotation": self.rotation.tolist(),
+                "rotation_std": self.rotation_std.tolist()}
 
 
 @dataclass(frozen=True)
@@ -73,6 +112,11 @@ class SessionComparison:
         Its degrees of freedom, ``3 m (n_consistent - 1)``.
     mean_rotation : ndarray (m, 3, 3)
         The information-weighted mean of the consistent sessions' rotations.
+    moved : tuple (n,) of tuple of MovedGroup
+        Per session, the groups of gyros that turned against those that stayed (arrays, changed sessions only; empty
+        otherwise: a pair's two gyros cannot say which of them moved).
+    stayed : tuple (n,) of tuple of int
+        Per session, the gyros that stayed (the largest group; empty where ``moved`` was not asked).
     notes : tuple of str
     """
 
@@ -89,6 +133,8 @@ class SessionComparison:
     spread: float
     spread_dof: int
     mean_rotation: np.ndarray
+    moved: tuple = ()
+    stayed: tuple = ()
     notes: tuple = ()
 
     def __post_init__(self):
@@ -103,6 +149,8 @@ class SessionComparison:
         for name in self.__dataclass_fields__:
             v = getattr(self, name)
             out[name] = v.tolist() if isinstance(v, np.ndarray) else list(v) if isinstance(v, tuple) else v
+        out["moved"] = [[g.to_dict() for g in groups] for groups in self.moved]
+        out["stayed"] = [list(g) for g in self.stayed]
         return out
 
     def summary(self) -> str:
@@ -120,10 +168,21 @@ class SessionComparison:
                 lines.append(f"{name:>{width}}  {rows[0]}  {verdict}")
             else:   # an array: the verdict, then each rotation's deviation
                 lines += [f"{name:>{width}}  {verdict}"] + [f"{'':>{width}}    {row}" for row in rows]
+            if self.moved and self.moved[e]:
+                lines.append(f"{'':>{width}}    against gyros {_numbers(self.stayed[e])} (which stayed), turned together:")
+                lines += [f"{'':>{width}}      gyro{'s' if len(g.gyros) > 1 else ''} {_numbers(g.gyros)}: "
+                          f"[{', '.join(f'{v:7.1f}' for v in g.rotation * mdeg)}] +- "
+                          f"[{', '.join(f'{v:5.1f}' for v in g.rotation_std * mdeg)}] mdeg" for g in self.moved[e]]
         lines.append(f"consistent sessions' spread: z2 per dof {self.spread:.2f} ({self.spread_dof} dof; 1 when their "
                      "covariances explain it)")
         lines += list(self.notes)
         return "\n".join(lines)
+
+
+def _numbers(gyros) -> str:
+    """Gyro numbers as text: ``1, 2 and 5``."""
+    g = [str(k) for k in gyros]
+    return g[0] if len(g) == 1 else f"{', '.join(g[:-1])} and {g[-1]}"
 
 
 def _rotations_of(cal) -> tuple[list, np.ndarray, tuple]:
@@ -182,6 +241,60 @@ def _tested(d, Ps, infos, members, e):
     m, M = _mean(d, infos, others)
     diff, C = d[e] - m, Ps[e] + M
     return diff, C, float(diff @ np.linalg.solve(C, diff))
+
+
+def _gyro_numbers(labels) -> tuple[int, list]:
+    """``(reference, others)``: the 1-based gyro numbers of an array's labels ``R_ref_k``."""
+    pairs = [tuple(int(v) for v in lab[2:].split("_")) for lab in labels]
+    return pairs[0][0], [k for _, k in pairs]
+
+
+def _group_fit(d, info, others, groups, ref):
+    """Least squares of the deviations ``d`` (3m,) (information ``info``) of the gyros ``others`` (one per 3 rows)
+    with one turn per group of ``groups`` (sets of gyro numbers), the reference's group held still:
+    ``(chi2, turns (g, 3) of the groups in order (zero for the reference's), their covariance (3g, 3g))``."""
+    free = [j for j, g in enumerate(groups) if ref not in g]
+    H = np.zeros((d.size, 3 * len(free)))
+    for i, k in enumerate(others):
+        for c, j in enumerate(free):
+            if k in groups[j]:
+                H[3 * i:3 * i + 3, 3 * c:3 * c + 3] = np.eye(3)
+    F = H.T @ info @ H
+    cov_free = np.linalg.inv(F) if free else np.zeros((0, 0))
+    x = cov_free @ (H.T @ info @ d) if free else np.zeros(0)
+    r = d - H @ x
+    turns, cov = np.zeros((len(groups), 3)), np.zeros((3 * len(groups), 3 * len(groups)))
+    idx = np.concatenate([np.arange(3 * j, 3 * j + 3) for j in free]) if free else np.zeros(0, int)
+    turns[free] = x.reshape(-1, 3)
+    cov[np.ix_(idx, idx)] = cov_free
+    return float(r @ info @ r), turns, cov
+
+
+def _groups(d, C, labels, limit3: float) -> tuple[tuple, tuple]:
+    """``(moved, stayed)`` of an array session's deviations ``d`` (3m,) with covariance ``C``: the gyros grouped by
+    a common turn (the module docstring), each group but the largest as a :class:`MovedGroup` against it."""
+    ref, others = _gyro_numbers(labels)
+    info = np.linalg.inv(0.5 * (C + C.T))
+    groups = [{ref}] + [{k} for k in others]
+    chi2 = 0.0
+    while len(groups) > 1:
+        trials = []
+        for a in range(len(groups)):
+            for b in range(a + 1, len(groups)):
+                joined = [g for j, g in enumerate(groups) if j not in (a, b)] + [groups[a] | groups[b]]
+                trials.append((_group_fit(d, info, others, joined, ref)[0], joined))
+        best, joined = min(trials, key=lambda t: t[0])
+        if best - chi2 > limit3:
+            break
+        groups, chi2 = joined, best
+    groups.sort(key=lambda g: (-len(g), ref not in g, min(g)))     # the device first: the largest, the reference's
+    _, turns, cov = _group_fit(d, info, others, groups, ref)
+    g = len(groups)
+    T = np.kron(np.eye(g) - np.outer(np.ones(g), np.eye(g)[0]), np.eye(3))     # each turn less the device's
+    turns, cov = (T @ turns.ravel()).reshape(-1, 3), T @ cov @ T.T
+    moved = tuple(MovedGroup(tuple(sorted(g)), turns[j], np.sqrt(np.clip(np.diag(cov)[3 * j:3 * j + 3], 0.0, None)))
+                  for j, g in enumerate(groups) if j > 0)
+    return moved, tuple(sorted(groups[0]))
 
 
 def compare_sessions(calibrations, names=None, *, alpha: float = ALPHA) -> SessionComparison:
@@ -255,6 +368,10 @@ def compare_sessions(calibrations, names=None, *, alpha: float = ALPHA) -> Sessi
     mean, _ = _mean(d, infos, members)
     spread_dof = dof * (len(members) - 1)
     spread = float(sum((d[e] - mean) @ infos[e] @ (d[e] - mean) for e in members)) / spread_dof
+    moved, stayed = [()] * n, [()] * n
+    if m > 1:                   # an array: which gyros moved, in each changed session
+        for e in np.flatnonzero(changed):
+            moved[e], stayed[e] = _groups(dev[e], tested[e][1], labels, _chi2_isf(alpha, 3))
     notes = []
     if n == 2 and changed.any():
         notes.append("two sessions: they differ beyond their covariances, but which one moved takes a third session")
@@ -265,4 +382,4 @@ def compare_sessions(calibrations, names=None, *, alpha: float = ALPHA) -> Sessi
         names=names, rotations=labels, deviation=dev.reshape(n, m, 3), deviation_std=std.reshape(n, m, 3), z2=z2,
         dof=dof, p_value=_chi2_sf(z2, dof), limit=limit, alpha=float(alpha), changed=changed, spread=spread,
         spread_dof=spread_dof, mean_rotation=np.stack([exp(mean[3 * k:3 * k + 3]) @ B for k, B in enumerate(base)]),
-        notes=tuple(notes))
+        moved=tuple(moved) if m > 1 else (), stayed=tuple(stayed) if m > 1 else (), notes=tuple(notes))
