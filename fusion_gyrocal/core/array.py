@@ -1007,15 +1007,15 @@ def _with_weights(cal: ArrayCalibration, rates, o: Options, mask, rate_hz, sourc
         return cal
     ref = cal.reference
     noise = np.broadcast_to(np.asarray(o.noise_std, dtype=float), (cal.n_gyros,))
-    views = {j: cal.pair(ref, j) for j in range(cal.n_gyros) if j != ref}
+    maps = {j: cal.pair_map(ref, j) for j in range(cal.n_gyros) if j != ref}
     samples = TAIL_SAMPLES if o.robust_weights == "auto" else HINT_SAMPLES
-    share = max(residual_tail_share(rates[ref], rates[j], v.A, v.bias, mask, samples) for j, v in views.items())
+    share = max(residual_tail_share(rates[ref], rates[j], A, b, mask, samples) for j, (A, b) in maps.items())
     if share < TAIL_SHARE:
         return cal
     if o.robust_weights == "off":       # what the weights would do, in a note
         return dataclasses.replace(cal, notes=cal.notes + (hint(share),))
-    weights = np.minimum.reduce([residual_weights(rates[ref], rates[j], v.A, v.bias, (noise[ref], noise[j]), mask)
-                                 for j, v in views.items()])
+    weights = np.minimum.reduce([residual_weights(rates[ref], rates[j], A, b, (noise[ref], noise[j]), mask)
+                                 for j, (A, b) in maps.items()])
     moments = ArrayMoments.from_samples(rates, mask=mask, weights=weights)
     again = _solve_samples(rates, moments, o, ref, mask, rate_hz, source, weights)
     before, after = _rotation_sd(cal), _rotation_sd(again)

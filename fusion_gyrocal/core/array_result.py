@@ -347,6 +347,14 @@ class ArrayCalibration:
         C = self.covariance
         return float(r), ratio_std(r, C[ka, ka], C[kb, kb], C[ka, kb], self.scale[i, axis_i], self.scale[j, axis_j])
 
+    def pair_map(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(A_ij, bias)`` of :meth:`pair`, ``omega_i ~ A_ij omega_j + bias`` (Eq. 12), without the view's
+        covariance (what a residual of the pair needs)."""
+        m = self.moments.pair(i, j)  # checks the indices
+        full = "full" in (self.linear_map[i], self.linear_map[j])
+        A = _pair_A(self.R_ref_k, self.scale, self.cross_axis_terms if full else None, self.reference, i, j)
+        return A, m.mean_1 - A @ m.mean_2
+
     def pair(self, i: int, j: int) -> PairCalibration:
         """The joint estimate seen as the calibration of the pair (gyro i as "gyro 1", gyro j as "gyro 2").
 
@@ -362,7 +370,7 @@ class ArrayCalibration:
         scale factors: infinite variance, as in :class:`PairCalibration`); ``skew_rotation_covariance`` is the
         pair's part of the joint one.
         """
-        from .array import _G_of, _retract
+        from .array import _retract
 
         m = self.moments.pair(i, j)  # checks the indices
         n, ref = self.n_gyros, self.reference
@@ -373,8 +381,7 @@ class ArrayCalibration:
             """``[dtheta, log s_1, log s_2 (, k)]`` of the pair after the joint step ``delta``, and its state."""
             R, s = _retract(R0, s0, delta)
             k = None if k0 is None else k0 + delta[6 * n:].reshape(n, 3)
-            H = [(s[g][:, None] * R[g].T) @ (np.eye(3) if k is None else _G_of(s[ref], k[g])) for g in (i, j)]
-            A = H[0] @ np.linalg.inv(H[1])
+            A = _pair_A(R, s, k, ref, i, j)
             Rp, s1, kp = pair_convention(A, s[i], s[j], R[i].T @ R[j]) if full else (R[i].T @ R[j], s[i], None)
             return Rp, s1, s[j], kp, A
 
@@ -551,6 +558,15 @@ class ArrayCalibration:
             return cls(**kw)
         except InputError as exc:
             raise FormatError(f"array calibration: {exc}") from None
+
+
+def _pair_A(R, s, k, ref: int, i: int, j: int) -> np.ndarray:
+    """``A_ij = H_i H_j^-1`` of the joint model's rotations ``R``, scale factors ``s`` and cross-axis terms ``k``
+    (None: none) (:mod:`~fusion_gyrocal.core.array`)."""
+    from .array import _G_of
+
+    H = [(s[g][:, None] * R[g].T) @ (np.eye(3) if k is None else _G_of(s[ref], k[g])) for g in (i, j)]
+    return H[0] @ np.linalg.inv(H[1])
 
 
 def _log_parameter_covariance(cal: ArrayCalibration, full: bool = False) -> np.ndarray:
