@@ -176,15 +176,6 @@ def _design(t, tones, harmonics, phases=()) -> np.ndarray:
     return _rows(t, tones, harmonics, phases).T
 
 
-def _fit(t, ru, uu, tones, harmonics, phases=()):
-    """Least squares of ``sum |r - u delta|^2`` over the delay's coefficients: ``(coefficients, explained energy)``."""
-    X = _design(t, tones, harmonics, phases)
-    G = (X * uu[:, None]).T @ X
-    h = X.T @ ru
-    c = np.linalg.lstsq(G, h, rcond=None)[0]
-    return c, float(h @ c)
-
-
 def _high_passed_gram(X, r, u, ok, window: int):
     """``(G, h, energy)`` of the least squares of the residual ``r`` (N, 3) on the delay's columns ``X`` (N, p),
     both high-passed: the residual less its mean over blocks of ``window`` samples, and each column's residual
@@ -609,9 +600,10 @@ def estimate_array_timing(t, omegas, maps, biases, mask=None, *, reference: int 
         own[j], own_phases[j] = tones, [np.nan] * len(tones)
         for i in range(len(tones)):       # a chip's own tone as one sawtooth where that explains at least its harmonics
             both, phases = tones + ref_tones, own_phases[j] + [np.nan] * len(ref_tones)
-            harmonic = _fit(tt, s.ru, s.uu, both, harmonics, phases)[1]
+            by_harmonics = _PairSeries(s.ru, s.uu, s.energy, s.sigma2)
+            by_harmonics.fix(_rows(tt, both, harmonics, phases))
             f, phase, saw = _sawtooth(tt, s.ru, s.uu, both, harmonics, phases, i, 1.0 / (cells * dt))
-            if saw >= harmonic:
+            if saw >= by_harmonics.explained:
                 tones[i], own_phases[j][i] = f, phase
         if tones:
             constant[j] = True
