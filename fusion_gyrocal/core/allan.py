@@ -103,22 +103,24 @@ def allan_points(y: np.ndarray, rate_hz: float, stretches=None) -> AllanPoints:
 
 def _batch_scatter(stationary: np.ndarray, batches: list) -> np.ndarray:
     """The measured relative variance of each point (T, 4) from its batches' Allan variances (per tau a (3, K)
-    array, or None where no batches fit: the excess of the two longest taus that fit carried on); NaN where the
-    batches show no more than the ``stationary`` relative variance significantly."""
-    T = stationary.shape[0]
-    scatter = np.full((T, 4), np.nan)
-    excess, before = np.full(4, np.nan), np.full(4, np.nan)
-    for i, b in enumerate(batches):
-        if b is None:
-            carry = np.where(np.isfinite(before), excess, np.nan)
+    array, K the same at every tau, or None where no batches fit: the excess of the two longest taus before it that
+    fit carried on); NaN where the batches show no more than the ``stationary`` relative variance significantly."""
+    scatter = np.full((stationary.shape[0], 4), np.nan)
+    have = [i for i, b in enumerate(batches) if b is not None]
+    excess = np.full((0, 4), np.nan)
+    if have:   # every tau with batches at once (the same reductions, along each row)
+        b = np.stack([batches[i] for i in have])
+        v = np.concatenate([b, b.mean(axis=1)[:, None]], axis=1)          # (taus, 4, K)
+        K = v.shape[2]
+        rel = v.var(axis=2, ddof=1) / K / np.maximum(v.mean(axis=2), 1e-300) ** 2
+        sig = rel > stationary[have] * (1.0 + 3.0 * np.sqrt(2.0 / (K - 1)))
+        scatter[have] = np.where(sig, rel, np.nan)
+        excess = np.where(sig, rel - stationary[have], np.nan)
+    for i in (i for i, b in enumerate(batches) if b is None):
+        prior = excess[:np.searchsorted(have, i)]        # the excess of the taus before it that fit
+        if len(prior) >= 2:
+            carry = np.where(np.isfinite(prior[-2]), prior[-1], np.nan)
             scatter[i] = np.where(np.isfinite(carry), stationary[i] + carry, np.nan)
-            continue
-        v = np.vstack([b, b.mean(axis=0)[None]])          # (4, K)
-        K = v.shape[1]
-        rel = v.var(axis=1, ddof=1) / K / np.maximum(v.mean(axis=1), 1e-300) ** 2
-        sig = rel > stationary[i] * (1.0 + 3.0 * np.sqrt(2.0 / (K - 1)))
-        scatter[i] = np.where(sig, rel, np.nan)
-        before, excess = excess, np.where(sig, rel - stationary[i], np.nan)
     return scatter
 
 
@@ -183,23 +185,30 @@ def second_differences(ys, rate_hz: float, pairs=(), batches: bool = False):
     out = [np.empty((ms.size,) + ys[0].shape[:-2] + (3,)) for _ in range(len(ys) + len(pairs))] + [np.empty(ms.size)]
     sub_n, sub_m = np.empty(ms.size), np.empty(ms.size)
     batch = []
-    b = 1
-    work = [(np.empty_like(x), np.empty_like(x)) for x in blocks]   # each stream's moving sums and differences:
-    for i, m in enumerate(ms):                                      # two buffers for all taus, no fresh arrays
-        while b < max(1, int(m) // 4):      # sums of 2b samples from those of b
-            k = blocks[0].shape[-1] // 2
-            blocks = [x[..., 0:2 * k:2] + x[..., 1:2 * k:2] for x in blocks]
-            b *= 2
-        mm = int(m) // b
+    b, length = 1, n     # samples per block, blocks in the phase
+    # each stream's moving sums of the last tau, and two buffers for all taus (no fresh arrays): a tau's sums go into
+    # the one its predecessor's differences are in, its differences into the other
+    sums = list(blocks)
+    work = [[np.empty_like(x), np.empty_like(x)] for x in blocks]
+    for i, m in enumerate(ms):
+        mm = min(int(m), 4)      # moving sums of mm blocks of b samples (mm is 1, 2 or 4)
+        if m > 4:
+            b, length = 2 * b, length // 2
         ds = []
-        for x, pair in zip(blocks, work):
-            s, width, free = x, 1, 0
-            while width < mm:                    # moving sums of mm blocks (mm is 1, 2 or 4)
-                s = np.add(s[..., :-width], s[..., width:], out=pair[free][..., :s.shape[-1] - width])
-                width *= 2
-                free = 1 - free
-            # (x_{i+2m} - 2 x_{i+m} + x_i) * rate_hz, into the buffer s is not in
-            ds.append(np.subtract(s[..., mm:], s[..., :-mm], out=pair[free][..., :s.shape[-1] - mm]))
+        for j, x in enumerate(blocks):
+            work[j].reverse()
+            into, diff = work[j]
+            s = sums[j]
+            if m == 2:
+                s = np.add(x[..., :-1], x[..., 1:], out=into[..., :x.shape[-1] - 1])
+            elif m >= 4:
+                # sums of 2 blocks: at m = 4 those of m = 2; beyond, every other sum of 4 blocks of the last tau
+                # (the same additions as halving the blocks and summing them in pairs)
+                two = s if m == 4 else s[..., ::2]
+                s = np.add(two[..., :-2], two[..., 2:], out=into[..., :two.shape[-1] - 2])
+            sums[j] = s
+            # (x_{i+2m} - 2 x_{i+m} + x_i) * rate_hz
+            ds.append(np.subtract(s[..., mm:], s[..., :-mm], out=diff[..., :s.shape[-1] - mm]))
         for j, d in enumerate(ds):
             out[j][i] = np.einsum("...k,...k->...", d, d)
         if batches:   # BATCHES consecutive batches (elements of d are b samples apart), each >= BATCH_TAUS 2 tau
@@ -209,7 +218,7 @@ def second_differences(ys, rate_hz: float, pairs=(), batches: bool = False):
         for j, (p, q) in enumerate(pairs):
             out[len(ys) + j][i] = np.einsum("...k,...k->...", ds[p], ds[q])
         out[-1][i] = 2.0 * float(m) ** 2 * ds[0].shape[-1]
-        sub_n[i], sub_m[i] = blocks[0].shape[-1] + 1, mm
+        sub_n[i], sub_m[i] = length + 1, mm
     if batches:
         return ms / rate_hz, out, sub_n, sub_m, batch
     return ms / rate_hz, out, sub_n, sub_m
