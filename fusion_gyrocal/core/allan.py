@@ -21,6 +21,7 @@ residual and to each gyro's steady stretches, :mod:`~fusion_gyrocal.core.static_
 
 from __future__ import annotations
 
+from functools import partial
 from typing import NamedTuple
 
 import numpy as np
@@ -369,12 +370,16 @@ def _wls(taus, avar, edf, terms, tc=None, tone=None, tau0=None, scatter=None, st
     return _wls_many(taus, avar, edf, [(terms, tc, tone, tb)], tau0, scatter, start, iterations)[0]
 
 
-def _wls_many(taus, avar, edf, jobs, tau0=None, scatter=None, start=None, iterations: int = 5) -> list:
+def _wls_many(taus, avar, edf, jobs, tau0=None, scatter=None, start=None, iterations: int = 5,
+              covariance: bool = True) -> list:
     """:func:`_wls` of each of ``jobs`` (``(terms, tc, tone, tb)``): the fits with the same number of terms run in
     lockstep, each step's small matrix operations (weights, Cholesky factors, whitening) one stacked call for all of
     them, one factor for all while no term is kept (the first pass: every job weighs its points as ``start``); only
-    the non-negative least squares and the covariance of the kept terms are per fit. Each returns
-    ``(coef, cov, chi2, pred, worst)``, in the order of ``jobs``."""
+    the non-negative least squares and the covariance of the kept terms are per fit. A fit whose coefficients and
+    model repeat those of its pass before is at its fixed point (every further pass gives the same numbers) and
+    leaves the lockstep. Each returns ``(coef, cov, chi2, pred, worst)``, in the order of ``jobs``; without
+    ``covariance``, ``cov`` is a function that computes it (the candidates of a selection, where only the one kept
+    needs it)."""
     from scipy.optimize import nnls
 
     if not jobs:
@@ -385,7 +390,7 @@ def _wls_many(taus, avar, edf, jobs, tau0=None, scatter=None, start=None, iterat
         for w in widths:
             idx = [i for i, (terms, *_) in enumerate(jobs) if len(terms) == w]
             for i, fit in zip(idx, _wls_many(taus, avar, edf, [jobs[i] for i in idx], tau0, scatter, start,
-                                             iterations)):
+                                             iterations, covariance)):
                 out[i] = fit
         return out
     K, T = len(jobs), taus.size
@@ -398,24 +403,30 @@ def _wls_many(taus, avar, edf, jobs, tau0=None, scatter=None, start=None, iterat
     coef = np.zeros((K, len(TERMS)))
     extra = np.zeros(T) if scatter is None else np.nan_to_num(np.asarray(scatter, float), nan=0.0)
     rows = np.arange(T)
+    L, C, rel = np.empty((K, T, T)), np.empty((K, T, T)), np.empty((K, T))    # each fit's of its last pass
+    live = np.arange(K)     # the fits not yet at their fixed point
     for _ in range(iterations):
-        parts = X * np.where(coef > 0, coef, 0.0)[:, None, :]
-        dom = np.where(coef.any(axis=1)[:, None], TERM_NOISE[np.argmax(parts, axis=2)], 0)
-        rel = np.maximum(2.0 / edf[rows[None, :], dom], extra)
-        sd = np.maximum(pred, 1e-300) * np.sqrt(rel)
+        X_, c, p = X[live], coef[live], pred[live]
+        parts = X_ * np.where(c > 0, c, 0.0)[:, None, :]
+        dom = np.where(c.any(axis=1)[:, None], TERM_NOISE[np.argmax(parts, axis=2)], 0)
+        rel[live] = r_ = np.maximum(2.0 / edf[rows[None, :], dom], extra)
+        sd = np.maximum(p, 1e-300) * np.sqrt(r_)
         rho = np.minimum(NEIGHBOUR_CORRELATION[dom[:, :-1]], NEIGHBOUR_CORRELATION[dom[:, 1:]])
-        logc = np.concatenate([np.zeros((K, 1)), np.cumsum(np.log(rho), axis=1)], axis=1)
-        C = np.exp(-np.abs(logc[:, :, None] - logc[:, None, :]))
-        if not coef.any():    # no term kept yet: every job weighs its points as the start, one factor for all
-            C = C[:1]
-            L = np.broadcast_to(np.linalg.cholesky(C[0] * np.outer(sd[0], sd[0])), (K, T, T))
+        logc = np.concatenate([np.zeros((live.size, 1)), np.cumsum(np.log(rho), axis=1)], axis=1)
+        C[live] = C_ = np.exp(-np.abs(logc[:, :, None] - logc[:, None, :]))
+        if not c.any():    # no term kept yet: every job weighs its points as the start, one factor for all
+            L[live] = L_ = np.broadcast_to(np.linalg.cholesky(C_[0] * np.outer(sd[0], sd[0])), (live.size, T, T))
         else:
-            L = np.linalg.cholesky(C * (sd[:, :, None] * sd[:, None, :]))
-        Jy = np.linalg.solve(L, Xy)
-        coef = np.zeros((K, len(TERMS)))
-        for k in range(K):
-            coef[k, cols[k]] = nnls(Jy[k, :, :-1], Jy[k, :, -1])[0] / scale[k]
-        pred = np.matmul(X, coef[:, :, None])[:, :, 0]
+            L[live] = L_ = np.linalg.cholesky(C_ * (sd[:, :, None] * sd[:, None, :]))
+        Jy = np.linalg.solve(L_, Xy[live])
+        c_new = np.zeros((live.size, len(TERMS)))
+        for i, k in enumerate(live):
+            c_new[i, cols[k]] = nnls(Jy[i, :, :-1], Jy[i, :, -1])[0] / scale[k]
+        p_new = np.matmul(X_, c_new[:, :, None])[:, :, 0]
+        coef[live], pred[live] = c_new, p_new
+        live = live[~((c_new == c).all(axis=1) & (p_new == p).all(axis=1))]
+        if not live.size:
+            break
     if scatter is None:
         res = np.linalg.solve(L, (avar[None] - pred)[:, :, None])[:, :, 0]
     else:
@@ -428,15 +439,22 @@ def _wls_many(taus, avar, edf, jobs, tau0=None, scatter=None, start=None, iterat
     worst = np.exp(np.max(np.maximum(ratio - np.sqrt(rel), 0.0), axis=1))
     out = []
     for k, (terms, *_) in enumerate(jobs):
-        cov = np.full((len(TERMS),) * 2, np.nan)
-        act = [t for t in terms if coef[k, t] > 0]
-        if act:
-            J = np.linalg.solve(L[k], X[k][:, act])
-            red = max(1.0, float(chi2[k]) / max(T - len(act), 1))
-            cov = np.zeros((len(TERMS),) * 2)
-            cov[np.ix_(act, act)] = np.linalg.pinv(J.T @ J) * red
-        out.append((coef[k], cov, float(chi2[k]), pred[k], float(worst[k])))
+        cov = partial(_covariance, L[k], X[k], terms, coef[k], float(chi2[k]))
+        out.append((coef[k], cov() if covariance else cov, float(chi2[k]), pred[k], float(worst[k])))
     return out
+
+
+def _covariance(L, X, terms, coef, chi2: float) -> np.ndarray:
+    """The covariance of a fit's kept terms (:func:`_wls_many`): the inverse of the whitened design's normal matrix
+    (``L`` the whitening factor), scaled by the reduced chi-square where above 1; NaN without a kept term."""
+    act = [t for t in terms if coef[t] > 0]
+    if not act:
+        return np.full((len(TERMS),) * 2, np.nan)
+    J = np.linalg.solve(L, X[:, act])
+    red = max(1.0, chi2 / max(X.shape[0] - len(act), 1))
+    cov = np.zeros((len(TERMS),) * 2)
+    cov[np.ix_(act, act)] = np.linalg.pinv(J.T @ J) * red
+    return cov
 
 
 #: the tone term's candidate centre frequencies (fractions of the sample rate) and pole radii
@@ -477,9 +495,9 @@ def _best_addition(t, a, e, tau0, scatter, terms, par, best, cands):
     jobs = [(terms + list(add), p[FILTERED], p[TONE], p[BOUNDED]) for (add, _), p in zip(cands, params)]
     keep = range(len(cands))
     if len(cands) > SCREENED:   # many parameters of a scanned term: one pass each with the current model's weights,
-        drops = best[2] - np.array([f[2] for f in _wls_many(t, a, e, jobs, tau0, scatter, best[3], 1)])
+        drops = best[2] - np.array([f[2] for f in _wls_many(t, a, e, jobs, tau0, scatter, best[3], 1, False)])
         keep = np.argsort(-drops, kind="stable")[:SCREENED]     # then the full fit of the most promising
-    fits = _wls_many(t, a, e, [jobs[k] for k in keep], tau0, scatter)
+    fits = _wls_many(t, a, e, [jobs[k] for k in keep], tau0, scatter, covariance=False)
     trials = [(best[2] - fit[2], cands[k][0], fit, params[k]) for k, fit in zip(keep, fits)]
     look = {k: 2.0 * np.log(max(sum(1 for add, _ in cands if k in add), 1)) for k in SCANNED}   # all tried
     trials.sort(key=lambda tr: tr[0] - sum(look.get(k, 0.0) for k in tr[1]), reverse=True)
@@ -494,7 +512,7 @@ def _best_addition(t, a, e, tau0, scatter, terms, par, best, cands):
                   if term in (QUANTISATION, FILTERED, TONE, BOUNDED)]   # a noise kind, not a wrinkle: a material share
         if shares and min(shares) < MATERIAL_SHARE:
             continue
-        return terms + list(add), fit, p
+        return terms + list(add), (fit[0], fit[1](), *fit[2:]), p
     return None
 
 
