@@ -438,15 +438,18 @@ class _Windows:
     length: int
 
 
-_ROW_BLOCK = 1024   # rows of an (N, 3) array _minus_row lays side by side: one (3072,) row of the vector tiled
+_ROW_BLOCK = 1024   # rows of an (N, 3) array minus_row lays side by side: one (3072,) row of the vector tiled
 
 
-def _minus_row(x: np.ndarray, v: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """``x - v`` of a C-contiguous (N, k) float64 array and a (k,) vector, equal to it bit for bit (the same
-    subtraction of each element), into ``out`` (may be ``x``). numpy broadcasts a (k,) vector along short rows
-    one row at a time (0.5 ms for 64k rows of 3); :data:`_ROW_BLOCK` rows laid side by side against the vector
-    tiled as often are one contiguous subtraction (0.1 ms)."""
-    out = np.empty_like(x) if out is None else out
+def minus_row(x: np.ndarray, v: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """``x - v`` of an (N, k) float64 array and a (k,) vector, equal to it bit for bit (the same subtraction of
+    each element), into ``out`` (C-contiguous; may be ``x``). numpy broadcasts a (k,) vector along short rows one
+    row at a time (0.5 ms for 64k rows of 3); :data:`_ROW_BLOCK` rows of a C-contiguous ``x`` laid side by side
+    against the vector tiled as often are one contiguous subtraction (0.1 ms). Another layout is numpy's own
+    subtraction (its result in the layout numpy gives it). Also :func:`~fusion_gyrocal.units.rate_unit_evidence`'s."""
+    if not x.flags.c_contiguous:
+        return x - v if out is None else np.subtract(x, v, out=out)
+    out = np.empty(x.shape) if out is None else out
     head = x.shape[0] // _ROW_BLOCK * _ROW_BLOCK
     width = _ROW_BLOCK * x.shape[1]
     np.subtract(x[:head].reshape(-1, width), np.tile(v, _ROW_BLOCK), out=out[:head].reshape(-1, width))
@@ -777,7 +780,7 @@ def _identify(w1, w2, A, bias, rate_hz, mask, window_s, stride: float = 1.0,
         w1, w2 = np.where(valid[:, None], w1, 0.0), np.where(valid[:, None], w2, 0.0)
     aw2 = rows_times(w2, A.T)
     r = w1 - aw2
-    _minus_row(r, bias, out=r)
+    minus_row(r, bias, out=r)
     if not everything:
         r[~valid] = 0.0
     w = max(8, int(round(window_s * rate_hz)))
@@ -1082,7 +1085,7 @@ def _within_residual(r, use, a: float, fit: _AllanFit, levels, sources: dict, no
     (s1, s2), sd, dens_sq = levels
     x = r if use is None or use.all() else r[use]
     if x.size:   # the mean square about the mean per axis (numpy reduces an (N, 3) array down its rows slowly)
-        d = _minus_row(x, (np.ones(x.shape[0]) @ x) / x.shape[0])
+        d = minus_row(x, (np.ones(x.shape[0]) @ x) / x.shape[0])
         ms = float(np.einsum("ij,ij->", d, d) / d.size)
     else:
         ms = 0.0
