@@ -1081,11 +1081,12 @@ def _within_residual(r, use, a: float, fit: _AllanFit, levels, sources: dict, no
     by more than :data:`CONTRADICT` (the residual holds the noise and more), unless the residual's fit has the
     filtered term (low-pass noise: correlated samples spread less than the white level the motion sees, said in
     a note). Beyond it both gyros' levels are scaled down to the residual's and ``sources["noise"]`` says so.
-    Returns ``(noise_std, noise_sd, densities^2)``."""
+    Returns ``(noise_std, noise_sd, densities^2)``; ``r``, its caller's last use, is centred in place (no fresh
+    pages for a copy)."""
     (s1, s2), sd, dens_sq = levels
     x = r if use is None or use.all() else r[use]
     if x.size:   # the mean square about the mean per axis (numpy reduces an (N, 3) array down its rows slowly)
-        d = minus_row(x, (np.ones(x.shape[0]) @ x) / x.shape[0])
+        d = minus_row(x, (np.ones(x.shape[0]) @ x) / x.shape[0], out=x)
         ms = float(np.einsum("ij,ij->", d, d) / d.size)
     else:
         ms = 0.0
