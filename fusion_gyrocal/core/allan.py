@@ -298,11 +298,27 @@ def design(taus, tc: float | None = None, tone: tuple | None = None, tau0: float
     """The columns of :data:`TERMS` at ``taus``: ``1/tau``, ``2 ln 2 / pi``, ``tau / 3``, ``3 / tau^2``,
     :func:`filtered_shape` (zero without a time constant), :func:`tone_shape` (zero without ``tone``, its
     ``(freq_hz, rho)``, and the sample period ``tau0``) and :func:`bounded_shape` (zero without ``tb``)."""
+    return _designs(taus, [(tc, tone, tb)], tau0)[0]
+
+
+def _designs(taus, params, tau0: float | None = None) -> np.ndarray:
+    """:func:`design` at each of ``params`` (``(tc, tone, tb)``), stacked (K, T, terms): the fixed columns and each
+    scanned term's column at each of its parameters computed once."""
     taus = np.asarray(taus, float)
-    f = filtered_shape(taus, tc) if tc else np.zeros_like(taus)
-    k = tone_shape(taus, tau0, *tone) if tone and tone[1] > 0 and tau0 else np.zeros_like(taus)
-    h = bounded_shape(taus, tb) if tb else np.zeros_like(taus)
-    return np.column_stack([1.0 / taus, np.full_like(taus, FLICKER), taus / 3.0, 3.0 / taus ** 2, f, k, h])
+    fixed = [1.0 / taus, np.full_like(taus, FLICKER), taus / 3.0, 3.0 / taus ** 2]
+    X = np.zeros((len(params), taus.size, len(TERMS)))
+    X[:, :, :len(fixed)] = np.column_stack(fixed)
+    shapes = {(FILTERED, None): None, (TONE, None): None, (BOUNDED, None): None}   # no parameter: a zero column
+    for k, (tc, tone, tb) in enumerate(params):
+        for term, key, shape in ((FILTERED, tc or None, lambda: filtered_shape(taus, tc)),
+                                 (TONE, tone if tone and tone[1] > 0 and tau0 else None,
+                                  lambda: tone_shape(taus, tau0, *tone)),
+                                 (BOUNDED, tb or None, lambda: bounded_shape(taus, tb))):
+            if (term, key) not in shapes:
+                shapes[term, key] = shape()
+            if key is not None:
+                X[k, :, term] = shapes[term, key]
+    return X
 
 
 class AllanFit(NamedTuple):
@@ -394,7 +410,7 @@ def _wls_many(taus, avar, edf, jobs, tau0=None, scatter=None, start=None, iterat
                 out[i] = fit
         return out
     K, T = len(jobs), taus.size
-    X = np.stack([design(taus, tc, tone, tau0, tb) for _, tc, tone, tb in jobs])          # (K, T, terms)
+    X = _designs(taus, [(tc, tone, tb) for _, tc, tone, tb in jobs], tau0)                 # (K, T, terms)
     cols = np.array([list(terms) for terms, *_ in jobs])                                     # (K, w)
     Xs = np.take_along_axis(X, cols[:, None, :], axis=2)
     scale = np.abs(Xs).max(axis=1)                                                           # (K, w)

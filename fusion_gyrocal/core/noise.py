@@ -612,16 +612,19 @@ def _steady_allan(win: _Windows, w1, aw2, a: float, rate_hz: float, first: int, 
         T = int(np.floor(np.log2(max(max(len(r) for r in runs) * win.length / 4.0, 1.0)))) + 1
         S, C, dof = np.zeros(T), np.zeros(T), np.zeros((T, 4))
         ss, count = 0.0, 0
+        tables: dict = {}     # runs of one length share their phase points: each table computed once
         for run in runs:
             lo, hi = int(run[0]), int(run[-1]) + win.length
             xr = x[lo:hi]
-            ss += float(np.sum((xr - xr.mean(axis=0)) ** 2))
+            ss += float(np.sum(minus_row(xr, xr.mean(axis=0)) ** 2))
             count += 3 * (hi - lo - 1)
             taus, sums, sub_n, sub_m = second_differences([xr], rate_hz)
             k = taus.size
             S[:k] += sums[0].sum(axis=1)
             C[:k] += 3.0 * sums[-1]
-            dof[:k] += edf_table(sub_n, sub_m)
+            if hi - lo not in tables:
+                tables[hi - lo] = edf_table(sub_n, sub_m)
+            dof[:k] += tables[hi - lo]
         n = min(int(np.count_nonzero(C > 0)), int(np.log2(STILL_TAU * window_s * rate_hz)) + 1)
         if n < 4:
             return None
