@@ -482,8 +482,11 @@ def _windows(r, w1, aw2, valid, w) -> _Windows:
         part = slice(lo, lo + sel.size)
         v_r[part] = np.einsum("ijk,ijk->j", R, R)
         sq = np.einsum("ijk,ijk->jk", X1, X1)        # |omega_1|^2 of each sample
-        powers[part] = np.column_stack([sq.sum(axis=1), (sq * np.sqrt(sq)).sum(axis=1), (sq * sq).sum(axis=1)])
-        m1[:, part], m2[:, part] = X1.sum(axis=2), X2.sum(axis=2)
+        np.sum(sq, axis=1, out=powers[part, 0])
+        np.sum(sq * np.sqrt(sq), axis=1, out=powers[part, 1])
+        np.sum(sq * sq, axis=1, out=powers[part, 2])
+        np.sum(X1, axis=2, out=m1[:, part])
+        np.sum(X2, axis=2, out=m2[:, part])
         ss2[part] = np.einsum("ijk,ijk->j", X2, X2)
         s12[part] = np.einsum("ijk,ijk->j", X1, X2)
     v_r /= 3.0 * cnt
@@ -515,14 +518,15 @@ def _misfit_fit(win: _Windows):
     v, P = win.v_r, win.rate_powers
     dof = 3.0 * win.length
     phi = np.linspace(0.0, np.pi, 61)[:-1]  # direction of (a, b); the fit is linear in (sigma_0^2, g^2)
-    U = (np.cos(phi)[:, None] ** 2 * P[:, 0] + 2.0 * (np.cos(phi) * np.sin(phi))[:, None] * P[:, 1]
-         + np.sin(phi)[:, None] ** 2 * P[:, 2])  # (directions, windows)
+    cos, sin = np.cos(phi), np.sin(phi)
+    U = cos[:, None] ** 2 * P[:, 0] + 2.0 * (cos * sin)[:, None] * P[:, 1] + sin[:, None] ** 2 * P[:, 2]
+    UU, vv = U * U, v * v      # (directions, windows) and (windows,): the same in every pass
     pred = np.full_like(v, max(float(median(v)), 1e-300))
     for _ in range(3):
         wt2 = (dof / 2.0) / np.maximum(pred, 1e-300) ** 2
         # weighted two-parameter least squares for every direction at once, clipped to g^2 >= 0
-        S0, Sv, Svv = wt2.sum(), wt2 @ v, wt2 @ (v * v)
-        Su, Suu, Suv = U @ wt2, (U * U) @ wt2, U @ (wt2 * v)
+        S0, Sv, Svv = wt2.sum(), wt2 @ v, wt2 @ vv
+        Su, Suu, Suv = U @ wt2, UU @ wt2, U @ (wt2 * v)
         det = S0 * Suu - Su * Su
         g2 = np.where(det > 0, (S0 * Suv - Su * Sv) / np.where(det > 0, det, 1.0), 0.0)
         g2 = np.maximum(g2, 0.0)
