@@ -118,7 +118,7 @@ def difference_noise_std(omega, mask=None, *, max_samples: int = NOISE_SPLIT_SAM
             x = (x if ok.all() else x[ok]).T              # (3, m): rows contiguous for the partitions below
             if x.shape[1] > 3:
                 parts.append((x[:, 3:] - x[:, :-3]) - 3.0 * (x[:, 2:-1] - x[:, 1:-2]))
-    d = np.concatenate(parts, axis=1) if parts else np.zeros((3, 0))
+    d = parts[0] if len(parts) == 1 else np.concatenate(parts, axis=1) if parts else np.zeros((3, 0))
     if d.shape[1] < 10:
         return float("nan")
     d -= median(d, axis=1)[:, None]
