@@ -308,16 +308,20 @@ def _designs(taus, params, tau0: float | None = None) -> np.ndarray:
     fixed = [1.0 / taus, np.full_like(taus, FLICKER), taus / 3.0, 3.0 / taus ** 2]
     X = np.zeros((len(params), taus.size, len(TERMS)))
     X[:, :, :len(fixed)] = np.column_stack(fixed)
-    shapes = {(FILTERED, None): None, (TONE, None): None, (BOUNDED, None): None}   # no parameter: a zero column
+    shapes: dict = {}     # each scanned term's column at each of its parameters
+
+    def column(key, shape):
+        if key not in shapes:
+            shapes[key] = shape()
+        return shapes[key]
+
     for k, (tc, tone, tb) in enumerate(params):
-        for term, key, shape in ((FILTERED, tc or None, lambda: filtered_shape(taus, tc)),
-                                 (TONE, tone if tone and tone[1] > 0 and tau0 else None,
-                                  lambda: tone_shape(taus, tau0, *tone)),
-                                 (BOUNDED, tb or None, lambda: bounded_shape(taus, tb))):
-            if (term, key) not in shapes:
-                shapes[term, key] = shape()
-            if key is not None:
-                X[k, :, term] = shapes[term, key]
+        if tc:
+            X[k, :, FILTERED] = column((FILTERED, tc), partial(filtered_shape, taus, tc))
+        if tone and tone[1] > 0 and tau0:
+            X[k, :, TONE] = column((TONE, *tone), partial(tone_shape, taus, tau0, *tone))
+        if tb:
+            X[k, :, BOUNDED] = column((BOUNDED, tb), partial(bounded_shape, taus, tb))
     return X
 
 
