@@ -71,6 +71,7 @@ def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT, *, per
     A bounded subsample (:data:`_EVIDENCE_SAMPLES` samples in contiguous blocks spread over the log) is used.
     """
     from .core.moments import finite_rows, median
+    from .core.noise import minus_row
 
     scale = float(limit) / _DEFAULT_LIMIT
     figures = {"noise": 0.0, "bias": float("nan"), "offset": float("nan"), "range": 0.0}
@@ -110,7 +111,14 @@ def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT, *, per
             spread = np.sqrt(np.ascontiguousarray(win.transpose(2, 0, 1)).var(axis=2).sum(axis=0) / 3.0)
             quiet = spread <= _QUIET_SPREAD * noise
             if quiet.sum() >= _MIN_QUIET_WINDOWS:   # the floor of the rate at rest (slow turns are not rest)
-                bias = float(np.quantile(np.linalg.norm(win[quiet].mean(axis=1), axis=1), 0.1))
+                # each quiet window's mean; of C-ordered rates (the usual case) its rows summed in order as numpy's
+                # mean(axis=1) of C-ordered windows does, down the outer axis of a (32, windows, 3) copy (numpy
+                # reduces the middle axis of (windows, 32, 3) slowly); other layouts numpy reduces in another order
+                if win.flags.c_contiguous:
+                    means = np.ascontiguousarray(win.transpose(1, 0, 2)[:, quiet]).mean(axis=0)
+                else:
+                    means = win[quiet].mean(axis=1)
+                bias = float(np.quantile(_row_norms(means), 0.1))
                 figures["bias"] = bias if np.isnan(figures["bias"]) else max(figures["bias"], bias)
                 own["bias"] = bias
         if per_stream is not None:   # each stream's own figures and signs (``per_stream``: a list to fill)
@@ -123,9 +131,9 @@ def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT, *, per
         if len(w2) >= 16:   # the least-squares fit of w1 on w2 and a constant, centred: from the SVD of gyro 2's
             ones = np.ones(len(w2))          # centred rates (also its test of gyro 2's motion about every axis)
             m1, m2 = ones @ w1 / len(w1), ones @ w2 / len(w2)
-            U, sv, Vt = np.linalg.svd(w2 - m2, full_matrices=False)
+            U, sv, Vt = np.linalg.svd(minus_row(w2, m2), full_matrices=False)
             if sv[-1] > 1e-6 * sv[0]:   # gyro 2 moves about every axis: the fit's offset is determined
-                offset = m1 - m2 @ (Vt.T @ ((U.T @ (w1 - m1)) / sv[:, None]))
+                offset = m1 - m2 @ (Vt.T @ ((U.T @ minus_row(w1, m1)) / sv[:, None]))
                 if np.isfinite(offset).all():
                     figures["offset"] = float(np.linalg.norm(offset))
     signs = [k for k, lim in MEMS_LIMITS.items() if figures[k] > lim * scale]

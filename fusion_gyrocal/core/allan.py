@@ -21,6 +21,7 @@ residual and to each gyro's steady stretches, :mod:`~fusion_gyrocal.core.static_
 
 from __future__ import annotations
 
+from functools import partial
 from typing import NamedTuple
 
 import numpy as np
@@ -103,22 +104,24 @@ def allan_points(y: np.ndarray, rate_hz: float, stretches=None) -> AllanPoints:
 
 def _batch_scatter(stationary: np.ndarray, batches: list) -> np.ndarray:
     """The measured relative variance of each point (T, 4) from its batches' Allan variances (per tau a (3, K)
-    array, or None where no batches fit: the excess of the two longest taus that fit carried on); NaN where the
-    batches show no more than the ``stationary`` relative variance significantly."""
-    T = stationary.shape[0]
-    scatter = np.full((T, 4), np.nan)
-    excess, before = np.full(4, np.nan), np.full(4, np.nan)
-    for i, b in enumerate(batches):
-        if b is None:
-            carry = np.where(np.isfinite(before), excess, np.nan)
+    array, K the same at every tau, or None where no batches fit: the excess of the two longest taus before it that
+    fit carried on); NaN where the batches show no more than the ``stationary`` relative variance significantly."""
+    scatter = np.full((stationary.shape[0], 4), np.nan)
+    have = [i for i, b in enumerate(batches) if b is not None]
+    excess = np.full((0, 4), np.nan)
+    if have:   # every tau with batches at once (the same reductions, along each row)
+        b = np.stack([batches[i] for i in have])
+        v = np.concatenate([b, b.mean(axis=1)[:, None]], axis=1)          # (taus, 4, K)
+        K = v.shape[2]
+        rel = v.var(axis=2, ddof=1) / K / np.maximum(v.mean(axis=2), 1e-300) ** 2
+        sig = rel > stationary[have] * (1.0 + 3.0 * np.sqrt(2.0 / (K - 1)))
+        scatter[have] = np.where(sig, rel, np.nan)
+        excess = np.where(sig, rel - stationary[have], np.nan)
+    for i in (i for i, b in enumerate(batches) if b is None):
+        prior = excess[:np.searchsorted(have, i)]        # the excess of the taus before it that fit
+        if len(prior) >= 2:
+            carry = np.where(np.isfinite(prior[-2]), prior[-1], np.nan)
             scatter[i] = np.where(np.isfinite(carry), stationary[i] + carry, np.nan)
-            continue
-        v = np.vstack([b, b.mean(axis=0)[None]])          # (4, K)
-        K = v.shape[1]
-        rel = v.var(axis=1, ddof=1) / K / np.maximum(v.mean(axis=1), 1e-300) ** 2
-        sig = rel > stationary[i] * (1.0 + 3.0 * np.sqrt(2.0 / (K - 1)))
-        scatter[i] = np.where(sig, rel, np.nan)
-        before, excess = excess, np.where(sig, rel - stationary[i], np.nan)
     return scatter
 
 
@@ -183,23 +186,30 @@ def second_differences(ys, rate_hz: float, pairs=(), batches: bool = False):
     out = [np.empty((ms.size,) + ys[0].shape[:-2] + (3,)) for _ in range(len(ys) + len(pairs))] + [np.empty(ms.size)]
     sub_n, sub_m = np.empty(ms.size), np.empty(ms.size)
     batch = []
-    b = 1
-    work = [(np.empty_like(x), np.empty_like(x)) for x in blocks]   # each stream's moving sums and differences:
-    for i, m in enumerate(ms):                                      # two buffers for all taus, no fresh arrays
-        while b < max(1, int(m) // 4):      # sums of 2b samples from those of b
-            k = blocks[0].shape[-1] // 2
-            blocks = [x[..., 0:2 * k:2] + x[..., 1:2 * k:2] for x in blocks]
-            b *= 2
-        mm = int(m) // b
+    b, length = 1, n     # samples per block, blocks in the phase
+    # each stream's moving sums of the last tau, and two buffers for all taus (no fresh arrays): a tau's sums go into
+    # the one its predecessor's differences are in, its differences into the other
+    sums = list(blocks)
+    work = [[np.empty_like(x), np.empty_like(x)] for x in blocks]
+    for i, m in enumerate(ms):
+        mm = min(int(m), 4)      # moving sums of mm blocks of b samples (mm is 1, 2 or 4)
+        if m > 4:
+            b, length = 2 * b, length // 2
         ds = []
-        for x, pair in zip(blocks, work):
-            s, width, free = x, 1, 0
-            while width < mm:                    # moving sums of mm blocks (mm is 1, 2 or 4)
-                s = np.add(s[..., :-width], s[..., width:], out=pair[free][..., :s.shape[-1] - width])
-                width *= 2
-                free = 1 - free
-            # (x_{i+2m} - 2 x_{i+m} + x_i) * rate_hz, into the buffer s is not in
-            ds.append(np.subtract(s[..., mm:], s[..., :-mm], out=pair[free][..., :s.shape[-1] - mm]))
+        for j, x in enumerate(blocks):
+            work[j].reverse()
+            into, diff = work[j]
+            s = sums[j]
+            if m == 2:
+                s = np.add(x[..., :-1], x[..., 1:], out=into[..., :x.shape[-1] - 1])
+            elif m >= 4:
+                # sums of 2 blocks: at m = 4 those of m = 2; beyond, every other sum of 4 blocks of the last tau
+                # (the same additions as halving the blocks and summing them in pairs)
+                two = s if m == 4 else s[..., ::2]
+                s = np.add(two[..., :-2], two[..., 2:], out=into[..., :two.shape[-1] - 2])
+            sums[j] = s
+            # (x_{i+2m} - 2 x_{i+m} + x_i) * rate_hz
+            ds.append(np.subtract(s[..., mm:], s[..., :-mm], out=diff[..., :s.shape[-1] - mm]))
         for j, d in enumerate(ds):
             out[j][i] = np.einsum("...k,...k->...", d, d)
         if batches:   # BATCHES consecutive batches (elements of d are b samples apart), each >= BATCH_TAUS 2 tau
@@ -209,7 +219,7 @@ def second_differences(ys, rate_hz: float, pairs=(), batches: bool = False):
         for j, (p, q) in enumerate(pairs):
             out[len(ys) + j][i] = np.einsum("...k,...k->...", ds[p], ds[q])
         out[-1][i] = 2.0 * float(m) ** 2 * ds[0].shape[-1]
-        sub_n[i], sub_m[i] = blocks[0].shape[-1] + 1, mm
+        sub_n[i], sub_m[i] = length + 1, mm
     if batches:
         return ms / rate_hz, out, sub_n, sub_m, batch
     return ms / rate_hz, out, sub_n, sub_m
@@ -288,11 +298,31 @@ def design(taus, tc: float | None = None, tone: tuple | None = None, tau0: float
     """The columns of :data:`TERMS` at ``taus``: ``1/tau``, ``2 ln 2 / pi``, ``tau / 3``, ``3 / tau^2``,
     :func:`filtered_shape` (zero without a time constant), :func:`tone_shape` (zero without ``tone``, its
     ``(freq_hz, rho)``, and the sample period ``tau0``) and :func:`bounded_shape` (zero without ``tb``)."""
+    return _designs(taus, [(tc, tone, tb)], tau0)[0]
+
+
+def _designs(taus, params, tau0: float | None = None) -> np.ndarray:
+    """:func:`design` at each of ``params`` (``(tc, tone, tb)``), stacked (K, T, terms): the fixed columns and each
+    scanned term's column at each of its parameters computed once."""
     taus = np.asarray(taus, float)
-    f = filtered_shape(taus, tc) if tc else np.zeros_like(taus)
-    k = tone_shape(taus, tau0, *tone) if tone and tone[1] > 0 and tau0 else np.zeros_like(taus)
-    h = bounded_shape(taus, tb) if tb else np.zeros_like(taus)
-    return np.column_stack([1.0 / taus, np.full_like(taus, FLICKER), taus / 3.0, 3.0 / taus ** 2, f, k, h])
+    fixed = [1.0 / taus, np.full_like(taus, FLICKER), taus / 3.0, 3.0 / taus ** 2]
+    X = np.zeros((len(params), taus.size, len(TERMS)))
+    X[:, :, :len(fixed)] = np.column_stack(fixed)
+    shapes: dict = {}     # each scanned term's column at each of its parameters
+
+    def column(key, shape):
+        if key not in shapes:
+            shapes[key] = shape()
+        return shapes[key]
+
+    for k, (tc, tone, tb) in enumerate(params):
+        if tc:
+            X[k, :, FILTERED] = column((FILTERED, tc), partial(filtered_shape, taus, tc))
+        if tone and tone[1] > 0 and tau0:
+            X[k, :, TONE] = column((TONE, *tone), partial(tone_shape, taus, tau0, *tone))
+        if tb:
+            X[k, :, BOUNDED] = column((BOUNDED, tb), partial(bounded_shape, taus, tb))
+    return X
 
 
 class AllanFit(NamedTuple):
@@ -360,12 +390,16 @@ def _wls(taus, avar, edf, terms, tc=None, tone=None, tau0=None, scatter=None, st
     return _wls_many(taus, avar, edf, [(terms, tc, tone, tb)], tau0, scatter, start, iterations)[0]
 
 
-def _wls_many(taus, avar, edf, jobs, tau0=None, scatter=None, start=None, iterations: int = 5) -> list:
+def _wls_many(taus, avar, edf, jobs, tau0=None, scatter=None, start=None, iterations: int = 5,
+              covariance: bool = True) -> list:
     """:func:`_wls` of each of ``jobs`` (``(terms, tc, tone, tb)``): the fits with the same number of terms run in
     lockstep, each step's small matrix operations (weights, Cholesky factors, whitening) one stacked call for all of
     them, one factor for all while no term is kept (the first pass: every job weighs its points as ``start``); only
-    the non-negative least squares and the covariance of the kept terms are per fit. Each returns
-    ``(coef, cov, chi2, pred, worst)``, in the order of ``jobs``."""
+    the non-negative least squares and the covariance of the kept terms are per fit. A fit whose coefficients and
+    model repeat those of its pass before is at its fixed point (every further pass gives the same numbers) and
+    leaves the lockstep. Each returns ``(coef, cov, chi2, pred, worst)``, in the order of ``jobs``; without
+    ``covariance``, ``cov`` is a function that computes it (the candidates of a selection, where only the one kept
+    needs it)."""
     from scipy.optimize import nnls
 
     if not jobs:
@@ -376,11 +410,11 @@ def _wls_many(taus, avar, edf, jobs, tau0=None, scatter=None, start=None, iterat
         for w in widths:
             idx = [i for i, (terms, *_) in enumerate(jobs) if len(terms) == w]
             for i, fit in zip(idx, _wls_many(taus, avar, edf, [jobs[i] for i in idx], tau0, scatter, start,
-                                             iterations)):
+                                             iterations, covariance)):
                 out[i] = fit
         return out
     K, T = len(jobs), taus.size
-    X = np.stack([design(taus, tc, tone, tau0, tb) for _, tc, tone, tb in jobs])          # (K, T, terms)
+    X = _designs(taus, [(tc, tone, tb) for _, tc, tone, tb in jobs], tau0)                 # (K, T, terms)
     cols = np.array([list(terms) for terms, *_ in jobs])                                     # (K, w)
     Xs = np.take_along_axis(X, cols[:, None, :], axis=2)
     scale = np.abs(Xs).max(axis=1)                                                           # (K, w)
@@ -389,24 +423,30 @@ def _wls_many(taus, avar, edf, jobs, tau0=None, scatter=None, start=None, iterat
     coef = np.zeros((K, len(TERMS)))
     extra = np.zeros(T) if scatter is None else np.nan_to_num(np.asarray(scatter, float), nan=0.0)
     rows = np.arange(T)
+    L, C, rel = np.empty((K, T, T)), np.empty((K, T, T)), np.empty((K, T))    # each fit's of its last pass
+    live = np.arange(K)     # the fits not yet at their fixed point
     for _ in range(iterations):
-        parts = X * np.where(coef > 0, coef, 0.0)[:, None, :]
-        dom = np.where(coef.any(axis=1)[:, None], TERM_NOISE[np.argmax(parts, axis=2)], 0)
-        rel = np.maximum(2.0 / edf[rows[None, :], dom], extra)
-        sd = np.maximum(pred, 1e-300) * np.sqrt(rel)
+        X_, c, p = X[live], coef[live], pred[live]
+        parts = X_ * np.where(c > 0, c, 0.0)[:, None, :]
+        dom = np.where(c.any(axis=1)[:, None], TERM_NOISE[np.argmax(parts, axis=2)], 0)
+        rel[live] = r_ = np.maximum(2.0 / edf[rows[None, :], dom], extra)
+        sd = np.maximum(p, 1e-300) * np.sqrt(r_)
         rho = np.minimum(NEIGHBOUR_CORRELATION[dom[:, :-1]], NEIGHBOUR_CORRELATION[dom[:, 1:]])
-        logc = np.concatenate([np.zeros((K, 1)), np.cumsum(np.log(rho), axis=1)], axis=1)
-        C = np.exp(-np.abs(logc[:, :, None] - logc[:, None, :]))
-        if not coef.any():    # no term kept yet: every job weighs its points as the start, one factor for all
-            C = C[:1]
-            L = np.broadcast_to(np.linalg.cholesky(C[0] * np.outer(sd[0], sd[0])), (K, T, T))
+        logc = np.concatenate([np.zeros((live.size, 1)), np.cumsum(np.log(rho), axis=1)], axis=1)
+        C[live] = C_ = np.exp(-np.abs(logc[:, :, None] - logc[:, None, :]))
+        if not c.any():    # no term kept yet: every job weighs its points as the start, one factor for all
+            L[live] = L_ = np.broadcast_to(np.linalg.cholesky(C_[0] * np.outer(sd[0], sd[0])), (live.size, T, T))
         else:
-            L = np.linalg.cholesky(C * (sd[:, :, None] * sd[:, None, :]))
-        Jy = np.linalg.solve(L, Xy)
-        coef = np.zeros((K, len(TERMS)))
-        for k in range(K):
-            coef[k, cols[k]] = nnls(Jy[k, :, :-1], Jy[k, :, -1])[0] / scale[k]
-        pred = np.matmul(X, coef[:, :, None])[:, :, 0]
+            L[live] = L_ = np.linalg.cholesky(C_ * (sd[:, :, None] * sd[:, None, :]))
+        Jy = np.linalg.solve(L_, Xy[live])
+        c_new = np.zeros((live.size, len(TERMS)))
+        for i, k in enumerate(live):
+            c_new[i, cols[k]] = nnls(Jy[i, :, :-1], Jy[i, :, -1])[0] / scale[k]
+        p_new = np.matmul(X_, c_new[:, :, None])[:, :, 0]
+        coef[live], pred[live] = c_new, p_new
+        live = live[~((c_new == c).all(axis=1) & (p_new == p).all(axis=1))]
+        if not live.size:
+            break
     if scatter is None:
         res = np.linalg.solve(L, (avar[None] - pred)[:, :, None])[:, :, 0]
     else:
@@ -419,15 +459,22 @@ def _wls_many(taus, avar, edf, jobs, tau0=None, scatter=None, start=None, iterat
     worst = np.exp(np.max(np.maximum(ratio - np.sqrt(rel), 0.0), axis=1))
     out = []
     for k, (terms, *_) in enumerate(jobs):
-        cov = np.full((len(TERMS),) * 2, np.nan)
-        act = [t for t in terms if coef[k, t] > 0]
-        if act:
-            J = np.linalg.solve(L[k], X[k][:, act])
-            red = max(1.0, float(chi2[k]) / max(T - len(act), 1))
-            cov = np.zeros((len(TERMS),) * 2)
-            cov[np.ix_(act, act)] = np.linalg.pinv(J.T @ J) * red
-        out.append((coef[k], cov, float(chi2[k]), pred[k], float(worst[k])))
+        cov = partial(_covariance, L[k], X[k], terms, coef[k], float(chi2[k]))
+        out.append((coef[k], cov() if covariance else cov, float(chi2[k]), pred[k], float(worst[k])))
     return out
+
+
+def _covariance(L, X, terms, coef, chi2: float) -> np.ndarray:
+    """The covariance of a fit's kept terms (:func:`_wls_many`): the inverse of the whitened design's normal matrix
+    (``L`` the whitening factor), scaled by the reduced chi-square where above 1; NaN without a kept term."""
+    act = [t for t in terms if coef[t] > 0]
+    if not act:
+        return np.full((len(TERMS),) * 2, np.nan)
+    J = np.linalg.solve(L, X[:, act])
+    red = max(1.0, chi2 / max(X.shape[0] - len(act), 1))
+    cov = np.zeros((len(TERMS),) * 2)
+    cov[np.ix_(act, act)] = np.linalg.pinv(J.T @ J) * red
+    return cov
 
 
 #: the tone term's candidate centre frequencies (fractions of the sample rate) and pole radii
@@ -468,9 +515,9 @@ def _best_addition(t, a, e, tau0, scatter, terms, par, best, cands):
     jobs = [(terms + list(add), p[FILTERED], p[TONE], p[BOUNDED]) for (add, _), p in zip(cands, params)]
     keep = range(len(cands))
     if len(cands) > SCREENED:   # many parameters of a scanned term: one pass each with the current model's weights,
-        drops = best[2] - np.array([f[2] for f in _wls_many(t, a, e, jobs, tau0, scatter, best[3], 1)])
+        drops = best[2] - np.array([f[2] for f in _wls_many(t, a, e, jobs, tau0, scatter, best[3], 1, False)])
         keep = np.argsort(-drops, kind="stable")[:SCREENED]     # then the full fit of the most promising
-    fits = _wls_many(t, a, e, [jobs[k] for k in keep], tau0, scatter)
+    fits = _wls_many(t, a, e, [jobs[k] for k in keep], tau0, scatter, covariance=False)
     trials = [(best[2] - fit[2], cands[k][0], fit, params[k]) for k, fit in zip(keep, fits)]
     look = {k: 2.0 * np.log(max(sum(1 for add, _ in cands if k in add), 1)) for k in SCANNED}   # all tried
     trials.sort(key=lambda tr: tr[0] - sum(look.get(k, 0.0) for k in tr[1]), reverse=True)
@@ -485,7 +532,7 @@ def _best_addition(t, a, e, tau0, scatter, terms, par, best, cands):
                   if term in (QUANTISATION, FILTERED, TONE, BOUNDED)]   # a noise kind, not a wrinkle: a material share
         if shares and min(shares) < MATERIAL_SHARE:
             continue
-        return terms + list(add), fit, p
+        return terms + list(add), (fit[0], fit[1](), *fit[2:]), p
     return None
 
 
