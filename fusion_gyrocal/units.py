@@ -70,8 +70,7 @@ def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT, *, per
     its MEMS limit (:data:`MEMS_LIMITS`, times ``limit / 100``): signs that the rates are in deg/s, not rad/s.
     A bounded subsample (:data:`_EVIDENCE_SAMPLES` samples in contiguous blocks spread over the log) is used.
     """
-    from .core.moments import finite_rows, median
-    from .core.noise import minus_row
+    from .core.moments import finite_rows, median, minus_row
 
     scale = float(limit) / _DEFAULT_LIMIT
     figures = {"noise": 0.0, "bias": float("nan"), "offset": float("nan"), "range": 0.0}
@@ -111,14 +110,7 @@ def rate_unit_evidence(streams, mask=None, limit: float = _DEFAULT_LIMIT, *, per
             spread = np.sqrt(np.ascontiguousarray(win.transpose(2, 0, 1)).var(axis=2).sum(axis=0) / 3.0)
             quiet = spread <= _QUIET_SPREAD * noise
             if quiet.sum() >= _MIN_QUIET_WINDOWS:   # the floor of the rate at rest (slow turns are not rest)
-                # each quiet window's mean; of C-ordered rates (the usual case) its rows summed in order as numpy's
-                # mean(axis=1) of C-ordered windows does, down the outer axis of a (32, windows, 3) copy (numpy
-                # reduces the middle axis of (windows, 32, 3) slowly); other layouts numpy reduces in another order
-                if win.flags.c_contiguous:
-                    means = np.ascontiguousarray(win.transpose(1, 0, 2)[:, quiet]).mean(axis=0)
-                else:
-                    means = win[quiet].mean(axis=1)
-                bias = float(np.quantile(_row_norms(means), 0.1))
+                bias = float(np.quantile(np.linalg.norm(win[quiet].mean(axis=1), axis=1), 0.1))
                 figures["bias"] = bias if np.isnan(figures["bias"]) else max(figures["bias"], bias)
                 own["bias"] = bias
         if per_stream is not None:   # each stream's own figures and signs (``per_stream``: a list to fill)

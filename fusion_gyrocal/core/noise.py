@@ -54,7 +54,7 @@ import numpy as np
 from ..errors import InputError, OptionError
 from .allan import (FILTERED, FIT_FACTOR, FLICKER_TERM, QUANTISATION, TERMS, WALK, AllanFit, allan_points,
                     edf_table, fit_allan, second_differences)
-from .moments import NOMINAL_WINDOW, as_rates, finite_rows, median, rows_times
+from .moments import NOMINAL_WINDOW, as_rates, finite_rows, median, minus_row, rows_times
 
 MISFIT_SHARE = 0.1                    # rate-explained share of the residual variance that is flagged
 WALK_Z = 3.0                          # significance of K for a random-walk bias
@@ -436,25 +436,6 @@ class _Windows:
     e_2: np.ndarray       # var(A omega_2) - cov, per axis
     cov: np.ndarray       # cov(omega_1, A omega_2) per axis (motion variance)
     length: int
-
-
-_ROW_BLOCK = 1024   # rows of an (N, 3) array minus_row lays side by side: one (3072,) row of the vector tiled
-
-
-def minus_row(x: np.ndarray, v: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """``x - v`` of an (N, k) float64 array and a (k,) vector, equal to it bit for bit (the same subtraction of
-    each element), into ``out`` (C-contiguous; may be ``x``). numpy broadcasts a (k,) vector along short rows one
-    row at a time (0.5 ms for 64k rows of 3); :data:`_ROW_BLOCK` rows of a C-contiguous ``x`` laid side by side
-    against the vector tiled as often are one contiguous subtraction (0.1 ms). Another layout is numpy's own
-    subtraction (its result in the layout numpy gives it). Also :func:`~fusion_gyrocal.units.rate_unit_evidence`'s."""
-    if not x.flags.c_contiguous:
-        return x - v if out is None else np.subtract(x, v, out=out)
-    out = np.empty(x.shape) if out is None else out
-    head = x.shape[0] // _ROW_BLOCK * _ROW_BLOCK
-    width = _ROW_BLOCK * x.shape[1]
-    np.subtract(x[:head].reshape(-1, width), np.tile(v, _ROW_BLOCK), out=out[:head].reshape(-1, width))
-    np.subtract(x[head:], v, out=out[head:])
-    return out
 
 
 _WINDOW_GROUP = 4096   # samples of the windows _windows reduces at a time: each stream's (3, samples) copy (96 KiB)
