@@ -12,7 +12,7 @@ residual
 high-passed over about a second first: a drifting bias is slow). :func:`estimate_timing`
 finds up to :data:`MAX_TONES` tones (one per chip against the read-out), each with :data:`HARMONICS` harmonics
 for the sawtooth's shape, by least squares of ``r_k . u_k`` on ``|u_k|^2 delta(t_k)`` (frequencies from the
-periodogram of ``r_k . u_k``, refined on a fine grid), and keeps them only where the peak is a spectral line
+periodogram of ``r_k . u_k``, refined by :func:`_scan` within a resolution cell), and keeps them only where the peak is a spectral line
 (far above the periodogram around it) and explains far more than noise would over a search of every frequency.
 A tone whose delay is the sawtooth itself (the time since the chip's last sample, wrapping once per beat) is then
 fitted as one: ``a (frac(f t + phi) - 1/2)``, its phase and frequency searched (:func:`_sawtooth`), kept where it
@@ -300,8 +300,6 @@ def estimate_timing(t, omega_1, omega_2, A, bias, mask=None, *, max_tones: int =
 
 
 # ---------------------------------------------------------------------------------------- N gyros: one delay per chip
-
-
 @dataclass(frozen=True)
 class ArrayTimingModel:
     """Every chip's delay against the read-out in an array of N gyros (:func:`estimate_array_timing`).
