@@ -1000,15 +1000,14 @@ def _with_weights(cal: ArrayCalibration, rates, o: Options, mask, rate_hz, sourc
     gyros' pairs with the reference (an impact reaches every chip); kept when the rotations are better determined.
     Only for a constant bias and a white noise identified or given. With ``robust_weights`` off, a heavy-tailed
     residual gets a note saying what the weights would do (:func:`~fusion_gyrocal.core.weights.hint`)."""
-    from .weights import (HINT_SAMPLES, TAIL_SAMPLES, TAIL_SHARE, WEIGHT_SPAN, hint, residual_tail_share,
-                          residual_weights)
+    from .weights import TAIL_SHARE, WEIGHT_SPAN, hint, residual_tail_share, residual_weights, tail_samples
 
     if o.noise_std is None or o.bias_window is not None or o.bias_walk_std is not None:
         return cal
     ref = cal.reference
     noise = np.broadcast_to(np.asarray(o.noise_std, dtype=float), (cal.n_gyros,))
     maps = {j: cal.pair_map(ref, j) for j in range(cal.n_gyros) if j != ref}
-    samples = TAIL_SAMPLES if o.robust_weights == "auto" else HINT_SAMPLES
+    samples = tail_samples(o.robust_weights)
     share = max(residual_tail_share(rates[ref], rates[j], A, b, mask, samples) for j, (A, b) in maps.items())
     if share < TAIL_SHARE:
         return cal

@@ -54,7 +54,7 @@ import numpy as np
 from ..errors import InputError, OptionError
 from .allan import (FILTERED, FIT_FACTOR, FLICKER_TERM, QUANTISATION, TERMS, WALK, AllanFit, allan_points,
                     edf_table, fit_allan, second_differences)
-from .moments import NOMINAL_WINDOW, as_rates, finite_rows, median, minus_row, rows_times
+from .moments import NOMINAL_WINDOW, as_rates, column_means, finite_rows, median, minus_row, rows_times
 
 MISFIT_SHARE = 0.1                    # rate-explained share of the residual variance that is flagged
 WALK_Z = 3.0                          # significance of K for a random-walk bias
@@ -601,7 +601,7 @@ def _steady_allan(win: _Windows, w1, aw2, a: float, rate_hz: float, first: int, 
         for run in runs:
             lo, hi = int(run[0]), int(run[-1]) + win.length
             xr = x[lo:hi]
-            ss += float(np.sum(minus_row(xr, xr.mean(axis=0)) ** 2))
+            ss += float(np.sum(minus_row(xr, column_means(xr)) ** 2))
             count += 3 * (hi - lo - 1)
             taus, sums, sub_n, sub_m = second_differences([xr], rate_hz)
             k = taus.size

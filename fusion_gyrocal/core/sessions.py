@@ -186,17 +186,18 @@ def _numbers(gyros) -> str:
 
 
 def _rotations_of(cal) -> tuple[list, np.ndarray, tuple]:
-    """``(rotations, repeatable covariance (3m, 3m), labels)`` of a pair or an array calibration."""
+    """``(rotations, repeatable covariance (3m, 3m), gyros)`` of a pair or an array calibration; ``gyros``: the
+    1-based ``(reference, k)`` of each rotation ``R_ref_k``."""
     from .array_result import ArrayCalibration
     from .model import PairCalibration
 
     if isinstance(cal, PairCalibration):
-        return [cal.R_1_2], cal.repeatable_rotation_covariance, ("R_1_2",)
+        return [cal.R_1_2], cal.repeatable_rotation_covariance, ((1, 2),)
     if isinstance(cal, ArrayCalibration):
         ks = [k for k in range(cal.n_gyros) if k != cal.reference]
         idx = np.concatenate([np.arange(3 * k, 3 * k + 3) for k in ks])
         P = cal.repeatable_rotation_covariance[np.ix_(idx, idx)]
-        return [cal.R_ref_k[k] for k in ks], P, tuple(f"R_{cal.reference + 1}_{k + 1}" for k in ks)
+        return [cal.R_ref_k[k] for k in ks], P, tuple((cal.reference + 1, k + 1) for k in ks)
     raise InputError(f"sessions: expected PairCalibration or ArrayCalibration results, got {type(cal).__name__}")
 
 
@@ -243,12 +244,6 @@ def _tested(d, Ps, infos, members, e):
     return diff, C, float(diff @ np.linalg.solve(C, diff))
 
 
-def _gyro_numbers(labels) -> tuple[int, list]:
-    """``(reference, others)``: the 1-based gyro numbers of an array's labels ``R_ref_k``."""
-    pairs = [tuple(int(v) for v in lab[2:].split("_")) for lab in labels]
-    return pairs[0][0], [k for _, k in pairs]
-
-
 def _group_fit(d, info, others, groups, ref):
     """Least squares of the deviations ``d`` (3m,) (information ``info``) of the gyros ``others`` (one per 3 rows)
     with one turn per group of ``groups`` (sets of gyro numbers), the reference's group held still:
@@ -270,10 +265,11 @@ def _group_fit(d, info, others, groups, ref):
     return float(r @ info @ r), turns, cov
 
 
-def _groups(d, C, labels, limit3: float) -> tuple[tuple, tuple]:
-    """``(moved, stayed)`` of an array session's deviations ``d`` (3m,) with covariance ``C``: the gyros grouped by
+def _groups(d, C, gyros, limit3: float) -> tuple[tuple, tuple]:
+    """``(moved, stayed)`` of an array session's deviations ``d`` (3m,) with covariance ``C`` (``gyros``: the
+    ``(reference, k)`` of each rotation, :func:`_rotations_of`): the gyros grouped by
     a common turn (the module docstring), each group but the largest as a :class:`MovedGroup` against it."""
-    ref, others = _gyro_numbers(labels)
+    ref, others = gyros[0][0], [k for _, k in gyros]
     info = np.linalg.inv(0.5 * (C + C.T))
     groups = [{ref}] + [{k} for k in others]
     chi2 = 0.0
@@ -330,11 +326,12 @@ def compare_sessions(calibrations, names=None, *, alpha: float = ALPHA) -> Sessi
     if not (0.0 < float(alpha) < 1.0):
         raise InputError(f"alpha: expected a false-alarm rate in (0, 1), got {alpha!r}")
     parts = [_rotations_of(c) for c in cals]
-    labels = parts[0][2]
-    for name, (_, _, lab) in zip(names, parts):
-        if lab != labels:
+    gyros = parts[0][2]
+    labels = tuple(f"R_{i}_{k}" for i, k in gyros)
+    for name, (_, _, other) in zip(names, parts):
+        if other != gyros:
             raise InputError(f"sessions: expected calibrations of the same gyros ({', '.join(labels)}), got "
-                             f"{', '.join(lab)} in {name}")
+                             f"{', '.join(f'R_{i}_{k}' for i, k in other)} in {name}")
     rotations = [p[0] for p in parts]
     base = rotations[0]
     Ps = [p[1] for p in parts]
@@ -371,7 +368,7 @@ def compare_sessions(calibrations, names=None, *, alpha: float = ALPHA) -> Sessi
     moved, stayed = [()] * n, [()] * n
     if m > 1:                   # an array: which gyros moved, in each changed session
         for e in np.flatnonzero(changed):
-            moved[e], stayed[e] = _groups(dev[e], tested[e][1], labels, _chi2_isf(alpha, 3))
+            moved[e], stayed[e] = _groups(dev[e], tested[e][1], gyros, _chi2_isf(alpha, 3))
     notes = []
     if n == 2 and changed.any():
         notes.append("two sessions: they differ beyond their covariances, but which one moved takes a third session")

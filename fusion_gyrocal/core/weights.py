@@ -77,6 +77,12 @@ def tail_share(rr: np.ndarray) -> float:
     return float(np.partition(rr, n - k)[n - k:].sum()) / total if total > 0 else 0.0
 
 
+def tail_samples(robust_weights: str) -> int:
+    """Samples the heavy-tail check reads under ``robust_weights``: :data:`TAIL_SAMPLES` where the weights may be
+    taken, :data:`HINT_SAMPLES` where the check only decides a note (:func:`hint`)."""
+    return TAIL_SAMPLES if robust_weights == "auto" else HINT_SAMPLES
+
+
 def residual_tail_share(w1, w2, A, bias, mask=None, samples: int = TAIL_SAMPLES) -> float:
     """:func:`tail_share` of the pair's residual energies ``|omega_1 - A omega_2 - b|^2`` over the used samples (at
     most ``samples``, evenly strided); 0 when none is used."""

@@ -17,8 +17,7 @@ from ..core.model import PairCalibration
 from ..core.moments import Moments, as_rate_pair, window_samples
 from ..core.noise import difference_noise_std
 from ..core.solve import solve
-from ..core.weights import (HINT_SAMPLES, TAIL_SAMPLES, TAIL_SHARE, WEIGHT_SPAN, hint, residual_tail_share,
-                            residual_weights)
+from ..core.weights import TAIL_SHARE, WEIGHT_SPAN, hint, residual_tail_share, residual_weights, tail_samples
 from ..errors import InputError, NotRigidError, OptionError
 from ..options import TIMESTAMP_OPTIONS, Options
 from .bias import BiasModel
@@ -382,8 +381,7 @@ def _with_weights(run: PipelineRun, pair, resampling, o: Options, carried: dict)
     if cal.noise_model is None and o.noise_std is None:
         return run                    # no white noise to weigh against (the residual's own variance is the noise)
     use = run.valid                   # the samples before the flex gate, which the weighted run gates again
-    share = residual_tail_share(run.omega_1, run.omega_2, cal.A, cal.bias, use,
-                                TAIL_SAMPLES if o.robust_weights == "auto" else HINT_SAMPLES)
+    share = residual_tail_share(run.omega_1, run.omega_2, cal.A, cal.bias, use, tail_samples(o.robust_weights))
     if share < TAIL_SHARE:
         return run                    # a residual without a heavy tail: every sample weighs the same
     if o.robust_weights == "off":     # what the weights would do, in a note
