@@ -6,7 +6,8 @@ Prints measured figures (nothing is hard-coded):
    (``device_row`` of each device in turn): on ``fleet_cluster`` (what ``gyrocal fleet`` starts) with 1 and
    with 2 worker processes (one thread each), on a ``LocalCluster`` with distributed's defaults, and on
    Dask's threaded scheduler in this process: seconds, devices/s and each as a ratio to the serial loop,
-   over ``--rounds`` interleaved rounds (after a warm-up run that pays the workers' imports; targets:
+   over ``--rounds`` interleaved rounds (each cluster started for its turn and closed after it, so no idle
+   cluster takes CPU time from the one measured; a warm-up run pays the workers' imports; targets:
    2 workers <= 0.65x, 1 worker <= 1.15x).
 2. One huge Parquet log: the in-process pass (read the whole file, ``Moments.from_samples``)
    versus ``log_moments`` (one task per row group, ``dask.bag`` tree reduction of
@@ -19,6 +20,7 @@ Run: ``python benchmarks/fleet.py [--devices 24 --device-samples 60000 --log-sam
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
 import os
 import shutil
@@ -72,34 +74,30 @@ def bench_fleet(root: Path, n_devices: int, n_samples: int, repeat: int, rounds:
     def serial():
         return pd.DataFrame([device_row(p) for p in paths])
 
+    local = functools.partial(LocalCluster, n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                              dashboard_address=None)
+    # label: (the cluster's factory or None for an in-process engine, the run without a client)
     engines = {"serial loop, this process": (None, serial),
-               "threaded scheduler, this process": (None, lambda: run_fleet(root))}
-    clusters = []
-    try:
-        for label, make in (("fleet_cluster, 1 worker process", lambda: fleet_cluster(1)),
-                            ("fleet_cluster, 2 worker processes", lambda: fleet_cluster(2)),
-                            ("LocalCluster defaults, 2 workers", lambda: LocalCluster(
-                                n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                dashboard_address=None))):
-            cluster = make()
-            client = Client(cluster)
-            clusters.append((cluster, client))
-            engines[label] = (client, functools.partial(run_fleet, root, client=client))
-        where = {f for f in clusters[0][1].run(lambda: __import__("fusion_gyrocal").__file__).values()}
-        print(f"   package in this process: {__import__('fusion_gyrocal').__file__}; in the workers: {sorted(where)}")
-        times = {k: [] for k in engines}
-        checks = {}
-        for _, run in engines.values():
-            run()  # warm-up: imports in this process or in every worker, file cache
-        for _ in range(rounds):
-            for label, (_, run) in engines.items():
+               "threaded scheduler, this process": (None, lambda: run_fleet(root)),
+               "fleet_cluster, 1 worker process": (lambda: fleet_cluster(1), None),
+               "fleet_cluster, 2 worker processes": (lambda: fleet_cluster(2), None),
+               "LocalCluster defaults, 2 workers": (local, None)}
+    times = {k: [] for k in engines}
+    checks, where = {}, set()
+    for _ in range(rounds):
+        for label, (make, run) in engines.items():
+            # one cluster at a time: idle schedulers, nannies and workers of the others would take ~10 % of a
+            # core each (their event loops' ticks, memory monitors) from the one measured
+            with contextlib.ExitStack() as stack:
+                if make is not None:
+                    client = stack.enter_context(Client(stack.enter_context(make())))
+                    run = functools.partial(run_fleet, root, client=client)
+                    where |= set(client.run(lambda: __import__("fusion_gyrocal").__file__).values())
+                run()  # warm-up: imports in this process or in every worker, file cache
                 dt, df = best_of(run, repeat)
-                times[label].append(dt)
-                checks[label] = (int(df["ok"].sum()), len(df), float(df["seconds"].sum()))
-    finally:
-        for cluster, client in clusters:
-            client.close()
-            cluster.close()
+            times[label].append(dt)
+            checks[label] = (int(df["ok"].sum()), len(df), float(df["seconds"].sum()))
+    print(f"   package in this process: {__import__('fusion_gyrocal').__file__}; in the workers: {sorted(where)}")
     ref = times["serial loop, this process"]
     print(f"   {'engine':36s} {'seconds':>8s} {'devices/s':>10s} {'Msamples/s':>11s} {'/ serial':>9s} "
           f"{'rounds':>13s} {'sum of task s':>14s}  rows ok")

@@ -255,15 +255,37 @@ def test_run_fleet_dead_worker_fails_only_its_device(tmp_path):
     assert np.isfinite(healthy["rotvec_x"].to_numpy(float)).all()
 
 
-def test_fleet_cluster_workers_keep_glibc_adaptive_malloc():
+def _worker_page_faults(paths):
+    """Minor page faults of the task's thread over a second pass of :func:`device_rows` on ``paths``."""
+    import resource
+
+    from fusion_gyrocal.distributed.fleet import device_rows
+
+    device_rows(paths)
+    before = resource.getrusage(resource.RUSAGE_THREAD).ru_minflt
+    device_rows(paths)
+    return resource.getrusage(resource.RUSAGE_THREAD).ru_minflt - before
+
+
+def test_fleet_cluster_workers_reuse_memory_from_device_to_device(tmp_path):
     import os
 
-    from fusion_gyrocal.distributed.fleet import fleet_cluster
+    from fusion_gyrocal.distributed.fleet import WORKER_MALLOC, fleet_cluster
 
+    paths = []
+    for k in range(3):
+        paths.append(str(tmp_path / f"dev_{k}.parquet"))
+        _write_parquet(paths[-1], simulate_pair(rng=60 + k, n=20_000))
+    os.environ.pop("MALLOC_MMAP_THRESHOLD_", None)   # (a worker restarted by an earlier test's nanny writes it)
     os.environ["MALLOC_TRIM_THRESHOLD_"] = "65536"     # what a default cluster's nanny leaves in this process
     with fleet_cluster(1) as cluster, distributed.Client(cluster) as c:
-        env = c.run(lambda: (os.environ.get("MALLOC_TRIM_THRESHOLD_"), os.environ.get("OMP_NUM_THREADS")))
-    assert list(env.values()) == [(None, "1")]
+        env = c.run(lambda: tuple(os.environ.get(k) for k in (*WORKER_MALLOC, "OMP_NUM_THREADS")))
+        faults = c.submit(_worker_page_faults, paths, pure=False).result()
+    assert list(env.values()) == [(*map(str, WORKER_MALLOC.values()), "1")]
+    assert all(k not in os.environ for k in WORKER_MALLOC)   # this process's environment put back
+    # 3 devices touch ~40 MB a pass: mapped afresh (a thread's arena with glibc's adaptive thresholds, or
+    # distributed's trim threshold) that is ~10^4 faults; reused, a few dozen
+    assert faults < 1000, faults
 
 
 def test_run_fleet_folder_entries_that_are_no_device_get_error_rows(tmp_path):
