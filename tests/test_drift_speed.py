@@ -31,12 +31,11 @@ def _reference_innovations(w1, w2, use):
 
 
 @pytest.mark.parametrize("masked", [False, True])
-@pytest.mark.parametrize("threads", [1, 2])
-def test_random_walk_bias_moments_equal_one_filter_pass(drifting, masked, threads):
+def test_random_walk_bias_moments_equal_one_filter_pass(drifting, masked):
     w1, w2 = drifting
     use = np.random.default_rng(3).random(len(w1)) > 0.1 if masked else np.ones(len(w1), bool)
     m, scale, win = random_walk_bias_moments(w1, w2, WALK, PAPER_NOISE_STD, mask=use if masked else None,
-                                             window=100, threads=threads, max_windows=10 ** 9)
+                                             window=100, max_windows=10 ** 9)
     y, x, settle = _reference_innovations(w1, w2, use)
     ys = y[:, settle:]
     mu = ys.mean(axis=1)

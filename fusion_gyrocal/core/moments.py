@@ -974,8 +974,7 @@ def random_walk_gain(bias_walk_std, noise_std) -> tuple[float, float]:
 
 def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask=None,
                              chunk_size: int = CHUNK_SIZE, settle: int | None = None,
-                             window: int | None = None, threads: int | None = None,
-                             max_windows: int = MAX_SCORE_WINDOWS) -> tuple:
+                             window: int | None = None, max_windows: int = MAX_SCORE_WINDOWS) -> tuple:
     """Moments for a bias that drifts as a random walk, by the Kalman innovations filter.
 
     With ``r_k = omega_1(k) - A omega_2(k) = b_k + n_k``, a random-walk bias
@@ -1001,8 +1000,6 @@ def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask
         (each chunk's whole windows; for the block-robust covariance). As in :func:`window_stats`, work is
         bounded per log: beyond ``max_windows`` windows, those of chunks spread evenly over the log (each chunk's
         windows one run), ``max_windows`` at most.
-    threads : int, optional
-        2 (default where the CPU count allows) filters the next block of samples while this one is reduced.
 
     Returns
     -------
@@ -1022,7 +1019,7 @@ def random_walk_bias_moments(omega_1, omega_2, bias_walk_std, noise_std, *, mask
     count, mean, scatter = 0, np.zeros(6), np.zeros((6, 6))
     parts = []
     chosen = None if window is None else _window_chunks(filt.n, chunk_size, int(window), int(max_windows))
-    for start, y in filt.blocks(threads):
+    for start, y in filt.blocks():
         lo = max(0, settle - start)
         if lo >= y.shape[1]:
             continue
@@ -1085,23 +1082,12 @@ class _WalkFilter:
         y, self.zi = lfilter(self.b, self.a, x, axis=-1, zi=self.zi)
         return y
 
-    def blocks(self, threads: int | None = None):
-        """``(start, filtered block)`` in order; with two threads the next block is filtered while the caller
-        reduces this one (the filter's state makes the blocks themselves sequential)."""
-        starts = range(0, self.n, self.block)
-        if len(starts) < 2 or min(threads or _THREADS, 2) < 2:
-            for start in starts:
-                yield start, self.filtered(start)
-            return
-        from concurrent.futures import ThreadPoolExecutor
-
-        with ThreadPoolExecutor(1) as pool:
-            ahead = pool.submit(self.filtered, starts[0])
-            for i, start in enumerate(starts):
-                y = ahead.result()
-                if i + 1 < len(starts):
-                    ahead = pool.submit(self.filtered, starts[i + 1])
-                yield start, y
+    def blocks(self):
+        """``(start, filtered block)`` in order. The filter's state makes the blocks sequential, and scipy's
+        ``lfilter`` holds the GIL, so a thread filtering the next block while this one is reduced only contends
+        with the reduction (measured: 1.2x the time at 1e6 samples, 1.4x the CPU time)."""
+        for start in range(0, self.n, self.block):
+            yield start, self.filtered(start)
 
     def mean(self) -> np.ndarray:
         """Mean of the used samples (after every block)."""
