@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.moments import _THREADS, median
+from ..core.moments import median
 from ..errors import InputError, OptionError
 from .streams import DEFAULT_GAP_PERIODS, _nominal_period, _stream, timed_stream
 
@@ -367,29 +367,15 @@ def _resample_checked(t, w, ok, grid, gap: float):
         return out, inside
     # an increasing grid: block by block, each block's splines fitted on the source samples it reaches
     # plus _MARGIN on each side (equal to the whole record's splines to rounding), so memory stays
-    # bounded by the blocks in hand and the output; the blocks are independent, so two threads take them in
-    # turn (the banded solve and numpy's passes release the GIL: 0.13 -> 0.08 s wall at 720k instants, the
-    # same CPU time and the same numbers)
+    # bounded by the block and the output
     out = np.empty((grid.size, 3))
     inside = np.empty(grid.size, dtype=bool)
-
-    def block(lo: int):
+    for lo in range(0, grid.size, _GRID_BLOCK):
         g = grid[lo:lo + _GRID_BLOCK]
         i0 = max(int(np.searchsorted(t, g[0], side="left")) - _MARGIN, 0)
         i1 = min(int(np.searchsorted(t, g[-1], side="right")) + _MARGIN, t.size)
         spl = _RunSplines(t[i0:i1] - t_ref, w[i0:i1], ok[i0:i1], gap)
         out[lo:lo + g.size], inside[lo:lo + g.size] = spl(g - t_ref)
-
-    starts = range(0, grid.size, _GRID_BLOCK)
-    if _THREADS < 2:
-        for lo in starts:
-            block(lo)
-    else:
-        from concurrent.futures import ThreadPoolExecutor
-
-        with ThreadPoolExecutor(_THREADS) as pool:
-            for _ in pool.map(block, starts):   # (raises a block's error here)
-                pass
     return out, inside
 
 
