@@ -19,6 +19,9 @@ def test_median_equals_numpy(shape):
             got, want = median(x, axis=axis), np.median(x, axis=axis)
             assert np.shape(got) == np.shape(want)
             assert np.array_equal(got, want)
+            scratch = x.copy()      # partitioned in place: the same value, the same values in other places
+            assert np.array_equal(median(scratch, axis=axis, overwrite_input=True), want)
+            assert np.array_equal(np.sort(scratch, axis=-1), np.sort(x, axis=-1))
 
 
 def test_median_non_finite_and_other_axes_as_numpy():

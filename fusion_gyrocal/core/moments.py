@@ -87,23 +87,29 @@ def row_norms(x) -> np.ndarray:
     return np.sqrt(row_sumsq(x))
 
 
-def median(x, axis=None):
+def median(x, axis=None, overwrite_input: bool = False):
     """``np.median(x, axis)`` of a float64 array, the same values, partitioned at one point instead of numpy's three
     (the two middle ones and the last, its NaN test: about 4x the time): the lower middle value of an even count is
     the largest below the upper one, and the two are averaged as numpy's mean does. ``axis``: None (all values) or
-    the last; any other, another dtype, no values, or a NaN or inf among them: ``np.median`` itself."""
+    the last; any other, another dtype, no values, or a NaN or inf among them: ``np.median`` itself.
+    ``overwrite_input``: ``x`` (a temporary of the caller's) may be partitioned in place, as numpy's option: no
+    copy of it."""
     x = np.asarray(x)
     last = axis is None or axis == -1 or axis == x.ndim - 1
     if x.dtype != np.float64 or not last or x.size == 0 or x.ndim == 0:
-        return np.median(x, axis=axis)
+        return np.median(x, axis=axis, overwrite_input=overwrite_input)
     with np.errstate(invalid="ignore", over="ignore"):
         if not np.isfinite(np.add.reduce(x, axis=None)):
-            return np.median(x, axis=axis)
+            return np.median(x, axis=axis, overwrite_input=overwrite_input)
     if axis is None:
         x = x.reshape(-1)
     n = x.shape[-1]
     k = n // 2
-    part = np.partition(x, k, axis=-1)
+    if overwrite_input and x.flags.writeable:
+        x.partition(k, axis=-1)
+        part = x
+    else:
+        part = np.partition(x, k, axis=-1)
     hi = part[..., k]
     if n % 2:
         return hi

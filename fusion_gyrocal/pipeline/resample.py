@@ -294,8 +294,8 @@ def _query_steps(grid: np.ndarray) -> tuple[float, bool]:
     """``(period, increasing)``: the median spacing (s) of the finite instants of ``grid`` in time order (NaN with
     fewer than two) and whether ``grid`` is finite and strictly increasing.
 
-    One temporary of the steps and its partition at the median (:func:`~fusion_gyrocal.core.moments.median`: numpy's
-    value, one partition point); a long grid is not copied (only one with non-finite instants is compressed first).
+    One temporary of the steps, partitioned in place at the median (:func:`~fusion_gyrocal.core.moments.median`:
+    numpy's value, one partition point); a long grid is not copied (only one with non-finite instants is compressed first).
     """
     finite = bool(np.isfinite(grid).all())
     g = grid if finite else grid[np.isfinite(grid)]
@@ -308,7 +308,7 @@ def _query_steps(grid: np.ndarray) -> tuple[float, bool]:
         if g.size < 2:
             return float("nan"), False
         steps = np.diff(g)
-    return float(median(steps)), finite and increasing
+    return float(median(steps, overwrite_input=True)), finite and increasing
 
 
 def _lowpass(ratio: float) -> np.ndarray:
