@@ -433,10 +433,10 @@ def fleet_cluster(workers: int = 2, threads_per_worker: int = 1, **kwargs):
     scheduler does not retry a task whose worker died (``allowed-failures`` 0): :func:`run_fleet` runs each
     device that shared the dead worker again alone, so one device that exhausts memory cannot kill worker
     after worker. The workers' statistical profiler (a thread sampling every task's stack each 10 ms, for the
-    dashboard) is off: it takes CPU time from the devices. So is most of the event loops' tick, a timer that
-    measures their responsiveness for the dashboard: every second instead of every 20 ms (each wake-up takes
-    the GIL from the task; measured: devices ~7 % faster, an idle cluster of two workers 0.10 -> 0.04 of a
-    core; a loop stalled for over 3 s is still reported). (Each nanny also writes its variables into this
+    dashboard) is off: it takes CPU time from the devices. The event loops' tick, a timer that measures their
+    responsiveness for the dashboard, runs every second instead of every 20 ms (each wake-up takes the GIL
+    from the task; measured: devices ~7 % faster, an idle cluster of two workers 0.10 -> 0.04 of a core; a
+    loop stalled for over 3 s is still reported). (Each nanny also writes its variables into this
     process's environment, where they would override the next cluster's settings: distributed's
     ``MALLOC_TRIM_THRESHOLD_`` value is removed from it before the start, and the environment is put back
     after it; a value the user set there wins, as in distributed.)

@@ -295,7 +295,8 @@ def _query_steps(grid: np.ndarray) -> tuple[float, bool]:
     fewer than two) and whether ``grid`` is finite and strictly increasing.
 
     One temporary of the steps, partitioned in place at the median (:func:`~fusion_gyrocal.core.moments.median`:
-    numpy's value, one partition point); a long grid is not copied (only one with non-finite instants is compressed first).
+    numpy's value, one partition point); a long grid is not copied (only one with non-finite instants is
+    compressed first).
     """
     finite = bool(np.isfinite(grid).all())
     g = grid if finite else grid[np.isfinite(grid)]
