@@ -267,7 +267,7 @@ def _worker_page_faults(paths):
     return resource.getrusage(resource.RUSAGE_THREAD).ru_minflt - before
 
 
-def test_fleet_cluster_workers_reuse_memory_from_device_to_device(tmp_path):
+def test_fleet_cluster_workers_reuse_memory_from_device_to_device(tmp_path, monkeypatch):
     import os
 
     from fusion_gyrocal.distributed.fleet import WORKER_MALLOC, fleet_cluster
@@ -276,13 +276,14 @@ def test_fleet_cluster_workers_reuse_memory_from_device_to_device(tmp_path):
     for k in range(3):
         paths.append(str(tmp_path / f"dev_{k}.parquet"))
         _write_parquet(paths[-1], simulate_pair(rng=60 + k, n=20_000))
-    os.environ.pop("MALLOC_MMAP_THRESHOLD_", None)   # (a worker restarted by an earlier test's nanny writes it)
-    os.environ["MALLOC_TRIM_THRESHOLD_"] = "65536"     # what a default cluster's nanny leaves in this process
+    for k in ("MALLOC_MMAP_THRESHOLD_", "OMP_NUM_THREADS", "PYTHONHASHSEED"):   # (a worker restarted by an
+        monkeypatch.delenv(k, raising=False)                                     # earlier test's nanny writes them)
+    monkeypatch.setenv("MALLOC_TRIM_THRESHOLD_", "65536")     # what a default cluster's nanny leaves in this process
     with fleet_cluster(1) as cluster, distributed.Client(cluster) as c:
         env = c.run(lambda: tuple(os.environ.get(k) for k in (*WORKER_MALLOC, "OMP_NUM_THREADS")))
         faults = c.submit(_worker_page_faults, paths, pure=False).result()
     assert list(env.values()) == [(*map(str, WORKER_MALLOC.values()), "1")]
-    assert all(k not in os.environ for k in WORKER_MALLOC)   # this process's environment put back
+    assert all(k not in os.environ for k in (*WORKER_MALLOC, "OMP_NUM_THREADS", "PYTHONHASHSEED"))   # put back
     # 3 devices touch ~40 MB a pass: mapped afresh (a thread's arena with glibc's adaptive thresholds, or
     # distributed's trim threshold) that is ~10^4 faults; reused, a few dozen
     assert faults < 1000, faults

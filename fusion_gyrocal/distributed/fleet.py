@@ -436,8 +436,9 @@ def fleet_cluster(workers: int = 2, threads_per_worker: int = 1, **kwargs):
     dashboard) is off: it takes CPU time from the devices. The event loops' tick, a timer that measures their
     responsiveness for the dashboard, runs every second instead of every 20 ms (each wake-up takes the GIL
     from the task; measured: devices ~7 % faster, an idle cluster of two workers 0.10 -> 0.04 of a core; a
-    loop stalled for over 3 s is still reported). (Each nanny also writes its variables into this
-    process's environment, where they would override the next cluster's settings: distributed's
+    loop stalled for over 3 s is still reported). (Each nanny also writes its variables, these
+    thresholds and distributed's ``OMP_NUM_THREADS=1`` and the like, into this process's environment, where they
+    would reach the processes it starts later and override the next cluster's settings: distributed's
     ``MALLOC_TRIM_THRESHOLD_`` value is removed from it before the start, and the environment is put back
     after it; a value the user set there wins, as in distributed.)
 
@@ -465,16 +466,18 @@ def fleet_cluster(workers: int = 2, threads_per_worker: int = 1, **kwargs):
     kwargs = {"host": "127.0.0.1", "dashboard_address": None, **kwargs}
     if os.environ.get("MALLOC_TRIM_THRESHOLD_") == str(_DISTRIBUTED_TRIM):   # left by a default cluster's nanny
         del os.environ["MALLOC_TRIM_THRESHOLD_"]
-    before = {k: os.environ.get(k) for k in WORKER_MALLOC}
-    try:
-        with dask.config.set(settings):
+    with dask.config.set(settings):
+        # what each nanny writes into os.environ: its pre-spawn variables, and a fixed PYTHONHASHSEED where unset
+        written = [*dask.config.get("distributed.nanny.pre-spawn-environ"), "PYTHONHASHSEED"]
+        before = {k: os.environ.get(k) for k in written}
+        try:
             return LocalCluster(n_workers=workers, threads_per_worker=threads_per_worker, processes=True, **kwargs)
-    finally:   # the nannies wrote the workers' thresholds into this process's environment: put it back
-        for k, v in before.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
+        finally:   # put this process's environment back
+            for k, v in before.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
 
 
 def write_results(df, path) -> Path:
