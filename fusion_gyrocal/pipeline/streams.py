@@ -12,7 +12,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..core.moments import as_rates, column_extremes, finite_rows
+from ..core.moments import as_rates, column_extremes, finite_rows, median
 from ..errors import InputError, OptionError
 from ..units import DEG, RATE_FACTORS, RATE_UNITS, TIME_UNITS  # noqa: F401  (DEG: also this module's name)
 
@@ -532,9 +532,9 @@ def timed_stream(name_t, t, name_w, omega, valid):
 
 def _nominal_period(t: np.ndarray) -> float:
     """``median(diff(t))`` (kept for remembered timestamps, :func:`remember_timestamps`; else the steps partitioned
-    in place: one temporary)."""
+    in place, :func:`~fusion_gyrocal.core.moments.median` as the resampling's query steps: one temporary)."""
     known = _known(t)
-    return known.median_step if known is not None else float(np.median(np.diff(t), overwrite_input=True))
+    return known.median_step if known is not None else float(median(np.diff(t), overwrite_input=True))
 
 
 def grid_rate(t) -> float | None:
