@@ -185,6 +185,11 @@ def _numbers(gyros) -> str:
     return g[0] if len(g) == 1 else f"{', '.join(g[:-1])} and {g[-1]}"
 
 
+def _labels(gyros) -> tuple:
+    """The rotations' names ``R_i_k`` of the ``(i, k)`` of :func:`_rotations_of`."""
+    return tuple(f"R_{i}_{k}" for i, k in gyros)
+
+
 def _rotations_of(cal) -> tuple[list, np.ndarray, tuple]:
     """``(rotations, repeatable covariance (3m, 3m), gyros)`` of a pair or an array calibration; ``gyros``: the
     1-based ``(reference, k)`` of each rotation ``R_ref_k``."""
@@ -327,11 +332,11 @@ def compare_sessions(calibrations, names=None, *, alpha: float = ALPHA) -> Sessi
         raise InputError(f"alpha: expected a false-alarm rate in (0, 1), got {alpha!r}")
     parts = [_rotations_of(c) for c in cals]
     gyros = parts[0][2]
-    labels = tuple(f"R_{i}_{k}" for i, k in gyros)
+    labels = _labels(gyros)
     for name, (_, _, other) in zip(names, parts):
         if other != gyros:
             raise InputError(f"sessions: expected calibrations of the same gyros ({', '.join(labels)}), got "
-                             f"{', '.join(f'R_{i}_{k}' for i, k in other)} in {name}")
+                             f"{', '.join(_labels(other))} in {name}")
     rotations = [p[0] for p in parts]
     base = rotations[0]
     Ps = [p[1] for p in parts]
